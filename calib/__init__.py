@@ -1,0 +1,1 @@
+"""calib: camera-to-robot-base calibration from single-joint rotation sweeps."""

@@ -1,0 +1,1 @@
+"""ident: robot dynamics, signals, friction models and estimators, gap diagnosis, studies, CLI."""

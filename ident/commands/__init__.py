@@ -1,0 +1,1 @@
+"""Subcommands of the jointlab CLI, one module each (register/run)."""

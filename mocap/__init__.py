@@ -1,0 +1,8 @@
+"""mocap: marker recordings in, link angles out.
+
+Readers convert to time-first arrays in metres once, at the file boundary.
+"""
+from .errors import InputError
+from .recording import MarkerRecording
+
+__all__ = ["InputError", "MarkerRecording"]

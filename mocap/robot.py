@@ -1,0 +1,271 @@
+"""Robot description: a serial revolute chain loaded from URDF with pinocchio, plus its drives.
+
+``Robot`` is the immutable description (pinocchio's ``model``); pinocchio ``data`` buffers are
+created where the work runs. Kinematics for many frames go through :class:`mocap.kinematics.Chain`
+(numpy, batched); dynamics go through pinocchio.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .kinematics import Chain
+
+_DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
+               "encoder_resolution")
+
+
+@dataclass(frozen=True)
+class Drive:
+    """Motor-side parameters of one joint, referred to the link side (FORMAT.md)."""
+
+    name: str
+    gear_ratio: float = 1.0
+    motor_inertia: float = 0.0
+    motor_viscous: float = 0.0
+    max_velocity: float = float("inf")
+    max_torque: float = float("inf")
+    encoder_resolution: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = {"name": self.name}
+        d.update({k: getattr(self, k) for k in _DRIVE_KEYS})
+        d.update(self.extra)
+        return d
+
+
+def read_drives(path: str | Path) -> tuple[Drive, ...]:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("drives file not found", path=path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", path=path) from None
+    joints = doc.get("joint")
+    if not isinstance(joints, list) or not joints:
+        raise InputError("expected one [[joint]] table per joint", path=path)
+    drives = []
+    for k, tab in enumerate(joints, start=1):
+        if "name" not in tab:
+            raise InputError(f"[[joint]] number {k} has no 'name'", path=path)
+        vals = {}
+        for key in _DRIVE_KEYS:
+            if key in tab:
+                v = tab[key]
+                if not isinstance(v, (int, float)) or isinstance(v, bool):
+                    raise InputError(f"joint {tab['name']!r}: {key} must be a number, got {v!r}",
+                                     path=path, label=key)
+                vals[key] = float(v)
+        extra = {kk: vv for kk, vv in tab.items() if kk not in _DRIVE_KEYS and kk != "name"}
+        drives.append(Drive(name=str(tab["name"]), extra=extra, **vals))
+    return tuple(drives)
+
+
+def write_drives(path: str | Path, drives, overwrite: bool = False) -> Path:
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; refusing to overwrite")
+    out = []
+    for d in drives:
+        out.append("[[joint]]")
+        out.append(f'name = "{d.name}"')
+        for k in _DRIVE_KEYS:
+            out.append(f"{k} = {float(getattr(d, k))!r}")
+        out.append("")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(out), encoding="utf-8")
+    return path
+
+
+def _joint_axis(jm) -> np.ndarray:
+    short = jm.shortname()
+    table = {"JointModelRX": (1, 0, 0), "JointModelRY": (0, 1, 0), "JointModelRZ": (0, 0, 1)}
+    if short in table:
+        return np.array(table[short], float)
+    if short == "JointModelRevoluteUnaligned":
+        return np.asarray(jm.extract().axis, float).copy()
+    return None
+
+
+class Robot:
+    """A serial chain of revolute joints with drives.
+
+    Parameters
+    ----------
+    model : pinocchio.Model built from the URDF (fixed joints merged).
+    drives : one :class:`Drive` per joint, in joint order (defaults from URDF limits if omitted).
+    gravity : gravity vector in the base frame.
+    """
+
+    def __init__(self, model, drives=None, gravity=(0.0, 0.0, -9.81), urdf: Path | None = None):
+        import pinocchio as pin
+
+        self.model = model
+        self.urdf = urdf
+        self.model.gravity.linear = np.asarray(gravity, float)
+        n = model.njoints - 1
+        axes, placements, names = [], [], []
+        for i in range(1, model.njoints):
+            jm = model.joints[i]
+            ax = _joint_axis(jm)
+            if ax is None or jm.nq != 1:
+                raise InputError(f"joint {model.names[i]!r} is {jm.shortname()}; only revolute joints "
+                                 "are supported", path=urdf, label=model.names[i])
+            if model.parents[i] != i - 1:
+                raise InputError(f"joint {model.names[i]!r} does not continue a serial chain",
+                                 path=urdf, label=model.names[i])
+            axes.append(ax / np.linalg.norm(ax))
+            placements.append(model.jointPlacements[i].homogeneous)
+            names.append(model.names[i])
+        frames = {}
+        for f in model.frames:
+            if f.type == pin.FrameType.BODY:
+                frames[f.name] = (int(f.parentJoint) - 1, f.placement.homogeneous.copy())
+        self.chain = Chain(np.array(placements).reshape(n, 4, 4), np.array(axes).reshape(n, 3),
+                           tuple(names), frames)
+        if drives is None:
+            drives = tuple(Drive(name=nm, max_velocity=float(model.velocityLimit[k]),
+                                 max_torque=float(model.effortLimit[k])) for k, nm in enumerate(names))
+        drives = tuple(drives)
+        if len(drives) != n:
+            raise InputError(f"drives describe {len(drives)} joints but the URDF has {n} revolute joints",
+                             path=urdf)
+        self.drives = drives
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def from_urdf(cls, urdf: str | Path, drives: str | Path | None = None,
+                  gravity=(0.0, 0.0, -9.81)) -> "Robot":
+        import pinocchio as pin
+
+        urdf = Path(urdf)
+        if not urdf.is_file():
+            raise InputError("URDF not found", path=urdf)
+        try:
+            model = pin.buildModelFromUrdf(str(urdf))
+        except (RuntimeError, ValueError) as exc:
+            raise InputError(f"pinocchio could not read the URDF: {exc}", path=urdf) from None
+        dr = read_drives(drives) if drives is not None else None
+        return cls(model, dr, gravity, urdf)
+
+    # ---- description --------------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        return self.chain.n
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.chain.joint_names
+
+    @property
+    def link_names(self) -> tuple[str, ...]:
+        return tuple(self.chain.frames)
+
+    @property
+    def lower(self) -> np.ndarray:
+        return np.asarray(self.model.lowerPositionLimit, float).copy()
+
+    @property
+    def upper(self) -> np.ndarray:
+        return np.asarray(self.model.upperPositionLimit, float).copy()
+
+    @property
+    def max_velocity(self) -> np.ndarray:
+        return np.array([d.max_velocity for d in self.drives])
+
+    @property
+    def max_torque(self) -> np.ndarray:
+        return np.array([d.max_torque for d in self.drives])
+
+    @property
+    def gravity(self) -> np.ndarray:
+        return np.asarray(self.model.gravity.linear, float).copy()
+
+    def link_of_joint(self, j: int) -> str:
+        """Name of the link carried by joint ``j`` (0-based): the body frame at its origin."""
+        for name, (jj, T) in self.chain.frames.items():
+            if jj == j and np.allclose(T, np.eye(4)):
+                return name
+        for name, (jj, _) in self.chain.frames.items():
+            if jj == j:
+                return name
+        raise KeyError(f"no link attached to joint {j}")
+
+    def describe(self) -> dict:
+        return {
+            "urdf": None if self.urdf is None else str(self.urdf),
+            "n_joints": self.n,
+            "joints": [
+                {"name": nm, "lower": float(lo), "upper": float(up), "max_velocity": d.max_velocity,
+                 "max_torque": d.max_torque, "link": self.link_of_joint(k)}
+                for k, (nm, lo, up, d) in enumerate(zip(self.joint_names, self.lower, self.upper,
+                                                        self.drives))
+            ],
+            "links": list(self.link_names),
+            "gravity": self.gravity.tolist(),
+        }
+
+    # ---- kinematics ---------------------------------------------------------------------
+    def frame_transform(self, name: str, q) -> np.ndarray:
+        """``T_base_<name>`` for q (n,) or (T, n)."""
+        return self.chain.frame_transform(name, q)
+
+    # ---- dynamics (pinocchio) -------------------------------------------------------------
+    def with_payload(self, mass: float, p_flange=(0.0, 0.0, 0.0), link: str | None = None) -> "Robot":
+        """A copy with a point mass ``mass`` (kg) at ``p_flange`` in the frame of ``link``
+        (default: the last link)."""
+        import pinocchio as pin
+
+        model = self.model.copy()
+        if mass > 0:
+            link = link or self.link_of_joint(self.n - 1)
+            j, T_jf = self.chain.frames[link]
+            p_joint = T_jf[:3, :3] @ np.asarray(p_flange, float) + T_jf[:3, 3]
+            model.appendBodyToJoint(j + 1, pin.Inertia(float(mass), p_joint, np.zeros((3, 3))),
+                                    pin.SE3.Identity())
+        return Robot(model, self.drives, self.gravity, self.urdf)
+
+    def rnea(self, q, qd, qdd) -> np.ndarray:
+        """Inverse dynamics without friction, (T, n) or (n,). Loops in C++ per sample."""
+        import pinocchio as pin
+
+        q, qd, qdd = (np.atleast_2d(np.asarray(a, float)) for a in (q, qd, qdd))
+        data = self.model.createData()
+        out = np.empty_like(q)
+        for k in range(q.shape[0]):
+            out[k] = pin.rnea(self.model, data, q[k], qd[k], qdd[k])
+        return out if out.shape[0] > 1 else out[0]
+
+    def mass_matrix(self, q) -> np.ndarray:
+        import pinocchio as pin
+
+        data = self.model.createData()
+        M = pin.crba(self.model, data, np.asarray(q, float))
+        return np.triu(M) + np.triu(M, 1).T
+
+    def gravity_torque(self, q) -> np.ndarray:
+        import pinocchio as pin
+
+        q = np.atleast_2d(np.asarray(q, float))
+        data = self.model.createData()
+        out = np.array([pin.computeGeneralizedGravity(self.model, data, qk) for qk in q])
+        return out if out.shape[0] > 1 else out[0]
+
+    def single_joint_dynamics(self, j: int, q_rest) -> tuple[float, float, float]:
+        """For joint ``j`` (0-based) moving alone with the others held at ``q_rest``:
+        the constants ``(I, a, b)`` with ``tau_j = I qdd + a sin(q_j) + b cos(q_j)`` exactly
+        (link inertia about the axis is constant; gravity torque is a sinusoid in q_j)."""
+        q0 = np.array(q_rest, float)
+        M = self.mass_matrix(q0)
+        I = float(M[j, j])
+        qa, qb = q0.copy(), q0.copy()
+        qa[j], qb[j] = np.pi / 2, 0.0
+        ga = float(self.gravity_torque(qa)[j])
+        gb = float(self.gravity_torque(qb)[j])
+        return I, ga, gb
