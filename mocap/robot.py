@@ -187,6 +187,12 @@ class Robot:
     def gravity(self) -> np.ndarray:
         return np.asarray(self.model.gravity.linear, float).copy()
 
+    @property
+    def tip_link(self) -> str:
+        """The most distal body frame (the flange or tool link of a serial chain)."""
+        names = [nm for nm, (jj, _) in self.chain.frames.items() if jj == self.n - 1]
+        return names[-1]
+
     def link_of_joint(self, j: int) -> str:
         """Name of the link carried by joint ``j`` (0-based): the body frame at its origin."""
         for name, (jj, T) in self.chain.frames.items():
@@ -219,12 +225,12 @@ class Robot:
     # ---- dynamics (pinocchio) -------------------------------------------------------------
     def with_payload(self, mass: float, p_flange=(0.0, 0.0, 0.0), link: str | None = None) -> "Robot":
         """A copy with a point mass ``mass`` (kg) at ``p_flange`` in the frame of ``link``
-        (default: the last link)."""
+        (default: the most distal body frame of the URDF, i.e. the flange or tool link)."""
         import pinocchio as pin
 
         model = self.model.copy()
         if mass > 0:
-            link = link or self.link_of_joint(self.n - 1)
+            link = link or self.tip_link
             j, T_jf = self.chain.frames[link]
             p_joint = T_jf[:3, :3] @ np.asarray(p_flange, float) + T_jf[:3, 3]
             model.appendBodyToJoint(j + 1, pin.Inertia(float(mass), p_joint, np.zeros((3, 3))),

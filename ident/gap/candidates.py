@@ -1,0 +1,154 @@
+"""Candidate effects: parametric augmentations of the nominal model, one per vocabulary name.
+
+Each candidate adds regressor columns to one channel's nominal model. Nonlinear shape
+parameters (a Stribeck velocity, a ripple harmonic, a warm-up time constant, a bristle length)
+are searched over a grid; the amplitudes are linear. The shapes are deliberately generic
+families (several exponents, harmonics, time constants), not the simulator's exact forms, so the
+diagnosis recognises an effect from its physics rather than from one formula.
+
+Channels: ``torque`` (motor torque against the rigid Coulomb+viscous model) and
+``transmission`` (link angle from markers minus motor angle).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+V_EPS = 2e-3  # rad/s: width of the smoothed sign used for Coulomb-type terms
+
+
+def ssign(qd: np.ndarray) -> np.ndarray:
+    """Smoothed sign of velocity (Coulomb direction)."""
+    return np.tanh(qd / V_EPS)
+
+
+def bristle_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) -> np.ndarray:
+    """Friction direction with presliding: after each reversal the friction goes from the old
+    sign to the new one over a travelled distance ~``x0`` (LuGre bristle with saturated state
+    at each reversal: ``s = sign (1 - 2 exp(-|q - q_rev| / x0))``). Vectorised over samples."""
+    sgn = np.where(qd >= 0, 1.0, -1.0)
+    n = q.shape[0]
+    start = np.ones(n, bool)
+    start[1:] = (sgn[1:] != sgn[:-1]) | (trial[1:] != trial[:-1])
+    idx = np.where(start, np.arange(n), 0)
+    np.maximum.accumulate(idx, out=idx)
+    first_of_trial = np.ones(n, bool)
+    first_of_trial[1:] = trial[1:] != trial[:-1]
+    seg_is_first = np.maximum.accumulate(np.where(first_of_trial, np.arange(n), 0)) == idx
+    d = np.abs(q - q[idx])
+    s = sgn * (1.0 - 2.0 * np.exp(-d / x0))
+    return np.where(seg_is_first, sgn, s)  # no reversal seen yet in this trial: saturated
+
+
+@dataclass(frozen=True)
+class Candidate:
+    name: str
+    channel: str
+    grid: tuple
+    columns: Callable  # (JointData, hp) -> (N, k)
+    describe: Callable = lambda hp: ""  # noqa: E731
+
+
+def _stribeck(d, hp):
+    vs, shape = hp
+    return (ssign(d.qd) * np.exp(-(np.abs(d.qd) / vs) ** shape))[:, None]
+
+
+def _presliding(d, hp):
+    return (bristle_sign(d.q, d.qd, d.trial, hp) - ssign(d.qd))[:, None]
+
+
+def _ripple(d, hp):
+    return np.column_stack([np.sin(hp * d.q), np.cos(hp * d.q)])
+
+
+def _load(d, hp):
+    return (ssign(d.qd) * np.abs(d.tau_urdf))[:, None]
+
+
+def _thermal(d, hp):
+    tt = d.t - d.t.min()
+    w = np.exp(-tt / hp) if np.isfinite(hp) else 1.0 - tt / max(tt.max(), 1e-9)
+    return np.column_stack([ssign(d.qd) * w, d.qd * w])
+
+
+def _scale(d, hp):
+    return d.tau_urdf[:, None]
+
+
+def _asym(d, hp):
+    pos = d.qd > 0
+    return np.column_stack([np.abs(ssign(d.qd)), d.qd * pos])
+
+
+def _nlv(d, hp):
+    return (np.sign(d.qd) * np.abs(d.qd) ** hp)[:, None]
+
+
+def _compliance(d, hp):
+    return d.y_m[:, None]
+
+
+def _backlash(d, hp):
+    kind, width = hp
+    if kind == "torque":
+        scale = width * max(np.percentile(np.abs(d.y_m), 95), 1e-9)
+        return np.tanh(d.y_m / scale)[:, None]
+    return np.tanh(d.qd_m / width)[:, None]
+
+
+def _time_offset(d, hp):
+    return d.qd_m[:, None]
+
+
+def candidates(gear_ratio: float | None = None) -> list[Candidate]:
+    ripple_k = list(range(1, 49))
+    if gear_ratio and gear_ratio > 48:
+        ripple_k += [gear_ratio, 2 * gear_ratio]
+    return [
+        Candidate("stribeck", "torque",
+                  tuple((vs, sh) for vs in np.geomspace(0.005, 0.4, 12) for sh in (0.5, 1.0, 2.0)),
+                  _stribeck, lambda hp: f"Stribeck velocity {hp[0]:.3g} rad/s, shape exponent {hp[1]:g}"),
+        Candidate("presliding", "torque", tuple(np.geomspace(1e-4, 3e-2, 12)), _presliding,
+                  lambda hp: f"presliding length {hp:.2e} rad"),
+        Candidate("position_ripple", "torque", tuple(float(k) for k in ripple_k), _ripple,
+                  lambda hp: f"{hp:g} cycles per joint revolution"),
+        Candidate("load_dependent", "torque", (None,), _load,
+                  lambda hp: "Coulomb level proportional to |transmitted torque|"),
+        Candidate("thermal_drift", "torque", tuple(np.geomspace(20, 5000, 10)) + (np.inf,), _thermal,
+                  lambda hp: "linear drift over the campaign" if not np.isfinite(hp)
+                  else f"warm-up time constant {hp:.0f} s"),
+        Candidate("torque_scale", "torque", (None,), _scale, lambda hp: "torque proportional to rigid-body torque"),
+        Candidate("asymmetry", "torque", (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous"),
+        Candidate("nonlinear_viscous", "torque", (0.5, 1.5, 2.0, 3.0), _nlv,
+                  lambda hp: f"viscous term |qd|^{hp:g}"),
+        Candidate("compliance", "transmission", (None,), _compliance,
+                  lambda hp: "deflection proportional to transmitted torque"),
+        Candidate("backlash", "transmission",
+                  tuple(("torque", w) for w in (0.005, 0.02, 0.05)) + tuple(("motion", w) for w in (0.002, 0.01)),
+                  _backlash, lambda hp: f"dead band switching with {hp[0]} sign"),
+        Candidate("time_offset", "transmission", (None,), _time_offset,
+                  lambda hp: "marker clock shifted: q_link(t) = q(t + dt)"),
+    ]
+
+
+# Which effects look alike in a campaign, and the experiment that separates them.
+CONFOUNDERS = {
+    "stribeck": (["presliding", "nonlinear_viscous"],
+                 "constant-velocity sweeps at several low speeds (Stribeck curve) against reversals at several accelerations (presliding)"),
+    "presliding": (["stribeck", "backlash"],
+                   "reversals at several accelerations with small amplitude (presliding hysteresis) and a marker-based link angle (backlash)"),
+    "position_ripple": (["thermal_drift"], "constant-velocity sweeps over the full joint range in both directions"),
+    "load_dependent": (["torque_scale", "asymmetry"],
+                       "the same trajectory at two or more payloads with both gravity signs"),
+    "thermal_drift": (["load_dependent", "position_ripple"],
+                      "repeat one reference trajectory at the start and the end of the campaign, and after a rest"),
+    "torque_scale": (["load_dependent"], "trials at two or more payloads (a torque scale is invisible with one payload)"),
+    "asymmetry": (["position_ripple"], "constant-velocity sweeps in both directions over the same range"),
+    "nonlinear_viscous": (["stribeck"], "constant-velocity sweeps up to the maximum speed"),
+    "compliance": (["backlash", "time_offset"], "quasi-static trials at several payloads (deflection vs torque)"),
+    "backlash": (["compliance", "presliding"], "slow reversals under low load with markers on the link"),
+    "time_offset": (["compliance"], "a fast sinusoid at low load: a clock shift grows with speed, a deflection with torque"),
+}

@@ -1,0 +1,159 @@
+"""Signals of one joint over a campaign, prepared for the gap diagnosis.
+
+Everything the diagnosis needs is computed once per trial and concatenated over trials:
+motor angle and its derivatives (Savitzky-Golay on the log clock), the torque left for the link
+side after the motor side of eq. 2-4 is moved to the right (``y = tau - J qmdd - B qmd``), the
+URDF's rigid-body torque for the trial's payload and rest pose, and, where link angles are
+available (mocap), the transmission residual ``q_link - q_motor`` on the marker clock.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+
+def savgol_derivatives(t: np.ndarray, x: np.ndarray, window_s: float = 0.1, polyorder: int = 3):
+    """(x_smooth, xd, xdd) by Savitzky-Golay on a uniformly sampled signal."""
+    dt = float(np.median(np.diff(t)))
+    w = int(round(window_s / dt)) | 1
+    w = max(w, polyorder + 2 | 1)
+    if w > x.shape[0]:
+        w = (x.shape[0] - 1) | 1 if x.shape[0] % 2 == 0 else x.shape[0]
+        w = max(w, polyorder + 1 + ((polyorder + 1) % 2 == 0))
+    xs = savgol_filter(x, w, polyorder, deriv=0, mode="interp")
+    xd = savgol_filter(x, w, polyorder, deriv=1, delta=dt, mode="interp")
+    xdd = savgol_filter(x, w, polyorder, deriv=2, delta=dt, mode="interp")
+    return xs, xd, xdd
+
+
+def fill_nan(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    ok = np.isfinite(x)
+    if ok.all():
+        return x
+    if ok.sum() < 2:
+        raise ValueError("too few valid samples")
+    return np.interp(t, t[ok], x[ok])
+
+
+@dataclass
+class JointData:
+    """Samples of one joint concatenated over its trials (log clock), plus per-trial metadata.
+
+    Torque channel arrays have length N (log samples); transmission arrays length Nm (marker
+    frames with a valid link angle). ``trial`` / ``trial_m`` index into ``trials``.
+    """
+
+    joint: int                      # 1-based
+    trials: list                    # Trial entries (manifest order)
+    trial: np.ndarray               # (N,) trial index
+    t: np.ndarray                   # (N,) campaign clock, s
+    t_rel: np.ndarray               # (N,) time since the trial's start, s
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    y: np.ndarray                   # tau - J qmdd - B qmd
+    tau_urdf: np.ndarray            # rigid-body torque from the URDF (payload, rest pose)
+    urdf_regs: np.ndarray           # (N, 3) [qdd, sin q, cos q] for base-parameter corrections
+    load: np.ndarray                # (N,) kg
+    vmax: float                     # joint max velocity, rad/s
+    tau_max: float
+    # transmission channel (may be empty)
+    trial_m: np.ndarray
+    e: np.ndarray                   # q_link - q_motor at marker times
+    qd_m: np.ndarray
+    y_m: np.ndarray
+    t_m: np.ndarray
+    rep: np.ndarray                 # per-trial repetition number
+    group: np.ndarray               # per-trial condition index (same load, speed, kind)
+    fold: np.ndarray                # per-trial held-out fold
+
+    @property
+    def n_trials(self) -> int:
+        return len(self.trials)
+
+    @property
+    def has_transmission(self) -> bool:
+        return self.e.size > 0
+
+    def subset_mask(self, trial_ids) -> np.ndarray:
+        return np.isin(self.trial, np.asarray(list(trial_ids), int))
+
+
+def campaign_clock(logs: list) -> list[float]:
+    """Offsets that put each trial on one campaign clock.
+
+    If the logs' time ranges already follow each other in manifest order (one controller clock),
+    the offsets are 0; otherwise each trial is placed after the previous one (manifest order).
+    """
+    starts = [float(lg.time[0]) for lg in logs]
+    ends = [float(lg.time[-1]) for lg in logs]
+    if all(s >= e_prev for s, e_prev in zip(starts[1:], ends[:-1])):
+        return [0.0] * len(logs)
+    offsets, clock = [], 0.0
+    for s, e in zip(starts, ends):
+        offsets.append(clock - s)
+        clock += (e - s) + 1.0
+    return offsets
+
+
+def build_joint_data(joint: int, trials, logs, robot, angles=None) -> JointData:
+    """Assemble :class:`JointData` for ``joint`` (1-based) from trials moving only that joint.
+
+    ``logs[i]`` is the RobotLog of ``trials[i]``; ``angles`` maps trial id -> (t_marker, q_link)
+    of the joint (mocap), or is None.
+    """
+    j0 = joint - 1
+    drive = robot.drives[j0]
+    J, B = drive.motor_inertia, drive.motor_viscous
+    offsets = campaign_clock(logs)
+    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "y", "tau_urdf", "regs", "load",
+                            "trial_m", "e", "qd_m", "y_m", "t_m")}
+    cache = {}
+    for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
+        t = lg.time
+        qm = fill_nan(t, lg.qm[:, j0])
+        tau = fill_nan(t, lg.tau[:, j0])
+        q, qd, qdd = savgol_derivatives(t, qm)
+        rest = np.where(np.isfinite(lg.qm[0]), np.nanmedian(lg.qm, axis=0), 0.0)
+        rest[j0] = 0.0
+        key = (round(tr.load_kg, 9), tuple(np.round(rest, 4)))
+        if key not in cache:
+            rb = robot.with_payload(tr.load_kg) if tr.load_kg > 0 else robot
+            cache[key] = rb.single_joint_dynamics(j0, rest)
+        I_u, a_u, b_u = cache[key]
+        s, c = np.sin(q), np.cos(q)
+        y = tau - J * qdd - B * qd
+        cols["trial"].append(np.full(t.shape, i))
+        cols["t"].append(t + off)
+        cols["t_rel"].append(t - t[0])
+        cols["q"].append(q)
+        cols["qd"].append(qd)
+        cols["qdd"].append(qdd)
+        cols["y"].append(y)
+        cols["tau_urdf"].append(I_u * qdd + a_u * s + b_u * c)
+        cols["regs"].append(np.column_stack([qdd, s, c]))
+        cols["load"].append(np.full(t.shape, tr.load_kg))
+        if angles is not None and tr.id in angles:
+            tm, ql = angles[tr.id]
+            ok = np.isfinite(ql) & (tm >= t[0]) & (tm <= t[-1])
+            tm, ql = tm[ok], ql[ok]
+            cols["trial_m"].append(np.full(tm.shape, i))
+            cols["e"].append(ql - np.interp(tm, t, qm))
+            cols["qd_m"].append(np.interp(tm, t, qd))
+            cols["y_m"].append(np.interp(tm, t, y))
+            cols["t_m"].append(tm + off)
+    cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k == "regs" else 0)) for k, v in cols.items()}
+    reps = np.array([tr.repetition for tr in trials])
+    conds = [(round(tr.load_kg, 6), round(tr.vmax_frac, 6), tr.kind) for tr in trials]
+    uniq = {c: k for k, c in enumerate(dict.fromkeys(conds))}
+    group = np.array([uniq[c] for c in conds])
+    # leave-one-repetition-out when repetitions exist, else leave-one-trial-out
+    fold = reps.copy() if len(set(reps.tolist())) > 1 else np.arange(len(trials))
+    return JointData(joint=joint, trials=list(trials), trial=cat["trial"].astype(int), t=cat["t"],
+                     t_rel=cat["t_rel"], q=cat["q"], qd=cat["qd"], qdd=cat["qdd"], y=cat["y"],
+                     tau_urdf=cat["tau_urdf"], urdf_regs=cat["regs"], load=cat["load"],
+                     vmax=float(drive.max_velocity), tau_max=float(drive.max_torque),
+                     trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
+                     t_m=cat["t_m"], rep=reps, group=group, fold=fold)
