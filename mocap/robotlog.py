@@ -85,17 +85,27 @@ def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
         raise InputError(f"no 'time' column in the header (found {header})", path=path, line=1)
     if len(set(header)) != len(header):
         raise InputError("duplicate column names in the header", path=path, line=1)
-    rows = []
-    for i, ln in enumerate(lines[1:], start=2):
+    data = None
+    try:  # fast path: a complete numeric table (C parser); anything unusual takes the slow path
+        data = np.loadtxt(lines[1:], delimiter=",", dtype=float, ndmin=2)
+        if data.shape[1] != len(header):
+            data = None
+    except ValueError:
+        data = None
+    if data is not None and data.shape[0] == 0:
+        raise InputError("robot log has a header but no samples", path=path)
+    rows = [] if data is None else None
+    for i, ln in enumerate(lines[1:] if data is None else [], start=2):
         if not ln.strip():
             continue
         cells = ln.split(",")
         if len(cells) != len(header):
             raise InputError(f"expected {len(header)} cells, found {len(cells)}", path=path, line=i)
         rows.append(cells)
-    if not rows:
-        raise InputError("robot log has a header but no samples", path=path)
-    data = _parse_float_table(rows, header, path)
+    if data is None:
+        if not rows:
+            raise InputError("robot log has a header but no samples", path=path)
+        data = _parse_float_table(rows, header, path)
     col = {h: data[:, k] for k, h in enumerate(header)}
     t = col["time"]
     bad = np.flatnonzero(~np.isfinite(t))

@@ -66,6 +66,11 @@ class Sink:
     def __exit__(self, *exc):
         self.close()
 
+    # layout (appended) -------------------------------------------------------------------
+    def layout(self, series=None, world: str = "/", text: str = "/") -> None:
+        """Ask the viewer for the default layout with these time-series views:
+        ``series`` maps a view name to entity path filters (see :mod:`viz.blueprint`)."""
+
 
 class NullSink(Sink):
     """Logging off."""
