@@ -1,6 +1,11 @@
-"""Friction models with one interface (see :mod:`ident.friction.base`)."""
+"""Friction models with one interface (see :mod:`ident.friction.base`) and their estimators."""
 from .base import CoulombViscous, FrictionModel
+from .dynamic import LuGreDM1, LuGreDM2, linear_scan
+from .fit import FrictionFit, fit_arctan, fit_friction, predict
+from .static import Arctan, Hyperbolic, Stribeck, s0, s1
 
-MODELS = {m.name: m for m in (CoulombViscous,)}
+MODELS = {m.name: m for m in (CoulombViscous, Stribeck, Hyperbolic, Arctan, LuGreDM1, LuGreDM2)}
 
-__all__ = ["FrictionModel", "CoulombViscous", "MODELS"]
+__all__ = ["FrictionModel", "CoulombViscous", "Stribeck", "Hyperbolic", "Arctan", "LuGreDM1",
+           "LuGreDM2", "MODELS", "FrictionFit", "fit_friction", "fit_arctan", "predict",
+           "linear_scan", "s0", "s1"]

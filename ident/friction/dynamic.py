@@ -1,0 +1,319 @@
+"""LuGre-type dynamic friction of Indri & Trapani 2020 (eq. 5-9) with bristle damping variants.
+
+State ``z`` (average bristle deflection, rad):
+
+    dz/dt = S0(v)^2 v - sigma0 S1(v) / g(v) z                                  (eq. 5)
+    tau_f = sigma0 z + f_sigma1(.) dz/dt + tau_fv(v)                            (eq. 6)
+
+with ``S0``, ``S1`` the smooth sign/abs (eq. 2, 7), ``g`` the Stribeck curve (eq. 8) and
+``tau_fv`` the viscous part (eq. 9), all taken from the static :class:`Arctan` model given as the
+``static`` setting (its five parameters are fixed here; identify them first, step 1 of the
+paper). At constant velocity z settles at ``S0(v) g(v) / sigma0`` and the friction equals
+``S0(v) g(v) + tau_fv(v)``, the static arctan curve up to the smooth-sign approximation
+(``S0(v) arctan(S1(v) delta)`` vs ``arctan(v delta)``: relative difference ~ 1 - S0(v), i.e.
+about 0.13% at 0.5 rad/s with Kv = 1000).
+
+Models:
+  * ``dm1`` (sigma0, sigma1): ``f_sigma1`` selected by the ``damping`` setting:
+    ``"constant"`` (sigma1, standard LuGre, phase 2-A of the paper), ``"eq10"``
+    (sigma1 g(v)/|v|), ``"eq11"`` (sigma1/|v|, the paper's DM1 of Tables I-II) or ``"eq12"``
+    (sigma1 (1 - 2/pi arctan(|v| delta))). In eq. 10-12 ``|v|`` is the smooth ``S1(v)``;
+    because ``dz/dt = S1(v) (S0(v) - sigma0 z / g(v))`` exactly, eq. 10 and 11 become the
+    bounded, continuous ``sigma1 (g S0 - sigma0 z)`` and ``sigma1 (S0 - sigma0 z / g)``.
+  * ``dm2`` (sigma0, alpha, beta, gamma): the proposed acceleration-dependent damping eq. 24,
+    ``f_sigma1 = alpha / sqrt(gamma (r v)^2 + a^2) + beta`` with ``r = a_max / v_max``
+    (setting ``accel_ratio``; None: taken from the signals of each ``torque`` call, as the
+    paper defines it from the acquisition). ``accel_floor`` (rad/s^2, default 1e-6) keeps the
+    root positive when v = a = 0.
+
+Sampled signals use the exact discretisation eq. 29-30 (velocity held over each step); the
+z recursion is linear for a known velocity sequence and is solved by :func:`linear_scan`
+without a per-sample loop. ``state_derivative``/``output`` serve continuous-time integrators.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import FrictionModel
+from .static import Arctan, _2_PI, s0, s1
+
+
+# --------------------------------------------------------------------------------------------
+# the vectorised linear recursion
+# --------------------------------------------------------------------------------------------
+def _scan_small(decay, drive, z0):
+    """Direct solution for one short sequence: (n+1,) states."""
+    n = decay.shape[0]
+    D = np.concatenate([[0.0], np.cumsum(decay)])
+    k = np.arange(n + 1)[:, None]
+    j = np.arange(n)[None, :]
+    mask = k > j
+    E = np.where(mask, D[:, None] - D[None, 1:], 0.0)
+    W = np.where(mask, np.exp(-E), 0.0)
+    return W @ drive + np.exp(-D) * z0
+
+
+def linear_scan(decay, drive, z0: float, block: int = 8, max_chunks: int = 16384) -> np.ndarray:
+    """Solve ``z[k+1] = exp(-decay[k]) z[k] + drive[k]``, ``z[0] = z0`` for k = 0..n-1.
+
+    Returns the (n+1,) states. ``decay`` must be >= 0 (a contraction, as in eq. 29 with
+    a_k >= 0). The sequence is cut into blocks of ``block`` steps; inside a block every state is
+    a weighted sum of the drives with weights ``exp(-(D_k - D_{j+1})) <= 1`` formed from
+    block-local cumulative decays (no cumulative product, so nothing under- or overflows and
+    no precision is lost to large cumulative sums); the block-to-block carries form the same
+    recursion on n/block elements, solved recursively. Work O(n block), depth log_block(n),
+    no Python loop over samples.
+    """
+    decay = np.asarray(decay, float)
+    drive = np.asarray(drive, float)
+    if decay.shape != drive.shape or decay.ndim != 1:
+        raise ValueError(f"linear_scan: decay {decay.shape} and drive {drive.shape} must be equal 1-D")
+    if np.any(decay < 0) or not np.all(np.isfinite(decay)):
+        raise ValueError("linear_scan: decay must be finite and >= 0")
+    n = decay.shape[0]
+    if n <= block:
+        return _scan_small(decay, drive, float(z0))
+    nb = -(-n // block)
+    pad = nb * block - n
+    dec = np.concatenate([decay, np.zeros(pad)]).reshape(nb, block)
+    drv = np.concatenate([drive, np.zeros(pad)]).reshape(nb, block)
+    D = np.concatenate([np.zeros((nb, 1)), np.cumsum(dec, axis=1)], axis=1)   # (nb, block+1)
+    kk = np.arange(block + 1)[:, None]
+    jj = np.arange(block)[None, :]
+    mask = kk > jj
+    loc = np.empty((nb, block + 1))
+    for g0 in range(0, nb, max_chunks):               # groups of blocks bound the memory
+        Dg = D[g0:g0 + max_chunks]
+        E = np.where(mask, Dg[:, :, None] - Dg[:, None, 1:], 0.0)
+        W = np.where(mask, np.exp(-E), 0.0)
+        loc[g0:g0 + max_chunks] = (W @ drv[g0:g0 + max_chunks, :, None])[..., 0]
+    carry = linear_scan(D[:, block], loc[:, block], z0, block, max_chunks)   # (nb+1,)
+    z = loc[:, :block] + np.exp(-D[:, :block]) * carry[:nb, None]
+    return np.concatenate([z.ravel(), carry[nb:]])[: n + 1]
+
+
+def _phi(x):
+    """``(1 - exp(-x)) / x`` with the limit 1 at x = 0."""
+    x = np.asarray(x, float)
+    small = np.abs(x) < 1e-12
+    xs = np.where(small, 1.0, x)
+    return np.where(small, 1.0 - 0.5 * x, -np.expm1(-xs) / xs)
+
+
+# --------------------------------------------------------------------------------------------
+class _LuGre(FrictionModel):
+    """Common machinery of eq. 5-9; subclasses define the damping term (eq. 6's f_sigma1 dz/dt)."""
+
+    dynamic = True
+    linear_names: tuple[str, ...] = ()
+
+    def __init__(self, *, static: Arctan, z0: float | None = None, **params):
+        super().__init__(**params)
+        if not isinstance(static, Arctan):
+            raise TypeError(f"{type(self).__name__}: static must be an Arctan model, got {static!r}")
+        if not self._p["sigma0"] > 0:
+            raise ValueError(f"{type(self).__name__}: sigma0 must be positive, got {self._p['sigma0']}")
+        self.static = static
+        self.z0 = None if z0 is None else float(z0)
+
+    @property
+    def nonlinear_names(self) -> tuple[str, ...]:
+        return tuple(p for p in self.param_names if p not in self.linear_names)
+
+    @property
+    def settings(self) -> dict:
+        return {"static": self.static, "z0": self.z0}
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        d["settings"] = {k: (v.to_dict() if isinstance(v, FrictionModel) else v)
+                         for k, v in self.settings.items()}
+        return d
+
+    # -- eq. 5 pieces --------------------------------------------------------------------
+    def _g(self, v):
+        g = self.static.g(v)
+        if np.any(g <= 0):
+            raise ValueError(f"{type(self).__name__}: the static curve g(v) = tau_s + tau_sc ... "
+                             f"must be positive (min {np.min(g):.3g}); check the static parameters")
+        return g
+
+    def _ab(self, v):
+        """Eq. 30: ``a = sigma0 S1(v)/g(v)`` (1/s) and ``b = S0(v)^2 v``; dz/dt = b - a z."""
+        Kv = self.static.Kv
+        g = self._g(v)
+        return self._p["sigma0"] * s1(v, Kv) / g, s0(v, Kv) ** 2 * v, g
+
+    def steady_state(self, v) -> np.ndarray:
+        """z where dz/dt = 0 at constant velocity v: ``S0(v) g(v) / sigma0``."""
+        return s0(v, self.static.Kv) * self._g(v) / self._p["sigma0"]
+
+    def state_derivative(self, z, qd, qdd=None) -> np.ndarray:
+        """Eq. 5: ``dz/dt = S0(v)^2 v - sigma0 S1(v)/g(v) z`` (broadcasts)."""
+        a, b, _ = self._ab(np.asarray(qd, float))
+        return b - a * np.asarray(z, float)
+
+    def _damping_design(self, z, v, acc, zdot, g, ratio) -> np.ndarray:
+        """(T, len(linear_names)) columns: ``f_sigma1 dz/dt = columns @ linear params``."""
+        raise NotImplementedError
+
+    def _ratio(self, qd, qdd):
+        return None
+
+    def _parts(self, z, qd, qdd, ratio=None):
+        v = np.asarray(qd, float)
+        z = np.asarray(z, float)
+        a, b, g = self._ab(v)
+        zdot = b - a * z
+        acc = None if qdd is None else np.asarray(qdd, float)
+        Dm = self._damping_design(z, v, acc, zdot, g, ratio)
+        offset = self._p["sigma0"] * z + self.static.viscous(v)
+        return Dm, offset
+
+    def output(self, z, qd, qdd=None) -> np.ndarray:
+        """Eq. 6: ``tau_f = sigma0 z + f_sigma1(.) dz/dt + tau_fv(v)`` (broadcasts)."""
+        Dm, off = self._parts(z, qd, qdd, self._ratio(qd, qdd))
+        return Dm @ np.array([self._p[k] for k in self.linear_names]) + off
+
+    # -- eq. 29-30 -------------------------------------------------------------------------
+    def step(self, z, qd, dt) -> np.ndarray:
+        """One step of eq. 29: z after ``dt`` with the velocity ``qd`` held (for closed-loop
+        simulators that know the velocity only one step at a time; broadcasts)."""
+        a, b, _ = self._ab(np.asarray(qd, float))
+        x = a * np.asarray(dt, float)
+        return np.exp(-x) * np.asarray(z, float) + dt * _phi(x) * b
+
+    def states(self, qd, dt) -> np.ndarray:
+        """Bristle states z (T,) at the samples of ``qd`` by the exact discretisation eq. 29-30.
+
+        ``dt``: the sample period (scalar) or the (T-1,) steps; the velocity is held over each
+        step. ``z[0]`` is the ``z0`` setting, or the steady state of ``qd[0]`` when None.
+        """
+        v = np.asarray(qd, float)
+        if v.ndim != 1:
+            raise ValueError(f"{type(self).__name__}: qd must be 1-D (T,), got shape {v.shape}")
+        if dt is None:
+            raise ValueError(f"{type(self).__name__} is dynamic: torque/states need dt")
+        T = v.shape[0]
+        if T == 0:
+            raise ValueError(f"{type(self).__name__}: qd has no samples")
+        steps = np.broadcast_to(np.asarray(dt, float), (max(T - 1, 0),))
+        if np.any(steps <= 0):
+            raise ValueError(f"{type(self).__name__}: time steps must be positive")
+        a, b, _ = self._ab(v[:-1])
+        x = a * steps
+        drive = steps * _phi(x) * b
+        z0 = float(self.steady_state(v[0])) if self.z0 is None else self.z0
+        return linear_scan(x, drive, z0)
+
+    def linear_design(self, qd, qdd=None, dt=None):
+        """``(Phi, offset)`` with ``torque = Phi @ (linear params) + offset`` for sampled signals."""
+        z = self.states(qd, dt)
+        return self._parts(z, qd, qdd, self._ratio(qd, qdd))
+
+    def torque(self, qd, qdd=None, dt=None) -> np.ndarray:
+        """Friction torque (T,) for a sampled velocity (eq. 29-30 then eq. 6)."""
+        Dm, off = self.linear_design(qd, qdd, dt)
+        return Dm @ np.array([self._p[k] for k in self.linear_names]) + off
+
+    def critical_acceleration(self, v_m) -> np.ndarray:
+        """Eq. 22: ``a_m = sigma0 v_m^2 / (log 2 g(v_m))``; faster reversals give damping peaks."""
+        v_m = np.asarray(v_m, float)
+        return self._p["sigma0"] * v_m ** 2 / (np.log(2.0) * self._g(v_m))
+
+    @classmethod
+    def fit_hints(cls, qd, settings):
+        """sigma0 bounded so the steady deflection g/sigma0 lies in [1e-8, 1] rad."""
+        st = settings["static"]
+        gs = float(np.max(np.abs(st.g(np.array([0.0, float(np.max(np.abs(qd)))])))))
+        gs = max(gs, 1e-12)
+        return {"sigma0": gs * 1e4}, {"sigma0": (gs, gs * 1e8)}
+
+    @classmethod
+    def canonical(cls, params):
+        return dict(params)
+
+    def degeneracy(self, qd, fit_scale: float) -> str | None:
+        return None
+
+
+class LuGreDM1(_LuGre):
+    """Indri & Trapani eq. 5-9 with damping eq. 11 / constant / eq. 10 / eq. 12 (see module doc)."""
+
+    name = "dm1"
+    param_names = ("sigma0", "sigma1")
+    linear_names = ("sigma1",)
+    DAMPING = ("constant", "eq10", "eq11", "eq12")
+
+    def __init__(self, *, static: Arctan, damping: str = "constant", z0: float | None = None,
+                 **params):
+        if damping not in self.DAMPING:
+            raise ValueError(f"dm1: damping must be one of {self.DAMPING}, got {damping!r}")
+        self.damping = damping
+        super().__init__(static=static, z0=z0, **params)
+
+    @property
+    def settings(self) -> dict:
+        return {**super().settings, "damping": self.damping}
+
+    def _damping_design(self, z, v, acc, zdot, g, ratio):
+        Kv = self.static.Kv
+        if self.damping == "constant":
+            col = zdot
+        elif self.damping == "eq10":            # sigma1 g/S1 * zdot = sigma1 (g S0 - sigma0 z)
+            col = g * s0(v, Kv) - self._p["sigma0"] * z
+        elif self.damping == "eq11":            # sigma1 / S1 * zdot = sigma1 (S0 - sigma0 z / g)
+            col = s0(v, Kv) - self._p["sigma0"] * z / g
+        else:                                   # eq. 12
+            col = (1.0 - _2_PI * np.arctan(s1(v, Kv) * self.static.delta)) * zdot
+        return np.asarray(col, float)[..., None]
+
+
+class LuGreDM2(_LuGre):
+    """Indri & Trapani eq. 5-9 with the proposed acceleration-dependent damping eq. 24."""
+
+    name = "dm2"
+    param_names = ("sigma0", "alpha", "beta", "gamma")
+    linear_names = ("alpha", "beta")
+
+    def __init__(self, *, static: Arctan, accel_ratio: float | None = None,
+                 accel_floor: float = 1e-6, z0: float | None = None, **params):
+        if accel_ratio is not None and not accel_ratio > 0:
+            raise ValueError(f"dm2: accel_ratio (a_max/v_max) must be positive, got {accel_ratio}")
+        self.accel_ratio = None if accel_ratio is None else float(accel_ratio)
+        self.accel_floor = float(accel_floor)
+        super().__init__(static=static, z0=z0, **params)
+        if self._p["gamma"] < 0:
+            raise ValueError(f"dm2: gamma must be >= 0, got {self._p['gamma']}")
+
+    @property
+    def settings(self) -> dict:
+        return {**super().settings, "accel_ratio": self.accel_ratio, "accel_floor": self.accel_floor}
+
+    @classmethod
+    def fit_hints(cls, qd, settings):
+        x0, b = super().fit_hints(qd, settings)
+        return {**x0, "gamma": 1.0}, {**b, "gamma": (1e-4, 1e4)}
+
+    @staticmethod
+    def ratio_from_data(qd, qdd) -> float:
+        """``a_max / v_max`` of eq. 24 from the signals of an acquisition."""
+        vmax = float(np.max(np.abs(qd)))
+        amax = float(np.max(np.abs(qdd)))
+        if vmax <= 0 or amax <= 0:
+            raise ValueError("dm2: a_max/v_max needs a moving, accelerating signal")
+        return amax / vmax
+
+    def _ratio(self, qd, qdd):
+        if self.accel_ratio is not None:
+            return self.accel_ratio
+        if qdd is None:
+            raise ValueError("dm2 needs qdd (eq. 24 depends on the acceleration)")
+        return self.ratio_from_data(qd, qdd)
+
+    def _damping_design(self, z, v, acc, zdot, g, ratio):
+        if acc is None:
+            raise ValueError("dm2 needs qdd (eq. 24 depends on the acceleration)")
+        den = np.sqrt(self._p["gamma"] * (ratio * v) ** 2 + acc ** 2 + self.accel_floor ** 2)
+        zdot = np.broadcast_to(zdot, np.broadcast_shapes(np.shape(zdot), np.shape(den)))
+        return np.stack([zdot / den, zdot], axis=-1)

@@ -1,0 +1,545 @@
+"""Friction estimators: one interface for every model (thesis sec. 2-3/5, Indri & Trapani sec. III).
+
+:func:`fit_friction` fits ``tau ~ X_extra @ beta + model(theta).torque(qd, qdd, dt)``, where the
+columns of ``X_extra`` are nuisance terms estimated jointly (e.g. the thesis's one-link regressor
+``[qdd, -sin q, cos q]`` of eq. 2-4 for inertia and gravity; Indri & Trapani instead subtract the
+inverse dynamics, eq. 25-26, and pass no extra columns).
+
+* models linear in all parameters (``cv``, thesis eq. 2-5): linear least squares;
+* models with nonlinear parameters (``stribeck`` eq. 2-6, ``hyperbolic`` eq. 2-7, ``dm1``/``dm2``
+  eq. 5-9/24): bounded ``scipy.optimize.least_squares`` over the nonlinear parameters only, with
+  ``beta`` and the parameters the model is linear in eliminated by variable projection (solved
+  by linear least squares inside each residual evaluation); positive scale parameters are
+  searched in log coordinates; seeded multi-start (start 0 at the model's data-scaled hint or
+  ``x0``, the others uniform in the (log) bounds). If ``bounds`` constrain a linear parameter
+  or an extra column, all parameters are fitted jointly instead;
+* ``arctan`` (Indri & Trapani eq. 1-2): the delta grid search of eq. 27-28, :func:`fit_arctan`.
+
+Uncertainty: the Jacobian of the prediction with respect to every parameter and extra at the
+optimum, ``cov = sigma^2 (J^T W J)^-1`` with ``sigma^2 = RSS_w / (N - p)``. ``cond`` is the
+condition number of the column-normalised weighted Jacobian (scale free). ``degenerate`` names
+the degenerate form the fitted parameters take on these data (from the model's own check, a
+nonlinear parameter at a bound, or a near-singular Jacobian).
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
+
+from .base import CoulombViscous, FrictionModel
+from .static import Arctan, _2_PI, s0
+
+DELTA_GRID_STEP = 0.1
+COND_DEGENERATE = 1e10
+
+
+def default_delta_grid() -> np.ndarray:
+    """Indri & Trapani sec. III-A: delta over [0, 100] with step 0.1."""
+    return np.round(np.arange(0.0, 100.0 + 1e-9, DELTA_GRID_STEP), 10)
+
+
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class FrictionFit:
+    """A fitted friction model with its nuisance coefficients and diagnostics."""
+
+    model: FrictionModel
+    extra: dict                 # extra column name -> coefficient
+    stderr: dict                # every parameter and extra -> standard error
+    cov: np.ndarray             # covariance over ``names``
+    names: tuple                # param_names then extra names
+    rms: float                  # RMS of the residual (weighted mean square if weights), N m
+    n: int                      # samples used
+    cond: float                 # condition number of the column-normalised Jacobian
+    nfev: int                   # residual evaluations over all starts
+    converged: bool
+    degenerate: str | None
+    residuals: np.ndarray = field(repr=False)
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def params(self) -> dict:
+        return self.model.params
+
+    def to_dict(self) -> dict:
+        """fits.json layout for one model (params, stderr, rms) plus diagnostics."""
+        pn = self.model.param_names
+        d = {"params": self.model.params,
+             "stderr": {k: _json_float(self.stderr[k]) for k in pn},
+             "rms": float(self.rms),
+             "model": self.model.name,
+             "extra": {k: float(v) for k, v in self.extra.items()},
+             "extra_stderr": {k: _json_float(self.stderr[k]) for k in self.extra},
+             "n": int(self.n), "cond": _json_float(self.cond), "nfev": int(self.nfev),
+             "converged": bool(self.converged), "degenerate": self.degenerate,
+             "names": list(self.names),
+             "cov": [[_json_float(x) for x in row] for row in np.asarray(self.cov)]}
+        md = self.model.to_dict()
+        if "settings" in md:
+            d["settings"] = md["settings"]
+        d.update({k: v for k, v in self.diagnostics.items() if k not in d})
+        return d
+
+
+def _json_float(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+# --------------------------------------------------------------------------------------------
+# helpers
+# --------------------------------------------------------------------------------------------
+def _check_inputs(qd, tau, X_extra, extra_names, weights, param_names):
+    qd = np.asarray(qd, float)
+    tau = np.asarray(tau, float)
+    if qd.ndim != 1 or tau.shape != qd.shape:
+        raise ValueError(f"qd and tau must be 1-D of equal length, got {qd.shape} and {tau.shape}")
+    T = qd.shape[0]
+    if X_extra is None:
+        X = np.zeros((T, 0))
+    else:
+        X = np.asarray(X_extra, float)
+        if X.ndim == 1:
+            X = X[:, None]
+        if X.ndim != 2 or X.shape[0] != T:
+            raise ValueError(f"X_extra must be (T, e) with T = {T}, got {X.shape}")
+    names = tuple(extra_names) if extra_names else tuple(f"extra_{i + 1}" for i in range(X.shape[1]))
+    if len(names) != X.shape[1]:
+        raise ValueError(f"extra_names has {len(names)} names for {X.shape[1]} X_extra columns")
+    clash = set(names) & set(param_names)
+    if clash or len(set(names)) != len(names):
+        raise ValueError(f"extra_names must be distinct and differ from {param_names}: {names}")
+    for lab, arr in (("qd", qd), ("tau", tau), ("X_extra", X)):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            i = int(np.argwhere(bad)[0][0])
+            raise ValueError(f"{lab} has a non-finite value at sample {i}")
+    if weights is None:
+        sw = np.ones(T)
+    else:
+        w = np.asarray(weights, float)
+        if w.shape != (T,) or np.any(~np.isfinite(w)) or np.any(w < 0):
+            raise ValueError(f"weights must be (T,) finite and >= 0, got shape {w.shape}")
+        sw = np.sqrt(w)
+    return qd, tau, X, names, sw
+
+
+def _linear_names(model_cls) -> tuple:
+    return tuple(getattr(model_cls, "linear_names", model_cls.param_names))
+
+
+def _design(model, qd, qdd, dt):
+    """(Phi, offset) of a model instance: torque = Phi @ linear params + offset."""
+    if hasattr(model, "linear_design"):
+        return model.linear_design(qd, qdd, dt)
+    return model.regressor(qd), np.zeros(qd.shape)          # CoulombViscous (all linear)
+
+
+def _wlstsq(A, y, sw):
+    """Weighted linear least squares: column-scaled normal equations (fast for the few columns
+    here), falling back to an SVD solve when they are ill conditioned."""
+    if A.shape[1] == 0:
+        return np.zeros(0)
+    Aw = A * sw[:, None]
+    yw = y * sw
+    nrm = np.linalg.norm(Aw, axis=0)
+    if np.all(nrm > 0):
+        As = Aw / nrm
+        G = As.T @ As
+        ev = np.linalg.eigvalsh(G)
+        if ev[0] > 1e-10 * ev[-1]:
+            return np.linalg.solve(G, As.T @ yw) / nrm
+    return np.linalg.lstsq(Aw, yw, rcond=None)[0]
+
+
+def _build(model_cls, values: dict, settings: dict):
+    return model_cls(**values, **settings)
+
+
+class _Transform:
+    """Log coordinates for nonlinear parameters whose lower bound is positive."""
+
+    def __init__(self, names, bounds):
+        self.names = names
+        self.lo = np.array([bounds[k][0] for k in names], float)
+        self.hi = np.array([bounds[k][1] for k in names], float)
+        if np.any(~(self.lo < self.hi)):
+            raise ValueError(f"bounds must have lo < hi: { {k: bounds[k] for k in names} }")
+        self.log = self.lo > 0
+
+    def to_u(self, x):
+        x = np.asarray(x, float)
+        return np.where(self.log, np.log(np.where(self.log, x, 1.0)), x)
+
+    def to_x(self, u):
+        u = np.asarray(u, float)
+        return np.where(self.log, np.exp(np.where(self.log, u, 0.0)), u)
+
+    def ubounds(self):
+        return self.to_u(self.lo), self.to_u(self.hi)
+
+    def clip_inside(self, u):
+        ulo, uhi = self.ubounds()
+        span = uhi - ulo
+        span = np.where(np.isfinite(span), span, 1.0)
+        return np.clip(u, ulo + 1e-9 * span, uhi - 1e-9 * span)
+
+    def sample(self, rng, u0):
+        ulo, uhi = self.ubounds()
+        fin = np.isfinite(ulo) & np.isfinite(uhi)
+        return np.where(fin, rng.uniform(np.where(fin, ulo, 0), np.where(fin, uhi, 1)),
+                        u0 + rng.normal(size=u0.shape) * np.maximum(np.abs(u0), 1.0))
+
+
+def _jacobian(model, qd, qdd, dt, X, Phi):
+    """d prediction / d (param_names..., extras...) at a fitted model (T, p + e)."""
+    pn = model.param_names
+    lin = _linear_names(type(model))
+    cols = {}
+    for i, k in enumerate(lin):
+        cols[k] = Phi[:, i]
+    settings = getattr(model, "settings", {})
+    base = model.params
+    for k in pn:
+        if k in cols:
+            continue
+        v = base[k]
+        h = 1e-6 * max(abs(v), 1e-6)
+        up = _build(type(model), {**base, k: v + h}, settings).torque(qd, qdd, dt)
+        try:                                    # central difference; forward at a constraint
+            dn = _build(type(model), {**base, k: v - h}, settings).torque(qd, qdd, dt)
+            cols[k] = (up - dn) / (2 * h)
+        except ValueError:
+            cols[k] = (up - model.torque(qd, qdd, dt)) / h
+    J = np.column_stack([cols[k] for k in pn] + [X[:, i] for i in range(X.shape[1])])
+    return J
+
+
+def _finish(model, qd, tau, X, extra_names, sw, qdd, dt, *, nfev, converged, at_bound,
+            diagnostics, beta_extra, jac_override=None):
+    pred_f = model.torque(qd, qdd, dt)
+    resid = tau - X @ beta_extra - pred_f
+    Phi, _ = _design(model, qd, qdd, dt)
+    J = _jacobian(model, qd, qdd, dt, X, Phi) if jac_override is None else jac_override
+    Jw = J * sw[:, None]
+    rw = resid * sw
+    p = Jw.shape[1]
+    dof = max(int(np.count_nonzero(sw)) - p, 1)
+    sigma2 = float(rw @ rw) / dof
+    scale = np.linalg.norm(Jw, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    _, s, Vt = np.linalg.svd(Jw / scale, full_matrices=False)
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else np.inf
+    keep = s > s[0] * 1e-14
+    inv = (Vt[keep].T / s[keep] ** 2) @ Vt[keep]
+    cov = sigma2 * inv / np.outer(scale, scale)
+    if not keep.all():
+        cov = cov + np.diag(np.where(np.abs(Vt[~keep]).sum(0) > 1e-8, np.inf, 0.0))
+    names = tuple(model.param_names) + tuple(extra_names)
+    stderr = {k: float(np.sqrt(cov[i, i])) if np.isfinite(cov[i, i]) else np.inf
+              for i, k in enumerate(names)}
+    # degeneracy ---------------------------------------------------------------------------
+    f_data = tau - X @ beta_extra
+    fit_scale = float(np.percentile(np.abs(f_data), 99.0)) if f_data.size else 0.0
+    msgs = []
+    if hasattr(model, "degeneracy"):
+        m = model.degeneracy(qd, fit_scale)
+        if m:
+            msgs.append(m)
+    msgs.extend(at_bound)
+    lin = set(_linear_names(type(model)))
+    loose = [k for k in model.param_names if k not in lin and not stderr[k] < abs(model.params[k])]
+    if loose:
+        msgs.append(f"{', '.join(loose)} not determined by these data (standard error exceeds "
+                    "the value)")
+    if not np.isfinite(cond) or cond > COND_DEGENERATE:
+        msgs.append(f"the Jacobian is nearly singular (cond {cond:.3g}): some parameters are not "
+                    "separately identifiable from these data")
+    return FrictionFit(model=model, extra=dict(zip(extra_names, map(float, beta_extra))),
+                       stderr=stderr, cov=cov, names=names,
+                       rms=float(np.sqrt(np.sum(sw ** 2 * resid ** 2) / np.sum(sw ** 2))),
+                       n=int(qd.shape[0]), cond=cond,
+                       nfev=int(nfev), converged=bool(converged),
+                       degenerate="; ".join(msgs) if msgs else None, residuals=resid,
+                       diagnostics=dict(diagnostics))
+
+
+def _rms_cv(qd, tau, X, sw):
+    A = np.hstack([X, CoulombViscous.regressor(qd)])
+    b = _wlstsq(A, tau, sw)
+    return float(np.sqrt(np.sum((sw * (tau - A @ b)) ** 2) / np.sum(sw ** 2)))
+
+
+# --------------------------------------------------------------------------------------------
+# the estimator
+# --------------------------------------------------------------------------------------------
+def _one_blas_thread(fn):
+    """Run with one BLAS thread: the solves here are tall and thin (a few columns), where BLAS
+    threads only add overhead (DESIGN.md measured 2-10x on 2-core machines; here 4x)."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with threadpool_limits(1, user_api="blas"):
+            return fn(*args, **kwargs)
+    return wrapper
+
+
+@_one_blas_thread
+def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, dt=None,
+                 bounds=None, x0=None, n_starts: int = 8, seed: int = 0, weights=None,
+                 settings=None) -> FrictionFit:
+    """Fit ``tau ~ X_extra @ beta + model_cls(theta, **settings).torque(qd, qdd, dt)``.
+
+    ``bounds``: {name: (lo, hi)} overriding the model's data-scaled defaults; ``x0``: {name:
+    value} (or an array over ``param_names``) for the first start; ``weights``: (T,) per-sample
+    weights (inverse variances up to a scale); ``settings``: model constructor settings (Kv for
+    arctan, which may also carry ``delta_grid``; ``static``/``damping``/``z0`` for dm1;
+    ``static``/``accel_ratio`` for dm2). Dynamic models without a ``static`` setting get an
+    arctan model fitted to the same data first (step 1 of Indri & Trapani); dm2 without
+    ``accel_ratio`` takes a_max/v_max from ``qd``/``qdd``. See the module docstring.
+    """
+    settings = dict(settings or {})
+    qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
+                                           model_cls.param_names)
+    if issubclass(model_cls, Arctan):
+        grid = settings.get("delta_grid")
+        grid = default_delta_grid() if grid is None else np.asarray(grid, float).ravel()
+        if bounds:
+            if set(bounds) - {"delta"}:
+                raise ValueError("arctan is fitted by the delta grid search (linear least squares "
+                                 f"for the rest): bounds may only restrict delta, got {sorted(bounds)}")
+            lo, hi = bounds["delta"]
+            grid = grid[(grid >= lo) & (grid <= hi)]
+        return fit_arctan(qd, tau, Kv=settings.get("Kv", 1000.0), delta_grid=grid, X_extra=X,
+                          extra_names=enames, weights=None if weights is None else sw ** 2)
+    if qdd is not None:
+        qdd = np.asarray(qdd, float)
+        if qdd.shape != qd.shape or not np.all(np.isfinite(qdd)):
+            raise ValueError(f"qdd must be finite and shaped like qd {qd.shape}, got {qdd.shape}")
+    diagnostics = {"rms_cv": _rms_cv(qd, tau, X, sw)}
+    if getattr(model_cls, "dynamic", False):
+        if dt is None:
+            raise ValueError(f"{model_cls.name} is dynamic: fit_friction needs dt")
+        if "static" not in settings:
+            st = fit_arctan(qd, tau, X_extra=X, extra_names=enames,
+                            weights=None if weights is None else sw ** 2)
+            settings["static"] = st.model
+            diagnostics["static_fitted_on_same_data"] = True
+        gmin = float(np.min(settings["static"].g(qd)))
+        if not gmin > 0:
+            src = ("fitted to these same data" if diagnostics.get("static_fitted_on_same_data")
+                   else "given in settings")
+            raise ValueError(f"{model_cls.name}: the static arctan model ({src}) has "
+                             f"g(v) = tau_s + tau_sc 2/pi arctan(|v| delta) <= 0 (min {gmin:.3g}) "
+                             "on these data; identify the static part first on constant-velocity "
+                             "data (Indri & Trapani step 1) and pass settings={'static': ...}")
+        if hasattr(model_cls, "ratio_from_data") and settings.get("accel_ratio") is None:
+            if qdd is None:
+                raise ValueError(f"{model_cls.name} needs qdd")
+            settings["accel_ratio"] = model_cls.ratio_from_data(qd, qdd)
+    if n_starts < 1:
+        raise ValueError("n_starts must be >= 1")
+    pn = model_cls.param_names
+    lin = _linear_names(model_cls)
+    nl = tuple(k for k in pn if k not in lin)
+    hint0, hint_b = (model_cls.fit_hints(qd, settings) if hasattr(model_cls, "fit_hints")
+                     else ({}, {}))
+    bounds = dict(bounds or {})
+    unknown = set(bounds) - set(pn) - set(enames)
+    if unknown:
+        raise ValueError(f"bounds name unknown parameters {sorted(unknown)}")
+    if x0 is not None and not isinstance(x0, dict):
+        x0 = dict(zip(pn, np.asarray(x0, float)))
+    x0 = dict(x0 or {})
+    start = {**hint0, **{k: float(v) for k, v in x0.items() if k in nl}}
+    nl_bounds = {k: tuple(bounds.get(k, hint_b.get(k, (-np.inf, np.inf)))) for k in nl}
+    joint = any(k in bounds for k in lin) or any(k in bounds for k in enames)
+
+    def model_at(nlvals: dict, linvals=None):
+        vals = {k: 0.0 for k in lin} if linvals is None else dict(zip(lin, linvals))
+        return _build(model_cls, {**vals, **nlvals}, settings)
+
+    # ---- all linear -----------------------------------------------------------------------
+    if not nl and not joint:
+        m0 = model_at({})
+        Phi, off = _design(m0, qd, qdd, dt)
+        A = np.hstack([X, Phi])
+        b = _wlstsq(A, tau - off, sw)
+        e = X.shape[1]
+        model = model_at({}, b[e:])
+        return _finish(model, qd, tau, X, enames, sw, qdd, dt, nfev=1, converged=True,
+                       at_bound=[], diagnostics={**diagnostics, "method": "linear least squares"},
+                       beta_extra=b[:e])
+
+    missing = [k for k in nl if k not in start]
+    if missing:
+        raise ValueError(f"{model_cls.name}: give x0 for {missing}")
+    tr = _Transform(nl, nl_bounds)
+    rng = np.random.default_rng(seed)
+    u0 = tr.clip_inside(tr.to_u([start[k] for k in nl]))
+    starts = [u0] + [tr.clip_inside(tr.sample(rng, u0)) for _ in range(n_starts - 1)]
+    e = X.shape[1]
+
+    def vp_solve(u):
+        m = model_at(dict(zip(nl, tr.to_x(u))))
+        Phi, off = _design(m, qd, qdd, dt)
+        A = np.hstack([X, Phi])
+        b = _wlstsq(A, tau - off, sw)
+        return A, off, b
+
+    if not joint:
+        def resid(u):
+            A, off, b = vp_solve(u)
+            return sw * (tau - off - A @ b)
+
+        ulo, uhi = tr.ubounds()
+        best, nfev, costs, last_error = None, 0, [], None
+        for us in starts:
+            try:
+                r = least_squares(resid, us, bounds=(ulo, uhi), method="trf", x_scale=1.0,
+                                  ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=400)
+            except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+                costs.append(np.inf)
+                last_error = exc
+                continue
+            nfev += r.nfev
+            costs.append(float(r.cost))
+            if best is None or r.cost < best.cost:
+                best = r
+        if best is None:
+            raise RuntimeError(f"{model_cls.name}: every start failed; last error: {last_error}")
+        u_best = best.x
+        _, _, b = vp_solve(u_best)
+        beta_extra, linvals = b[:e], b[e:]
+        method = "variable projection + bounded least squares"
+    else:
+        # joint fit over [extras, linear, nonlinear] with bounds on any of them
+        allb = {**{k: (-np.inf, np.inf) for k in enames + lin}, **bounds, **nl_bounds}
+        jn = tuple(enames) + lin
+        jlo = np.array([allb[k][0] for k in jn], float)
+        jhi = np.array([allb[k][1] for k in jn], float)
+
+        def split(w):
+            return w[:len(jn)], w[len(jn):]
+
+        def resid(w):
+            lb, u = split(w)
+            m = model_at(dict(zip(nl, tr.to_x(u))), lb[e:])
+            return sw * (tau - X @ lb[:e] - m.torque(qd, qdd, dt))
+
+        ulo, uhi = tr.ubounds()
+        best, nfev, costs, last_error = None, 0, [], None
+        for us in starts:
+            _, _, b = vp_solve(us)
+            span = np.where(np.isfinite(jhi - jlo), jhi - jlo, 1.0)
+            b = np.clip(b, jlo + 1e-9 * span, jhi - 1e-9 * span)
+            w0 = np.concatenate([b, us])
+            try:
+                r = least_squares(resid, w0, bounds=(np.concatenate([jlo, ulo]),
+                                                     np.concatenate([jhi, uhi])),
+                                  method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12,
+                                  gtol=1e-12, max_nfev=400 * (len(w0) + 1))
+            except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+                costs.append(np.inf)
+                last_error = exc
+                continue
+            nfev += r.nfev
+            costs.append(float(r.cost))
+            if best is None or r.cost < best.cost:
+                best = r
+        if best is None:
+            raise RuntimeError(f"{model_cls.name}: every start failed; last error: {last_error}")
+        lb, u_best = split(best.x)
+        beta_extra, linvals = lb[:e], lb[e:]
+        method = "joint bounded least squares"
+    nlvals = dict(zip(nl, tr.to_x(u_best)))
+    params = model_cls.canonical({**dict(zip(lin, linvals)), **nlvals}) \
+        if hasattr(model_cls, "canonical") else {**dict(zip(lin, linvals)), **nlvals}
+    model = _build(model_cls, params, settings)
+    at_bound = []
+    for k, lo, hi in zip(nl, tr.lo, tr.hi):
+        v = model.params[k]
+        for side, bd in (("lower", lo), ("upper", hi)):
+            if np.isfinite(bd) and abs(v - bd) <= 1e-6 * max(abs(bd), 1e-12) + 1e-12:
+                at_bound.append(f"{k} = {v:.3g} is at its {side} bound (the data push it "
+                                "there or do not determine it)")
+    diagnostics.update({"method": method, "n_starts": len(starts), "start_costs": costs,
+                        "bounds": {k: list(map(float, v)) for k, v in nl_bounds.items()}})
+    return _finish(model, qd, tau, X, enames, sw, qdd, dt, nfev=nfev, converged=best.success,
+                   at_bound=at_bound, diagnostics=diagnostics, beta_extra=beta_extra)
+
+
+# --------------------------------------------------------------------------------------------
+@_one_blas_thread
+def fit_arctan(qd, tau, Kv: float = 1000.0, delta_grid=None, X_extra=None, extra_names=(),
+               weights=None) -> FrictionFit:
+    """Indri & Trapani eq. 27-28 with the delta grid search of sec. III-A.
+
+    For every delta of ``delta_grid`` (default [0, 100] step 0.1) the linear parameters
+    (tau_s, tau_sc, tau_v, tau_nlv) and the extra columns are the least-squares solution; the
+    delta with the smallest residual wins. All grid values are solved at once: the columns that
+    do not depend on delta are projected out once (QR), after which each delta's residual sum of
+    squares is a closed-form rank-one update (blocks of grid values bound the memory; no loop
+    per grid value). The standard error of delta comes from the Jacobian like the others.
+    """
+    qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
+                                           Arctan.param_names)
+    grid = default_delta_grid() if delta_grid is None else np.asarray(delta_grid, float).ravel()
+    if grid.size == 0 or np.any(~np.isfinite(grid)) or np.any(grid < 0):
+        raise ValueError("delta_grid must be a non-empty set of finite values >= 0")
+    sg = s0(qd, Kv)
+    M0 = np.column_stack([X, sg, qd, qd * qd * sg]) * sw[:, None]
+    Q, _ = np.linalg.qr(M0)
+    y = tau * sw
+    yr = y - Q @ (Q.T @ y)
+    yy = float(yr @ yr)
+    rss = np.empty(grid.size)
+    T = qd.shape[0]
+    blk = max(1, int(4_000_000 // max(T, 1)))
+    for g0 in range(0, grid.size, blk):                     # blocks of the grid, memory bound
+        dg = grid[g0:g0 + blk]
+        C = _2_PI * np.arctan(np.multiply.outer(qd, dg)) * sw[:, None]
+        R = C - Q @ (Q.T @ C)
+        num = yr @ R
+        den = np.einsum("ij,ij->j", R, R)
+        cc = np.einsum("ij,ij->j", C, C)
+        ok = den > 1e-12 * np.maximum(cc, 1e-300)
+        rss[g0:g0 + blk] = np.where(ok, yy - np.where(ok, num, 0) ** 2 / np.where(ok, den, 1), yy)
+    i = int(np.argmin(rss))
+    delta = float(grid[i])
+    A = np.column_stack([X, Arctan.regressor(qd, delta, Kv)])
+    b = _wlstsq(A, tau, sw)
+    e = X.shape[1]
+    model = Arctan(Kv=Kv, **dict(zip(Arctan.linear_names, b[e:])), delta=delta)
+    Phi = A[:, e:]
+    ddelta = model.tau_sc * _2_PI * qd / (1.0 + (qd * delta) ** 2)
+    J = np.column_stack([Phi, ddelta, X])
+    at_bound = []
+    if grid.size > 1 and (i == 0 or i == grid.size - 1):
+        at_bound.append(f"delta = {delta:.3g} is at the edge of the grid "
+                        f"[{grid[0]:.3g}, {grid[-1]:.3g}]")
+    diagnostics = {"method": "delta grid search + linear least squares (Indri & Trapani eq. 27-28)",
+                   "rms_cv": _rms_cv(qd, tau, X, sw), "grid_size": int(grid.size),
+                   "grid_min": float(grid[0]), "grid_max": float(grid[-1]),
+                   "rss_profile_min": float(rss[i])}
+    return _finish(model, qd, tau, X, enames, sw, None, None, nfev=int(grid.size), converged=True,
+                   at_bound=at_bound, diagnostics=diagnostics, beta_extra=b[:e], jac_override=J)
+
+
+def predict(fit: FrictionFit, qd, X_extra=None, *, qdd=None, dt=None) -> np.ndarray:
+    """Torque of a fit: friction ``fit.model.torque(qd, qdd, dt)`` plus ``X_extra @ extra``.
+
+    Without ``X_extra`` only the friction torque is returned.
+    """
+    tau = fit.model.torque(np.asarray(qd, float), qdd, dt)
+    if X_extra is not None:
+        X = np.asarray(X_extra, float)
+        if X.ndim == 1:
+            X = X[:, None]
+        if X.shape != (tau.shape[0], len(fit.extra)):
+            raise ValueError(f"X_extra must be {(tau.shape[0], len(fit.extra))}, got {X.shape}")
+        tau = tau + X @ np.array(list(fit.extra.values()))
+    return tau

@@ -1,0 +1,271 @@
+"""Static (memoryless) friction models: Stribeck (thesis eq. 2-6), hyperbolic (thesis eq. 2-7)
+and the arctangent model of Indri & Trapani 2020 (eq. 1-2, identified with eq. 27-28).
+
+All models are link side, SI (N m, rad/s), odd in the velocity, and share the interface of
+:class:`ident.friction.base.FrictionModel`. Each splits its parameters into ``linear_names``
+(the torque is linear in them once the others are fixed) and the remaining nonlinear ones;
+``linear_design(qd)`` returns ``(Phi, offset)`` with ``torque = Phi @ theta_lin + offset`` for
+the instance's nonlinear parameters. The estimators in :mod:`ident.friction.fit` use this split
+for variable projection.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .base import FrictionModel
+
+_2_PI = 2.0 / np.pi
+
+
+# --------------------------------------------------------------------------------------------
+# the smooth sign/abs of Indri & Trapani (pure functions, used by the dynamic models too)
+# --------------------------------------------------------------------------------------------
+def s0(v, Kv: float = 1000.0) -> np.ndarray:
+    """Indri & Trapani eq. 2: ``S0(v) = 2/pi arctan(Kv v)``, a continuous ``sign(v)``."""
+    return _2_PI * np.arctan(Kv * np.asarray(v, float))
+
+
+def s1(v, Kv: float = 1000.0) -> np.ndarray:
+    """Indri & Trapani eq. 7: ``S1(v) = S0(v) v``, a continuous ``|v|`` (never negative)."""
+    v = np.asarray(v, float)
+    return s0(v, Kv) * v
+
+
+class _StaticModel(FrictionModel):
+    """Shared helpers of the static models."""
+
+    linear_names: tuple[str, ...] = ()
+
+    @property
+    def settings(self) -> dict:
+        return {}
+
+    @property
+    def nonlinear_names(self) -> tuple[str, ...]:
+        return tuple(p for p in self.param_names if p not in self.linear_names)
+
+    def linear_design(self, qd, qdd=None, dt=None):
+        """``(Phi (T, len(linear_names)), offset (T,))`` with torque = Phi @ lin + offset."""
+        raise NotImplementedError
+
+    def torque(self, qd, qdd=None, dt=None):
+        phi, off = self.linear_design(qd)
+        lin = np.array([self._p[k] for k in self.linear_names])
+        return phi @ lin + off
+
+    @classmethod
+    def fit_hints(cls, qd, settings: dict) -> tuple[dict, dict]:
+        """(initial values, (lo, hi) bounds) of the nonlinear parameters for data ``qd``."""
+        return {}, {}
+
+    @classmethod
+    def canonical(cls, params: dict) -> dict:
+        """The representative of parameter sets that give the same torque (identity here)."""
+        return dict(params)
+
+    def degeneracy(self, qd, fit_scale: float) -> str | None:
+        """A sentence naming the degenerate form these parameters take on ``qd``, or None.
+
+        ``fit_scale`` is the torque scale the parameter sizes are compared with (e.g. the
+        largest absolute friction torque of the data).
+        """
+        return None
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        if self.settings:
+            d["settings"] = dict(self.settings)
+        return d
+
+
+# --------------------------------------------------------------------------------------------
+class Stribeck(_StaticModel):
+    """Thesis eq. 2-6, the four-parameter Stribeck model:
+
+    ``f = Fk sign(qd) + Fv qd - sign(qd) Fs (1 - exp(-|qd| / Vc))``.
+
+    With this sign convention ``Fk`` is the static (breakaway) level reached as qd -> 0 and
+    ``Fs`` is the DROP from that level to the Coulomb level at speed: far from zero the model
+    is ``(Fk - Fs) sign(qd) + Fv qd``. A physical Stribeck effect has ``Fs > 0`` and a small
+    ``Vc > 0`` (rad/s). ``f(0) = 0``; the torque is odd and discontinuous only at qd = 0.
+    Linear in (Fk, Fv, Fs) for fixed Vc.
+    """
+
+    name = "stribeck"
+    param_names = ("Fk", "Fv", "Fs", "Vc")
+    linear_names = ("Fk", "Fv", "Fs")
+
+    @staticmethod
+    def regressor(qd, Vc: float) -> np.ndarray:
+        """(T, 3) columns multiplying (Fk, Fv, Fs) for a fixed ``Vc``."""
+        qd = np.asarray(qd, float)
+        sgn = np.sign(qd)
+        if Vc < 0 or not np.isfinite(Vc):
+            raise ValueError(f"stribeck: Vc must be finite and >= 0, got {Vc}")
+        # Vc = 0 is the limit Vc -> 0+: the drop is a second sign term
+        drop = -sgn if Vc == 0 else -sgn * -np.expm1(-np.abs(qd) / Vc)
+        return np.stack([sgn, qd, drop], axis=-1)
+
+    def linear_design(self, qd, qdd=None, dt=None):
+        qd = np.asarray(qd, float)
+        return self.regressor(qd, self._p["Vc"]), np.zeros(qd.shape)
+
+    @classmethod
+    def fit_hints(cls, qd, settings):
+        vmax = float(np.max(np.abs(qd)))
+        return {"Vc": 0.05 * vmax}, {"Vc": (1e-4 * vmax, 10.0 * vmax)}
+
+    def degeneracy(self, qd, fit_scale: float) -> str | None:
+        a = np.abs(np.asarray(qd, float))
+        a = a[a > 0]
+        Fk, Fs, Vc = self._p["Fk"], self._p["Fs"], self._p["Vc"]
+        if a.size == 0:
+            return "no moving samples: nothing is identifiable"
+        if abs(Fs) < 0.02 * fit_scale:
+            return (f"Fs = {Fs:.3g} is ~0 (under 2% of the torque scale {fit_scale:.3g}): the "
+                    "Stribeck term vanishes, the model reduces to Coulomb + viscous and Vc is not "
+                    "identifiable")
+        lo, hi = np.percentile(a, [2.0, 98.0])
+        if Vc < lo / 5.0:
+            return (f"Vc = {Vc:.3g} rad/s is below the slowest sampled speeds ({lo:.3g} rad/s): "
+                    "1 - exp(-|qd|/Vc) ~ 1, the Stribeck term acts as a second Coulomb term and "
+                    f"only Fk - Fs = {Fk - Fs:.3g} is identifiable (the thesis's form with Fk ~ 0 "
+                    "and a negative Fs)")
+        if Vc > 10.0 * hi:
+            return (f"Vc = {Vc:.3g} rad/s is far above the sampled speeds ({hi:.3g} rad/s): the "
+                    "Stribeck term is linear in qd, merges with Fv and the model reduces to "
+                    "Coulomb + viscous")
+        return None
+
+
+# --------------------------------------------------------------------------------------------
+class Hyperbolic(_StaticModel):
+    """Thesis eq. 2-7 (Makkar et al. 2005), the six-parameter hyperbolic model:
+
+    ``f = g1 (tanh(g2 qd) - tanh(g3 qd)) + g4 tanh(g5 qd) + g6 qd``.
+
+    ``g4 tanh(g5 qd)`` is the smooth Coulomb term, ``g6 qd`` the viscous one, and the first
+    term the Stribeck hump (static level ~ g1 + g4). Odd and smooth. Linear in (g1, g4, g6)
+    for fixed (g2, g3, g5). The first term is symmetric under (g1, g2, g3) -> (-g1, g3, g2);
+    estimators report the representative with g2 >= g3.
+    """
+
+    name = "hyperbolic"
+    param_names = ("g1", "g2", "g3", "g4", "g5", "g6")
+    linear_names = ("g1", "g4", "g6")
+
+    @staticmethod
+    def regressor(qd, g2: float, g3: float, g5: float) -> np.ndarray:
+        """(T, 3) columns multiplying (g1, g4, g6) for fixed (g2, g3, g5)."""
+        qd = np.asarray(qd, float)
+        return np.stack([np.tanh(g2 * qd) - np.tanh(g3 * qd), np.tanh(g5 * qd), qd], axis=-1)
+
+    def linear_design(self, qd, qdd=None, dt=None):
+        qd = np.asarray(qd, float)
+        p = self._p
+        return self.regressor(qd, p["g2"], p["g3"], p["g5"]), np.zeros(qd.shape)
+
+    @classmethod
+    def fit_hints(cls, qd, settings):
+        vmax = float(np.max(np.abs(qd)))
+        b = (1e-3 / vmax, 1e4 / vmax)
+        return {"g2": 50.0 / vmax, "g3": 5.0 / vmax, "g5": 20.0 / vmax}, {"g2": b, "g3": b, "g5": b}
+
+    @classmethod
+    def canonical(cls, params):
+        p = dict(params)
+        if p["g2"] < p["g3"]:
+            p["g2"], p["g3"], p["g1"] = p["g3"], p["g2"], -p["g1"]
+        return p
+
+    def degeneracy(self, qd, fit_scale: float) -> str | None:
+        a = np.abs(np.asarray(qd, float))
+        a = a[a > 0]
+        if a.size == 0:
+            return "no moving samples: nothing is identifiable"
+        p = self._p
+        lo, hi = np.percentile(a, [2.0, 98.0])
+        hump = p["g1"] * (np.tanh(p["g2"] * a) - np.tanh(p["g3"] * a))
+        if np.max(np.abs(hump)) < 0.02 * fit_scale:
+            why = ("g2 ~ g3" if abs(p["g2"] - p["g3"]) <= 0.05 * max(p["g2"], p["g3"])
+                   else "g1 ~ 0" if abs(p["g1"]) < 0.02 * fit_scale
+                   else "tanh(g2 qd) ~ tanh(g3 qd) on the sampled speeds")
+            return (f"{why}: the Stribeck term g1 (tanh(g2 qd) - tanh(g3 qd)) is under 2% of the "
+                    "torque scale, the model reduces to g4 tanh(g5 qd) + g6 qd and g1, g2, g3 are "
+                    "not identifiable")
+        if p["g5"] * lo > 5.0:
+            return (f"g5 = {p['g5']:.3g} is huge for these data (tanh(g5 qd) = sign(qd) at every "
+                    f"sampled speed above {lo:.3g} rad/s): the Coulomb term is a pure sign "
+                    "function and g5 is not identifiable")
+        if max(p["g2"], p["g3"]) * hi < 0.2:
+            return ("g2 and g3 are so small that the Stribeck term is linear in qd over the "
+                    "sampled speeds: it merges with g6 and g1, g2, g3 are not identifiable")
+        return None
+
+
+# --------------------------------------------------------------------------------------------
+class Arctan(_StaticModel):
+    """Indri & Trapani 2020 eq. 1-2, the arctangent static model:
+
+    ``tau_f = tau_s S0(v) + tau_sc 2/pi arctan(delta v) + tau_v v + tau_nlv v^2 S0(v)`` with
+    ``S0(v) = 2/pi arctan(Kv v)``.
+
+    ``tau_s``: static level; ``tau_sc``: difference between Coulomb and static friction (the
+    Stribeck term, negative for a drop); ``tau_v``: viscous; ``tau_nlv``: nonlinear viscous;
+    ``delta`` (s/rad) shapes the Stribeck term. ``Kv`` is a setting (the paper fixes 1000), not
+    a parameter. Odd and continuous. Linear in (tau_s, tau_sc, tau_v, tau_nlv) for fixed delta:
+    the columns are the regressor of eq. 28.
+    """
+
+    name = "arctan"
+    param_names = ("tau_s", "tau_sc", "tau_v", "tau_nlv", "delta")
+    linear_names = ("tau_s", "tau_sc", "tau_v", "tau_nlv")
+
+    def __init__(self, *, Kv: float = 1000.0, **params):
+        super().__init__(**params)
+        if not Kv > 0:
+            raise ValueError(f"Arctan: Kv must be positive, got {Kv}")
+        self.Kv = float(Kv)
+
+    @property
+    def settings(self) -> dict:
+        return {"Kv": self.Kv}
+
+    @staticmethod
+    def regressor(qd, delta: float, Kv: float = 1000.0) -> np.ndarray:
+        """Indri & Trapani eq. 28: (T, 4) columns multiplying (tau_s, tau_sc, tau_v, tau_nlv)."""
+        qd = np.asarray(qd, float)
+        sg = s0(qd, Kv)
+        return np.stack([sg, _2_PI * np.arctan(qd * delta), qd, qd * qd * sg], axis=-1)
+
+    def linear_design(self, qd, qdd=None, dt=None):
+        qd = np.asarray(qd, float)
+        return self.regressor(qd, self._p["delta"], self.Kv), np.zeros(qd.shape)
+
+    # pieces reused by the dynamic (LuGre-type) models -------------------------------------
+    def g(self, v) -> np.ndarray:
+        """Indri & Trapani eq. 8: ``g(v) = tau_s + tau_sc 2/pi arctan(S1(v) delta)``."""
+        return self._p["tau_s"] + self._p["tau_sc"] * _2_PI * np.arctan(
+            s1(v, self.Kv) * self._p["delta"])
+
+    def viscous(self, v) -> np.ndarray:
+        """Indri & Trapani eq. 9: ``tau_fv(v) = tau_v v + tau_nlv v^2 S0(v)``."""
+        v = np.asarray(v, float)
+        return self._p["tau_v"] * v + self._p["tau_nlv"] * v * v * s0(v, self.Kv)
+
+    def degeneracy(self, qd, fit_scale: float) -> str | None:
+        p = self._p
+        a = np.abs(np.asarray(qd, float))
+        a = a[a > 0]
+        if a.size == 0:
+            return "no moving samples: nothing is identifiable"
+        term = np.max(np.abs(p["tau_sc"] * _2_PI * np.arctan(a * p["delta"])))
+        if term < 0.02 * fit_scale:
+            return (f"the Stribeck term tau_sc 2/pi arctan(delta v) is under 2% of the torque scale "
+                    f"(tau_sc = {p['tau_sc']:.3g}, delta = {p['delta']:.3g}): the model reduces to "
+                    "tau_s S0 + tau_v v + tau_nlv v^2 S0 and delta is not identifiable")
+        lo = np.percentile(a, 2.0)
+        if p["delta"] * lo > 30.0:
+            return (f"delta = {p['delta']:.3g} makes arctan(delta v) a sign function at every "
+                    "sampled speed: tau_sc merges with tau_s (only their sum is identifiable)")
+        return None
