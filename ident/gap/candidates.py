@@ -103,7 +103,7 @@ def _time_offset(d, hp):
     return d.qd_m[:, None]
 
 
-def candidates(gear_ratio: float | None = None) -> list[Candidate]:
+def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
     ripple_k = list(range(1, 49))
     if gear_ratio and gear_ratio > 48:
         ripple_k += [gear_ratio, 2 * gear_ratio]

@@ -28,6 +28,24 @@ def savgol_derivatives(t: np.ndarray, x: np.ndarray, window_s: float = 0.1, poly
     return xs, xd, xdd
 
 
+def standstill(t: np.ndarray, qd: np.ndarray, v_still: float = 2e-3, min_duration: float = 0.05) -> np.ndarray:
+    """Samples where the joint rests (|qd| < v_still for at least ``min_duration``): friction is
+    then static and indeterminate (anything up to breakaway balances the load), so the torque
+    channel leaves them out. Zero crossings during motion are kept."""
+    slow = np.abs(qd) < v_still
+    if not slow.any():
+        return slow
+    dt = float(np.median(np.diff(t)))
+    n_min = max(int(round(min_duration / dt)), 1)
+    edges = np.diff(np.concatenate([[0], slow.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    out = np.zeros_like(slow)
+    for s0, e0 in zip(starts, ends):  # loop over rest intervals, not samples
+        if e0 - s0 >= n_min:
+            out[s0:e0] = True
+    return out
+
+
 def fill_nan(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     ok = np.isfinite(x)
     if ok.all():
@@ -98,11 +116,16 @@ def campaign_clock(logs: list) -> list[float]:
     return offsets
 
 
-def build_joint_data(joint: int, trials, logs, robot, angles=None) -> JointData:
+def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.02) -> JointData:
     """Assemble :class:`JointData` for ``joint`` (1-based) from trials moving only that joint.
 
     ``logs[i]`` is the RobotLog of ``trials[i]``; ``angles`` maps trial id -> (t_marker, q_link)
-    of the joint (mocap), or is None.
+    of the joint (mocap), or is None. The payload ``load_kg`` is a point mass at the flange
+    origin unless the trial carries the optional key ``payload_com = [x, y, z]`` (metres, flange
+    frame; an extra manifest key, kept per FORMAT.md). Torque-channel samples slower than ``v_zero`` are left
+    out: at a velocity zero crossing the Coulomb term switches by 2c within a sample or two, and
+    no velocity estimate places that switch exactly, so those few samples would dominate every
+    squared-error comparison without carrying information about any candidate effect.
     """
     j0 = joint - 1
     drive = robot.drives[j0]
@@ -118,23 +141,25 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None) -> JointData:
         q, qd, qdd = savgol_derivatives(t, qm)
         rest = np.where(np.isfinite(lg.qm[0]), np.nanmedian(lg.qm, axis=0), 0.0)
         rest[j0] = 0.0
-        key = (round(tr.load_kg, 9), tuple(np.round(rest, 4)))
+        p_com = tuple(float(x) for x in getattr(tr, "extra", {}).get("payload_com", (0.0, 0.0, 0.0)))
+        key = (round(tr.load_kg, 9), tuple(np.round(rest, 4)), p_com)
         if key not in cache:
-            rb = robot.with_payload(tr.load_kg) if tr.load_kg > 0 else robot
+            rb = robot.with_payload(tr.load_kg, p_com) if tr.load_kg > 0 else robot
             cache[key] = rb.single_joint_dynamics(j0, rest)
         I_u, a_u, b_u = cache[key]
         s, c = np.sin(q), np.cos(q)
         y = tau - J * qdd - B * qd
-        cols["trial"].append(np.full(t.shape, i))
-        cols["t"].append(t + off)
-        cols["t_rel"].append(t - t[0])
-        cols["q"].append(q)
-        cols["qd"].append(qd)
-        cols["qdd"].append(qdd)
-        cols["y"].append(y)
-        cols["tau_urdf"].append(I_u * qdd + a_u * s + b_u * c)
-        cols["regs"].append(np.column_stack([qdd, s, c]))
-        cols["load"].append(np.full(t.shape, tr.load_kg))
+        keep = ~standstill(t, qd) & (np.abs(qd) >= v_zero)
+        cols["trial"].append((np.full(t.shape, i))[keep])
+        cols["t"].append((t + off)[keep])
+        cols["t_rel"].append((t - t[0])[keep])
+        cols["q"].append((q)[keep])
+        cols["qd"].append((qd)[keep])
+        cols["qdd"].append((qdd)[keep])
+        cols["y"].append((y)[keep])
+        cols["tau_urdf"].append((I_u * qdd + a_u * s + b_u * c)[keep])
+        cols["regs"].append((np.column_stack([qdd, s, c]))[keep])
+        cols["load"].append((np.full(t.shape, tr.load_kg))[keep])
         if angles is not None and tr.id in angles:
             tm, ql = angles[tr.id]
             ok = np.isfinite(ql) & (tm >= t[0]) & (tm <= t[-1])

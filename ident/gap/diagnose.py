@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .candidates import CONFOUNDERS, Candidate, candidates, ssign
+from .candidates import CONFOUNDERS, Candidate, candidate_effects, ssign
 from .data import JointData
 from .engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, sign_flip_pvalue, sse_with,
                      trial_bounds, unexplained_fraction, white_noise_floor)
@@ -31,7 +31,7 @@ REGIMES = ("low_speed", "high_speed", "reversal", "high_acceleration", "position
 class DiagnosisSettings:
     alpha: float = 0.01              # family-wise level (Holm) per selection step
     min_explained: float = 0.10      # an effect must remove this share of the excess gap
-    min_reduction: float = 0.01      # ... and this fraction of the held-out RMS
+    min_reduction: float = 0.02      # ... and this fraction of the held-out RMS
     max_effects: int = 3             # stepwise steps
     n_perm: int = 20000
     n_boot: int = 300
@@ -268,7 +268,7 @@ def _clean(row: dict) -> dict:
 
 def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings(),
                    gear_ratio: float | None = None) -> dict:
-    cands = candidates(gear_ratio)
+    cands = candidate_effects(gear_ratio)
     channels = [_torque_channel(d)]
     if d.has_transmission:
         channels.append(_transmission_channel(d))
@@ -309,6 +309,7 @@ def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings
     tch = channels[0]
     resid = _heldout_residual(d, tch)
     out["localisation"] = _localise(d, tch, torque_res["noise_floor_mse"], resid)
+    out["_series"] = {"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial}
     effects.sort(key=lambda r: (not r.get("significant", False), -(r.get("reduction") or 0.0)))
     out["effects"] = effects
     return out

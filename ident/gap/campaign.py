@@ -1,0 +1,79 @@
+"""Campaign-level gap diagnosis: group single-joint trials by joint and diagnose each joint."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from mocap.errors import InputError
+from mocap.robotlog import read_robot_log
+
+from .data import build_joint_data
+from .diagnose import DiagnosisSettings, diagnose_joint
+
+
+def read_angles_csv(path: str | Path) -> tuple[np.ndarray, dict]:
+    """An ``angles/<trial id>.csv`` (FORMAT.md): time and ``q_<j>`` columns -> (t, {j: q})."""
+    path = Path(path)
+    with open(path, newline="", encoding="utf-8") as fh:
+        header = next(csv.reader(fh))
+    data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
+    if "time" not in header:
+        raise InputError("no 'time' column", path=path, line=1)
+    cols = {h: data[:, k] for k, h in enumerate(header)}
+    q = {int(h[2:]): cols[h] for h in header if h.startswith("q_") and h[2:].isdigit()}
+    return cols["time"], q
+
+
+def load_angles_dir(angles_dir: str | Path, trials) -> dict:
+    """trial id -> (t, {joint: q}) for every trial with a CSV in ``angles_dir``."""
+    angles_dir = Path(angles_dir)
+    out = {}
+    for t in trials:
+        p = angles_dir / f"{t.id}.csv"
+        if p.is_file():
+            out[t.id] = read_angles_csv(p)
+    return out
+
+
+def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
+                      settings: DiagnosisSettings = DiagnosisSettings(), joints=None,
+                      progress: bool = False) -> dict:
+    """Diagnose every joint that has single-joint trials.
+
+    ``angles`` maps trial id -> (t_marker, {joint: q_link}) (from ``jointlab mocap`` or the
+    mocap solver); without it only the torque channel is diagnosed.
+    """
+    robot = robot or campaign.load_robot()
+    single = [t for t in campaign.trials if len(t.joints) == 1]
+    skipped = [t.id for t in campaign.trials if len(t.joints) != 1]
+    by_joint: dict[int, list] = {}
+    for t in single:
+        by_joint.setdefault(t.joints[0], []).append(t)
+    if joints:
+        by_joint = {j: v for j, v in by_joint.items() if j in set(joints)}
+    if not by_joint:
+        raise InputError("no single-joint trials to diagnose", path=campaign.manifest)
+    report = {"format": 1, "campaign": campaign.name, "settings": settings.to_dict(), "joints": {},
+              "skipped_trials": skipped, "link_angles": angles is not None and bool(angles)}
+    items = sorted(by_joint.items())
+    if progress:
+        from tqdm import tqdm
+        items = tqdm(items, desc="diagnose", unit="joint")
+    series = {}
+    for j, trials in items:
+        if len(trials) < 2:
+            report["joints"][str(j)] = {"verdict": "none", "note": "fewer than 2 trials: nothing held out"}
+            continue
+        logs = [read_robot_log(t.log, robot.n) for t in trials]
+        ang = None
+        if angles:
+            ang = {tid: (tq[0], tq[1][j]) for tid, tq in angles.items() if j in tq[1]}
+        d = build_joint_data(j, trials, logs, robot, ang)
+        rep = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
+        if not d.has_transmission:
+            rep["note_transmission"] = "no link angles: transmission channel (compliance, backlash, time_offset) not diagnosed"
+        series[str(j)] = rep.pop("_series", None)
+        report["joints"][str(j)] = rep
+    return report, series

@@ -1,0 +1,148 @@
+"""diagnosis.json, diagnosis.md and plots for a gap diagnosis."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def _fmt(x, nd=3):
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        return f"{x:.{nd}g}"
+    return str(x)
+
+
+def markdown(report: dict, plots: dict) -> str:
+    L = [f"# Sim-to-real gap diagnosis: {report['campaign']}", ""]
+    L.append("Nominal model: rigid joint, URDF rigid-body dynamics, Coulomb + viscous friction, "
+             "identified on training trials; every figure below is on held-out trials "
+             "(leave-one-repetition-out).")
+    L.append("")
+    if not report.get("link_angles"):
+        L += ["> No link angles were available: only the torque channel was diagnosed.", ""]
+    for j, rep in report["joints"].items():
+        L += [f"## Joint {j}: verdict **{rep['verdict']}**", ""]
+        if "note" in rep:
+            L += [rep["note"], ""]
+            continue
+        for name, ch in rep["channels"].items():
+            lo, hi = ch["heldout_rms_nominal_ci95"]
+            lo2, hi2 = ch["heldout_rms_final_ci95"]
+            sel = ", ".join(s["effect"] for s in ch["selected"]) or "nothing"
+            L.append(f"- **{name}** channel ({ch['unit']}): held-out RMS {ch['heldout_rms_nominal']:.4g} "
+                     f"[{lo:.4g}, {hi:.4g}] -> {ch['heldout_rms_final']:.4g} [{lo2:.4g}, {hi2:.4g}] "
+                     f"after adding {sel}; white-noise floor {ch['noise_floor_rms']:.3g} "
+                     f"(remaining gap {ch['remaining_gap_over_noise']:.2f}x the floor).")
+        L.append("")
+        L += ["Where the torque gap lies (local refits):", "", "| regime | share |", "|---|---|"]
+        L += [f"| {r['regime']} | {r['share']:.2f} |" for r in rep["localisation"]]
+        L += ["", "Candidate effects (first selection step):", "",
+              "| effect | channel | held-out RMS | reduction | p (Holm) | significant | shape | confounded with |",
+              "|---|---|---|---|---|---|---|---|"]
+        for e in rep["effects"]:
+            if not e.get("identifiable", True):
+                L.append(f"| {e['effect']} | {e['channel']} | - | - | - | no | {e['note']} | "
+                         f"{', '.join(e.get('confounded_with', []))} |")
+                continue
+            L.append(f"| {e['effect']} | {e['channel']} | {e['heldout_rms']:.4g} | {e['reduction']:.3f} | "
+                     f"{e['p_adjusted']:.2g} | {'yes' if e['significant'] else 'no'} | {e['shape']} | "
+                     f"{', '.join(e.get('confounded_with', []))} |")
+        v = next((e for e in rep["effects"] if e["effect"] == rep["verdict"]), None)
+        if v:
+            L += ["", f"To separate **{v['effect']}** from {', '.join(v['confounded_with']) or 'its neighbours'}: "
+                      f"{v['separating_experiment']}. Bootstrap over trials: it gives the largest reduction in "
+                      f"{100 * v.get('bootstrap_top_share', 0):.0f}% of resamples."]
+        for key in (f"joint{j}_localisation", f"joint{j}_effects", f"joint{j}_residual"):
+            if key in plots:
+                L += ["", f"![{key}]({plots[key]})"]
+        L.append("")
+    return "\n".join(L)
+
+
+def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = {}
+    for j, rep in report["joints"].items():
+        if "localisation" not in rep:
+            continue
+        fig, ax = plt.subplots(figsize=(6, 3))
+        loc = rep["localisation"]
+        ax.barh([r["regime"] for r in loc][::-1], [r["share"] for r in loc][::-1], color="tab:blue")
+        ax.set_xlabel("share of held-out torque gap")
+        ax.set_title(f"joint {j}: where the gap lies")
+        fig.tight_layout()
+        p = out_dir / f"joint{j}_localisation.png"
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        paths[f"joint{j}_localisation"] = p.name
+        eff = [e for e in rep["effects"] if e.get("identifiable", True)]
+        fig, ax = plt.subplots(figsize=(6, 3.5))
+        ax.barh([e["effect"] for e in eff][::-1], [e["reduction"] for e in eff][::-1],
+                color=["tab:green" if e["significant"] else "tab:gray" for e in eff][::-1])
+        ax.set_xlabel("held-out RMS reduction (fraction of nominal)")
+        ax.set_title(f"joint {j}: candidate effects (green = significant)")
+        fig.tight_layout()
+        p = out_dir / f"joint{j}_effects.png"
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        paths[f"joint{j}_effects"] = p.name
+        s = series.get(j)
+        if s is not None:
+            fig, ax = plt.subplots(figsize=(6, 3.5))
+            step = max(1, s["qd"].shape[0] // 20000)
+            ax.plot(s["qd"][::step], s["residual_nominal"][::step], ".", ms=1, alpha=0.4)
+            ax.set_xlabel("joint velocity [rad/s]")
+            ax.set_ylabel("held-out torque residual [N m]")
+            ax.set_title(f"joint {j}: nominal model residual")
+            fig.tight_layout()
+            p = out_dir / f"joint{j}_residual.png"
+            fig.savefig(p, dpi=100)
+            plt.close(fig)
+            paths[f"joint{j}_residual"] = p.name
+    return paths
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, float) and not np.isfinite(o):
+        return None
+    return o
+
+
+def write_report(report: dict, series: dict, out_dir: Path, sink=None) -> dict:
+    """Write diagnosis.json, diagnosis.md and PNG plots into ``out_dir``; log to ``sink``."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plots = make_plots(report, series, out_dir)
+    md = markdown(report, plots)
+    paths = {"json": out_dir / "diagnosis.json", "md": out_dir / "diagnosis.md"}
+    tmp = paths["json"].with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(_jsonable(report), indent=1), encoding="utf-8")
+    tmp.replace(paths["json"])
+    paths["md"].write_text(md, encoding="utf-8")
+    if sink is not None and sink.enabled:
+        sink.text("diagnosis/report", md)
+        for j, s in series.items():
+            if s is None:
+                continue
+            sink.scalars(f"diagnosis/joint{j}/residual_nominal", s["t"] if "t" in s else np.arange(s["qd"].size),
+                         s["residual_nominal"])
+        try:
+            import matplotlib.image as mpimg
+            for key, name in plots.items():
+                img = (mpimg.imread(out_dir / name)[..., :3] * 255).astype(np.uint8)
+                sink.image(f"diagnosis/plots/{key}", img)
+        except (OSError, ValueError):
+            pass
+    return paths
