@@ -7,8 +7,10 @@ from .errors import InputError
 from .recording import MarkerRecording
 
 
-def read_markers(path: str | Path) -> MarkerRecording:
-    """Read a ``.trc`` or ``.c3d`` marker file into a :class:`MarkerRecording` (metres)."""
+def read_markers(path: str | Path, **kw) -> MarkerRecording:
+    """Read a ``.trc`` or ``.c3d`` marker file into a :class:`MarkerRecording` (metres).
+
+    Keyword arguments go to the C3D reader (``isolate``, ``timeout_s``)."""
     path = Path(path)
     if not path.is_file():
         raise InputError("marker file not found", path=path)
@@ -20,7 +22,7 @@ def read_markers(path: str | Path) -> MarkerRecording:
     if ext == ".c3d":
         from .c3d import read_c3d
 
-        return read_c3d(path)
+        return read_c3d(path, **kw)
     raise InputError(f"unknown marker file extension {ext!r} (expected .trc or .c3d)", path=path)
 
 

@@ -100,4 +100,5 @@ class MarkerRecording:
             "first_time": float(self.time[0]) if self.n_frames else None,
             "last_time": float(self.time[-1]) if self.n_frames else None,
             "missing_fraction": self.missing_fraction(),
+            "header_mismatch": list(self.meta.get("header_mismatch", [])),
         }

@@ -1,0 +1,560 @@
+"""Rotation-axis estimation from a single-joint sweep (thesis section 3.2, after Halvorsen 2003).
+
+A joint is rotated alone while markers glued to the links it carries are recorded. Every
+marker then moves on a circle about the joint axis. Two estimators are offered, both
+returning an :class:`AxisFit` in the camera frame:
+
+* :class:`CircleAxisEstimator` fits each marker's circle on its own (plane + the
+  bias-compensated least-squares centre of Halvorsen et al. 2003,
+  ``c = 1/2 (C - sigma^2 I)^-1 (s - 2 sigma^2 pbar)``), combines the markers with weights
+  from radius, arc and noise, then refines one common axis by orthogonal-distance least
+  squares (robust IRLS).
+* :class:`ClusterAxisEstimator` fits per-frame rigid transforms of the marker cluster
+  (Kabsch), takes their common screw axis, then refines by maximum likelihood of the rigid
+  sweep model ``p_tk = a + R(n, theta_t) (s_k - a)`` (bundle adjustment with a Schur
+  complement over the per-frame angles, robust IRLS, per-marker noise weights).
+
+:func:`sweep_crb` evaluates the Cramer-Rao bound of the axis for the sweep geometry
+(the Fisher information of the same rigid model with the per-frame angles and marker
+positions as nuisance parameters, marginalised by the Schur complement).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocap.errors import InputError
+
+from .geometry import (angle_about, kabsch_batch, perp_basis, rotations_about, unit)
+
+#: the thesis's 3-D residual of the motion-capture system, 0.845 mm RMS (section 4.1)
+DEFAULT_NOISE_MM = 0.85
+
+
+@dataclass(frozen=True, eq=False)
+class AxisFit:
+    """A fitted joint axis in the camera frame.
+
+    ``point`` is the point of the axis nearest to the centroid of the moving markers;
+    ``cov`` and ``crb`` are 4x4 covariances of the chart coordinates
+    (``alpha, beta`` direction tilts in rad along ``basis[0], basis[1]``; ``gamma, delta``
+    point shifts in metres), see :mod:`calib.geometry`.
+    """
+
+    point: np.ndarray
+    direction: np.ndarray
+    basis: tuple
+    cov: np.ndarray
+    crb: np.ndarray
+    rms_mm: float
+    sigma_mm: float
+    marker_rms_mm: dict
+    marker_radius_m: dict
+    sweep_deg: float
+    n_frames: int
+    n_observations: int
+    n_outliers: int
+    iterations: int
+    converged: bool
+    cond: float
+    method: str
+    joint: int | None = None
+    extra: dict = field(default_factory=dict)
+
+    def with_joint(self, joint: int, flip: bool = False) -> "AxisFit":
+        """A copy labelled with its joint; ``flip`` reverses the direction (same line)."""
+        d = -self.direction if flip else self.direction
+        basis = (self.basis[1], self.basis[0]) if flip else self.basis  # keeps u x v = n
+        cov = self.cov[np.ix_([1, 0, 3, 2], [1, 0, 3, 2])] if flip else self.cov
+        crb = self.crb[np.ix_([1, 0, 3, 2], [1, 0, 3, 2])] if flip else self.crb
+        return AxisFit(self.point, d, basis, cov, crb, self.rms_mm, self.sigma_mm,
+                       self.marker_rms_mm, self.marker_radius_m, self.sweep_deg, self.n_frames,
+                       self.n_observations, self.n_outliers, self.iterations, self.converged,
+                       self.cond, self.method, joint, dict(self.extra))
+
+    @property
+    def direction_std_deg(self) -> float:
+        return float(np.degrees(np.sqrt(self.cov[0, 0] + self.cov[1, 1])))
+
+    @property
+    def point_std_mm(self) -> float:
+        return float(1e3 * np.sqrt(self.cov[2, 2] + self.cov[3, 3]))
+
+    def to_dict(self) -> dict:
+        return {
+            "joint": self.joint,
+            "point_camera": [float(x) for x in self.point],
+            "direction_camera": [float(x) for x in self.direction],
+            "rms_mm": float(self.rms_mm),
+            "method": self.method,
+            "sigma_mm": float(self.sigma_mm),
+            "sweep_deg": float(self.sweep_deg),
+            "point_std_mm": self.point_std_mm,
+            "direction_std_deg": self.direction_std_deg,
+            "crb_point_std_mm": float(1e3 * np.sqrt(self.crb[2, 2] + self.crb[3, 3])),
+            "crb_direction_std_deg": float(np.degrees(np.sqrt(self.crb[0, 0] + self.crb[1, 1]))),
+            "chart_basis_camera": [[float(x) for x in b] for b in self.basis],
+            "cov_chart": self.cov.tolist(),
+            "crb_chart": self.crb.tolist(),
+            "marker_rms_mm": {k: float(v) for k, v in self.marker_rms_mm.items()},
+            "marker_radius_m": {k: float(v) for k, v in self.marker_radius_m.items()},
+            "n_frames": self.n_frames,
+            "n_observations": self.n_observations,
+            "n_outliers": self.n_outliers,
+            "iterations": self.iterations,
+            "converged": self.converged,
+            "cond": float(self.cond),
+            **self.extra,
+        }
+
+
+# ---------------------------------------------------------------------------------------
+# input checks
+# ---------------------------------------------------------------------------------------
+def _prepare(positions, labels, min_frames: int, min_markers: int):
+    P = np.asarray(positions, float)
+    if P.ndim != 3 or P.shape[2] != 3:
+        raise InputError(f"marker positions must have shape (T, M, 3), got {P.shape}")
+    labels = tuple(labels) if labels is not None else tuple(f"m{k}" for k in range(P.shape[1]))
+    if len(labels) != P.shape[1]:
+        raise InputError(f"{len(labels)} labels for {P.shape[1]} markers")
+    vis = np.all(np.isfinite(P), axis=2)
+    keep = vis.sum(axis=0) >= min_frames
+    if keep.sum() < min_markers:
+        seen = ", ".join(f"{lb} ({int(c)} frames)" for lb, c in zip(labels, vis.sum(axis=0)))
+        raise InputError(f"only {int(keep.sum())} markers are visible in at least {min_frames} frames "
+                         f"(need {min_markers}): {seen or 'none'}")
+    return P[:, keep], tuple(lb for lb, k in zip(labels, keep) if k), vis[:, keep]
+
+
+def _huber_weights(r_norm: np.ndarray, scale: float, k: float) -> np.ndarray:
+    c = k * scale
+    w = np.ones_like(r_norm)
+    big = r_norm > c
+    w[big] = c / r_norm[big]
+    return w
+
+
+def _robust_scale(r_norm: np.ndarray, dof: int = 3) -> float:
+    """Per-axis sigma from the median 3-D residual norm (chi distribution median, dof 3 or 2)."""
+    med = {3: 1.5382, 2: 1.1774, 1: 0.6745}[dof]
+    return float(np.median(r_norm) / med) if r_norm.size else float("nan")
+
+
+# ---------------------------------------------------------------------------------------
+# the rigid sweep model: p_tk = a + R(n, theta_t) (s_k - a)
+# ---------------------------------------------------------------------------------------
+class _RigidSweep:
+    """Bundle adjustment of the rigid sweep model with the per-frame angles eliminated by a
+    Schur complement (their block of the normal matrix is diagonal)."""
+
+    def __init__(self, P, vis):
+        self.P = P
+        self.T, self.M = P.shape[:2]
+        self.t_idx, self.k_idx = np.nonzero(vis)
+        self.obs = P[self.t_idx, self.k_idx]
+        self.G = 4 + 3 * self.M
+
+    def jacobian(self, a, n, u, v, theta, s):
+        """Model points and the Jacobians w.r.t. the global block (chart of the axis around
+        ``(a, n)`` + marker positions) and the per-frame angles."""
+        ti, ki = self.t_idx, self.k_idx
+        R = rotations_about(n, theta)[ti]                       # (K, 3, 3)
+        d = s[ki] - a                                          # (K, 3)
+        Rd = np.einsum("kij,kj->ki", R, d)
+        model = a + Rd
+        K = len(ti)
+        Jg = np.zeros((K, 3, self.G))
+        st = np.sin(theta[ti])[:, None]
+        ct1 = (1.0 - np.cos(theta[ti]))[:, None]
+        nd = d @ n
+        for col, e in ((0, u), (1, v)):
+            Jg[:, :, col] = st * np.cross(e, d) + ct1 * (e[None] * nd[:, None] + n[None] * (d @ e)[:, None])
+        IR = np.eye(3) - R
+        Jg[:, :, 2] = IR @ u
+        Jg[:, :, 3] = IR @ v
+        cols = 4 + 3 * ki[:, None] + np.arange(3)[None]        # (K, 3)
+        Jg[np.arange(K)[:, None, None], np.arange(3)[None, :, None], cols[:, None, :]] = R
+        Jt = np.cross(n[None], Rd)                             # (K, 3)
+        return model, Jg, Jt
+
+    def normal_equations(self, Jg, Jt, r, w, ref):
+        ti = self.t_idx
+        K = len(ti)
+        J2 = Jg.reshape(3 * K, self.G)
+        Jw = J2 * np.repeat(w, 3)[:, None]
+        Hgg = Jw.T @ J2
+        bg = Jw.T @ r.reshape(-1)
+        per = np.einsum("kig,ki->kg", Jw.reshape(K, 3, self.G), Jt)
+        Hgt = np.zeros((self.T, self.G))
+        starts = np.flatnonzero(np.r_[True, np.diff(ti) != 0])   # t_idx is sorted (np.nonzero)
+        Hgt[ti[starts]] = np.add.reduceat(per, starts, axis=0)
+        htt = np.bincount(ti, weights=w * np.einsum("ki,ki->k", Jt, Jt), minlength=self.T)
+        btt = np.bincount(ti, weights=w * np.einsum("ki,ki->k", Jt, r), minlength=self.T)
+        free = htt > 1e-12 * max(htt.max(), 1e-300)
+        free[ref] = False
+        hinv = np.where(free, 1.0 / np.where(free, htt, 1.0), 0.0)
+        S = Hgg - (Hgt * hinv[:, None]).T @ Hgt
+        rhs = bg - Hgt.T @ (btt * hinv)
+        return S, rhs, Hgt, btt, hinv
+
+    def init(self, P, vis):
+        """Kabsch per frame against the most complete frame, then the common screw axis."""
+        ref = int(np.argmax(vis.sum(axis=1) + 1e-6 * np.arange(self.T)[::-1]))
+        S0 = P[ref]
+        w = (vis & vis[ref][None]).astype(float)
+        R, t = kabsch_batch(np.where(vis[ref][:, None], S0, 0.0), P, w)
+        ok = np.all(np.isfinite(R), axis=(1, 2))
+        if ok.sum() < 3:
+            raise InputError("fewer than 3 frames see 3 markers of the reference frame; "
+                             "cannot form the rigid cluster")
+        # reference positions of markers hidden in the reference frame: average back-mapped
+        if not vis[ref].all():
+            Rt = np.swapaxes(R[ok], 1, 2)
+            back = np.einsum("tij,tmj->tmi", Rt, P[ok] - t[ok][:, None])
+            vv = vis[ok]
+            cnt = vv.sum(axis=0)
+            mean = np.nansum(np.where(vv[..., None], back, 0.0), axis=0) / np.maximum(cnt, 1)[:, None]
+            S0 = np.where(vis[ref][:, None], S0, mean)
+        A = R[ok] - np.eye(3)
+        H = np.einsum("tji,tjk->ik", A, A)
+        evals, evecs = np.linalg.eigh(H)
+        n = evecs[:, 0]
+        c = S0.mean(axis=0)
+        IR = -A
+        Hx = np.einsum("tji,tjk->ik", IR, IR) + np.outer(n, n) * max(evals[-1], 1e-9)
+        bx = np.einsum("tji,tj->i", IR, t[ok]) + n * (n @ c) * max(evals[-1], 1e-9)
+        a = np.linalg.solve(Hx, bx)
+        theta = np.zeros(self.T)
+        theta[ok] = angle_about(R[ok], n)
+        # frames without a Kabsch pose: angle from the nearest good frame
+        if not ok.all():
+            idx = np.flatnonzero(ok)
+            theta = np.interp(np.arange(self.T), idx, theta[ok])
+        theta = np.unwrap(theta)             # sweeps past +-180 deg from the reference frame
+        theta -= theta[ref]
+        return a, n, theta, S0, ref
+
+    def solve(self, a, n, theta, s, ref, robust=True, huber_k=2.5, marker_weights=True,
+              max_iter=50, tol=1e-10):
+        K = len(self.t_idx)
+        w_rob = np.ones(K)
+        w_mk = np.ones(self.M)
+        it = 0
+        converged = False
+        c = s.mean(axis=0)
+        for it in range(1, max_iter + 1):
+            a = a + ((c - a) @ n) * n
+            u, v = perp_basis(n)
+            model, Jg, Jt = self.jacobian(a, n, u, v, theta, s)
+            r = self.obs - model
+            rn = np.linalg.norm(r, axis=1)
+            if robust and it > 1:
+                scale = _robust_scale(rn)
+                w_rob = _huber_weights(rn, scale, huber_k)
+            if marker_weights and it > 2:
+                ss = np.bincount(self.k_idx, weights=w_rob * rn ** 2, minlength=self.M)
+                cnt = np.bincount(self.k_idx, weights=w_rob, minlength=self.M)
+                var = ss / np.maximum(3 * cnt, 1e-12)
+                w_mk = np.median(var) / np.maximum(var, 1e-3 * np.median(var))
+            w = w_rob * w_mk[self.k_idx]
+            S, rhs, Hgt, btt, hinv = self.normal_equations(Jg, Jt, r, w, ref)
+            dg = np.linalg.lstsq(S, rhs, rcond=None)[0]
+            dth = (btt - Hgt @ dg) * hinv
+            n_new = unit(n + dg[0] * u + dg[1] * v)
+            a = a + dg[2] * u + dg[3] * v
+            n = n_new
+            s = s + dg[4:].reshape(self.M, 3)
+            theta = theta + dth
+            step = np.abs(dg[:4]).max() + np.abs(dg[4:]).max(initial=0) + np.abs(dth).max()
+            if step < tol and it > 3:
+                converged = True
+                break
+        a = a + ((c - a) @ n) * n
+        u, v = perp_basis(n)
+        model, Jg, Jt = self.jacobian(a, n, u, v, theta, s)
+        r = self.obs - model
+        return a, n, theta, s, r, w_rob, w_mk, it, converged, (Jg, Jt, u, v)
+
+    def axis_information(self, Jg, Jt, w, ref):
+        """Schur complement of the normal matrix onto the 4 axis chart coordinates."""
+        S, *_ = self.normal_equations(Jg, Jt, np.zeros((len(self.t_idx), 3)), w, ref)
+        Saa, Sas, Sss = S[:4, :4], S[:4, 4:], S[4:, 4:]
+        info = Saa - Sas @ np.linalg.solve(Sss, Sas.T)
+        return info
+
+
+def _marker_stats(r, k_idx, M, labels, a, n, s, w_rob):
+    rms = np.sqrt(np.bincount(k_idx, weights=np.sum(r ** 2, axis=1), minlength=M)
+                  / np.maximum(np.bincount(k_idx, minlength=M), 1))
+    d = s - a
+    rad = np.linalg.norm(d - np.outer(d @ n, n), axis=1)
+    return ({lb: 1e3 * x for lb, x in zip(labels, rms)},
+            {lb: float(x) for lb, x in zip(labels, rad)})
+
+
+def sweep_crb(positions, labels=None, sigma_mm: float = DEFAULT_NOISE_MM, fit: "AxisFit" = None):
+    """Cramer-Rao bound (4x4, chart coordinates of ``fit``'s axis) for a sweep's axis.
+
+    ``sigma_mm`` is the 3-D RMS marker noise (per-axis sigma = sigma_mm / sqrt(3)). The rigid
+    sweep model is linearised at its own estimate (ClusterAxisEstimator without the robust
+    weights); the per-frame angles and marker positions are nuisance parameters.
+    """
+    est = ClusterAxisEstimator(robust=False, noise_mm=sigma_mm, marker_weights=False)
+    f = est.fit(positions, labels)
+    crb = f.crb
+    if fit is not None:
+        crb = _rebase_cov(crb, f, fit)
+    return crb
+
+
+def _rebase_cov(cov, src: AxisFit, dst: AxisFit) -> np.ndarray:
+    """Express a chart covariance of ``src``'s axis in ``dst``'s chart (numerical Jacobian)."""
+    from .geometry import chart_coords, chart_line
+
+    u0, v0 = src.basis
+    u1, v1 = dst.basis
+    J = np.zeros((4, 4))
+    h = 1e-7
+    for i in range(4):
+        e = np.zeros(4)
+        e[i] = h
+        q, m = chart_line(e, src.point, src.direction, u0, v0)
+        qm, mm = chart_line(-e, src.point, src.direction, u0, v0)
+        J[:, i] = (chart_coords(q, m, dst.point, dst.direction, u1, v1)
+                   - chart_coords(qm, mm, dst.point, dst.direction, u1, v1)) / (2 * h)
+    return J @ cov @ J.T
+
+
+class ClusterAxisEstimator:
+    """Rigid-cluster axis estimator (Kabsch per frame -> screw axis -> rigid-sweep ML).
+
+    Parameters
+    ----------
+    robust : Huber IRLS on the per-observation 3-D residual (gross errors, swaps).
+    huber_k : Huber threshold in units of the robust per-axis sigma.
+    marker_weights : weight markers by their own residual variance (noisy markers count less).
+    noise_mm : 3-D RMS marker noise used for the Cramer-Rao bound.
+    min_frames : frames a marker must be seen in to be used.
+    """
+
+    method = "cluster"
+
+    def __init__(self, robust: bool = True, huber_k: float = 2.5, marker_weights: bool = True,
+                 noise_mm: float = DEFAULT_NOISE_MM, min_frames: int = 10, max_iter: int = 50):
+        self.robust = robust
+        self.huber_k = huber_k
+        self.marker_weights = marker_weights
+        self.noise_mm = noise_mm
+        self.min_frames = min_frames
+        self.max_iter = max_iter
+
+    def fit(self, positions, labels=None) -> AxisFit:
+        """Fit the axis of a sweep: ``positions`` (T, M, 3) metres, NaN where occluded."""
+        P, labels, vis = _prepare(positions, labels, self.min_frames, 3)
+        model = _RigidSweep(P, vis)
+        a, n, theta, s, ref = model.init(P, vis)
+        a, n, theta, s, r, w_rob, w_mk, it, conv, (Jg, Jt, u, v) = model.solve(
+            a, n, theta, s, ref, robust=self.robust, huber_k=self.huber_k,
+            marker_weights=self.marker_weights, max_iter=self.max_iter)
+        w = w_rob * w_mk[model.k_idx]
+        K = len(model.t_idx)
+        dof = max(3 * K - (model.G + int(np.sum(np.bincount(model.t_idx, minlength=model.T) > 0)) - 1), 1)
+        sig2 = float(np.sum(w * np.sum(r ** 2, axis=1)) / dof)
+        info = model.axis_information(Jg, Jt, w, ref)
+        cov = sig2 * np.linalg.inv(info)
+        info1 = model.axis_information(Jg, Jt, np.ones(K), ref)
+        crb = (self.noise_mm * 1e-3) ** 2 / 3.0 * np.linalg.inv(info1)
+        rn = np.linalg.norm(r, axis=1)
+        scale = _robust_scale(rn)
+        outl = int(np.sum(rn > 4.0 * scale)) if np.isfinite(scale) else 0
+        mrms, mrad = _marker_stats(r, model.k_idx, model.M, labels, a, n, s, w_rob)
+        used = np.bincount(model.t_idx, minlength=model.T) > 0
+        th = theta[used]
+        return AxisFit(point=a, direction=n, basis=(u, v), cov=cov, crb=crb,
+                       rms_mm=float(1e3 * np.sqrt(np.mean(np.sum(r ** 2, axis=1)))),
+                       sigma_mm=float(1e3 * np.sqrt(3 * sig2)), marker_rms_mm=mrms,
+                       marker_radius_m=mrad, sweep_deg=float(np.degrees(th.max() - th.min())),
+                       n_frames=int(used.sum()), n_observations=K, n_outliers=outl,
+                       iterations=it, converged=conv, cond=float(np.linalg.cond(info)),
+                       method=self.method,
+                       extra={"marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}})
+
+
+# ---------------------------------------------------------------------------------------
+# per-marker circles (Halvorsen bias-compensated least squares) + joint refinement
+# ---------------------------------------------------------------------------------------
+def fit_circle_bcls(points: np.ndarray, sigma2: float | None = None):
+    """One marker's circle: plane by PCA, centre by bias-compensated least squares.
+
+    Implements Halvorsen et al. (2003) in the plane of the arc:
+    ``c = 1/2 (C - sigma^2 I)^-1 s`` with ``C`` the in-plane covariance and
+    ``s = mean(|x|^2 (x - xbar))`` in centred coordinates (the ``2 sigma^2 xbar`` term
+    vanishes there). ``sigma2`` (per-axis variance) defaults to the out-of-plane variance.
+    Returns ``centre (3,), normal (3,), radius, sigma2, lambda_min_in_plane, n_points``.
+    """
+    X = np.asarray(points, float)
+    X = X[np.all(np.isfinite(X), axis=1)]
+    N = X.shape[0]
+    if N < 5:
+        raise InputError(f"a circle needs at least 5 points, got {N}")
+    mu = X.mean(axis=0)
+    Y = X - mu
+    C = Y.T @ Y / N
+    evals, evecs = np.linalg.eigh(C)
+    nrm = evecs[:, 0]
+    B = evecs[:, 1:]                    # in-plane basis
+    if sigma2 is None:
+        sigma2 = float(evals[0] * N / max(N - 3, 1))
+    x = Y @ B
+    C2 = x.T @ x / N
+    s2 = np.mean(np.sum(x ** 2, axis=1)[:, None] * x, axis=0)
+    A = C2 - sigma2 * np.eye(2)
+    c2 = 0.5 * np.linalg.solve(A, s2)
+    r2 = np.mean(np.sum((x - c2) ** 2, axis=1)) - 2.0 * sigma2
+    centre = mu + B @ c2
+    return centre, nrm, float(np.sqrt(max(r2, 0.0))), float(sigma2), float(evals[1]), N
+
+
+class CircleAxisEstimator:
+    """Per-marker circle estimator (Halvorsen BCLS) with a common-axis refinement.
+
+    Parameters
+    ----------
+    refine : after combining the per-marker circles, fit one axis to all markers by
+        orthogonal distance (radial and axial residual to each marker's circle), robust IRLS.
+    sigma_mm : known 3-D RMS noise for the bias compensation (default: estimated per marker
+        from the out-of-plane scatter).
+    noise_mm : 3-D RMS noise used for the Cramer-Rao bound (rigid sweep model).
+    """
+
+    method = "circle"
+
+    def __init__(self, refine: bool = True, robust: bool = True, huber_k: float = 2.5,
+                 sigma_mm: float | None = None, noise_mm: float = DEFAULT_NOISE_MM,
+                 min_frames: int = 10, max_iter: int = 50):
+        self.refine = refine
+        self.robust = robust
+        self.huber_k = huber_k
+        self.sigma_mm = sigma_mm
+        self.noise_mm = noise_mm
+        self.min_frames = min_frames
+        self.max_iter = max_iter
+
+    def combine(self, P, vis):
+        """Weighted combination of the per-marker BCLS circles: direction and axis point."""
+        sig2 = None if self.sigma_mm is None else (self.sigma_mm * 1e-3) ** 2 / 3.0
+        circles = [fit_circle_bcls(P[vis[:, k], k], sig2) for k in range(P.shape[1])]
+        cen = np.array([c[0] for c in circles])
+        nrm = np.array([c[1] for c in circles])
+        rad = np.array([c[2] for c in circles])
+        s2 = np.maximum(np.array([c[3] for c in circles]), 1e-14)
+        lam = np.array([c[4] for c in circles])
+        N = np.array([c[5] for c in circles], float)
+        w_dir = N * lam / s2                  # information on the plane normal
+        Hn = np.einsum("k,ki,kj->ij", w_dir, nrm, nrm)
+        n = np.linalg.eigh(Hn)[1][:, -1]
+        w_c = N * lam / (s2 * np.maximum(rad, 1e-6) ** 2)   # centre precision ~ N lambda / (sigma^2 r^2)
+        Pn = np.eye(3) - np.outer(n, n)
+        a = (w_c @ (cen @ Pn)) / w_c.sum()
+        return a, n, rad, circles
+
+    def fit(self, positions, labels=None) -> AxisFit:
+        """Fit the axis of a sweep: ``positions`` (T, M, 3) metres, NaN where occluded."""
+        P, labels, vis = _prepare(positions, labels, self.min_frames, 2)
+        M = P.shape[1]
+        a, n, rad, circles = self.combine(P, vis)
+        t_idx, k_idx = np.nonzero(vis)
+        X = P[t_idx, k_idx]
+        c = X.mean(axis=0)
+        hk = np.bincount(k_idx, weights=(X - c) @ n, minlength=M) / np.bincount(k_idx, minlength=M)
+        w_rob = np.ones(len(t_idx))
+        w_mk = np.ones(M)
+        it, conv = 0, False
+        iters = self.max_iter if self.refine else 1
+        for it in range(1, iters + 1):
+            a = a + ((c - a) @ n) * n
+            u, v = perp_basis(n)
+            r, J = self._residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c)
+            if not self.refine:
+                break
+            rn = np.linalg.norm(r, axis=1)
+            if self.robust and it > 1:
+                w_rob = _huber_weights(rn, _robust_scale(rn, 2), self.huber_k)
+            if it > 2:
+                ss = np.bincount(k_idx, weights=w_rob * rn ** 2, minlength=M)
+                cnt = np.bincount(k_idx, weights=w_rob, minlength=M)
+                var = ss / np.maximum(2 * cnt, 1e-12)
+                w_mk = np.median(var) / np.maximum(var, 1e-3 * np.median(var))
+            w = w_rob * w_mk[k_idx]
+            H = np.einsum("k,kig,kih->gh", w, J, J)
+            b = np.einsum("k,kig,ki->g", w, J, r)
+            dx = np.linalg.lstsq(H, b, rcond=None)[0]
+            n = unit(n + dx[0] * u + dx[1] * v)
+            a = a + dx[2] * u + dx[3] * v
+            rad = rad + dx[4:4 + M]
+            hk = hk + dx[4 + M:]
+            if np.abs(dx).max() < 1e-11 and it > 3:
+                conv = True
+                break
+        a = a + ((c - a) @ n) * n
+        u, v = perp_basis(n)
+        r, J = self._residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c)
+        w = w_rob * w_mk[k_idx]
+        H = np.einsum("k,kig,kih->gh", w, J, J)
+        dof = max(2 * len(k_idx) - (4 + 2 * M), 1)
+        sig2 = float(np.sum(w * np.sum(r ** 2, axis=1)) / dof)
+        Hinv = np.linalg.pinv(H)
+        cov = sig2 * Hinv[:4, :4]
+        fit0 = AxisFit(point=a, direction=n, basis=(u, v), cov=cov, crb=np.full((4, 4), np.nan),
+                       rms_mm=0.0, sigma_mm=0.0, marker_rms_mm={}, marker_radius_m={},
+                       sweep_deg=0.0, n_frames=0, n_observations=0, n_outliers=0, iterations=0,
+                       converged=True, cond=0.0, method=self.method)
+        try:
+            rigid = ClusterAxisEstimator(robust=False, marker_weights=False, noise_mm=self.noise_mm,
+                                         min_frames=self.min_frames).fit(P, labels)
+            crb, sweep = _rebase_cov(rigid.crb, rigid, fit0), rigid.sweep_deg
+        except InputError:          # fewer than 3 markers: no rigid cluster, no bound
+            crb, sweep = np.full((4, 4), np.nan), float("nan")
+        # 3-D residual per observation: in-plane tangential component is not modelled
+        rn = np.linalg.norm(r, axis=1)
+        scale = _robust_scale(rn, 2)
+        mrms = np.sqrt(np.bincount(k_idx, weights=rn ** 2, minlength=M) / np.bincount(k_idx, minlength=M))
+        return AxisFit(point=a, direction=n, basis=(u, v), cov=cov, crb=crb,
+                       rms_mm=float(1e3 * np.sqrt(np.mean(rn ** 2))),
+                       sigma_mm=float(1e3 * np.sqrt(3 * sig2)),
+                       marker_rms_mm={lb: 1e3 * float(x) for lb, x in zip(labels, mrms)},
+                       marker_radius_m={lb: float(x) for lb, x in zip(labels, rad)},
+                       sweep_deg=sweep, n_frames=int(np.any(vis, axis=1).sum()),
+                       n_observations=len(k_idx), n_outliers=int(np.sum(rn > 4 * scale)),
+                       iterations=it, converged=conv or not self.refine,
+                       cond=float(np.linalg.cond(H[:4, :4])), method=self.method,
+                       extra={"bcls_radius_m": {lb: c[2] for lb, c in zip(labels, circles)},
+                              "marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}})
+
+    @staticmethod
+    def _residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c):
+        """Radial and axial residuals (K, 2) to each marker's circle and their Jacobian
+        (K, 2, 4 + 2M) w.r.t. the axis chart, the radii and the axial offsets."""
+        d = X - a
+        z = d @ n
+        e = d - z[:, None] * n
+        rho = np.linalg.norm(e, axis=1)
+        eh = e / np.maximum(rho, 1e-12)[:, None]
+        xc = X - c
+        r = np.stack([rho - rad[k_idx], xc @ n - hk[k_idx]], axis=1)
+        K = len(k_idx)
+        # J is d(model)/d(params) = -d(r)/d(params), so the Gauss-Newton step is H^-1 J^T r.
+        # A tilt of n by b (b = u or v) about the fixed point a: d(rho) = -z (eh . b);
+        # the axial coordinate is measured from the fixed centroid c: d((X - c).n) = (X - c).b
+        J = np.zeros((K, 2, 4 + 2 * M))
+        for col, b in ((0, u), (1, v)):
+            J[:, 1, col] = -(xc @ b)
+            J[:, 0, col] = z * (eh @ b)
+        for col, b in ((2, u), (3, v)):
+            J[:, 0, col] = eh @ b
+            J[:, 1, col] = 0.0
+        J[np.arange(K), 0, 4 + k_idx] = 1.0
+        J[np.arange(K), 1, 4 + M + k_idx] = 1.0
+        return r, J

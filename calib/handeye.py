@@ -1,0 +1,132 @@
+"""Hand-eye / robot-world cross-check: a marker cluster on a distal link plus forward kinematics.
+
+The camera sees markers ``s_k`` fixed in link ``L``; the robot reports ``q_t``. Then
+``p_tk = Z T_base_L(q_t) s_k`` with ``Z = T_camera_base`` unknown (the robot-world half of
+``A X = Z B``). The solve here does not need OpenCV (whose 5.x wheels lack
+``calibrateRobotWorldHandEye``):
+
+1. cluster poses ``A_t`` by Kabsch against a reference frame; with ``C_t = B_t B_ref^-1``
+   (``B_t = T_base_L(q_t)``) the relation is ``A_t Z = Z C_t``;
+2. rotation of ``Z`` by aligning the rotation vectors of ``A_t`` and ``C_t`` (Kabsch), then
+   translation by linear least squares on ``(R_A - I) t_Z = R_Z t_C - t_A`` (Park & Martin 1994);
+3. refinement by variable projection: for a given ``Z`` the marker positions ``s_k`` are the
+   mean of the back-transformed observations (rigid maps preserve norms), so least squares
+   runs over the 6 pose parameters only, with a robust loss.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from mocap.errors import InputError
+from mocap.kinematics import invert_transform
+
+from .geometry import kabsch_batch, rotvec_to_matrix
+
+
+@dataclass(frozen=True, eq=False)
+class HandEyeResult:
+    T_camera_base: np.ndarray
+    p_link: dict            # label -> (3,) marker position in the link frame
+    link: str
+    rms_mm: float
+    cov: np.ndarray         # 6x6, rotation vector (rad) then origin (m), camera frame
+    n_frames: int
+    iterations: int
+    converged: bool
+
+    @property
+    def origin_std_mm(self) -> float:
+        return float(1e3 * np.sqrt(np.trace(self.cov[3:, 3:])))
+
+    @property
+    def rotation_std_deg(self) -> float:
+        return float(np.degrees(np.sqrt(np.trace(self.cov[:3, :3]))))
+
+    def to_dict(self) -> dict:
+        return {"T_camera_base": self.T_camera_base.tolist(), "link": self.link,
+                "p_link": {k: v.tolist() for k, v in self.p_link.items()},
+                "rms_mm": self.rms_mm, "origin_std_mm": self.origin_std_mm,
+                "rotation_std_deg": self.rotation_std_deg, "n_frames": self.n_frames,
+                "iterations": self.iterations, "converged": self.converged}
+
+
+class HandEyeEstimator:
+    """Robot-world calibration from a marker cluster on ``link`` and joint angles.
+
+    Parameters
+    ----------
+    robust : soft-L1 loss at ``3 sigma`` in the refinement.
+    min_markers : markers a frame needs to enter the Kabsch initialisation.
+    """
+
+    def __init__(self, robust: bool = True, min_markers: int = 3):
+        self.robust = robust
+        self.min_markers = min_markers
+
+    def fit(self, chain, link: str, positions, q, labels=None) -> HandEyeResult:
+        """``positions`` (T, M, 3) camera-frame markers on ``link`` (NaN = occluded),
+        ``q`` (T, n) joint angles at the same frames (frames with NaN angles are dropped)."""
+        P = np.asarray(positions, float)
+        Q = np.asarray(q, float)
+        labels = tuple(labels) if labels is not None else tuple(f"m{k}" for k in range(P.shape[1]))
+        ok_q = np.all(np.isfinite(Q), axis=1)
+        P, Q = P[ok_q], Q[ok_q]
+        vis = np.all(np.isfinite(P), axis=2)
+        if P.shape[1] < 3 or P.shape[0] < 10:
+            raise InputError(f"hand-eye needs >= 3 markers on {link!r} and >= 10 frames with joint "
+                             f"angles, got {P.shape[1]} markers, {P.shape[0]} frames")
+        B = chain.frame_transform(link, Q)                       # (T, 4, 4) T_base_link
+        ref = int(np.argmax(vis.sum(axis=1)))
+        w = (vis & vis[ref][None]).astype(float)
+        RA, tA = kabsch_batch(np.where(vis[ref][:, None], P[ref], 0.0), P, w)
+        good = np.all(np.isfinite(RA), axis=(1, 2))
+        C = B @ invert_transform(B[ref])[None]
+        a = Rotation.from_matrix(RA[good]).as_rotvec()
+        c = Rotation.from_matrix(C[good, :3, :3]).as_rotvec()
+        H = a.T @ c
+        U, _, Vt = np.linalg.svd(H)
+        Rz = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+        Ab = RA[good] - np.eye(3)
+        rhs = np.einsum("ij,tj->ti", Rz, C[good, :3, 3]) - tA[good]
+        tz = np.linalg.lstsq(Ab.reshape(-1, 3), rhs.reshape(-1), rcond=None)[0]
+
+        t_idx, k_idx = np.nonzero(vis)
+        obs = P[t_idx, k_idx]
+        Rb, pb = B[t_idx, :3, :3], B[t_idx, :3, 3]
+        M = P.shape[1]
+        cnt = np.bincount(k_idx, minlength=M)
+
+        def project(x):
+            R = rotvec_to_matrix(x[:3]) @ Rz
+            p = tz + x[3:]
+            # back to the link frame: s = Rb^T (R^T (obs - p) - pb)
+            back = np.einsum("kji,kj->ki", Rb, (obs - p) @ R - pb)
+            s = np.stack([np.bincount(k_idx, weights=back[:, i], minlength=M) for i in range(3)], 1) \
+                / np.maximum(cnt, 1)[:, None]
+            return R, p, s
+
+        def resid(x):
+            R, p, s = project(x)
+            model = (np.einsum("kij,kj->ki", Rb, s[k_idx]) + pb) @ R.T + p
+            return (obs - model).ravel()
+
+        r0 = resid(np.zeros(6))
+        scale = max(float(np.median(np.abs(r0))) / 0.6745, 1e-5)
+        sol = least_squares(resid, np.zeros(6), method="trf", loss="soft_l1" if self.robust else "linear",
+                            f_scale=3 * scale, x_scale=np.array([1e-3] * 3 + [1e-3] * 3),
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        R, p, s = project(sol.x)
+        r = resid(sol.x).reshape(-1, 3)
+        J = sol.jac
+        dof = max(r.size - 6 - 3 * M, 1)
+        sig2 = float(np.sum(r ** 2) / dof)
+        cov = sig2 * np.linalg.pinv(J.T @ J)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, p
+        return HandEyeResult(T, {lb: s[k] for k, lb in enumerate(labels)}, link,
+                             float(1e3 * np.sqrt(np.mean(np.sum(r ** 2, axis=1)))), cov,
+                             int(P.shape[0]), int(sol.nfev), bool(sol.success))

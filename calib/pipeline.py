@@ -1,0 +1,307 @@
+"""Camera-to-base calibration of a campaign (thesis section 3.2): sweeps -> axes -> base.
+
+:func:`calibrate` reads every ``[[calib]]`` entry of a FORMAT v1 campaign, checks that each
+sweep moves its joint alone over at least ``min_sweep_deg``, fits the joint axis from the
+markers on the links that joint carries, and places the base with the URDF's axis lines at
+the encoder angles held during each sweep (:func:`calib.base.place_base`).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mocap.errors import InputError
+
+from .axis import DEFAULT_NOISE_MM, AxisFit, CircleAxisEstimator, ClusterAxisEstimator
+from .base import BasePlacement, place_base
+from .geometry import angle_about, kabsch_batch
+
+ESTIMATORS = {"cluster": ClusterAxisEstimator, "circle": CircleAxisEstimator}
+
+#: a joint whose encoder range exceeds this (deg) during a sweep counts as moving
+MOVING_DEG = 0.5
+
+
+@dataclass(frozen=True, eq=False)
+class SweepData:
+    """One calibration sweep ready for the axis fit (camera frame, metres, radians)."""
+
+    joint: int                  # 1-based
+    time: np.ndarray            # (T,) marker times
+    positions: np.ndarray       # (T, M, 3) markers on the links the joint carries
+    labels: tuple
+    q_held: np.ndarray          # (n,) median encoder angles (the swept joint's entry too)
+    q_joint: np.ndarray         # (T,) the swept joint's encoder angle at the marker frames (NaN outside the log)
+    range_deg: float            # encoder range of the swept joint
+    links: tuple                # the links whose markers are used
+    markers_path: Path | None = None
+    log_path: Path | None = None
+    q_frames: np.ndarray | None = None   # (T, n) all encoder angles at the marker frames
+
+
+@dataclass(frozen=True, eq=False)
+class CalibResult:
+    """``T_camera_base`` with the fitted axes, the base solve and the sweeps' diagnostics."""
+
+    T_camera_base: np.ndarray
+    axes: tuple
+    base: BasePlacement
+    method: str
+    noise_mm: float
+    sweeps: tuple = ()
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def origin_std_mm(self) -> float:
+        return self.base.origin_std_mm
+
+    @property
+    def rotation_std_deg(self) -> float:
+        return self.base.rotation_std_deg
+
+    def to_dict(self) -> dict:
+        """The ``calib.json`` document (FORMAT.md keys first, diagnostics after)."""
+        b = self.base.to_dict()
+        return {
+            "format": 1,
+            "T_camera_base": [[float(x) for x in row] for row in self.T_camera_base],
+            "axes": [f.to_dict() for f in self.axes],
+            "origin_std_mm": self.origin_std_mm,
+            "rotation_std_deg": self.rotation_std_deg,
+            "crb": {"origin_std_mm": b["crb_origin_std_mm"], "rotation_std_deg": b["crb_rotation_std_deg"],
+                    "noise_mm": self.noise_mm,
+                    "note": "numerical Cramer-Rao bound of the rigid sweep model at noise_mm "
+                            "(3-D RMS), propagated through the base solve"},
+            "method": self.method,
+            "base_solve": {k: v for k, v in b.items() if k != "T_camera_base"},
+            "sweeps": [{"joint": s.joint, "markers": None if s.markers_path is None else str(s.markers_path),
+                        "log": None if s.log_path is None else str(s.log_path),
+                        "encoder_range_deg": s.range_deg, "q_held": s.q_held.tolist(),
+                        "links": list(s.links), "labels": list(s.labels), "n_frames": int(s.time.size)}
+                       for s in self.sweeps],
+            **self.extra,
+        }
+
+
+def write_calib_json(path, result: CalibResult) -> Path:
+    """Write ``calib.json`` (floats at full precision)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8")
+    return path
+
+
+# ---------------------------------------------------------------------------------------
+def moving_links(chain, joint: int, marker_links) -> list:
+    """Links (of ``marker_links``) carried by joint ``joint`` (1-based): they move in its sweep."""
+    return [lk for lk in marker_links if lk in chain.frames and chain.frames[lk][0] >= joint - 1]
+
+
+def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: float = 15.0,
+                  min_markers: int = 3, min_frames: int = 10) -> SweepData:
+    """Check one sweep (one joint moving, far enough, enough markers) and select its markers.
+
+    ``rec`` is a :class:`mocap.recording.MarkerRecording`, ``log`` a
+    :class:`mocap.robotlog.RobotLog`, ``markers`` the campaign's link -> labels map.
+    """
+    mpath, lpath = rec.source, log.source
+    n = chain.n
+    if not 1 <= joint <= n:
+        raise InputError(f"calibration sweep of joint {joint}, but the robot has {n} joints", path=lpath)
+    # restrict the log to the marker recording's time span (plus a little) when they overlap
+    span = (log.time >= rec.time[0] - 0.05) & (log.time <= rec.time[-1] + 0.05)
+    qm = log.qm[span] if span.sum() >= 2 else log.qm
+    fin = np.isfinite(qm)
+    has = fin.any(axis=0)
+    hi = np.where(fin, qm, -np.inf).max(axis=0)
+    lo = np.where(fin, qm, np.inf).min(axis=0)
+    rng = np.where(has, np.degrees(hi - lo), np.nan)
+    if not np.isfinite(rng[joint - 1]):
+        raise InputError(f"the log has no qm_{joint} values for the swept joint {joint}", path=lpath)
+    moving = [j + 1 for j in range(n) if np.isfinite(rng[j]) and rng[j] > MOVING_DEG]
+    others = [j for j in moving if j != joint]
+    if others and joint not in moving:
+        desc = ", ".join(f"joint {j} {rng[j - 1]:.1f} deg" for j in others)
+        raise InputError(f"calibration sweep of joint {joint}: the log moves {desc}, not joint {joint} "
+                         f"({rng[joint - 1]:.1f} deg)", path=lpath)
+    if others:
+        desc = ", ".join(f"joint {j} {rng[j - 1]:.1f} deg" for j in [joint] + others)
+        raise InputError(f"calibration sweep of joint {joint}: more than one joint moves ({desc}); "
+                         f"a sweep must move joint {joint} alone with the others held", path=lpath)
+    if rng[joint - 1] < min_sweep_deg:
+        raise InputError(f"calibration sweep of joint {joint} covers only {rng[joint - 1]:.1f} deg; "
+                         f"the axis fit needs at least {min_sweep_deg:g} deg", path=lpath)
+    q_held = np.array([np.median(qm[fin[:, j], j]) if has[j] else np.nan for j in range(n)])
+    missing_q = [j + 1 for j in range(joint - 1) if not np.isfinite(q_held[j])]
+    if missing_q:
+        raise InputError(f"the log has no qm_{missing_q[0]} values; joint {joint}'s axis line in the "
+                         "base frame depends on it", path=lpath)
+    q_held = np.where(np.isfinite(q_held), q_held, 0.0)
+    links = moving_links(chain, joint, markers)
+    labels = [lb for lk in links for lb in markers[lk] if lb in rec.labels]
+    vis_counts = {lb: int(np.all(np.isfinite(rec.marker(lb)), axis=1).sum()) for lb in labels}
+    usable = [lb for lb in labels if vis_counts[lb] >= min_frames]
+    if len(usable) < min_markers:
+        listed = [lb for lk in links for lb in markers[lk]]
+        detail = ", ".join(f"{lb} ({vis_counts[lb]} frames)" if lb in vis_counts else f"{lb} (not in file)"
+                           for lb in listed) or "none listed in [markers]"
+        raise InputError(f"calibration sweep of joint {joint}: only {len(usable)} markers on the links it "
+                         f"moves ({', '.join(links) or 'none'}) are seen in at least {min_frames} frames; "
+                         f"need {min_markers}. Markers: {detail}", path=mpath)
+    sub = rec.select(usable)
+    inside = (rec.time >= log.time[0]) & (rec.time <= log.time[-1])
+    q_frames = np.stack([np.interp(rec.time, log.time, np.where(np.isfinite(log.qm[:, j]), log.qm[:, j], 0.0))
+                         for j in range(n)], axis=1)
+    q_frames[~inside] = np.nan
+    return SweepData(joint=joint, time=rec.time, positions=sub.positions, labels=tuple(usable),
+                     q_held=q_held, q_joint=q_frames[:, joint - 1].copy(), range_deg=float(rng[joint - 1]),
+                     links=tuple(lk for lk in links if any(lb in usable for lb in markers[lk])),
+                     markers_path=mpath, log_path=lpath, q_frames=q_frames)
+
+
+def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> list:
+    """Read and check the campaign's calibration sweeps of ``joints``."""
+    from mocap.io import read_markers
+    from mocap.robotlog import read_robot_log
+
+    found = {c.joint: c for c in campaign.calib}
+    missing = [j for j in joints if j not in found]
+    if missing:
+        have = ", ".join(str(j) for j in sorted(found)) or "none"
+        raise InputError(f"no [[calib]] entry for joint {' and '.join(map(str, missing))} (found: {have}); "
+                         f"placing the base needs sweeps of joints {' and '.join(map(str, joints))}",
+                         path=campaign.manifest)
+    out = []
+    for j in joints:
+        c = found[j]
+        rec = read_markers(c.markers)
+        log = read_robot_log(c.log, n_joints=robot.n)
+        out.append(prepare_sweep(j, rec, log, robot.chain, campaign.markers, min_sweep_deg))
+    return out
+
+
+def rotation_sense(sw: SweepData, direction: np.ndarray) -> float:
+    """+1 when the markers turn positively about ``direction`` as the encoder angle grows."""
+    P = sw.positions
+    vis = np.all(np.isfinite(P), axis=2)
+    ref = int(np.argmax(vis.sum(axis=1)))
+    R, _ = kabsch_batch(np.where(vis[ref][:, None], P[ref], 0.0), P, (vis & vis[ref][None]).astype(float))
+    th = angle_about(np.nan_to_num(R), direction)
+    ok = np.all(np.isfinite(R), axis=(1, 2)) & np.isfinite(sw.q_joint)
+    if ok.sum() < 3:
+        raise InputError(f"sweep of joint {sw.joint}: marker and log times do not overlap; cannot tell "
+                         "the direction of rotation", path=sw.markers_path)
+    a, b = th[ok] - th[ok].mean(), sw.q_joint[ok] - sw.q_joint[ok].mean()
+    return 1.0 if a @ b >= 0 else -1.0
+
+
+def fit_axes(sweeps, method: str = "cluster", noise_mm: float = DEFAULT_NOISE_MM, frame_step: int = 1,
+             **options) -> list:
+    """Fit each sweep's axis with ``method`` and orient it with the joint's positive rotation."""
+    if method not in ESTIMATORS:
+        raise InputError(f"unknown calibration method {method!r} (expected one of {', '.join(ESTIMATORS)})")
+    est = ESTIMATORS[method](noise_mm=noise_mm, **options)
+    fits = []
+    for sw in sweeps:
+        f: AxisFit = est.fit(sw.positions[::frame_step], sw.labels)
+        sub = SweepData(sw.joint, sw.time[::frame_step], sw.positions[::frame_step], sw.labels, sw.q_held,
+                        sw.q_joint[::frame_step], sw.range_deg, sw.links, sw.markers_path, sw.log_path)
+        fits.append(f.with_joint(sw.joint, flip=rotation_sense(sub, f.direction) < 0))
+    return fits
+
+
+def calibrate_sweeps(sweeps, chain, method: str = "cluster", noise_mm: float = DEFAULT_NOISE_MM,
+                     frame_step: int = 1, **options) -> CalibResult:
+    """Axes from prepared sweeps, then the base from the URDF axis lines (no file I/O)."""
+    fits = fit_axes(sweeps, method, noise_mm, frame_step, **options)
+    lines = []
+    for sw in sweeps:
+        p, d = chain.joint_axis_lines(sw.q_held)
+        lines.append((p[sw.joint - 1], d[sw.joint - 1]))
+    base = place_base(fits, lines)
+    return CalibResult(base.T_camera_base, tuple(fits), base, method, noise_mm, tuple(sweeps))
+
+
+def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
+    """The hand-eye / robot-world peer (:class:`calib.handeye.HandEyeEstimator`) on the same
+    sweeps: the most distal link with at least 3 markers seen in every sweep, all encoder angles."""
+    from .handeye import HandEyeEstimator
+
+    if link is None:
+        cands = [lk for lk in markers if lk in chain.frames
+                 and all(sum(lb in sw.labels for lb in markers[lk]) >= 3 for sw in sweeps)]
+        if not cands:
+            raise InputError("hand-eye cross-check: no link has 3 markers seen in every sweep")
+        link = max(cands, key=lambda lk: chain.frames[lk][0])
+    labels = [lb for lb in markers[link] if all(lb in sw.labels for sw in sweeps)]
+    P = np.concatenate([sw.positions[:, [sw.labels.index(lb) for lb in labels]] for sw in sweeps])
+    Q = np.concatenate([sw.q_frames for sw in sweeps])
+    return HandEyeEstimator().fit(chain, link, P, Q, labels)
+
+
+def calibrate(campaign, robot=None, method: str = "cluster", sink=None,
+              noise_mm: float = DEFAULT_NOISE_MM, min_sweep_deg: float = 15.0, joints=(1, 2),
+              cross_check: bool = False, **options) -> CalibResult:
+    """Calibrate ``T_camera_base`` for a loaded campaign (:func:`mocap.campaign.load_campaign`).
+
+    ``method`` is ``"cluster"`` (rigid-cluster screw axis + ML refinement) or ``"circle"``
+    (per-marker Halvorsen circles + common-axis refinement); ``sink`` (a :class:`viz.Sink`)
+    receives the marker arcs, the fitted axes and the base frame. ``cross_check`` adds the
+    hand-eye peer's solve and its difference under ``extra["handeye"]``.
+    """
+    if robot is None:
+        robot = campaign.load_robot()
+    sweeps = load_sweeps(campaign, robot, min_sweep_deg, joints)
+    result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm, **options)
+    if cross_check:
+        from .base import pose_errors
+
+        he = handeye_cross_check(sweeps, robot.chain, campaign.markers)
+        dp, dr = pose_errors(he.T_camera_base, result.T_camera_base)
+        extra = dict(result.extra)
+        extra["handeye"] = {**he.to_dict(), "difference_origin_mm": dp, "difference_rotation_deg": dr}
+        result = CalibResult(result.T_camera_base, result.axes, result.base, result.method,
+                             result.noise_mm, result.sweeps, extra)
+    if sink is not None:
+        log_calibration(sink, result)
+    return result
+
+
+def log_calibration(sink, result: CalibResult, prefix: str = "calib") -> None:
+    """Marker arcs, fitted axes (camera frame) and the base frame, through a :class:`viz.Sink`."""
+    for sw, f in zip(result.sweeps, result.axes):
+        root = f"{prefix}/joint-{sw.joint}"
+        sink.points_over_time(f"{root}/markers", sw.time, sw.positions, labels=list(sw.labels))
+        strips = []
+        for k in range(sw.positions.shape[1]):
+            x = sw.positions[:, k]
+            x = x[np.all(np.isfinite(x), axis=1)]
+            if len(x) > 1:
+                strips.append(x[:: max(1, len(x) // 400)])
+        sink.lines(f"{root}/arcs", strips)
+        sink.lines(f"{root}/axis", [np.stack([f.point - 0.6 * f.direction, f.point + 0.6 * f.direction])])
+        sink.arrows(f"{root}/axis_direction", f.point[None], 0.2 * f.direction[None],
+                    labels=[f"joint {sw.joint}: {f.rms_mm:.2f} mm rms"])
+    sink.transform(f"{prefix}/base", result.T_camera_base)
+    sink.arrows(f"{prefix}/base/frame", np.zeros((3, 3)), 0.25 * np.eye(3), labels=["x", "y", "z"],
+                colors=np.array([[230, 60, 60], [60, 200, 60], [60, 90, 230]], dtype=np.uint8))
+    sink.text(f"{prefix}/summary", summary_markdown(result))
+
+
+def summary_markdown(result: CalibResult) -> str:
+    b = result.base
+    lines = [f"## Camera-to-base calibration ({result.method})", "",
+             "| | estimate std | Cramer-Rao bound |", "|---|---|---|",
+             f"| origin (mm, 3-D RMS) | {b.origin_std_mm:.4f} | {b.crb_origin_mm:.4f} |",
+             f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |", "",
+             "| joint | rms (mm) | sweep (deg) | markers | point std (mm) | dir std (deg) |",
+             "|---|---|---|---|---|---|"]
+    for f in result.axes:
+        lines.append(f"| {f.joint} | {f.rms_mm:.3f} | {f.sweep_deg:.1f} | {len(f.marker_rms_mm)} | "
+                     f"{f.point_std_mm:.4f} | {f.direction_std_deg:.5f} |")
+    lines += ["", f"measured axes {b.axis_distance_mm:.3f} mm apart at {b.axis_angle_deg:.3f} deg; "
+              f"URDF {b.urdf_axis_distance_mm:.3f} mm at {b.urdf_axis_angle_deg:.3f} deg"]
+    return "\n".join(lines)
