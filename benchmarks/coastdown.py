@@ -1,0 +1,201 @@
+"""Coast-down friction identification: the paper's simulation (seeds/000_*, Table 1-2).
+
+J = 0.01 kg m^2, Kv = 0.01203 N m s/rad, Kc = 0.0017 N m, v0 = 10 rad/s, white Gaussian
+velocity noise at SNR 90/60/20 dB (SNR = 10 log10(mean(v^2)/sigma^2) over the record),
+sampled at FS = 1 kHz from the release to the stop (t_s = 3.552 s, 3553 samples; the
+paper states no rate). For each SNR, RUNS Monte Carlo records (seeded) go through:
+
+  TDM        eqs. 4-6, root of eq. 6 refined by Brent (= LS on eq. 4, v0 known)
+  TDM-grid   the same with the fixed-step search of Kv (step 1e-5 N m s/rad, random phase)
+  FDM@w      eqs. 9-11 on the record's Fourier integral, band 0 < w <= w rad/s
+  TDM-meas   TDM with v0 = the measured (noisy) first sample instead of the true 10 rad/s
+  FDM-meas   FDM@30 with v0 = the measured first sample
+  NLS        ML / nonlinear LS on eq. 4 with the stop time, v0 known (same information
+             as TDM/FDM)
+  NLS-v0     the same with v0 estimated (noisy first sample not trusted)
+
+and prints the RMS relative error of Kv and Kc, the Cramer-Rao bound (relative std; 2
+parameters, or 3 for NLS-v0), the ratio RMS/CRB and Table 2's single-run figure.
+
+A second scenario ("--rest", on by default) keeps logging 1 s after the stop: NLS fits the
+whole record (the stop is in its model); TDM and FDM are given the record cut at the first
+measured sample <= 0 (eq. 4 has no stop), as :func:`ident.coastdown.coastdown_from_trial`.
+
+Run: ``python benchmarks/coastdown.py`` (200 runs, < 60 s) or ``--quick`` (20 runs, < 10 s).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# benchmarks/ holds scripts named like our packages (benchmarks/mocap.py): keep the script's
+# folder off the import path so `import mocap` finds the package
+_here = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _here]
+
+import numpy as np  # noqa: E402
+
+from ident.coastdown import crb, fdm_batch, nls, simulate_coastdown, stop_time, tdm  # noqa: E402
+
+J, KV, KC, V0 = 0.01, 0.01203, 0.0017, 10.0
+FS = 1000.0
+SNRS = (90.0, 60.0, 20.0)
+TABLE2 = {  # relative error (fraction) of one run, paper Table 2
+    90.0: {"TDM": (8.3e-4, 4.9e-2), "FDM": (6.4e-8, 8.6e-5)},
+    60.0: {"TDM": (1.7e-3, 0.219), "FDM": (2.2e-5, 2.6e-2)},
+    20.0: {"TDM": (0.282, 0.931), "FDM": (5.1e-5, 6.4e-2)},
+}
+FDM_BANDS = (3.0, 10.0, 30.0)
+
+
+def rel_rms(est, true):
+    est = np.asarray(est, float)
+    return float(np.sqrt(np.mean((est / true - 1.0) ** 2)))
+
+
+def run_snr(snr, runs, seed, rest_s=0.0):
+    rng = np.random.default_rng([seed, int(snr), int(rest_s * 1000)])
+    dur = None if rest_s == 0.0 else stop_time(J, KV, KC, V0) + rest_s
+    sim = simulate_coastdown(J, KV, KC, V0, FS, dur, snr, rng, runs=runs)
+    t = sim.t
+    est = {k: ([], []) for k in ("TDM", "TDM-grid", "TDM-meas", "NLS", "NLS-v0")}
+    fdm_est = {}
+    timing = {k: 0.0 for k in ("TDM", "FDM", "NLS", "NLS-v0")}
+    cuts = []
+    grid_phase = rng.uniform(0.0, 1e-5, runs)
+    for i in range(runs):
+        v = sim.v[i]
+        if rest_s > 0.0:             # TDM/FDM: cut at the first sample at or below zero speed
+            below = np.flatnonzero(v <= 0.0)
+            end = int(below[0]) if below.size else v.size
+        else:
+            end = v.size
+        cuts.append(end)
+        t0 = time.perf_counter()
+        # the grid's phase is random: the true Kv = 0.01203 would lie on a grid of 1e-5 steps
+        # from 0, an oracle advantage a real search does not have
+        r = tdm(t[:end], v[:end], J, v0=V0, kv_step=1e-5, kv_grid_origin=float(grid_phase[i]))
+        timing["TDM"] += time.perf_counter() - t0
+        est["TDM-grid"][0].append(r.Kv)
+        est["TDM-grid"][1].append(r.Kc)
+        est["TDM"][0].append(r.diagnostics["Kv_root"])
+        est["TDM"][1].append(r.diagnostics["Kc_root"])
+        r = tdm(t[:end], v[:end], J)             # v0 = the measured (noisy) first sample
+        est["TDM-meas"][0].append(r.Kv)
+        est["TDM-meas"][1].append(r.Kc)
+        for name, kw in (("NLS", {"v0": V0}), ("NLS-v0", {})):
+            t0 = time.perf_counter()
+            r = nls(t, v, J, **kw)
+            timing[name] += time.perf_counter() - t0
+            est[name][0].append(r.Kv)
+            est[name][1].append(r.Kc)
+    cuts = np.asarray(cuts)
+    t0 = time.perf_counter()
+    for w in FDM_BANDS + ("meas",):
+        wm, v0 = (FDM_BANDS[-1], sim.v[:, 0]) if w == "meas" else (w, np.full(runs, V0))
+        if rest_s == 0.0:
+            kv, kc, _ = fdm_batch(t, sim.v, J, v0, w_max=wm)
+        else:                        # different cut per run: one call each
+            kv, kc = np.empty(runs), np.empty(runs)
+            for i in range(runs):
+                a, b, _ = fdm_batch(t[:cuts[i]], sim.v[i, :cuts[i]], J, v0[i], w_max=wm)
+                kv[i], kc[i] = a[0], b[0]
+        fdm_est[w] = (kv, kc)
+    timing["FDM"] = time.perf_counter() - t0
+    b2 = crb(t, J, KV, KC, V0, sim.sigma)
+    b3 = crb(t, J, KV, KC, V0, sim.sigma, estimate_v0=True)
+    rows, errs = {}, {}
+    for w, (kv, kc) in fdm_est.items():
+        est["FDM-meas" if w == "meas" else f"FDM@{w:g}"] = (kv, kc)
+    for name, (kv, kc) in est.items():
+        rows[name] = (rel_rms(kv, KV), rel_rms(kc, KC))
+        errs[name] = (np.asarray(kv) / KV - 1.0, np.asarray(kc) / KC - 1.0)
+    return {"sigma": sim.sigma, "n": t.size, "rows": rows, "errs": errs,
+            "crb2": (b2.rel["Kv"], b2.rel["Kc"]),
+            "crb3": (b3.rel["Kv"], b3.rel["Kc"]), "timing": timing,
+            "cut_s": float(np.mean(t[cuts - 1])) if rest_s > 0 else float(t[-1])}
+
+
+def report(title, runs, seed, rest_s):
+    print(f"\n=== {title}: fs = {FS:g} Hz, {runs} Monte Carlo runs per SNR, seed {seed} ===")
+    hdr = (f"{'SNR':>4} {'estimator':>10} | {'Kv rms%':>9} {'CRB%':>9} {'ratio':>6} {'Tab2%':>8} |"
+           f" {'Kc rms%':>9} {'CRB%':>9} {'ratio':>6} {'Tab2%':>8}")
+    print(hdr)
+    print("-" * len(hdr))
+    summary = {}
+    for snr in SNRS:
+        out = run_snr(snr, runs, seed, rest_s)
+        summary[snr] = out
+        for name, (ekv, ekc) in out["rows"].items():
+            bkv, bkc = out["crb3"] if name == "NLS-v0" else out["crb2"]
+            tab = TABLE2[snr].get(name.split("@")[0].split("-")[0]) if name in ("TDM-grid", "FDM@30") else None
+            t_kv = f"{100 * tab[0]:8.2g}" if tab else f"{'':>8}"
+            t_kc = f"{100 * tab[1]:8.2g}" if tab else f"{'':>8}"
+            print(f"{snr:4.0f} {name:>10} | {100 * ekv:9.3g} {100 * bkv:9.3g} {ekv / bkv:6.2f} {t_kv} |"
+                  f" {100 * ekc:9.3g} {100 * bkc:9.3g} {ekc / bkc:6.2f} {t_kc}")
+        tm = out["timing"]
+        extra = f", TDM/FDM cut at {out['cut_s']:.2f} s on average" if rest_s > 0 else ""
+        print(f"     sigma = {out['sigma']:.3g} rad/s, N = {out['n']}{extra}; time per run: "
+              + ", ".join(f"{k} {1e3 * v / runs:.1f} ms" for k, v in tm.items()))
+    return summary
+
+
+def verdict(summary):
+    print("\nGoal checks (best estimator NLS, v0 known; ratio = RMS / CRB; 'best published' ="
+          " the least RMS of TDM, TDM-grid and FDM@3/10/30, each given the true v0):")
+    for snr, out in summary.items():
+        r = out["rows"]
+        nkv, nkc = r["NLS"]
+        bkv, bkc = out["crb2"]
+        pub = {k: v for k, v in r.items() if k.startswith(("TDM", "FDM")) and not k.endswith("meas")}
+        best_pub_kv = max(min(v[0] for v in pub.values()), 1e-300)
+        best_pub_kc = max(min(v[1] for v in pub.values()), 1e-300)
+        print(f"  {snr:3.0f} dB: NLS/CRB Kv {nkv / bkv:.2f}, Kc {nkc / bkc:.2f} "
+              f"(<= 1.2: {'yes' if max(nkv / bkv, nkc / bkc) <= 1.2 else 'NO'}); "
+              f"NLS / best published Kv {nkv / best_pub_kv:.3f}, Kc {nkc / best_pub_kc:.3f}")
+        # paired on the same runs: relative MSE difference against each parameter's best
+        # published method, with its Monte Carlo standard error
+        e = out["errs"]
+        parts = []
+        for j, p in enumerate(("Kv", "Kc")):
+            best = min(pub, key=lambda k: pub[k][j])
+            d = e["NLS"][j] ** 2 - e[best][j] ** 2
+            m = np.mean(e[best][j] ** 2)
+            parts.append(f"{p} vs {best}: {100 * d.mean() / m:+.1f} % +- {100 * d.std() / np.sqrt(d.size) / m:.1f} %")
+        print("          MSE(NLS) - MSE(best published), paired, relative: " + "; ".join(parts))
+        for meth, (tkv, tkc) in TABLE2[snr].items():
+            for p, tv, b in (("Kv", tkv, bkv), ("Kc", tkc, bkc)):
+                if tv < b:
+                    # probability that an unbiased estimator AT the bound (Gaussian error of
+                    # std b) errs by at most tv in one run; any worse estimator does less well
+                    prob = math.erf(tv / b / math.sqrt(2.0))
+                    print(f"          Table 2 {meth} {p} {100 * tv:.2g} % lies BELOW the CRB "
+                          f"({100 * b:.3g} %, {b / tv:.3g}x) at {FS:g} Hz: one run that good has "
+                          f"P = {prob:.2g} even for an efficient estimator; the bound reaches it "
+                          f"only at fs >= {FS * (b / tv) ** 2:.3g} Hz")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="20 runs instead of 200")
+    ap.add_argument("--runs", type=int, default=None)
+    ap.add_argument("--seed", type=int, default=2020)
+    ap.add_argument("--no-rest", action="store_true", help="skip the second scenario")
+    args = ap.parse_args(argv)
+    runs = args.runs or (20 if args.quick else 200)
+    t0 = time.perf_counter()
+    s = report("Paper scenario: record from release to stop", runs, args.seed, 0.0)
+    verdict(s)
+    if not args.no_rest:
+        s = report("Logging 1 s past the stop (TDM/FDM cut at first v <= 0)", runs, args.seed, 1.0)
+        verdict(s)
+    print(f"\ntotal {time.perf_counter() - t0:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
