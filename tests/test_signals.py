@@ -1,0 +1,126 @@
+"""ident.signals: Fourier fits (eq. 3-2) with estimated fundamental and harmonics, the
+non-periodic fallback, clock offsets and the angles CSV reader, on seeded synthetic data."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ident.fourier import FourierSeries
+from ident.signals import (FourierSmoother, SavGolSmoother, estimate_fundamental,
+                           estimate_time_offset, prepare_joint_signals, read_angles,
+                           select_harmonics)
+from mocap.errors import InputError
+
+SERIES = FourierSeries(np.array([0.5, -0.3, 0.2, 0.1, -0.05]), np.array([0.2, 0.1, -0.3, 0.05, 0.02]),
+                       2 * np.pi / 10, 0.3)
+
+
+@pytest.mark.parametrize("duration,dt,start", [(10.0, 0.005, 0.0), (30.0, 0.005, 12.3), (23.7, 0.002, -4.0)])
+def test_fundamental_harmonics_and_derivatives(duration, dt, start):
+    rng = np.random.default_rng(0)
+    t = start + np.arange(0, duration, dt)
+    q = SERIES.evaluate(t)[0] + rng.normal(0, 1e-4, t.size)
+    fit = FourierSmoother().fit(t, q)
+    assert fit.method == "fourier"
+    assert fit.wf == pytest.approx(SERIES.wf, rel=2e-5)
+    assert fit.n_harmonics == 5
+    assert fit.rms == pytest.approx(1e-4, rel=0.1)          # the noise, nothing more
+    _, qd, qdd = fit.evaluate(t)
+    _, qd0, qdd0 = SERIES.evaluate(t)
+    assert np.max(np.abs(qd - qd0)) < 1e-4                   # rad/s, peak speed ~1.3
+    assert np.max(np.abs(qdd - qdd0)) < 3e-4                 # rad/s^2
+
+
+def test_select_harmonics_by_bic():
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 10, 0.005)
+    s3 = FourierSeries(SERIES.a[:3], SERIES.b[:3], SERIES.wf, 0.0)
+    q = s3.evaluate(t)[0] + rng.normal(0, 1e-4, t.size)
+    n, _ = select_harmonics(t, q, SERIES.wf, max_harmonics=12)
+    assert n == 3
+
+
+def test_non_periodic_falls_back_to_smoother():
+    rng = np.random.default_rng(2)
+    t = np.arange(0, 8, 0.005)
+    q = 0.4 * t + 0.2 * np.sin(0.9 * t ** 1.3)          # drifts: not one or more periods
+    qd0 = 0.4 + 0.2 * np.cos(0.9 * t ** 1.3) * 0.9 * 1.3 * t ** 0.3
+    fit = FourierSmoother().fit(t, q + rng.normal(0, 1e-4, t.size))
+    assert fit.method == "savgol"
+    inner = (t > 0.2) & (t < 7.8)
+    assert np.max(np.abs(fit.evaluate(t)[1][inner] - qd0[inner])) < 1e-2   # SG noise gain ~2e-3 rms
+
+
+def test_forced_periodic_and_smoother_settings():
+    t = np.arange(0, 10, 0.01)
+    q = SERIES.evaluate(t)[0]
+    assert FourierSmoother(wf=SERIES.wf, n_harmonics=5, periodic=True).fit(t, q).rms < 1e-12
+    with pytest.raises(ValueError):
+        SavGolSmoother(window_s=-1)
+
+
+def test_fundamental_of_three_periods():
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 30, 0.01)
+    q = SERIES.evaluate(t)[0] + rng.normal(0, 2e-4, t.size)
+    assert estimate_fundamental(t, q) == pytest.approx(SERIES.wf, rel=1e-4)
+
+
+def test_time_offset_and_two_clocks(tmp_path):
+    """Link angles on a 100 Hz marker clock shifted by 37 ms, motor on a 500 Hz robot clock."""
+    rng = np.random.default_rng(4)
+    t_log = 100.0 + np.arange(0, 20, 0.002)
+    qm = SERIES.evaluate(t_log)[0] + rng.normal(0, 2e-5, t_log.size)
+    tau = np.sin(t_log)
+    offset = 0.037                                   # t_robot = t_marker + offset
+    t_mk = 100.5 + np.arange(0, 18.5, 0.01) - offset
+    deflection = 0.002
+    q_link = SERIES.evaluate(t_mk + offset)[0] - deflection + rng.normal(0, 5e-4, t_mk.size)
+    fm = FourierSmoother().fit(t_log, qm)
+    assert estimate_time_offset(t_mk, q_link, fm) == pytest.approx(offset, abs=2e-3)
+    sig = prepare_joint_signals(3, t_log, qm, tau, t_mk, q_link, time_offset="estimate")
+    assert sig.link_source == "mocap"
+    assert sig.time[0] >= t_mk[0] + offset - 1e-9 and sig.time[-1] <= t_mk[-1] + offset + 1e-9
+    q_true, qd_true, _ = SERIES.evaluate(sig.time)
+    assert np.max(np.abs(sig.q - (q_true - deflection))) < 5e-4
+    assert np.max(np.abs(sig.qd - qd_true)) < 5e-3
+    assert np.degrees(sig.link_fit.rms) < 0.2 and np.degrees(sig.motor_fit.rms) < 0.05  # thesis bounds
+    d = sig.to_dict()
+    assert d["link_source"] == "mocap" and d["link_fit"]["method"] == "fourier"
+    # no link angles: motor stands in
+    sig_m = prepare_joint_signals(3, t_log, qm, tau)
+    assert sig_m.link_source == "motor" and np.allclose(sig_m.q, sig_m.qm)
+
+
+def test_read_angles(tmp_path):
+    p = tmp_path / "a.csv"
+    p.write_text("time,q_2,q_5,rms_mm,n_markers\n0.0,0.1,,0.4,3\n0.01,0.2,0.3,0.5,4\n", encoding="utf-8")
+    a = read_angles(p)
+    assert list(a.q) == [2, 5] and np.isnan(a.q[5][0]) and a.q[2][1] == 0.2
+    assert a.n_markers.tolist() == [3, 4]
+    bad = tmp_path / "b.csv"
+    bad.write_text("time,q_1\n0.0,0.1\n0.01,zz\n", encoding="utf-8")
+    with pytest.raises(InputError, match="line 3"):
+        read_angles(bad)
+    back = tmp_path / "c.csv"
+    back.write_text("time,q_1\n0.0,0.1\n0.0,0.2\n", encoding="utf-8")
+    with pytest.raises(InputError, match="strictly increasing"):
+        read_angles(back)
+
+
+def test_rests_before_and_after_are_trimmed():
+    """A trial holds still 0.5 s, runs two periods of eq. 3-2, holds 0.5 s (as real trials do):
+    the Fourier fit covers the moving span only and still finds wf."""
+    rng = np.random.default_rng(6)
+    s0 = FourierSeries(SERIES.a - SERIES.a.mean(),
+                       SERIES.b - np.arange(1, 6) * (np.arange(1, 6) @ SERIES.b) / 55.0, SERIES.wf, 0.3)
+    t = np.arange(0, 21, 0.005)
+    tm = np.clip(t - 0.5, 0, 20.0)                       # moving clock, frozen in the holds
+    q = s0.evaluate(tm)[0] + rng.normal(0, 1e-4, t.size)
+    fit = FourierSmoother().fit(t, q)
+    assert fit.method == "fourier"
+    assert fit.wf == pytest.approx(SERIES.wf, rel=1e-4)
+    assert fit.t_start < 0.75 and fit.t_end > 20.25       # most of the motion kept
+    assert fit.t_start > 0.45 and fit.t_end < 20.55       # the holds left out
+    inner = (t > fit.t_start) & (t < fit.t_end)
+    assert np.max(np.abs(fit.evaluate(t[inner])[1] - s0.evaluate(tm[inner])[1])) < 2e-3
