@@ -1,0 +1,80 @@
+"""Quality of a marker solve: the Cramer-Rao bound of the geometry, errors against a known truth,
+per-marker residual reports and the per-campaign summary.
+
+The bound: with independent Gaussian marker noise of ``sigma`` per axis, the Fisher information
+of the solved angles in one frame is ``J^T J / sigma^2`` (J: marker positions w.r.t. the angles,
+the Jacobian of eq. 3-5's residual), so no unbiased per-frame estimator can beat
+``std(q_i) >= sigma * sqrt([(J^T J)^-1]_ii)``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def cramer_rao_bound(chain, joints, marker_joint, p_joint, q: np.ndarray, sigma_axis: float,
+                     visible: np.ndarray | None = None) -> np.ndarray:
+    """Per-frame Cramer-Rao lower bound on the std of the solved angles: (T, S).
+
+    ``joints`` 0-based, ``q`` (T, n) the true angles, ``sigma_axis`` the per-axis marker noise
+    (3-D RMS / sqrt 3), ``visible`` (T, M) the markers seen in each frame (default: all)."""
+    from .solve import MarkerSolver, _Chain
+
+    q = np.atleast_2d(np.asarray(q, float))
+    solver = MarkerSolver(chain, joints, marker_joint, p_joint)
+    model = _Chain(solver, q)
+    M = solver.p_joint.shape[0]
+    vis = np.ones((q.shape[0], M), bool) if visible is None else np.asarray(visible, bool)
+    vis = vis & (solver.marker_joint >= solver.joints[0])[None, :]
+    H = model.normal_matrix(q[:, list(solver.joints)], vis)
+    S = H.shape[1]
+    ok = np.linalg.matrix_rank(H) == S
+    Hinv = np.linalg.inv(np.where(ok[:, None, None], H, np.eye(S)))
+    out = sigma_axis * np.sqrt(np.diagonal(Hinv, axis1=1, axis2=2))
+    out[~ok] = np.inf
+    return out
+
+
+def rms_bound(bound: np.ndarray) -> np.ndarray:
+    """RMS over frames of a per-frame std bound (T, S) -> (S,): the bound on an angle RMSE."""
+    b = np.asarray(bound, float)
+    return np.sqrt(np.mean(b[np.all(np.isfinite(b), axis=1)] ** 2, axis=0))
+
+
+def angle_errors(q_est: np.ndarray, q_true: np.ndarray) -> dict:
+    """RMSE and max error per column over frames where the estimate is finite."""
+    e = np.asarray(q_est, float) - np.asarray(q_true, float)
+    ok = np.all(np.isfinite(e), axis=1)
+    e = e[ok]
+    return {"frames": int(ok.sum()), "rmse_rad": np.sqrt(np.mean(e ** 2, axis=0)),
+            "max_rad": np.max(np.abs(e), axis=0) if e.size else np.full(e.shape[1], np.nan)}
+
+
+def marker_report(result) -> dict:
+    """Per marker: residual RMS over frames where it was used, rejected and missing fractions.
+
+    ``result``: a :class:`mocap.solve.SolveResult`. A marker with a large residual in most frames
+    has a wrong reference (moved since the static pose, or mislabelled)."""
+    res = result.residual_m
+    out = {}
+    valid = result.valid
+    for k, lb in enumerate(result.labels):
+        seen = np.isfinite(res[:, k]) & valid
+        used = seen & result.inlier[:, k]
+        out[lb] = {
+            "rms_mm": float(1e3 * np.sqrt(np.mean(res[used, k] ** 2))) if used.any() else None,
+            "rejected_frac": float(np.mean(seen & ~result.inlier[:, k])) if seen.size else 0.0,
+            "missing_frac": float(np.mean(~np.isfinite(res[:, k]))),
+        }
+    return out
+
+
+def summary(results, references=None) -> dict:
+    """The ``mocap`` command's summary document: per trial frames, RMS residual, flagged frames."""
+    doc = {"format": 1, "trials": {}}
+    if references is not None:
+        doc["references"] = references.to_dict()
+    for r in results:
+        d = r.to_dict()
+        d["markers"] = marker_report(r.solve)
+        doc["trials"][r.trial_id] = d
+    return doc

@@ -1,0 +1,942 @@
+"""Per-frame link-angle solve (thesis eq. 3-5), batched over all frames of a trial.
+
+Eq. 3-5 minimises, per frame ``p``, the distance between the measured markers expressed in their
+link frame and the static-pose references of eq. 3-4. This module minimises the equivalent
+distance in the robot base frame (the transform is rigid, so the cost is the same):
+
+    E(q) = sum_m rho(| T_base_link(m)(q) p_link_m - T_base_camera p_camera_m |)
+
+over the joints that move in the trial, the others held at their (braked) log angles. All frames
+are solved together with numpy:
+
+* one moving joint: the weighted least-squares problem has a closed form (a 1-D Wahba problem:
+  ``q = atan2(S, C)``), iterated a few times only to re-weight against outliers;
+* several joints: Levenberg-Marquardt with analytic Jacobians (``d p / d q_i = w_i x (p - o_i)``),
+  vectorised over frames, frames leave the loop as they converge.
+
+Robustness: a plain least-squares pass from the motor angle; the marker noise is estimated from
+the median residual; frames with a marker beyond ``reject_sigma`` times that level are solved again
+from the motor angle with a Cauchy-loss IRLS, the offending markers are rejected and the frame is
+polished by least squares on its inliers (so clean frames get the efficient estimate and cost one
+pass). Missing markers (NaN) get weight 0 per frame. Pairs of rejected markers whose measurements
+fit each other's predictions are label swaps: they are swapped back, used, and reported. Frames
+with too few markers on the moving links, an ill-conditioned geometry, no motor angle to start
+from, or no convergence are returned as NaN with a flag bit set.
+
+Frames. Everything is solved in the robot base frame: the caller maps the camera-frame markers
+with ``T_base_camera`` (from ``calib.json``, or estimated from the static poses by
+:mod:`mocap.reference`). Braked joints are held at their median log angle over the trial.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# flag bits of SolveResult.flags ---------------------------------------------------------------
+FLAG_TOO_FEW_MARKERS = 1
+FLAG_ILL_CONDITIONED = 2
+FLAG_NOT_CONVERGED = 4
+FLAG_NO_GUESS = 8
+FLAG_OUTLIERS_REJECTED = 16  # informational: the angle is valid
+FLAG_SWAP_REPAIRED = 32      # informational: the angle is valid
+FLAG_NAMES = {FLAG_TOO_FEW_MARKERS: "too_few_markers", FLAG_ILL_CONDITIONED: "ill_conditioned",
+              FLAG_NOT_CONVERGED: "not_converged", FLAG_NO_GUESS: "no_motor_angle",
+              FLAG_OUTLIERS_REJECTED: "outliers_rejected", FLAG_SWAP_REPAIRED: "swap_repaired"}
+INVALID_FLAGS = FLAG_TOO_FEW_MARKERS | FLAG_ILL_CONDITIONED | FLAG_NOT_CONVERGED | FLAG_NO_GUESS
+
+_CHI3_MEDIAN = 1.5382  # median of the norm of a 3-D standard normal vector
+
+
+def _skew(a: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def forward_kinematics(chain, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Joint frames in the base frame for q (T, n): rotations (T, n, 3, 3), origins (T, n, 3).
+
+    Same result as ``chain.joint_transforms`` (Rodrigues per joint, vectorised over frames), but
+    every product with a constant matrix is one (3T x 3) @ (3 x 9) GEMM, several times faster
+    than numpy's batched 3x3 matmul in the solver's inner loop."""
+    q = np.atleast_2d(np.asarray(q, float))
+    T, n = q.shape
+    R = np.empty((T, n, 3, 3))
+    o = np.empty((T, n, 3))
+    Rprev = None
+    oprev = np.zeros((T, 3))
+    for i in range(n):  # loop over joints, vectorised over frames
+        P = chain.T_parent_joint[i]
+        K = _skew(chain.axes[i])
+        Pr = P[:3, :3]
+        C = np.hstack([Pr, Pr @ K, Pr @ K @ K, P[:3, 3:4]])  # (3, 10)
+        if Rprev is None:
+            B = np.broadcast_to(C, (T, 3, 10))
+            ob = oprev + P[:3, 3]
+        else:
+            B = (Rprev.reshape(-1, 3) @ C).reshape(T, 3, 10)
+            ob = oprev + B[:, :, 9]
+        s = np.sin(q[:, i])[:, None, None]
+        c = np.cos(q[:, i])[:, None, None]
+        Rprev = B[:, :, 0:3] + s * B[:, :, 3:6] + (1.0 - c) * B[:, :, 6:9]
+        oprev = ob
+        R[:, i] = Rprev
+        o[:, i] = ob
+    return R, o
+
+
+@dataclass(frozen=True, eq=False)
+class SolveResult:
+    """Angles and diagnostics of a batched per-frame solve.
+
+    q : (T, n) joint angles; solved columns from the markers (NaN where ``valid`` is False),
+        held columns the values used.
+    joints : the solved joints, 0-based.
+    residual_m : (T, M) residual norm of each marker (NaN where missing or not used).
+    inlier : (T, M) markers used in the final least-squares polish.
+    rms_m : (T,) RMS residual of the inlier markers.  n_markers : (T,) inlier count.
+    stderr : (T, S) standard error of the solved angles (pooled noise, per-frame geometry).
+    flags : (T,) bit field, see ``FLAG_NAMES``.  swaps : list of (frame, label_a, label_b).
+    """
+
+    q: np.ndarray
+    joints: tuple[int, ...]
+    labels: tuple[str, ...]
+    residual_m: np.ndarray
+    inlier: np.ndarray
+    rms_m: np.ndarray
+    n_markers: np.ndarray
+    stderr: np.ndarray
+    flags: np.ndarray
+    swaps: tuple = ()
+    iterations: int = 0
+    sigma_m: float = float("nan")
+    reject_m: float = float("nan")
+    method: str = ""
+    model_markers: np.ndarray | None = field(default=None, repr=False)
+    cond: np.ndarray | None = field(default=None, repr=False)  # (T,) bound on cond(J^T J)
+
+    @property
+    def valid(self) -> np.ndarray:
+        return (self.flags & INVALID_FLAGS) == 0
+
+    def flag_counts(self) -> dict[str, int]:
+        return {name: int(np.count_nonzero(self.flags & bit)) for bit, name in FLAG_NAMES.items()}
+
+    def to_dict(self) -> dict:
+        v = self.valid
+        rms = self.rms_m[v]
+        return {
+            "method": self.method,
+            "joints": [j + 1 for j in self.joints],
+            "frames": int(self.flags.shape[0]),
+            "valid_frames": int(np.count_nonzero(v)),
+            "flagged_frames": int(np.count_nonzero(~v)),
+            "flag_counts": self.flag_counts(),
+            "rms_mm": float(1e3 * np.sqrt(np.mean(rms ** 2))) if rms.size else None,
+            "max_rms_mm": float(1e3 * rms.max()) if rms.size else None,
+            "noise_sigma_mm": float(1e3 * self.sigma_m),
+            "reject_threshold_mm": float(1e3 * self.reject_m),
+            "median_stderr_rad": [float(x) for x in np.nanmedian(self.stderr[v], axis=0)]
+            if rms.size else None,
+            "markers_rejected": int(np.count_nonzero(np.isfinite(self.residual_m) & ~self.inlier)),
+            "swaps": len(self.swaps),
+            "swap_pairs": sorted({f"{a}<->{b}" for _, a, b in self.swaps}),
+            "iterations": int(self.iterations),
+            "median_cond": float(np.median(self.cond[v])) if self.cond is not None and rms.size
+            else None,
+            "max_cond": float(np.max(self.cond[v])) if self.cond is not None and rms.size else None,
+        }
+
+
+class MarkerSolver:
+    """Batched per-frame solve of eq. 3-5.
+
+    Parameters
+    ----------
+    chain : :class:`mocap.kinematics.Chain`.
+    joints : solved joints, 0-based; the others are held at the guess.
+    marker_joint : (M,) the joint that carries each marker's link (-1: the base).
+    p_joint : (M, 3) each marker in the frame of that joint (eq. 3-4 references, re-expressed).
+    labels : M marker labels (for reports).
+    robust_scale_m : Cauchy scale of the first, robust stage.
+    reject_sigma : final inlier threshold in units of the estimated per-axis noise (3-D norm).
+    reject_floor_m : the threshold never goes below this.
+    min_markers : a frame needs at least this many inlier markers distal to each solved joint.
+    max_cond : frames whose normal matrix is worse conditioned are flagged.
+    detect_swaps : repair label swaps between pairs of rejected markers.
+    closed_form : use the exact 1-D solution when one joint is solved.
+    """
+
+    def __init__(self, chain, joints, marker_joint, p_joint, labels=None, *,
+                 robust_scale_m: float = 0.004, reject_sigma: float = 5.0,
+                 reject_floor_m: float = 0.0015, min_markers: int = 2, max_iter: int = 30,
+                 irls_iter: int = 4, tol: float = 1e-6, max_cond: float = 1e8,
+                 detect_swaps: bool = True, closed_form: bool = True):
+        self.chain = chain
+        self.joints = tuple(int(j) for j in joints)
+        if not self.joints:
+            raise ValueError("no joint to solve")
+        if len(set(self.joints)) != len(self.joints) or not all(0 <= j < chain.n for j in self.joints):
+            raise ValueError(f"joints {self.joints} must be distinct and in 0..{chain.n - 1}")
+        self.joints = tuple(sorted(self.joints))
+        self.marker_joint = np.asarray(marker_joint, int)
+        self.p_joint = np.asarray(p_joint, float).reshape(-1, 3)
+        if self.marker_joint.shape[0] != self.p_joint.shape[0]:
+            raise ValueError("marker_joint and p_joint disagree on the number of markers")
+        M = self.p_joint.shape[0]
+        self.labels = tuple(labels) if labels is not None else tuple(f"m{k}" for k in range(M))
+        self.robust_scale_m = float(robust_scale_m)
+        self.reject_sigma = float(reject_sigma)
+        self.reject_floor_m = float(reject_floor_m)
+        self.min_markers = int(min_markers)
+        self.max_iter = int(max_iter)
+        self.irls_iter = int(irls_iter)
+        self.tol = float(tol)
+        self.max_cond = float(max_cond)
+        self.detect_swaps = bool(detect_swaps)
+        self.closed_form = bool(closed_form)
+
+    # ------------------------------------------------------------------------------------------
+    def fit(self, p_base: np.ndarray, q_guess: np.ndarray) -> SolveResult:
+        """Solve every frame. ``p_base`` (T, M, 3) measured markers in the base frame (NaN =
+        missing); ``q_guess`` (T, n) motor angles (the initial guess, eq. 3-5) and held angles."""
+        Y = np.array(p_base, float)
+        q_guess = np.atleast_2d(np.asarray(q_guess, float))
+        T, M = Y.shape[0], self.p_joint.shape[0]
+        if Y.shape != (T, M, 3):
+            raise ValueError(f"p_base must be (T, {M}, 3), got {Y.shape}")
+        if q_guess.shape != (T, self.chain.n):
+            raise ValueError(f"q_guess must be ({T}, {self.chain.n}), got {q_guess.shape}")
+        used = self.marker_joint >= self.joints[0]  # the others do not depend on the solved joints
+        vis = np.all(np.isfinite(Y), axis=2) & used[None, :]
+        flags = np.zeros(T, np.int64)
+        no_guess = ~np.all(np.isfinite(q_guess), axis=1)
+        flags[no_guess] |= FLAG_NO_GUESS
+        q0 = np.where(np.isfinite(q_guess), q_guess, 0.0)
+        vis[no_guess] = False
+        Y = np.where(vis[..., None], Y, 0.0)
+        if len(self.joints) == 1 and self.closed_form:
+            model = _SingleJoint(self, q0)
+            method = "closed_form_1d"
+        else:
+            model = _Chain(self, q0)
+            method = "levenberg_marquardt"
+        S = len(self.joints)
+        qs = q0[:, self.joints].copy()
+        # stage 1: plain least squares on every visible marker, from the motor angle (eq. 3-5)
+        qs, iters = model.solve(qs, Y, vis, loss="linear", scale=1.0, max_iter=self.max_iter)
+        P = model.model_markers(qs)
+        res = np.where(vis, np.linalg.norm(P - Y, axis=2), np.nan)
+        sigma = self._noise_level(res)
+        thr = max(self.reject_floor_m, self.reject_sigma * sigma)
+        inl = vis & (res < thr)
+        sus = (vis & ~inl).any(axis=1)
+        if sus.any():
+            # stage 2, frames with a suspicious marker only: robust (Cauchy) IRLS from the motor
+            # angle, hard rejection at the threshold, least-squares polish on the inliers
+            idx = np.flatnonzero(sus)
+            q_start = q0[:, self.joints].copy()
+            qr, it2 = model.solve(q_start, Y, vis, loss="cauchy", scale=self.robust_scale_m,
+                                  max_iter=max(self.irls_iter, 1), frames=sus)
+            res_r = np.linalg.norm(model.predict(qr[idx], idx) - Y[idx], axis=2)
+            inl[idx] = vis[idx] & (res_r < thr)
+            qp, it3 = model.solve(qr, Y, inl, loss="linear", scale=1.0, max_iter=self.max_iter,
+                                  frames=sus)
+            qs[idx] = qp[idx]
+            P[idx] = model.model_markers(qs)[idx]
+            iters += it2 + it3
+        swaps = []
+        if self.detect_swaps:
+            Y, inl, swaps, touched = self._repair_swaps(P, Y, vis, inl, thr)
+            if touched.any():
+                qs_t, _ = model.solve(qs, Y, inl, loss="linear", scale=1.0, max_iter=self.max_iter,
+                                      frames=touched)
+                qs[touched] = qs_t[touched]
+                P[touched] = model.model_markers(qs)[touched]
+                flags[touched] |= FLAG_SWAP_REPAIRED
+        r = P - Y
+        res = np.where(vis, np.linalg.norm(r, axis=2), np.nan)
+        n_in = inl.sum(axis=1)
+        rms = np.sqrt((np.where(inl, res, 0.0) ** 2).sum(axis=1) / np.maximum(n_in, 1))
+        flags[(vis & ~inl).any(axis=1)] |= FLAG_OUTLIERS_REJECTED
+        # validity: markers distal to each solved joint, redundancy, conditioning, convergence
+        few = 3 * n_in < S + 1
+        for j in self.joints:
+            few |= inl[:, self.marker_joint >= j].sum(axis=1) < self.min_markers
+        flags[few & ~no_guess] |= FLAG_TOO_FEW_MARKERS
+        H = model.final_normal_matrix(qs, inl)
+        ok_h = np.all(np.isfinite(H), axis=(1, 2)) & (n_in > 0)
+        H = np.where(ok_h[:, None, None], H, np.eye(S))
+        try:
+            Hinv = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            Hinv = np.linalg.pinv(H)
+        # cond(H) <= |H|_F |H^-1|_F and lambda_min(H) >= 1 / |H^-1|_F: cheap, conservative tests
+        nf = np.linalg.norm(H, axis=(1, 2))
+        nfi = np.linalg.norm(Hinv, axis=(1, 2))
+        lever2 = np.maximum(n_in, 1) * (1e-3) ** 2  # 1 mm of lever per marker at least
+        bad = ~ok_h | ~np.isfinite(nfi) | (nf * nfi > self.max_cond) | (1.0 / nfi < lever2)
+        flags[bad & (n_in > 0)] |= FLAG_ILL_CONDITIONED
+        flags[~model.converged] |= FLAG_NOT_CONVERGED
+        valid = (flags & INVALID_FLAGS) == 0
+        # pooled noise estimate (per axis) and per-frame standard errors
+        dof = 3 * n_in[valid].sum() - S * np.count_nonzero(valid)
+        ss = (np.where(inl, res, 0.0) ** 2).sum(axis=1)[valid].sum()
+        sig_axis = float(np.sqrt(ss / dof)) if dof > 0 else float("nan")
+        stderr = sig_axis * np.sqrt(np.maximum(np.diagonal(Hinv, axis1=1, axis2=2), 0.0))
+        stderr[~valid] = np.nan
+        q = q0.copy()
+        q[:, self.joints] = np.where(valid[:, None], qs, np.nan)
+        return SolveResult(q=q, joints=self.joints, labels=self.labels, residual_m=res, inlier=inl,
+                           rms_m=np.where(valid, rms, np.nan), n_markers=n_in.astype(int),
+                           stderr=stderr, flags=flags, swaps=tuple(swaps),
+                           iterations=int(iters), sigma_m=sig_axis, reject_m=thr,
+                           method=method, model_markers=P, cond=nf * nfi)
+
+    # ------------------------------------------------------------------------------------------
+    def _noise_level(self, res: np.ndarray) -> float:
+        """Per-axis noise from the median residual norm (robust to outliers)."""
+        r = res[np.isfinite(res)]
+        if r.size == 0:
+            return 0.0
+        return float(np.median(r) / _CHI3_MEDIAN)
+
+    def _repair_swaps(self, P, Y, vis, inl, thr):
+        """Swap back pairs of rejected markers that fit each other's predictions."""
+        rej = vis & ~inl
+        touched = np.zeros(Y.shape[0], bool)
+        swaps = []
+        cand = np.flatnonzero(rej.any(axis=0))
+        if cand.size < 2:
+            return Y, inl, swaps, touched
+        Y = Y.copy()
+        inl = inl.copy()
+        for ia, a in enumerate(cand):  # loop over marker pairs, vectorised over frames
+            for b in cand[ia + 1:]:
+                both = rej[:, a] & rej[:, b] & ~inl[:, a] & ~inl[:, b]
+                if not both.any():
+                    continue
+                fit = both & (np.linalg.norm(P[:, a] - Y[:, b], axis=1) < thr) & \
+                    (np.linalg.norm(P[:, b] - Y[:, a], axis=1) < thr)
+                if not fit.any():
+                    continue
+                ya = Y[fit, a].copy()
+                Y[fit, a] = Y[fit, b]
+                Y[fit, b] = ya
+                inl[fit, a] = True
+                inl[fit, b] = True
+                touched |= fit
+                swaps += [(int(t), self.labels[a], self.labels[b]) for t in np.flatnonzero(fit)]
+        return Y, inl, swaps, touched
+
+
+def _weights(r2: np.ndarray, mask: np.ndarray, loss: str, scale: float) -> np.ndarray:
+    if loss == "cauchy":
+        return mask / (1.0 + r2 / scale ** 2)
+    return mask.astype(float)
+
+
+def _cost(r2: np.ndarray, mask: np.ndarray, loss: str, scale: float) -> np.ndarray:
+    if loss == "cauchy":
+        return (np.where(mask, np.log1p(r2 / scale ** 2), 0.0) * scale ** 2).sum(axis=1)
+    return np.where(mask, r2, 0.0).sum(axis=1)
+
+
+class _SingleJoint:
+    """One moving joint j: markers rotate about one fixed axis, the problem is 1-D per frame.
+
+    In the frame of joint j at q_j = 0 a marker is at x_m (fixed by the held joints) and is
+    measured at y_m; the weighted cost sum w |Rot(a, q) x - y|^2 is minimal at
+    q = atan2(sum w y.(a x x), sum w y_perp.x_perp) (Rodrigues' formula; exact)."""
+
+    def __init__(self, solver: MarkerSolver, q0: np.ndarray):
+        ch = solver.chain
+        j = solver.joints[0]
+        self.j = j
+        self.a = ch.axes[j]
+        qh = q0.copy()
+        qh[:, j] = 0.0
+        held = np.delete(qh, j, axis=1)
+        const = held.shape[1] == 0 or bool(np.all(np.ptp(held, axis=0) == 0))
+        qk = qh[:1] if const else qh
+        R, o = forward_kinematics(ch, qk)
+        mj = np.clip(solver.marker_joint, 0, None)
+        Pm = o[:, mj] + np.einsum("tmij,mj->tmi", R[:, mj], solver.p_joint)  # (Tk, M, 3)
+        self.Rj = R[:, j]      # (Tk, 3, 3): the joint-j frame at q_j = 0 in the base frame
+        self.oj = o[:, j]
+        self.x = np.einsum("tji,tmj->tmi", self.Rj, Pm - self.oj[:, None, :])  # (Tk, M, 3)
+        self.x_perp = self.x - self.x @ self.a[:, None] * self.a
+        self.ax = np.cross(self.a, self.x)
+        self.converged = np.ones(q0.shape[0], bool)
+        self.q_ref = q0[:, j]
+        self._Y = None
+        self._y = None
+
+    def _local(self, Y):
+        if self._Y is not Y:
+            self._Y = Y
+            self._y = np.einsum("tji,tmj->tmi", self.Rj, Y - self.oj[:, None, :])
+        return self._y
+
+    def _rot(self, qs):
+        c = np.cos(qs)[:, None, None]
+        s = np.sin(qs)[:, None, None]
+        a = self.a
+        xa = (self.x @ a)[..., None] * a
+        return c * self.x_perp + s * self.ax + xa  # Rot(a, q) x, (T, M, 3)
+
+    def predict(self, qs, idx=None):
+        qs = np.asarray(qs).reshape(-1)
+        x, xp, ax = self.x, self.x_perp, self.ax
+        Rj, oj = self.Rj, self.oj
+        if idx is not None and Rj.shape[0] > 1:
+            x, xp, ax, Rj, oj = x[idx], xp[idx], ax[idx], Rj[idx], oj[idx]
+        c = np.cos(qs)[:, None, None]
+        s = np.sin(qs)[:, None, None]
+        p = c * xp + s * ax + (x @ self.a)[..., None] * self.a
+        return np.einsum("tij,tmj->tmi", Rj, p) + oj[:, None, :]
+
+    def model_markers(self, qs):
+        return self.predict(qs)
+
+    def final_normal_matrix(self, qs, mask):
+        return self.normal_matrix(qs, mask)
+
+    def solve(self, qs, Y, mask, loss, scale, max_iter, frames=None):
+        y = self._local(Y)
+        qs = np.asarray(qs, float).reshape(-1).copy()
+        yp = y - (y @ self.a)[..., None] * self.a
+        cy = np.einsum("tmi,tmi->tm", yp, np.broadcast_to(self.x_perp, y.shape))
+        sy = np.einsum("tmi,tmi->tm", y, np.broadcast_to(self.ax, y.shape))
+        n = 1 if loss == "linear" else max_iter
+        for _ in range(n):
+            if loss == "linear":
+                w = mask.astype(float)
+            else:
+                r2 = ((self._rot(qs) - y) ** 2).sum(axis=2)
+                w = _weights(r2, mask, loss, scale)
+            C = (w * cy).sum(axis=1)
+            Sn = (w * sy).sum(axis=1)
+            qn = np.arctan2(Sn, C)
+            qn = self.q_ref + (qn - self.q_ref + np.pi) % (2 * np.pi) - np.pi  # nearest the guess
+            qs = np.where(w.sum(axis=1) > 0, qn, qs)
+        return qs[:, None], n
+
+    def normal_matrix(self, qs, mask):
+        xp2 = np.broadcast_to((self.x_perp ** 2).sum(axis=2), mask.shape)
+        return (mask * xp2).sum(axis=1)[:, None, None]
+
+
+class _Chain:
+    """Several solved joints: Levenberg-Marquardt, analytic Jacobian, vectorised over frames."""
+
+    def __init__(self, solver: MarkerSolver, q0: np.ndarray):
+        self.s = solver
+        self.q0 = q0
+        mj = solver.marker_joint
+        # markers grouped by the joint that carries them (one matmul per group)
+        self.groups = [(jj, np.flatnonzero(mj == jj), solver.p_joint[mj == jj].T.copy())
+                       for jj in np.unique(mj[mj >= solver.joints[0]])]
+        T, M, S = q0.shape[0], solver.p_joint.shape[0], len(solver.joints)
+        self.P_last = np.zeros((T, M, 3))
+        self.H_last = np.zeros((T, S, S))
+        self.has_last = np.zeros(T, bool)
+        # solved joint k moves marker m iff k <= the joint carrying m
+        self.mmask = (np.array(solver.joints)[None, :] <= mj[:, None]).astype(float)  # (M, S)
+        self.converged = np.ones(q0.shape[0], bool)
+
+    def _full(self, qs, idx):
+        q = self.q0[idx]
+        q[:, self.s.joints] = qs
+        return q
+
+    def _eval(self, qs, idx, jac: bool):
+        """Model markers P (T, M, 3) and the joint twists X (T, 6, S): for a marker distal to
+        solved joint k, dP/dq_k = w_k x P + o_k x w_k = [-[P]x | I] X[:, :, k] (Plucker form)."""
+        R, o = forward_kinematics(self.s.chain, self._full(qs, idx))
+        T = R.shape[0]
+        M = self.s.p_joint.shape[0]
+        P = np.zeros((T, M, 3))
+        for jj, sel, pT in self.groups:  # loop over marked links
+            Rp = (np.ascontiguousarray(R[:, jj]).reshape(-1, 3) @ pT).reshape(T, 3, -1)
+            P[:, sel] = np.swapaxes(Rp, 1, 2) + o[:, jj][:, None, :]
+        if not jac:
+            return P, None
+        S = len(self.s.joints)
+        X = np.empty((T, 6, S))
+        for k, i in enumerate(self.s.joints):  # loop over solved joints
+            w = np.einsum("tij,j->ti", R[:, i], self.s.chain.axes[i])
+            X[:, :3, k] = w
+            X[:, 3:, k] = np.cross(o[:, i], w)
+        return P, X
+
+    def _normal(self, P, X, r, w):
+        """H = J^T W J and g = J^T W r, with J_mk = w_k x P_m + v_k: the Plucker twist
+        (w_k, v_k = o_k x w_k) of solved joint k applied to marker m (zero if k does not move m)."""
+        T, S = P.shape[0], X.shape[2]
+        om, v = X[:, :3, :], X[:, 3:, :]
+        Px, Py, Pz = P[..., 0, None], P[..., 1, None], P[..., 2, None]
+        ox, oy, oz = om[:, None, 0], om[:, None, 1], om[:, None, 2]
+        J = np.empty((T, P.shape[1], 3, S))
+        J[:, :, 0] = oy * Pz - oz * Py + v[:, None, 0]
+        J[:, :, 1] = oz * Px - ox * Pz + v[:, None, 1]
+        J[:, :, 2] = ox * Py - oy * Px + v[:, None, 2]
+        J *= self.mmask[None, :, None, :]
+        Jf = J.reshape(T, -1, S)
+        wJt = np.swapaxes(Jf * np.repeat(w, 3, axis=1)[..., None], 1, 2)
+        return wJt @ Jf, (wJt @ r.reshape(T, -1, 1))[..., 0]
+
+    def predict(self, qs, idx=None, chunk: int = 2048):
+        """Model markers for ``qs`` (K, S) at frames ``idx`` (default all)."""
+        idx = np.arange(qs.shape[0]) if idx is None else np.asarray(idx)
+        out = np.empty((idx.size, self.s.p_joint.shape[0], 3))
+        for b in np.array_split(np.arange(idx.size), max(1, -(-idx.size // chunk))):
+            out[b] = self._eval(qs[b], idx[b], False)[0]
+        return out
+
+    def model_markers(self, qs):
+        """Model markers stored at each frame's last Jacobian evaluation (within ``tol`` of the
+        solution: < 1 um), computed afresh where a frame was never iterated."""
+        P = self.P_last.copy()
+        fresh = ~self.has_last
+        if fresh.any():
+            P[fresh] = self.predict(qs[fresh], np.flatnonzero(fresh))
+        return P
+
+    def final_normal_matrix(self, qs, mask):
+        """J^T J at the solution: the last LM iteration's (same inliers), else computed."""
+        H = self.H_last.copy()
+        fresh = ~self.has_last
+        if fresh.any():
+            H[fresh] = self.normal_matrix(qs[fresh], mask[fresh])
+        return H
+
+    def normal_matrix(self, qs, mask, chunk: int = 2048, idx=None):
+        S = qs.shape[1]
+        idx = np.arange(qs.shape[0]) if idx is None else np.asarray(idx)
+        out = np.empty((qs.shape[0], S, S))
+        for b in np.array_split(np.arange(qs.shape[0]), max(1, -(-qs.shape[0] // chunk))):
+            P, X = self._eval(qs[b], idx[b], True)
+            out[b] = self._normal(P, X, np.zeros_like(P), mask[b].astype(float))[0]
+        return out
+
+    def solve(self, qs, Y, mask, loss, scale, max_iter, frames=None, chunk: int = 2048):
+        """Levenberg-Marquardt on every frame (or ``frames``), in blocks of ``chunk`` frames
+        (cache-sized temporaries); frames leave the loop as they converge."""
+        qs = np.array(qs, float)
+        T = qs.shape[0]
+        act = np.arange(T) if frames is None else np.flatnonzero(frames)
+        act = act[mask[act].any(axis=1)]
+        conv = np.ones(T, bool)
+        its = 0
+        for block in np.array_split(act, max(1, -(-act.size // chunk))):
+            its = max(its, self._solve_block(qs, Y, mask, loss, scale, max_iter, block, conv))
+        if frames is None:
+            self.converged = conv
+        else:
+            self.converged[frames] = conv[frames]
+        return qs, its
+
+    def _solve_block(self, qs, Y, mask, loss, scale, max_iter, act, conv) -> int:
+        S = qs.shape[1]
+        lam = np.full(act.size, 1e-6)
+        P, J = self._eval(qs[act], act, True)
+        r = P - Y[act]
+        r2 = (r ** 2).sum(axis=2)
+        cost = _cost(r2, mask[act], loss, scale)
+        conv[act] = False
+        it = 0
+        eye = np.eye(S)
+        while act.size and it < max_iter:
+            it += 1
+            m = mask[act]
+            H, g = self._normal(P, J, r, _weights(r2, m, loss, scale))
+            if loss == "linear":
+                self.P_last[act] = P
+                self.H_last[act] = H
+                self.has_last[act] = True
+            d = np.diagonal(H, axis1=1, axis2=2)
+            A = H + (lam[:, None] * (d + 1e-12))[:, :, None] * eye
+            step = -np.linalg.solve(A, g[..., None])[..., 0]
+            # a step below tol (1e-6 rad: 1000x under the marker noise) is taken without
+            # checking it: the frame has converged
+            small = np.abs(step).max(axis=1) < self.s.tol
+            if small.any():
+                qs[act[small]] += step[small]
+                conv[act[small]] = True
+                keep = ~small
+                act, P, J, r, r2, cost, lam, step = (act[keep], P[keep], J[keep], r[keep], r2[keep],
+                                                     cost[keep], lam[keep], step[keep])
+                m = m[keep]
+                if not act.size:
+                    break
+            qn = qs[act] + step
+            Pn, Jn = self._eval(qn, act, True)
+            rn = Pn - Y[act]
+            r2n = (rn ** 2).sum(axis=2)
+            cn = _cost(r2n, m, loss, scale)
+            acc = cn <= cost
+            flat = (cost - cn) <= 1e-12 * cost + 1e-30
+            qs[act[acc]] = qn[acc]
+            lam = np.where(acc, np.maximum(lam * 0.1, 1e-12), lam * 10.0)
+            P[acc], J[acc], r[acc], r2[acc], cost[acc] = Pn[acc], Jn[acc], rn[acc], r2n[acc], cn[acc]
+            if loss == "linear":
+                self.P_last[act[acc]] = Pn[acc]
+            done = (acc & flat) | (lam > 1e8)
+            conv[act[done]] = True
+            keep = ~done
+            act, P, J, r, r2, cost, lam = (act[keep], P[keep], J[keep], r[keep], r2[keep],
+                                           cost[keep], lam[keep])
+        return it
+
+
+# ---- campaign level --------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class AnglesResult:
+    """Link angles of one trial (FORMAT.md ``angles/<trial id>.csv``) with the solve diagnostics.
+
+    ``q_link`` (T, S) link angles of the trial's joints (NaN in flagged frames), ``q_motor`` (T, S)
+    the motor angles interpolated onto the marker times (the initial guess)."""
+
+    trial_id: str
+    time: np.ndarray
+    joints: tuple[int, ...]     # 1-based, as in the manifest
+    q_link: np.ndarray
+    q_motor: np.ndarray
+    rms_m: np.ndarray
+    n_markers: np.ndarray
+    flags: np.ndarray
+    solve: SolveResult
+    absent_labels: tuple[str, ...] = ()
+    refinement: dict | None = None
+    fixed_markers: dict | None = None  # markers on links the trial does not move (drift check)
+
+    @property
+    def valid(self) -> np.ndarray:
+        return self.solve.valid
+
+    def to_dict(self) -> dict:
+        d = {"trial": self.trial_id, "frames": int(self.time.shape[0]),
+             "first_time": float(self.time[0]) if self.time.size else None,
+             "last_time": float(self.time[-1]) if self.time.size else None,
+             "absent_labels": list(self.absent_labels)}
+        d.update(self.solve.to_dict())
+        if self.refinement is not None:
+            d["refinement"] = self.refinement
+        if self.fixed_markers is not None:
+            d["fixed_markers"] = self.fixed_markers
+        bad = ~self.valid
+        d["flagged_times"] = [float(t) for t in self.time[bad][:1000]]
+        dq = self.q_link - self.q_motor
+        d["link_minus_motor_rms_rad"] = [float(np.sqrt(np.nanmean(c ** 2))) if np.isfinite(c).any()
+                                         else None for c in dq.T]
+        return d
+
+    def write_csv(self, path, overwrite: bool = False):
+        """``time, q_<j>..., rms_mm, n_markers``; flagged frames have empty angle cells."""
+        from pathlib import Path
+
+        path = Path(path)
+        if path.exists() and not overwrite:
+            raise FileExistsError(f"{path} exists; refusing to overwrite")
+        names = ["time"] + [f"q_{j}" for j in self.joints] + ["rms_mm", "n_markers"]
+        data = np.column_stack([self.time, self.q_link, 1e3 * self.rms_m, self.n_markers])
+        body = np.char.mod("%.10g", data)
+        body[~np.isfinite(data)] = ""
+        body[:, -1] = self.n_markers.astype(int).astype(str)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(",".join(names) + "\n")
+            if body.size:
+                fh.write("\n".join(",".join(r) for r in body) + "\n")
+        return path
+
+
+def motor_guess(log, time: np.ndarray, moving) -> np.ndarray:
+    """Initial guess (T, n) at the marker times: moving joints' ``qm`` interpolated (NaN outside
+    the log), braked joints at their median log angle over the marker span (constant)."""
+    n = log.qm.shape[1]
+    q = np.empty((time.shape[0], n))
+    span = (log.time >= time[0]) & (log.time <= time[-1]) if time.size else np.zeros(0, bool)
+    for j in range(n):  # loop over joints
+        ok = np.isfinite(log.qm[:, j])
+        if not ok.any():
+            q[:, j] = np.nan
+        elif j in moving:
+            q[:, j] = np.interp(time, log.time[ok], log.qm[ok, j], left=np.nan, right=np.nan)
+        else:
+            sel = ok & span if (ok & span).any() else ok
+            q[:, j] = np.median(log.qm[sel, j])
+    return q
+
+
+def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robot=None,
+                refine: bool = False, refine_geometry: bool = False,
+                **solver_settings) -> AnglesResult:
+    """Link angles of one trial (thesis eq. 3-5) from its marker file and robot log.
+
+    ``trial``: a :class:`mocap.campaign.Trial` or its id. ``references``: from
+    :func:`mocap.reference.build_references`. ``T_camera_base`` defaults to the one the references
+    were built with (pass another only if the references were built with it too). The markers
+    are moved into the robot base frame; only markers on links moved by the trial's joints are
+    used. ``refine``: re-estimate the marker positions over the trial's frames, anchored by the
+    static poses (:func:`refine_markers`); ``refine_geometry``: also fit small placement offsets
+    of the moving joints (axis tilt and position). ``solver_settings`` go to :class:`MarkerSolver`."""
+    from .errors import InputError
+    from .io import read_markers
+    from .kinematics import apply_transform, invert_transform
+    from .robotlog import read_robot_log
+
+    if isinstance(trial, str):
+        trial = campaign.trial(trial)
+    robot = robot or campaign.load_robot()
+    chain = robot.chain
+    joints0 = tuple(sorted(j - 1 for j in trial.joints))
+    T_cb = references.T_camera_base if T_camera_base is None else np.asarray(T_camera_base, float)
+    link_of = campaign.link_of_label()
+    for link, labels in campaign.markers.items():
+        if len(labels) < 3:
+            raise InputError(f"link {link!r} has {len(labels)} marker(s); at least 3 per link are "
+                             "needed", path=campaign.manifest, label=link)
+    used = [lb for lb in link_of if chain.frames[link_of[lb]][0] >= joints0[0]]
+    if not used:
+        raise InputError(f"trial {trial.id!r} moves joint(s) {list(trial.joints)} but no marked link "
+                         "is moved by them", path=campaign.manifest, label=trial.id)
+    norefs = [lb for lb in used if lb not in references.labels]
+    if norefs:
+        raise InputError(f"trial {trial.id!r}: marker {norefs[0]!r} has no static reference (it is "
+                         "not in the static pose)", path=campaign.manifest, label=norefs[0])
+    rec = read_markers(trial.markers)
+    log = read_robot_log(trial.log, n_joints=robot.n)
+    absent = tuple(lb for lb in used if lb not in rec.labels)
+    if len(absent) == len(used):
+        raise InputError(f"none of the markers on the moving links ({', '.join(used[:6])}) is in the "
+                         "marker file", path=trial.markers, label=used[0])
+    Y = np.full((rec.n_frames, len(used), 3), np.nan)
+    for k, lb in enumerate(used):  # loop over markers
+        if lb in rec.labels:
+            Y[:, k] = rec.positions[:, rec.labels.index(lb)]
+    p_base = apply_transform(invert_transform(T_cb), Y)
+    q_guess = motor_guess(log, rec.time, joints0)
+    mj, pj = references.for_chain(chain, used)
+    fixed = _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
+    refinement = None
+    if refine or refine_geometry:
+        T_bc = invert_transform(T_cb)
+        ri = [references.index(lb) for lb in used]
+        static = [(p.q, apply_transform(T_bc, p.p_camera[ri]), p.n_frames[ri].astype(float))
+                  for p in references.poses]
+        rr = refine_markers(chain, joints0, mj, pj, p_base, q_guess, static=static, labels=used,
+                            geometry=refine_geometry, **solver_settings)
+        res = rr.solve
+        refinement = {k: v for k, v in rr.to_dict().items() if k != "solve"}
+        refinement["labels"] = list(used)
+    else:
+        res = MarkerSolver(chain, joints0, mj, pj, labels=used, **solver_settings).fit(p_base, q_guess)
+    out = AnglesResult(trial.id, rec.time, tuple(j + 1 for j in joints0), res.q[:, list(joints0)],
+                       q_guess[:, list(joints0)], res.rms_m, res.n_markers, res.flags, res, absent,
+                       refinement, fixed)
+    if sink is not None and getattr(sink, "enabled", False):
+        log_trial(sink, robot, out, p_base, q_guess, used, link_of)
+    return out
+
+
+def _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess):
+    """Markers on links the trial does not move must stay at their static reference: their RMS
+    distance from it (base frame, held angles; distances of 10 mm or more counted in ``far_frac``)
+    checks the camera pose and that nothing was bumped."""
+    from .kinematics import apply_transform, invert_transform
+
+    labels = [lb for lb in link_of if chain.frames[link_of[lb]][0] < joints0[0]
+              and lb in rec.labels and lb in references.labels]
+    if not labels or rec.n_frames == 0:
+        return None
+    q_held = np.nanmedian(q_guess, axis=0)
+    if not np.all(np.isfinite(q_held)):
+        return None
+    mj, pj = references.for_chain(chain, labels)
+    R, o = forward_kinematics(chain, q_held[None])
+    jj = np.clip(mj, 0, None)
+    pred = np.where((mj >= 0)[:, None], o[0, jj] + np.einsum("mij,mj->mi", R[0, jj], pj), pj)
+    meas = apply_transform(invert_transform(T_cb),
+                           rec.positions[:, [rec.labels.index(lb) for lb in labels]])
+    d = np.linalg.norm(meas - pred, axis=2)
+    fin = np.isfinite(d)
+    near = fin & (d < 0.01)  # gross outliers (>= 10 mm) are counted, not averaged
+    per = {lb: (float(1e3 * np.sqrt(np.mean(d[near[:, k], k] ** 2))) if near[:, k].any() else None)
+           for k, lb in enumerate(labels)}
+    return {"rms_mm": float(1e3 * np.sqrt(np.mean(d[near] ** 2))) if near.any() else None,
+            "median_mm": float(1e3 * np.median(d[fin])) if fin.any() else None,
+            "far_frac": float(np.mean(~near[fin])) if fin.any() else None,
+            "per_marker_rms_mm": per}
+
+
+def log_trial(sink, robot, result: AnglesResult, p_base, q_guess, labels, link_of) -> None:
+    """Rerun view of a solved trial: measured vs model markers, residuals, link frames."""
+    base = f"trials/{result.trial_id}"
+    t = result.time
+    if t.size == 0:
+        return
+    sink.points_over_time(f"world/{base}/markers_measured", t, p_base, labels=list(labels),
+                          colors=(0.9, 0.2, 0.2), radii=0.006)
+    model = result.solve.model_markers
+    if model is not None:
+        mm = np.where(result.valid[:, None, None], model, np.nan)
+        sink.points_over_time(f"world/{base}/markers_model", t, mm, labels=list(labels),
+                              colors=(0.2, 0.8, 0.2), radii=0.004)
+    sink.scalars(f"{base}/residual_rms_mm", t, 1e3 * result.rms_m)
+    sink.scalars(f"{base}/n_markers", t, result.n_markers.astype(float))
+    for k, j in enumerate(result.joints):
+        sink.scalars(f"{base}/q_{j}", t, np.column_stack([result.q_link[:, k], result.q_motor[:, k]]),
+                     names=["link", "motor"])
+    q = np.where(np.isfinite(result.solve.q), result.solve.q, q_guess)
+    q = np.where(np.isfinite(q), q, 0.0)
+    for link in sorted(set(link_of.values())):
+        j, _ = robot.chain.frames[link]
+        if j >= min(result.joints) - 1:
+            sink.transforms_over_time(f"world/{base}/links/{link}", t, robot.chain.frame_transform(link, q))
+
+
+# ---- refinement over many frames (the thesis's suggestion after eq. 3-5) ----------------------
+@dataclass(frozen=True, eq=False)
+class RefineResult:
+    """Marker positions (and optionally joint-placement offsets) re-estimated together with the
+    angles over all frames of a trial."""
+
+    p_joint: np.ndarray           # (M, 3) refined, in the frame of each marker's joint
+    p_joint_initial: np.ndarray   # (M, 3) the static-pose references it started from
+    solve: SolveResult            # the final per-frame solve with the refined model
+    rms_history_m: tuple          # RMS residual after each outer iteration
+    shift_m: np.ndarray           # (M,) how far each marker moved
+    offsets: np.ndarray | None = None  # (S, 4) per solved joint: tilt about e1, e2 (rad), shift along e1, e2 (m)
+    chain: object = None          # the chain with the offsets applied
+
+    def to_dict(self) -> dict:
+        d = {"iterations": len(self.rms_history_m),
+             "rms_history_mm": [float(1e3 * x) for x in self.rms_history_m],
+             "marker_shift_mm": [float(1e3 * x) for x in self.shift_m],
+             "solve": self.solve.to_dict()}
+        if self.offsets is not None:
+            d["joint_offsets"] = {str(j + 1): {"tilt_deg": [float(np.degrees(x)) for x in o[:2]],
+                                               "shift_mm": [float(1e3 * x) for x in o[2:]]}
+                                  for j, o in zip(self.solve.joints, self.offsets)}
+        return d
+
+
+def _perp_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    t = np.eye(3)[int(np.argmin(np.abs(a)))]
+    e1 = np.cross(a, t)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(a, e1)
+
+
+def offset_chain(chain, joints, offsets):
+    """A copy of ``chain`` whose solved joints' placements are corrected by ``offsets`` (S, 4):
+    the joint frame tilted about the two directions e1, e2 perpendicular to its axis and shifted
+    along them (the 4 placement errors that markers on the link cannot absorb)."""
+    from .kinematics import Chain, make_transform, rotation_about_axis
+
+    Tp = np.array(chain.T_parent_joint, float)
+    for k, j in enumerate(joints):  # loop over solved joints
+        e1, e2 = _perp_basis(chain.axes[j])
+        d = np.asarray(offsets[k], float)
+        R = rotation_about_axis(e1, d[0]) @ rotation_about_axis(e2, d[1])
+        Tp[j] = Tp[j] @ make_transform(R, d[2] * e1 + d[3] * e2)
+    return Chain(Tp, chain.axes, chain.joint_names, chain.frames)
+
+
+def _static_model(chain, mj, p_joint, q_s):
+    R, o = forward_kinematics(chain, np.asarray(q_s, float)[None])
+    jj = np.clip(mj, 0, None)
+    return o[0, jj] + np.einsum("mij,mj->mi", R[0, jj], p_joint)
+
+
+def refine_markers(chain, joints, marker_joint, p_joint, p_base, q_guess, static=(),
+                   iterations: int = 4, labels=None, geometry: bool = False,
+                   max_frames: int = 1500, max_nfev: int = 8, **solver_settings) -> RefineResult:
+    """Alternate the batched angle solve (eq. 3-5) with the closed-form update of every marker's
+    position in its link frame (eq. 3-4 averaged over all trial frames, inliers only); then, with
+    ``geometry``, a joint least-squares fit of small placement offsets of the solved joints (axis
+    tilt and position, :func:`offset_chain`) and the marker positions, the angles re-solved inside
+    every evaluation (variable projection, on at most ``max_frames`` frames; finite-difference
+    Jacobian, so this costs ~(4 S + 3 M) batched solves per iteration).
+
+    ``static``: ``(q (n,), p_base (M, 3), weight (M,))`` tuples, the static poses with their known
+    encoder angles; they anchor the gauge (a rotation of a link's markers about the joint axis is
+    otherwise indistinguishable from an angle offset)."""
+    from scipy.optimize import least_squares
+
+    joints = tuple(sorted(int(j) for j in joints))
+    p_joint = np.asarray(p_joint, float).copy()
+    p0 = p_joint.copy()
+    mj = np.asarray(marker_joint, int)
+    jj = np.clip(mj, 0, None)
+    Yb = np.asarray(p_base, float)
+    S = len(joints)
+    offsets = np.zeros((S, 4))
+    ch = chain
+    hist = []
+    res = None
+    for _ in range(iterations):  # outer alternation, a handful of passes
+        res = MarkerSolver(ch, joints, mj, p_joint, labels=labels, **solver_settings).fit(Yb, q_guess)
+        hist.append(float(np.sqrt(np.nanmean(res.rms_m ** 2))))
+        ok = res.valid
+        R, o = forward_kinematics(ch, res.q[ok])
+        y = np.where(res.inlier[ok][..., None], Yb[ok], 0.0)
+        loc = np.einsum("tmji,tmj->tmi", R[:, jj], y - o[:, jj])  # back-projected: R^T (y - o)
+        w = res.inlier[ok].astype(float)
+        num = (loc * w[..., None]).sum(axis=0)
+        den = w.sum(axis=0)
+        for q_s, p_s, w_s in static:  # loop over static poses
+            Rs, os_ = forward_kinematics(ch, np.asarray(q_s, float)[None])
+            ps = np.asarray(p_s, float)
+            fin = np.all(np.isfinite(ps), axis=1)
+            ls = np.einsum("mji,mj->mi", Rs[0, jj], np.where(fin[:, None], ps, 0.0) - os_[0, jj])
+            ws = np.where(fin, np.asarray(w_s, float), 0.0)
+            num += ls * ws[:, None]
+            den += ws
+        used = (den > 0) & (mj >= joints[0])
+        p_joint[used] = num[used] / den[used, None]
+    if geometry:
+        # joint least squares over the placement offsets and the marker positions, the angles
+        # re-solved inside every evaluation (variable projection), on a subsample of frames
+        sub = np.flatnonzero(res.valid)
+        if sub.size:
+            sub = sub[np.linspace(0, sub.size - 1, min(max_frames, sub.size)).astype(int)]
+        Ysub = np.where(res.inlier[sub][..., None], Yb[sub], 0.0)
+        msub = res.inlier[sub]
+        qg = q_guess[sub]
+        sig = res.sigma_m if np.isfinite(res.sigma_m) and res.sigma_m > 0 else 1e-3
+        anchors = [(q_s, np.asarray(p_s, float), np.asarray(w_s, float)) for q_s, p_s, w_s in static]
+        free = np.flatnonzero(mj >= joints[0])
+
+        def unpack(x):
+            pj = p_joint.copy()
+            pj[free] = x[4 * S:].reshape(-1, 3)
+            return x[:4 * S].reshape(S, 4), pj
+
+        def resid(x):
+            off, pj = unpack(x)
+            c2 = offset_chain(chain, joints, off)
+            sv = MarkerSolver(c2, joints, mj, pj, **solver_settings)
+            model = _SingleJoint(sv, qg) if S == 1 and sv.closed_form else _Chain(sv, qg)
+            qs, _ = model.solve(qg[:, list(joints)].copy(), Ysub, msub, loss="linear", scale=1.0,
+                                max_iter=sv.max_iter)
+            out = [np.where(msub[..., None], model.predict(qs) - Ysub, 0.0).ravel()]
+            for q_s, p_s, w_s in anchors:  # static poses: known angles
+                fin = np.all(np.isfinite(p_s), axis=1) & (mj >= joints[0])
+                d = _static_model(c2, mj, pj, q_s) - np.where(fin[:, None], p_s, 0.0)
+                out.append((np.where(fin[:, None], d, 0.0) * np.sqrt(w_s)[:, None]).ravel())
+            out.append(sig * x[:4 * S] / 0.05)  # weak prior: offsets are small (bounds gauges)
+            return np.concatenate(out)
+
+        x0 = np.concatenate([offsets.ravel(), p_joint[free].ravel()])
+        sol = least_squares(resid, x0, method="trf", x_scale=1e-3, diff_step=1e-5,
+                            max_nfev=max_nfev)
+        offsets, p_joint = unpack(sol.x)
+        ch = offset_chain(chain, joints, offsets)
+    res = MarkerSolver(ch, joints, mj, p_joint, labels=labels, **solver_settings).fit(Yb, q_guess)
+    hist.append(float(np.sqrt(np.nanmean(res.rms_m ** 2))))
+    return RefineResult(p_joint, p0, res, tuple(hist), np.linalg.norm(p_joint - p0, axis=1),
+                        offsets if geometry else None, ch)
