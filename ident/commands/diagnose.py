@@ -27,10 +27,8 @@ def link_angles(campaign, robot, angles_dir=None, sink=None, progress=True):
 
     if angles_dir is not None:
         return load_angles_dir(angles_dir, campaign.trials)
-    try:
-        from mocap.pipeline import solve_campaign_angles
-    except ImportError:
-        return None
+    from ..angles import solve_campaign_angles
+
     return solve_campaign_angles(campaign, robot, sink=sink, progress=progress)
 
 

@@ -38,9 +38,8 @@ def register(sub):
 
 def run(args) -> int:
     from mocap.campaign import load_campaign
-    from mocap.errors import InputError
     from mocap.quality import summary
-    from mocap.reference import build_references, read_calib
+    from mocap.reference import read_calib
     from mocap.solve import solve_trial
     from viz import make_sink
 
@@ -48,21 +47,12 @@ def run(args) -> int:
     out = check_out_dir(args.out, [camp.root] + ([args.calib] if args.calib else []))
     robot = camp.load_robot()
     T_cb = read_calib(args.calib) if args.calib else None
-    camera_from = "calib.json" if args.calib else "static_poses"
-    try:
-        refs = build_references(camp, robot, T_cb)
-    except InputError as exc:
-        # one static pose does not fix the camera; the thesis's way is the joint 1/2 sweeps
-        if T_cb is not None or not camp.calib or "cannot be estimated" not in str(exc):
-            raise
-        from calib.pipeline import calibrate
+    from ..angles import campaign_references
 
-        if not args.json:
-            print("camera pose: not identifiable from the static pose(s); calibrating from the "
-                  f"campaign's {len(camp.calib)} [[calib]] sweeps (save it with `jointlab calib`)")
-        T_cb = calibrate(camp, robot).T_camera_base
-        camera_from = "calib_sweeps"
-        refs = build_references(camp, robot, T_cb)
+    if T_cb is None and not args.json:
+        print("camera pose: from the static pose(s) if they fix it, else from the [[calib]] sweeps "
+              "(save it with `jointlab calib`)")
+    refs, camera_from = campaign_references(camp, robot, T_cb)
     trials = [camp.trial(t) for t in args.trial] if args.trial else list(camp.trials)
     results = []
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:

@@ -65,7 +65,8 @@ def _ripple(d, hp):
 
 
 def _load(d, hp):
-    return (ssign(d.qd) * np.abs(d.tau_urdf))[:, None]
+    tau = d.tau_grav if hp == "gravity" else d.tau_urdf
+    return (ssign(d.qd) * np.abs(tau))[:, None]
 
 
 def _thermal(d, hp):
@@ -115,8 +116,8 @@ def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
                   lambda hp: f"presliding length {hp:.2e} rad"),
         Candidate("position_ripple", "torque", tuple(float(k) for k in ripple_k), _ripple,
                   lambda hp: f"{hp:g} cycles per joint revolution"),
-        Candidate("load_dependent", "torque", (None,), _load,
-                  lambda hp: "Coulomb level proportional to |transmitted torque|"),
+        Candidate("load_dependent", "torque", ("gravity", "rigid"), _load,
+                  lambda hp: f"Coulomb level growing with |{'gravity' if hp == 'gravity' else 'rigid-body'} torque|"),
         Candidate("thermal_drift", "torque", tuple(np.geomspace(20, 5000, 10)) + (np.inf,), _thermal,
                   lambda hp: "linear drift over the campaign" if not np.isfinite(hp)
                   else f"warm-up time constant {hp:.0f} s"),

@@ -73,6 +73,7 @@ class JointData:
     qdd: np.ndarray
     y: np.ndarray                   # tau - J qmdd - B qmd
     tau_urdf: np.ndarray            # rigid-body torque from the URDF (payload, rest pose)
+    tau_grav: np.ndarray            # its gravity part
     urdf_regs: np.ndarray           # (N, 3) [qdd, sin q, cos q] for base-parameter corrections
     load: np.ndarray                # (N,) kg
     vmax: float                     # joint max velocity, rad/s
@@ -131,7 +132,7 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
     drive = robot.drives[j0]
     J, B = drive.motor_inertia, drive.motor_viscous
     offsets = campaign_clock(logs)
-    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "y", "tau_urdf", "regs", "load",
+    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "y", "tau_urdf", "tau_grav", "regs", "load",
                             "trial_m", "e", "qd_m", "y_m", "t_m")}
     cache = {}
     for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
@@ -158,6 +159,7 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
         cols["qdd"].append((qdd)[keep])
         cols["y"].append((y)[keep])
         cols["tau_urdf"].append((I_u * qdd + a_u * s + b_u * c)[keep])
+        cols["tau_grav"].append((a_u * s + b_u * c)[keep])
         cols["regs"].append((np.column_stack([qdd, s, c]))[keep])
         cols["load"].append((np.full(t.shape, tr.load_kg))[keep])
         if angles is not None and tr.id in angles:
@@ -178,7 +180,7 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
     fold = reps.copy() if len(set(reps.tolist())) > 1 else np.arange(len(trials))
     return JointData(joint=joint, trials=list(trials), trial=cat["trial"].astype(int), t=cat["t"],
                      t_rel=cat["t_rel"], q=cat["q"], qd=cat["qd"], qdd=cat["qdd"], y=cat["y"],
-                     tau_urdf=cat["tau_urdf"], urdf_regs=cat["regs"], load=cat["load"],
+                     tau_urdf=cat["tau_urdf"], tau_grav=cat["tau_grav"], urdf_regs=cat["regs"], load=cat["load"],
                      vmax=float(drive.max_velocity), tau_max=float(drive.max_torque),
                      trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
                      t_m=cat["t_m"], rep=reps, group=group, fold=fold)

@@ -21,7 +21,7 @@ import numpy as np
 
 from .candidates import CONFOUNDERS, Candidate, candidate_effects, ssign
 from .data import JointData
-from .engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, sign_flip_pvalue, sse_with,
+from .engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, sign_flip_pvalue,
                      trial_bounds, unexplained_fraction, white_noise_floor)
 
 REGIMES = ("low_speed", "high_speed", "reversal", "high_acceleration", "position", "time", "load")

@@ -1,0 +1,199 @@
+"""The withheld effects: what the simulated "real" robot has and the nominal model lacks.
+
+Every name of FORMAT.md's effect vocabulary can be switched on with a magnitude ``M``. At
+``M = 1`` the effect has a literature-typical size (below) and is clearly visible above the
+measurement noise in the channel it lives in (motor torque against the rigid Coulomb + viscous
+model, or link angle from markers against motor angle); ``M = 0.3`` is still detectable; every
+size parameter scales linearly with ``M`` (``M = 0`` is the nominal plant).
+
+Physical forms (``c``, ``v``: nominal Coulomb and viscous coefficients of the joint, thesis
+eq. 2-5; ``tau_max``: the drive's rated link-side torque; ``vmax``: its maximum speed):
+
+==================  =============================================================  ==========================
+name                form added to the plant                                        size at M = 1 (literature)
+==================  =============================================================  ==========================
+stribeck            thesis eq. 2-6: ``f = sign(qd) (c + S exp(-|qd|/Vc)) + v qd``   S = 0.45 c (30-60 %),
+                                                                                   Vc = 0.05 rad/s (0.02-0.1)
+presliding          LuGre bristles (Indri & Trapani eq. 5-9, DM1):                 z_ss = c/sigma0 = 2e-3 rad
+                    ``dz/dt = qd - sigma0 |qd| z / c``,                            (hysteresis width), sigma1
+                    ``f = sigma0 z + sigma1 dz/dt + v qd``                         critical for the link
+position_ripple     ``tau_r = A sin(n q + phi)`` on the link (harmonic drive /     A = 0.10 c (5-15 %), n = 36
+                    cogging), periodic in the joint angle                          per revolution
+load_dependent      ``c_eff = c + mu |tau_g(q)|``, ``tau_g`` the gravity + payload  mu = 0.08 (0.05-0.1)
+                    torque the joint transmits (its static load)
+thermal_drift       ``c, v -> (1 + h exp(-(t - t0)/tau)) (c, v)`` on the campaign   h = 0.30 (20-40 % cold),
+                    clock ``t`` (warm-up)                                          tau = campaign length / 3
+compliance          joint stiffness ``1/k = 1/k0 + M delta / tau_max``              delta = 0.4 deg at rated
+                                                                                   torque (0.3-0.5 deg)
+backlash            dead band of total width ``2 beta`` in the transmission         2 beta = 0.2 deg (0.1-0.3)
+torque_scale        logged torque ``= (1 + s) u`` (torque constant error)           s = 0.15 (10-20 %)
+asymmetry           ``c+- = c (1 +- a/2)``, ``v+- = v (1 +- a/2)`` by direction     a = 0.25 (+-20-30 %)
+nonlinear_viscous   ``f += w qd |qd|``                                             w vmax^2 = 0.3 v vmax
+time_offset         marker clock = controller clock + dt_off                       dt_off = 20 ms (10-30 ms)
+==================  =============================================================  ==========================
+
+The nominal plant (``none``) is rigid to measurement precision (k0 = 3e5 N m/rad, deflection
+below the encoder resolution, well damped) with thesis Coulomb + viscous friction.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+EFFECTS = ("none", "stribeck", "presliding", "position_ripple", "load_dependent", "thermal_drift",
+           "compliance", "backlash", "torque_scale", "asymmetry", "nonlinear_viscous", "time_offset")
+
+#: which measurement channel each effect lives in
+CHANNEL = {"stribeck": "torque", "presliding": "torque", "position_ripple": "torque",
+           "load_dependent": "torque", "thermal_drift": "torque", "torque_scale": "torque",
+           "asymmetry": "torque", "nonlinear_viscous": "torque", "compliance": "transmission",
+           "backlash": "transmission", "time_offset": "clock", "none": "none"}
+
+#: sizes at magnitude 1 (see the module docstring)
+SIZE = {
+    "stribeck": {"static_ratio": 0.45, "Vc": 0.05},
+    "presliding": {"z_ss": 2e-3, "zeta": 1.0},
+    "position_ripple": {"ratio": 0.10, "harmonic": 36, "phase": 0.7},
+    "load_dependent": {"mu": 0.08},
+    "thermal_drift": {"cold_excess": 0.30, "tau_fraction": 1.0 / 3.0},
+    "compliance": {"deflection_deg": 0.4},
+    "backlash": {"band_deg": 0.2},
+    "torque_scale": {"scale_error": 0.15},
+    "asymmetry": {"a": 0.25},
+    "nonlinear_viscous": {"ratio": 0.3},
+    "time_offset": {"offset_s": 0.020},
+}
+
+#: baseline (nominal) transmission: stiff enough that deflection < encoder resolution
+K_NOMINAL = 3.0e5   # N m / rad
+#: joint damping ``d = 2 ZETA_JOINT sqrt(k (I + J))``: harmonic drives are well damped, and a
+#: lightly damped joint mode rings at every friction reversal (~1 kHz), which the PD feeds into
+#: the torque: that ringing would itself be an unmodelled effect of the nominal plant
+#: (measured: 0.04 N m RMS against rigid + CV at zeta 0.05, 0.005 N m here, noise 0.08 N m).
+ZETA_JOINT = 1.0
+
+
+@dataclass(frozen=True)
+class JointEffects:
+    """Effect parameters of one joint, link side, SI. All zero = the nominal plant.
+
+    Friction: ``c_pos``/``c_neg`` Coulomb levels, ``v`` viscous (``v (1 +- va/2)`` by direction), ``S``/``Vc`` Stribeck excess and
+    velocity, ``w`` quadratic viscous, ``sigma0``/``sigma1`` LuGre (0 = off), ``ripple_A``/
+    ``ripple_n``/``ripple_phi`` position ripple, ``mu`` load dependence, ``thermal_h``/
+    ``thermal_tau`` warm-up. Transmission: ``k``, ``d``, ``beta`` (half backlash). Measurement:
+    ``torque_gain`` (logged/true), ``time_offset`` (marker - controller clock).
+    """
+
+    c_pos: float
+    c_neg: float
+    v: float
+    k: float
+    d: float
+    va: float = 0.0
+    S: float = 0.0
+    Vc: float = 0.05
+    w: float = 0.0
+    sigma0: float = 0.0
+    sigma1: float = 0.0
+    ripple_A: float = 0.0
+    ripple_n: int = 0
+    ripple_phi: float = 0.0
+    mu: float = 0.0
+    thermal_h: float = 0.0
+    thermal_tau: float = 1.0
+    beta: float = 0.0
+    torque_gain: float = 1.0
+    time_offset: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class Effect:
+    """An effect by name with its magnitude; ``joint_params`` builds the plant parameters."""
+
+    name: str = "none"
+    magnitude: float = 1.0
+    settings: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.name not in EFFECTS:
+            raise ValueError(f"unknown effect {self.name!r}; choose one of {', '.join(EFFECTS)}")
+        if not (math.isfinite(self.magnitude) and self.magnitude >= 0):
+            raise ValueError(f"effect magnitude must be a finite number >= 0, got {self.magnitude!r}")
+
+    @property
+    def channel(self) -> str:
+        return CHANNEL[self.name]
+
+    def size(self) -> dict:
+        """Sizes at M = 1, with any ``settings`` overrides."""
+        s = dict(SIZE.get(self.name, {}))
+        s.update(self.settings)
+        return s
+
+    def joint_params(self, c: float, v: float, tau_max: float, vmax: float, inertia: float,
+                     campaign_length_s: float = 600.0) -> JointEffects:
+        """Plant parameters of a joint with nominal ``c``, ``v`` under this effect.
+
+        ``inertia`` (link + motor, kg m^2) sets the joint damping and the LuGre damping.
+        """
+        M = float(self.magnitude) if self.name != "none" else 0.0
+        s = self.size()
+        k = K_NOMINAL
+        beta = 0.0
+        if self.name == "compliance" and M > 0:
+            k = 1.0 / (1.0 / K_NOMINAL + M * math.radians(s["deflection_deg"]) / tau_max)
+        if self.name == "backlash":
+            beta = 0.5 * M * math.radians(s["band_deg"])
+        d = 2.0 * ZETA_JOINT * math.sqrt(k * inertia)
+        p = dict(c_pos=c, c_neg=c, v=v, k=k, d=d, beta=beta)
+        n = self.name
+        if n == "stribeck":
+            p.update(S=M * s["static_ratio"] * c, Vc=s["Vc"])
+        elif n == "presliding" and M > 0:
+            sigma0 = c / (M * s["z_ss"])
+            p.update(sigma0=sigma0, sigma1=2.0 * s["zeta"] * math.sqrt(sigma0 * inertia))
+        elif n == "position_ripple":
+            p.update(ripple_A=M * s["ratio"] * c, ripple_n=int(s["harmonic"]),
+                     ripple_phi=float(s["phase"]))
+        elif n == "load_dependent":
+            p.update(mu=M * s["mu"])
+        elif n == "thermal_drift":
+            p.update(thermal_h=M * s["cold_excess"],
+                     thermal_tau=max(campaign_length_s * s["tau_fraction"], 1.0))
+        elif n == "torque_scale":
+            p.update(torque_gain=1.0 + M * s["scale_error"])
+        elif n == "asymmetry":
+            p.update(c_pos=c * (1.0 + 0.5 * M * s["a"]), c_neg=c * (1.0 - 0.5 * M * s["a"]),
+                     va=M * s["a"])
+        elif n == "nonlinear_viscous":
+            p.update(w=M * s["ratio"] * v / vmax)
+        elif n == "time_offset":
+            p.update(time_offset=M * s["offset_s"])
+        return JointEffects(**p)
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "magnitude": float(self.magnitude), "channel": self.channel,
+                "size_at_1": self.size()}
+
+
+def nominal_params(je: JointEffects) -> dict:
+    """The FORMAT.md ``cv`` parameters of the nominal model behind ``je``."""
+    return {"c": 0.5 * (je.c_pos + je.c_neg), "v": je.v}
+
+
+def truth_models(je: JointEffects) -> dict:
+    """The true friction in FORMAT.md model names where it is one of them (link side, SI).
+
+    ``stribeck`` follows thesis eq. 2-6 (``Fk`` static level, ``Fs`` the drop to Coulomb);
+    ``dm1`` carries the LuGre bristle parameters.
+    """
+    c = 0.5 * (je.c_pos + je.c_neg)
+    out = {"cv": {"c": c, "v": je.v}}
+    if je.S > 0:
+        out["stribeck"] = {"Fk": c + je.S, "Fv": je.v, "Fs": je.S, "Vc": je.Vc}
+    if je.sigma0 > 0:
+        out["dm1"] = {"sigma0": je.sigma0, "sigma1": je.sigma1}
+    return out
