@@ -354,27 +354,10 @@ def _read_numeric_csv(path: Path) -> np.ndarray:
         raise InputError(f"not a numeric CSV: {exc}", path=path) from None
 
 
-def fit_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02,
-             with_inertia: bool = True, coupled_wrist: bool = True) -> Tx40Result:
-    """Fit Coulomb + viscous friction per joint on the Staubli TX40 logs (figaroh-examples).
-
-    Data: ``pos_read_data.csv`` motor positions (rad), ``curr_data.csv`` motor torques, both at
-    ``ts`` (0.2 ms). Conversion as in figaroh's TX40 tools: ``q = N^-1 qm`` with the wrist
-    coupling ``N[5, 4] = r6``, joint offsets -pi/2 (joint 2) and +pi/2 (joint 3), joint torques
-    ``tau = N_tau tau_m`` with ``N_tau[4, 5] = r6``. Derivatives: the Savitzky-Golay smoother
-    of :mod:`ident.signals` (``window_s``), then every ``decimate``-th sample.
-
-    Model (the thesis's rigid-joint one-link regression generalised to the arm): with
-    ``with_inertia`` the joint torques are regressed jointly on pinocchio's joint torque
-    regressor of the TX40 URDF (all inertial parameters, min-norm least squares for the
-    unidentifiable combinations) plus, per joint, ``[sign qd, qd, 1, qdd]`` (Coulomb ``fs``,
-    viscous ``fv``, offset, armature ``Ia``) — the standard figaroh/Indri & Trapani setting —
-    and, with ``coupled_wrist``, figaroh's wrist-coupling columns (``Iam6``, ``fvm6``,
-    ``fsm6`` on joints 5 and 6 with ``sign(qd5 + qd6)``).
-    Without it, residual = tau - rnea(URDF) - Ia qdd is fitted per joint with
-    ``[sign qd, qd, 1]`` (a simplification: URDF inertial values taken as exact).
-    """
-    import pinocchio as pin
+def load_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02):
+    """The TX40 logs on the joint side: ``(t, q, qd, qdd, tau, robot, cfg)``, smoothed with
+    Savitzky-Golay (``window_s``), edges dropped, every ``decimate``-th sample (see
+    :func:`fit_tx40` for the conversion)."""
     from mocap.robot import Robot
 
     from .signals import SavGolSmoother
@@ -407,10 +390,35 @@ def fit_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02,
     # drop the filter's edges and decimate
     edge = int(round(window_s / float(cfg["ts"])))
     sl = slice(edge, q.shape[0] - edge, int(decimate))
-    qs, qd, qdd, tau = qs[sl], qd[sl], qdd[sl], tau[sl]
     robot = Robot.from_urdf(urdf)
     if robot.n != 6:
         raise InputError(f"the TX40 URDF has {robot.n} revolute joints, expected 6", path=urdf)
+    return t[sl], qs[sl], qd[sl], qdd[sl], tau[sl], robot, cfg
+
+
+def fit_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02,
+             with_inertia: bool = True, coupled_wrist: bool = True) -> Tx40Result:
+    """Fit Coulomb + viscous friction per joint on the Staubli TX40 logs (figaroh-examples).
+
+    Data: ``pos_read_data.csv`` motor positions (rad), ``curr_data.csv`` motor torques, both at
+    ``ts`` (0.2 ms). Conversion as in figaroh's TX40 tools: ``q = N^-1 qm`` with the wrist
+    coupling ``N[5, 4] = r6``, joint offsets -pi/2 (joint 2) and +pi/2 (joint 3), joint torques
+    ``tau = N_tau tau_m`` with ``N_tau[4, 5] = r6``. Derivatives: the Savitzky-Golay smoother
+    of :mod:`ident.signals` (``window_s``), then every ``decimate``-th sample.
+
+    Model (the thesis's rigid-joint one-link regression generalised to the arm): with
+    ``with_inertia`` the joint torques are regressed jointly on pinocchio's joint torque
+    regressor of the TX40 URDF (all inertial parameters, min-norm least squares for the
+    unidentifiable combinations) plus, per joint, ``[sign qd, qd, 1, qdd]`` (Coulomb ``fs``,
+    viscous ``fv``, offset, armature ``Ia``) — the standard figaroh/Indri & Trapani setting —
+    and, with ``coupled_wrist``, figaroh's wrist-coupling columns (``Iam6``, ``fvm6``,
+    ``fsm6`` on joints 5 and 6 with ``sign(qd5 + qd6)``).
+    Without it, residual = tau - rnea(URDF) - Ia qdd is fitted per joint with
+    ``[sign qd, qd, 1]`` (a simplification: URDF inertial values taken as exact).
+    """
+    import pinocchio as pin
+
+    t, qs, qd, qdd, tau, robot, cfg = load_tx40(folder, decimate, window_s)
     model = robot.model
     T = qs.shape[0]
     Ia = np.asarray(cfg.get("Ia", [0.0] * 6), float)

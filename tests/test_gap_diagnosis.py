@@ -76,3 +76,33 @@ def test_sign_flip_pvalue_and_holm():
     assert 0.02 < np.mean(np.array(null_p) < 0.05) < 0.1  # calibrated under H0
     adj = holm({"a": 0.01, "b": 0.02, "c": 0.5})
     assert adj == pytest.approx({"a": 0.03, "b": 0.04, "c": 0.5})
+
+
+@pytest.mark.parametrize("effect", ["none", "position_ripple", "stribeck"])
+def test_continuous_multi_joint_record(tmp_path, effect):
+    """A record in which both joints move together and nothing repeats (as an industrial
+    controller's log): rigid-body torque from pinocchio, segments as folds."""
+    from gap_synth import robot as make_robot
+
+    from ident.fourier import FourierSeries
+    from ident.gap.data import build_joint_data_record
+
+    rb = make_robot(tmp_path)
+    rng = np.random.default_rng(4)
+    t = np.arange(0, 60, 1 / 200)
+    qs, qds, qdds = [], [], []
+    for j in range(2):
+        fs = FourierSeries(rng.normal(0, 0.3, 5), rng.normal(0, 0.3, 5), 2 * np.pi / 10, 0.4 * j + 0.8)
+        q, qd, qdd = fs.evaluate(t)
+        qs.append(q), qds.append(qd), qdds.append(qdd)
+    q, qd, qdd = (np.column_stack(x) for x in (qs, qds, qdds))
+    tau = rb.rnea(q, qd, qdd) + 3.0 * np.tanh(qd / 1e-3) + 2.0 * qd
+    if effect == "position_ripple":
+        tau[:, 1] += 0.5 * np.sin(11 * q[:, 1])
+    elif effect == "stribeck":
+        tau[:, 1] += 1.5 * np.sign(qd[:, 1]) * np.exp(-(np.abs(qd[:, 1]) / 0.08) ** 2)
+    tau += rng.normal(0, 0.05, tau.shape)
+    d = build_joint_data_record(2, t, q, qd, qdd, tau, rb, n_segments=20)
+    rep = diagnose_joint(d, SETTINGS)
+    assert rep["verdict"] == effect
+    assert rep["n_trials"] == 20 and rep["folds"] == "leave-one-trial-out"

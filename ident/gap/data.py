@@ -184,3 +184,38 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
                      vmax=float(drive.max_velocity), tau_max=float(drive.max_torque),
                      trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
                      t_m=cat["t_m"], rep=reps, group=group, fold=fold)
+
+
+def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
+                            tau: np.ndarray, robot, armature=None, n_segments: int = 6,
+                            v_zero: float = 0.02) -> JointData:
+    """:class:`JointData` for one joint of a continuous record in which several joints move
+    together and nothing is repeated (e.g. an industrial controller's log).
+
+    The rigid-body torque is pinocchio's inverse dynamics of the whole arm; the nominal's
+    corrections are ``[qdd_j, g_j(q), 1]`` (armature, gravity scale, offset) instead of the
+    single-joint ``[qdd, sin q, cos q]``; the record is cut into ``n_segments`` contiguous pieces
+    that serve as held-out folds (leave-one-segment-out). Torque channel only.
+    """
+    from types import SimpleNamespace
+
+    j0 = joint - 1
+    arm = 0.0 if armature is None else float(np.asarray(armature)[j0])
+    tau_rb = robot.rnea(q, qd, qdd)[:, j0]
+    grav = robot.gravity_torque(q)[:, j0]
+    y = tau[:, j0] - arm * qdd[:, j0]
+    keep = ~standstill(t, qd[:, j0]) & (np.abs(qd[:, j0]) >= v_zero)
+    seg = np.minimum((np.arange(t.shape[0]) * n_segments) // t.shape[0], n_segments - 1)
+    trials = [SimpleNamespace(id=f"segment-{k + 1}", joints=(joint,), load_kg=0.0, vmax_frac=1.0,
+                              repetition=k + 1, kind="excitation", extra={}) for k in range(n_segments)]
+    k = keep
+    drive = robot.drives[j0]
+    empty = np.zeros(0)
+    return JointData(
+        joint=joint, trials=trials, trial=seg[k].astype(int), t=t[k], t_rel=(t - t[0])[k],
+        q=q[k, j0], qd=qd[k, j0], qdd=qdd[k, j0], y=y[k], tau_urdf=tau_rb[k], tau_grav=grav[k],
+        urdf_regs=np.column_stack([qdd[k, j0], grav[k], np.ones(k.sum())]), load=np.zeros(k.sum()),
+        vmax=float(drive.max_velocity) if np.isfinite(drive.max_velocity) else float(np.abs(qd[:, j0]).max()),
+        tau_max=float(drive.max_torque), trial_m=np.zeros(0, int), e=empty, qd_m=empty, y_m=empty,
+        t_m=empty, rep=np.arange(1, n_segments + 1), group=np.zeros(n_segments, int),
+        fold=np.arange(1, n_segments + 1))

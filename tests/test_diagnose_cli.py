@@ -1,0 +1,60 @@
+"""`jointlab diagnose` end to end on campaigns on disk: the bundled demo (Stribeck withheld) and
+a small effect-free simulated campaign; FORMAT.md's diagnosis.json keys; outputs never next to
+the inputs."""
+import json
+
+import pytest
+
+from ident.cli import main
+from mocap.campaign import load_campaign
+from tests_paths import DEMO
+
+
+@pytest.fixture(scope="module")
+def demo_report(tmp_path_factory):
+    if not (DEMO / "campaign.toml").is_file():
+        pytest.skip("demo campaign absent")
+    out = tmp_path_factory.mktemp("diag")
+    assert main(["diagnose", str(DEMO), "--out", str(out)]) == 0
+    return out, json.loads((out / "diagnosis.json").read_text())
+
+
+def test_demo_verdict_is_the_withheld_effect(demo_report):
+    _, rep = demo_report
+    truth = json.loads((DEMO.parent / "demo-truth" / "demo.truth.json").read_text())
+    j = rep["joints"]["5"]
+    assert j["verdict"] == truth["effect"]["name"] == "stribeck"
+    row = next(e for e in j["effects"] if e["effect"] == "stribeck")
+    assert row["significant"] and row["reduction"] > 0.2
+
+
+def test_diagnosis_json_has_the_fixed_keys(demo_report):
+    out, rep = demo_report
+    assert rep["format"] == 1
+    j = rep["joints"]["5"]
+    for key in ("nominal_model", "heldout_rms_nominal", "localisation", "effects", "verdict"):
+        assert key in j
+    for e in j["effects"]:
+        assert {"effect", "significant"} <= set(e)
+    assert {"torque", "transmission"} <= set(j["channels"])
+    md = (out / "diagnosis.md").read_text()
+    assert "verdict **stribeck**" in md and (out / "joint5_localisation.png").is_file()
+
+
+def test_effect_free_campaign_gives_none(tmp_path):
+    camp = tmp_path / "camp"
+    assert main(["synth", str(camp), "--effect", "none", "--seed", "7", "--reps", "3", "--duration", "6",
+                 "--vmax", "0.5,1.0", "--quiet"]) == 0
+    out = tmp_path / "out"
+    assert main(["diagnose", str(camp), "--out", str(out), "--json"]) == 0
+    rep = json.loads((out / "diagnosis.json").read_text())
+    assert rep["joints"]["5"]["verdict"] == "none"
+    assert load_campaign(camp)  # the input is untouched and still valid
+
+
+def test_refuses_output_inside_the_campaign(tmp_path, capsys):
+    camp = tmp_path / "camp"
+    assert main(["synth", str(camp), "--reps", "2", "--duration", "3", "--vmax", "1.0", "--loads", "0",
+                 "--quiet"]) == 0
+    assert main(["diagnose", str(camp), "--out", str(camp / "out")]) == 2
+    assert "inside the input folder" in capsys.readouterr().err
