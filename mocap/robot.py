@@ -238,14 +238,19 @@ class Robot:
         return Robot(model, self.drives, self.gravity, self.urdf)
 
     def rnea(self, q, qd, qdd) -> np.ndarray:
-        """Inverse dynamics without friction, (T, n) or (n,). Loops in C++ per sample."""
+        """Inverse dynamics without friction, (T, n) or (n,): pinocchio's batched RNEA
+        (``rneaInParallel``, one thread; the loop over samples runs in C++)."""
         import pinocchio as pin
 
         q, qd, qdd = (np.atleast_2d(np.asarray(a, float)) for a in (q, qd, qdd))
-        data = self.model.createData()
-        out = np.empty_like(q)
-        for k in range(q.shape[0]):
-            out[k] = pin.rnea(self.model, data, q[k], qd[k], qdd[k])
+        if q.shape[0] == 1:
+            out = pin.rnea(self.model, self.model.createData(), q[0], qd[0], qdd[0])[None, :]
+        else:
+            pool = pin.ModelPool(self.model, 1)
+            out = np.zeros((self.n, q.shape[0]))
+            pin.rneaInParallel(1, pool, np.asfortranarray(q.T), np.asfortranarray(qd.T),
+                               np.asfortranarray(qdd.T), out)
+            out = out.T
         return out if out.shape[0] > 1 else out[0]
 
     def mass_matrix(self, q) -> np.ndarray:
@@ -256,11 +261,10 @@ class Robot:
         return np.triu(M) + np.triu(M, 1).T
 
     def gravity_torque(self, q) -> np.ndarray:
-        import pinocchio as pin
-
+        """Generalised gravity torque, (T, n) or (n,)."""
         q = np.atleast_2d(np.asarray(q, float))
-        data = self.model.createData()
-        out = np.array([pin.computeGeneralizedGravity(self.model, data, qk) for qk in q])
+        z = np.zeros_like(q)
+        out = np.atleast_2d(self.rnea(q, z, z))
         return out if out.shape[0] > 1 else out[0]
 
     def single_joint_dynamics(self, j: int, q_rest) -> tuple[float, float, float]:
