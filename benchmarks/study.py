@@ -1,0 +1,199 @@
+"""Benchmark: a whole study (calibration, link angles, friction fits, diagnosis, report, .rrd).
+
+Goals (issue 9): a full PA10-style campaign (6 joints x 2 loads x 3 speed ranges x 5
+repetitions, 20 s trials, 200 Hz) end to end in under 3 minutes on 2 cores with a peak memory
+under 4 GB; near-linear speed-up from 1 to 2 local workers; the same code path on Dask.
+
+    python benchmarks/study.py            # the full campaign (synthesised once, cached)
+    python benchmarks/study.py --quick    # 2 joints x 1 load x 3 speeds x 2 reps, 8 s trials
+    python benchmarks/study.py --workers 2 --no-resume   # only the 2-worker run
+
+The campaign is made by ``jointlab synth`` (18 markers: 3 per link, the synthesiser's minimum
+for a rigid-body pose per link; the goal names 16) into a cache folder and reused. Each run goes
+into a fresh output folder; peak memory is the largest sum of the resident set sizes of this
+process and its worker processes, sampled every 0.1 s. The baseline is the 1-worker (serial)
+run of the same campaign in the same invocation; ratios are printed against it.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from ident.cli import main as cli  # noqa: E402
+from ident.executor import make_executor  # noqa: E402
+from ident.study import Study, StudySettings  # noqa: E402
+
+FULL = dict(joints="1,2,3,4,5,6", loads="0,3.373", vmax="0.3,0.6,1.0", reps=5, duration=20.0, rate=200.0)
+QUICK = dict(joints="2,5", loads="0", vmax="0.3,0.6,1.0", reps=2, duration=8.0, rate=200.0)
+GOAL_S = 180.0
+GOAL_GB = 4.0
+
+
+class PeakRSS:
+    """Largest summed RSS of this process and its descendants, sampled in a thread."""
+
+    def __init__(self, period: float = 0.1):
+        import psutil
+
+        self._p = psutil.Process()
+        self._psutil = psutil
+        self.period = period
+        self.peak = 0
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+
+    def _sample(self) -> int:
+        total = 0
+        for p in [self._p] + self._p.children(recursive=True):
+            try:
+                total += p.memory_info().rss
+            except (self._psutil.NoSuchProcess, self._psutil.AccessDenied):
+                pass
+        return total
+
+    def _run(self):
+        while not self._stop.is_set():
+            self.peak = max(self.peak, self._sample())
+            self._stop.wait(self.period)
+
+    def __enter__(self):
+        self._t.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._stop.set()
+        self._t.join()
+        self.peak = max(self.peak, self._sample())
+
+
+def _key(cfg: dict) -> str:
+    return "-".join(str(cfg[k]).replace(",", "_") for k in sorted(cfg))
+
+
+def make_campaign(cfg: dict, cache: Path) -> Path:
+    key = _key(cfg)
+    camp = cache / f"campaign-{key}"
+    if (camp / "campaign.toml").is_file():
+        return camp
+    print(f"synthesising the campaign into {camp} (once) ...", flush=True)
+    t0 = time.perf_counter()
+    rc = cli(["synth", str(camp), "--joints", cfg["joints"], "--loads", cfg["loads"], "--vmax", cfg["vmax"],
+              "--reps", str(cfg["reps"]), "--duration", str(cfg["duration"]), "--marker-rate", str(cfg["rate"]),
+              "--log-rate", str(cfg["rate"]), "--markers-per-link", "3,3", "--effect", "stribeck",
+              "--seed", "7", "--truth", str(cache / f"truth-{key}"), "--overwrite", "--quiet"])
+    if rc != 0:
+        raise SystemExit(f"synth failed ({rc})")
+    print(f"  synthesised in {time.perf_counter() - t0:.0f} s", flush=True)
+    return camp
+
+
+def run_once(camp: Path, out: Path, settings: StudySettings, workers: int | None = None,
+             client=None) -> dict:
+    shutil.rmtree(out, ignore_errors=True)
+    if client is not None:
+        from ident.executor import DaskExecutor
+
+        ex = DaskExecutor(client=client, progress=False)
+    else:
+        ex = make_executor(workers, progress=False)
+    try:
+        with PeakRSS() as mem:
+            t0 = time.perf_counter()
+            res = Study(settings, ex, progress=False).run(camp, out)
+            wall = time.perf_counter() - t0
+    finally:
+        ex.close()
+    return {"wall": wall, "peak_gb": mem.peak / 1e9, "stages": res.stages, "errors": res.errors,
+            "verdicts": res.verdicts, "load": os.getloadavg()[0]}
+
+
+def resume(camp: Path, out: Path, settings: StudySettings, workers: int) -> float:
+    ex = make_executor(workers, progress=False)
+    try:
+        t0 = time.perf_counter()
+        res = Study(settings, ex, progress=False).run(camp, out)
+        wall = time.perf_counter() - t0
+    finally:
+        ex.close()
+    assert all(st["computed"] == 0 for st in res.stages.values()), res.stages
+    return wall
+
+
+def show(name: str, r: dict, base: float | None, workers: int):
+    st = ", ".join(f"{k} {v['seconds']:.1f}s" for k, v in r["stages"].items())
+    ratio = f"  speed-up vs 1 worker x{base / r['wall']:.2f}" if base else ""
+    # parallel efficiency of the mapped stages: the items' own wall times (measured in the
+    # workers) over workers x stage wall time; near 1 = the seam keeps every worker busy, even
+    # when other load on a shared machine slows every item down
+    eff = []
+    for k in ("mocap", "fits", "diagnosis"):
+        v = r["stages"].get(k, {})
+        if v.get("seconds") and v.get("work_s"):
+            eff.append(f"{k} {v['work_s'] / (workers * v['seconds']):.2f}")
+    print(f"{name:<16} wall {r['wall']:7.1f} s  peak {r['peak_gb']:.2f} GB  load avg {r['load']:.1f}{ratio}\n"
+          f"{'':16} {st}\n{'':16} parallel efficiency (items' time / (workers x stage time)): "
+          f"{', '.join(eff)}" + (f"\n{'':16} errors: {r['errors']}" if r["errors"] else ""), flush=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="a small campaign (a few minutes at most)")
+    ap.add_argument("--workers", default="1,2", help="local worker counts to time (default 1,2)")
+    ap.add_argument("--dask", action="store_true", help="also run on a 2-worker Dask LocalCluster")
+    ap.add_argument("--no-resume", action="store_true", help="skip the resume (all up to date) timing")
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "jointlab-bench-study")
+    args = ap.parse_args(argv)
+    cfg = QUICK if args.quick else FULL
+    args.cache.mkdir(parents=True, exist_ok=True)
+    camp = make_campaign(cfg, args.cache)
+    n_trials = len(cfg["joints"].split(",")) * len(cfg["loads"].split(",")) * len(cfg["vmax"].split(",")) * cfg["reps"]
+    print(f"load average before: {os.getloadavg()[0]:.1f} (other work on the machine skews the ratios)")
+    print(f"campaign: {n_trials} trials of {cfg['duration']:g} s, joints {cfg['joints']}, loads {cfg['loads']}, "
+          f"speeds {cfg['vmax']}, {cfg['reps']} reps, {cfg['rate']:g} Hz; {os.cpu_count()} cores", flush=True)
+    settings = StudySettings()
+    results = {}
+    base = None
+    for w in [int(x) for x in args.workers.split(",") if x.strip()]:
+        r = run_once(camp, args.cache / f"out-{_key(cfg)}-w{w}", settings, workers=w)
+        results[w] = r
+        if w == 1:
+            base = r["wall"]
+        show(f"{w} worker(s)", r, base if w != 1 else None, w)
+    if args.dask:
+        try:
+            import distributed
+        except ImportError:
+            print("dask: not installed (pip install 'jointlab[dask]')")
+        else:
+            with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                          dashboard_address=None) as cluster, \
+                    distributed.Client(cluster) as client:
+                r = run_once(camp, args.cache / f"out-{_key(cfg)}-dask", settings, client=client)
+            show("dask 2 workers", r, base, 2)
+            if 2 in results:
+                print(f"{'':16} dask / pool wall ratio {r['wall'] / results[2]['wall']:.2f}")
+    if not args.no_resume and results:
+        w = max(results)
+        t = resume(camp, args.cache / f"out-{_key(cfg)}-w{w}", settings, w)
+        print(f"resume (all up to date, {w} workers): {t:.1f} s = {100 * t / results[w]['wall']:.1f} % "
+              "of the first run", flush=True)
+    if 2 in results and not args.quick:
+        r = results[2]
+        print(f"goal: {GOAL_S:.0f} s on 2 cores -> {r['wall']:.1f} s ({'met' if r['wall'] < GOAL_S else 'NOT met'}); "
+              f"peak {GOAL_GB:.0f} GB -> {r['peak_gb']:.2f} GB ({'met' if r['peak_gb'] < GOAL_GB else 'NOT met'})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

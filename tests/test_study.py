@@ -1,0 +1,251 @@
+"""Batch studies: one tiny synthetic campaign (PA10 joint 5, 4 trials of 6 s, known truth) through
+calibration, link angles, fits and diagnosis; serial, a 2-process pool and (when the extra is
+installed) a 2-worker Dask LocalCluster give the same numbers; reruns skip what is up to date;
+an interrupted study leaves no half-written files and resumes."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ident.cli import main
+from ident.executor import PoolExecutor, SerialExecutor
+from ident.study import MANIFEST_NAME, STATE_DIR, Study, StudySettings
+from mocap.campaign import load_campaign
+
+# fast settings: two models, few multi-starts, no recording unless a test asks for it
+FAST = StudySettings(models=("cv", "stribeck"), n_starts=2, rrd=False)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A 4-trial campaign (2 speed ranges x 2 repetitions, no load) and its truth."""
+    root = tmp_path_factory.mktemp("camp")
+    camp = root / "tiny"
+    rc = main(["synth", str(camp), "--reps", "2", "--duration", "6", "--vmax", "0.5,1.0", "--loads", "0",
+               "--seed", "3", "--quiet"])
+    assert rc == 0
+    truth = json.loads((root / "tiny.truth.json").read_text())
+    npz = np.load(root / "tiny.truth.npz")
+    return camp, truth, {k: npz[k] for k in npz.files}
+
+
+@pytest.fixture(scope="module")
+def serial_run(tiny, tmp_path_factory):
+    camp, _, _ = tiny
+    out = tmp_path_factory.mktemp("serial")
+    res = Study(FAST, SerialExecutor(progress=False), progress=False).run(camp, out)
+    return out, res
+
+
+def _fits(out: Path) -> dict:
+    return json.loads((out / "fits" / "fits.json").read_text())["trials"]
+
+
+def _assert_same_fits(a: dict, b: dict, rtol=1e-9):
+    assert a.keys() == b.keys()
+    for tid in a:
+        for j in a[tid]:
+            for m in a[tid][j]:
+                pa, pb = a[tid][j][m]["params"], b[tid][j][m]["params"]
+                for k in pa:
+                    assert pb[k] == pytest.approx(pa[k], rel=rtol, abs=1e-12), (tid, j, m, k)
+
+
+def test_study_outputs_match_truth(tiny, serial_run):
+    camp, truth, npz = tiny
+    out, res = serial_run
+    c = load_campaign(camp)
+    assert res.errors == {}
+    assert {k: v["computed"] for k, v in res.stages.items()} == \
+        {"calib": 1, "mocap": 4, "fits": 4, "diagnosis": 1, "report": 1}
+    # calibration against the true camera pose: < 1 mm and < 0.05 deg
+    T = np.array(json.loads((out / "calib.json").read_text())["T_camera_base"])
+    T_true = np.array(truth["T_camera_base"])
+    assert np.linalg.norm(T[:3, 3] - T_true[:3, 3]) < 1e-3
+    ang = np.degrees(np.arccos(np.clip((np.trace(T[:3, :3].T @ T_true[:3, :3]) - 1) / 2, -1, 1)))
+    assert ang < 0.05
+    # link angles against the true link angle (marker noise 0.85 mm on short lever arms)
+    for tr in c.trials:
+        data = np.genfromtxt(out / "angles" / f"{tr.id}.csv", delimiter=",", names=True)
+        q_true = np.interp(data["time"], npz[f"{tr.id}/time"], npz[f"{tr.id}/q"])
+        ok = np.isfinite(data["q_5"])
+        assert ok.mean() > 0.95
+        err = data["q_5"][ok] - q_true[ok]
+        assert np.sqrt(np.mean(err ** 2)) < 6e-3, tr.id      # per-frame noise (~3 mrad here)
+        assert abs(np.mean(err)) < 1.5e-3, tr.id              # no bias
+    # Coulomb + viscous parameters against the simulated joint (no withheld effect): 3 % / 8 %
+    cv_true = truth["joints"]["5"]["true_models"]["cv"]
+    for tid, joints in _fits(out).items():
+        p = joints["5"]["cv"]["params"]
+        assert p["c"] == pytest.approx(cv_true["c"], rel=0.03), tid
+        assert p["v"] == pytest.approx(cv_true["v"], rel=0.08), tid
+    # no withheld effect: the diagnosis finds none
+    assert res.verdicts == {"5": "none"}
+    # report pieces
+    md = (out / "report.md").read_text()
+    assert "Root mean square error" in md and "## Sim-to-real gap" in md
+    assert (out / "plots" / "friction_joint5.png").stat().st_size > 1000
+    assert (out / "plots" / "spread_joint5.png").stat().st_size > 1000
+    assert (out / "diagnosis" / "joint5_localisation.png").is_file()
+    rows = (out / "csv" / "trials.csv").read_text().splitlines()
+    assert rows[0].startswith("trial,joint,kind") and len(rows) == 1 + 4
+    man = json.loads((out / MANIFEST_NAME).read_text())
+    assert set(man["stages"]["mocap"]["items"]) == {t.id for t in c.trials}
+    assert all(len(v["hash"]) == 64 for v in man["stages"]["mocap"]["items"].values())
+    # nothing temporary left behind
+    assert not list(out.rglob("*.tmp"))
+    assert not (out / STATE_DIR / "tmp").exists()
+
+
+def test_pool_of_two_gives_the_serial_numbers(tiny, serial_run, tmp_path):
+    camp, _, _ = tiny
+    ex = PoolExecutor(2, progress=False)
+    try:
+        res = Study(FAST, ex, progress=False).run(camp, tmp_path)
+    finally:
+        ex.close()
+    assert res.errors == {}
+    _assert_same_fits(_fits(serial_run[0]), _fits(tmp_path))
+    a = (serial_run[0] / "angles" / "j5-load0-v50-r1.csv").read_bytes()
+    assert (tmp_path / "angles" / "j5-load0-v50-r1.csv").read_bytes() == a
+
+
+def test_rerun_skips_and_a_changed_input_reruns_only_its_trial(tiny, serial_run, tmp_path):
+    camp, _, _ = tiny
+    out = tmp_path / "out"
+    shutil.copytree(serial_run[0], out)
+    camp2 = tmp_path / "camp"
+    shutil.copytree(camp, camp2)
+    # same inputs (a copied campaign: same bytes, so same hashes) -> everything reused
+    res = Study(FAST, None, progress=False).run(camp2, out)
+    assert {k: v["computed"] for k, v in res.stages.items()} == \
+        {"calib": 0, "mocap": 0, "fits": 0, "diagnosis": 0, "report": 0}
+    assert res.stages["fits"]["reused"] == 4
+    # change one trial's robot log (one torque sample): only that trial's fit and the diagnosis rerun
+    log = camp2 / "trials" / "j5-load0-v100-r2.csv"
+    lines = log.read_text().splitlines()
+    cells = lines[10].split(",")
+    cells[-1] = cells[-1] + "1" if "." in cells[-1] else cells[-1] + ".0001"
+    lines[10] = ",".join(cells)
+    log.write_text("\n".join(lines) + "\n")
+    res = Study(FAST, None, progress=False).run(camp2, out)
+    assert res.stages["mocap"]["computed"] == 1 and res.stages["mocap"]["reused"] == 3
+    assert res.stages["fits"]["computed"] == 1 and res.stages["fits"]["reused"] == 3
+    assert res.stages["diagnosis"]["computed"] == 1
+    assert res.stages["calib"]["computed"] == 0
+    # other settings -> the fits rerun
+    res = Study(dataclass_replace(FAST, n_starts=3), None, progress=False).run(camp2, out)
+    assert res.stages["fits"]["computed"] == 4 and res.stages["mocap"]["computed"] == 0
+
+
+def dataclass_replace(obj, **kw):
+    import dataclasses
+
+    return dataclasses.replace(obj, **kw)
+
+
+def test_interrupted_study_leaves_no_half_files_and_resumes(tiny, serial_run, tmp_path, monkeypatch):
+    camp, _, _ = tiny
+    import ident.fitting as fitting
+
+    real = fitting.fit_trial_joint
+    calls = {"n": 0}
+
+    def flaky(task):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt  # the user hits Ctrl-C during the third fit
+        return real(task)
+
+    monkeypatch.setattr(fitting, "fit_trial_joint", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        Study(FAST, SerialExecutor(progress=False), progress=False).run(camp, tmp_path)
+    # the angle files present are complete (same bytes as the uninterrupted run), no fits/ yet
+    for p in (tmp_path / "angles").glob("*.csv"):
+        assert p.read_bytes() == (serial_run[0] / "angles" / p.name).read_bytes()
+    assert len(list((tmp_path / "angles").glob("*"))) == 4
+    assert not (tmp_path / "fits").exists()
+    assert not [p for p in tmp_path.rglob("*") if p.is_file() and ".tmp" in p.name
+                and STATE_DIR not in p.parts]
+    monkeypatch.setattr(fitting, "fit_trial_joint", real)
+    res = Study(FAST, SerialExecutor(progress=False), progress=False).run(camp, tmp_path)
+    assert res.stages["mocap"]["reused"] == 4
+    assert res.stages["fits"]["reused"] == 2 and res.stages["fits"]["computed"] == 2
+    _assert_same_fits(_fits(serial_run[0]), _fits(tmp_path))
+    assert not (tmp_path / STATE_DIR / "tmp").exists()
+
+
+def test_dask_local_cluster_same_code_path(tiny, serial_run, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    from ident.executor import DaskExecutor
+
+    camp, _, _ = tiny
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+        ex = DaskExecutor(client=client, progress=False)
+        assert ex.workers == 2
+        res = Study(FAST, ex, progress=False).run(camp, tmp_path)
+        ex.close()
+    assert res.errors == {}
+    _assert_same_fits(_fits(serial_run[0]), _fits(tmp_path))
+
+
+def test_cli_study_writes_recording_and_json(tiny, tmp_path, capsys):
+    camp, _, _ = tiny
+    out = tmp_path / "cli"
+    rc = main(["study", str(camp), "--out", str(out), "--workers", "1", "--models", "cv",
+               "--starts", "1", "--no-diagnosis", "--quiet", "--json"])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["stages"]["fits"]["computed"] == 4 and doc["stages"]["diagnosis"]["note"] == "switched off"
+    from rerun.chunk import RrdReader
+
+    ents = {ch.entity_path for ch in RrdReader(out / "study.rrd").stream()}
+    assert any(e.startswith("/campaign/trial/") and e.endswith("/markers") for e in ents)
+    assert any(e.startswith("/fits/") for e in ents)
+    assert any(e.startswith("/mocap/") for e in ents)
+    assert "/study/report" in ents
+
+
+def test_cli_refuses_output_inside_campaign(tiny, capsys):
+    camp, _, _ = tiny
+    rc = main(["study", str(camp), "--out", str(camp / "results"), "--workers", "1", "--quiet"])
+    assert rc == 2
+    assert "inside the input folder" in capsys.readouterr().err
+    assert not (camp / "results").exists()
+
+
+def test_demo_without_fixture_says_how_to_regenerate(tmp_path, monkeypatch, capsys):
+    import ident.commands.demo as demo
+
+    monkeypatch.setattr(demo, "demo_campaign", lambda: tmp_path / "nowhere")
+    rc = main(["demo", "--out", str(tmp_path / "o"), "--workers", "1"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "demo campaign is missing" in err and "jointlab synth fixtures/demo" in err
+
+
+def test_settings_are_validated():
+    from mocap.errors import InputError
+
+    with pytest.raises(InputError, match="unknown|model"):
+        StudySettings(models=("nope",)).validate()
+    with pytest.raises(InputError, match="rrd_trials"):
+        StudySettings(rrd_trials="some").validate()
+
+
+def test_scheduler_without_the_dask_extra_says_how_to_install(tiny, tmp_path, capsys):
+    try:
+        import distributed  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("the dask extra is installed")
+    camp, _, _ = tiny
+    rc = main(["study", str(camp), "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9"])
+    assert rc == 2
+    assert "jointlab[dask]" in capsys.readouterr().err
