@@ -24,8 +24,15 @@ from .sink import Sink
 _STRICT = True  # raise on non-loggable data instead of warning (our bug, surface it)
 
 
+def _entity_part(name: str) -> str:
+    """A display name as one entity-path part: characters rerun would need escaped become '_'."""
+    import re
+
+    return re.sub(r"[^A-Za-z0-9_.\-]+", "_", str(name).strip("/")).strip("_") or "_"
+
+
 def _join(path: str, child: str) -> str:
-    return path.rstrip("/") + "/" + str(child).strip("/")
+    return path.rstrip("/") + "/" + _entity_part(child)
 
 
 def _check_time(time, n: int, what: str) -> np.ndarray:
