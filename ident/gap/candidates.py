@@ -25,21 +25,26 @@ def ssign(qd: np.ndarray) -> np.ndarray:
 
 
 def bristle_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) -> np.ndarray:
-    """Friction direction with presliding: after each reversal the friction goes from the old
-    sign to the new one over a travelled distance ~``x0`` (LuGre bristle with saturated state
-    at each reversal: ``s = sign (1 - 2 exp(-|q - q_rev| / x0))``). Vectorised over samples."""
-    sgn = np.where(qd >= 0, 1.0, -1.0)
+    """Normalised bristle deflection ``s = z / x0`` of a LuGre-type contact, driven by the
+    joint's displacement: ``ds = (sign(dq) - s) |dq| / x0`` solved exactly between samples,
+    ``s[k+1] = e^{-|dq|/x0} s[k] + (1 - e^{-|dq|/x0}) sign(dq)`` (rate independent, so samples
+    left out of the channel in between are bridged exactly). Saturated at each trial's start.
+    Vectorised with :func:`ident.friction.dynamic.linear_scan`."""
+    from ident.friction.dynamic import linear_scan
+
     n = q.shape[0]
-    start = np.ones(n, bool)
-    start[1:] = (sgn[1:] != sgn[:-1]) | (trial[1:] != trial[:-1])
-    idx = np.where(start, np.arange(n), 0)
-    np.maximum.accumulate(idx, out=idx)
-    first_of_trial = np.ones(n, bool)
-    first_of_trial[1:] = trial[1:] != trial[:-1]
-    seg_is_first = np.maximum.accumulate(np.where(first_of_trial, np.arange(n), 0)) == idx
-    d = np.abs(q - q[idx])
-    s = sgn * (1.0 - 2.0 * np.exp(-d / x0))
-    return np.where(seg_is_first, sgn, s)  # no reversal seen yet in this trial: saturated
+    if n == 0:
+        return np.zeros(0)
+    dq = np.diff(q)
+    new_trial = trial[1:] != trial[:-1]
+    sgn = np.sign(dq)
+    sgn = np.where(sgn == 0, np.sign(qd[1:]), sgn)
+    decay = np.abs(dq) / x0
+    decay = np.where(new_trial, 60.0, np.minimum(decay, 60.0))
+    sgn = np.where(new_trial, np.where(qd[1:] >= 0, 1.0, -1.0), sgn)
+    drive = -np.expm1(-decay) * sgn
+    s0 = 1.0 if qd[0] >= 0 else -1.0
+    return linear_scan(decay, drive, s0)[:n]
 
 
 @dataclass(frozen=True)
@@ -57,7 +62,18 @@ def _stribeck(d, hp):
 
 
 def _presliding(d, hp):
-    return (bristle_sign(d.q, d.qd, d.trial, hp) - ssign(d.qd))[:, None]
+    """Bristle deflection minus the Coulomb direction, and its rate (the bristle damping
+    ``sigma1 dz/dt`` of LuGre-type models)."""
+    s = bristle_sign(d.q, d.qd, d.trial, hp)
+    t = d.t
+    ds = np.zeros_like(s)
+    if s.size > 2:
+        ds[1:-1] = (s[2:] - s[:-2]) / np.maximum(t[2:] - t[:-2], 1e-9)
+        edge = np.r_[True, d.trial[1:] != d.trial[:-1]] | np.r_[d.trial[1:] != d.trial[:-1], True]
+        ds[edge] = 0.0
+        gap = np.r_[False, np.diff(t) > 3 * np.median(np.diff(t))]
+        ds[gap | np.r_[gap[1:], False]] = 0.0
+    return np.column_stack([s - ssign(d.qd), ds * hp])
 
 
 def _ripple(d, hp):
