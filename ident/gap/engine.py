@@ -82,37 +82,32 @@ class CVResult:
     extra: dict = field(default_factory=dict)
 
 
+def _best_fit(grams_by_hp: dict, mask: np.ndarray):
+    """(training SSE, hp, theta) of the shape parameter with the least SSE on ``mask`` trials."""
+    best = None
+    for hp, gr in grams_by_hp.items():
+        Gs, bs = gr.G[mask].sum(0), gr.b[mask].sum(0)
+        th = _solve(Gs, bs)
+        sse = gr.yy[mask].sum() - 2 * bs @ th + th @ Gs @ th
+        if best is None or sse < best[0]:
+            best = (float(sse), hp, th)
+    return best
+
+
 def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_trials: np.ndarray | None = None) -> CVResult:
     """Leave-one-fold-out: in each fold choose the shape parameter by training SSE, then
     evaluate the held-out trials. ``grams_by_hp`` maps hp -> Grams (same trials)."""
-    hps = list(grams_by_hp)
     nt = fold.shape[0]
     fit_mask = np.ones(nt, bool) if fit_trials is None else fit_trials
     sse = np.zeros(nt)
     chosen = {}
     for f in np.unique(fold):
         test = fold == f
-        train = ~test & fit_mask
-        best = None
-        for hp in hps:
-            gr = grams_by_hp[hp]
-            Gs, bs = gr.G[train].sum(0), gr.b[train].sum(0)
-            th = _solve(Gs, bs)
-            tr_sse = gr.yy[train].sum() - 2 * bs @ th + th @ Gs @ th
-            if best is None or tr_sse < best[0]:
-                best = (tr_sse, hp, th)
-        _, hp, th = best
+        _, hp, th = _best_fit(grams_by_hp, ~test & fit_mask)
         chosen[f] = hp
         sse[test] = sse_with(th, grams_by_hp[hp], test)
-    best = None
-    for hp in hps:
-        gr = grams_by_hp[hp]
-        Gs, bs = gr.G[fit_mask].sum(0), gr.b[fit_mask].sum(0)
-        th = _solve(Gs, bs)
-        tr = gr.yy[fit_mask].sum() - 2 * bs @ th + th @ Gs @ th
-        if best is None or tr < best[0]:
-            best = (tr, hp, th)
-    return CVResult(sse, chosen, best[2], best[1], float(best[0]))
+    tr, hp, th = _best_fit(grams_by_hp, fit_mask)
+    return CVResult(sse, chosen, th, hp, tr)
 
 
 def unexplained_fraction(gr: Grams, p: int) -> float:
