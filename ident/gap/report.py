@@ -15,6 +15,11 @@ def _fmt(x, nd=3):
     return str(x)
 
 
+def _cell(x) -> str:
+    """Markdown table cell text ('|' escaped)."""
+    return str(x).replace("|", "\\|")
+
+
 def markdown(report: dict, plots: dict) -> str:
     L = [f"# Sim-to-real gap diagnosis: {report['campaign']}", ""]
     L.append("Nominal model: rigid joint, URDF rigid-body dynamics, Coulomb + viscous friction, "
@@ -44,11 +49,11 @@ def markdown(report: dict, plots: dict) -> str:
               "|---|---|---|---|---|---|---|---|"]
         for e in rep["effects"]:
             if not e.get("identifiable", True):
-                L.append(f"| {e['effect']} | {e['channel']} | - | - | - | no | {e['note']} | "
+                L.append(f"| {e['effect']} | {e['channel']} | - | - | - | no | {_cell(e['note'])} | "
                          f"{', '.join(e.get('confounded_with', []))} |")
                 continue
             L.append(f"| {e['effect']} | {e['channel']} | {e['heldout_rms']:.4g} | {e['reduction']:.3f} | "
-                     f"{e['p_adjusted']:.2g} | {'yes' if e['significant'] else 'no'} | {e['shape']} | "
+                     f"{e['p_adjusted']:.2g} | {'yes' if e['significant'] else 'no'} | {_cell(e['shape'])} | "
                      f"{', '.join(e.get('confounded_with', []))} |")
         v = next((e for e in rep["effects"] if e["effect"] == rep["verdict"]), None)
         if v:
