@@ -106,3 +106,12 @@ def test_continuous_multi_joint_record(tmp_path, effect):
     rep = diagnose_joint(d, SETTINGS)
     assert rep["verdict"] == effect
     assert rep["n_trials"] == 20 and rep["folds"] == "leave-one-trial-out"
+
+
+def test_noise_floors_match_the_true_torque_noise(worlds):
+    """Both floors (second differences, and repetitions of one reference) recover the 0.05 N m
+    torque noise of the effect-free world within 10%."""
+    tq = worlds("none")["channels"]["torque"]
+    assert tq["noise_floor_rms"] == pytest.approx(0.05, rel=0.1)
+    assert tq["noise_floor_rms_repetitions"] == pytest.approx(0.05, rel=0.1)
+    assert tq["heldout_rms_nominal"] < 1.3 * 0.05

@@ -21,7 +21,8 @@ import numpy as np
 
 from .candidates import CONFOUNDERS, Candidate, candidate_effects, ssign
 from .data import JointData
-from .engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, sign_flip_pvalue,
+from .engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, repetition_noise_floor,
+                     sign_flip_pvalue,
                      trial_bounds, unexplained_fraction, white_noise_floor)
 
 REGIMES = ("low_speed", "high_speed", "reversal", "high_acceleration", "position", "time", "load")
@@ -315,6 +316,12 @@ def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings
     tch = channels[0]
     resid = _heldout_residual(d, tch)
     out["localisation"] = _localise(d, tch, torque_res["noise_floor_mse"], resid)
+    dt = float(np.median(np.diff(d.t_rel[:1000]))) if d.t_rel.size > 2 else 0.005
+    rep_var = repetition_noise_floor(resid, d.trial, d.t_rel, d.group[:d.n_trials], 1.0 / dt)
+    tq = out["channels"]["torque"]
+    tq["noise_floor_rms_repetitions"] = float(np.sqrt(rep_var)) if np.isfinite(rep_var) else None
+    if np.isfinite(rep_var) and rep_var > 0:
+        tq["remaining_gap_over_repetition_noise"] = float(tq["heldout_rms_final"] / np.sqrt(rep_var))
     out["_series"] = {"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial}
     effects.sort(key=lambda r: (not r.get("significant", False), -(r.get("reduction") or 0.0)))
     out["effects"] = effects

@@ -175,6 +175,27 @@ def white_noise_floor(r: np.ndarray, trial: np.ndarray) -> float:
     return float(mad ** 2 / 6.0)
 
 
+def repetition_noise_floor(r: np.ndarray, trial: np.ndarray, t_rel: np.ndarray, group: np.ndarray,
+                           rate_hz: float) -> float:
+    """Noise variance from repetitions: trials of one condition replay the same reference, so
+    the difference of two repetitions' residuals at the same trial time cancels everything
+    systematic and leaves twice the noise variance. NaN when no condition has two trials."""
+    idx = np.round(t_rel * rate_hz).astype(np.int64)
+    num, den = 0.0, 0
+    for g in np.unique(group):
+        members = np.flatnonzero(group == g)
+        for a, b in zip(members[:-1], members[1:]):  # consecutive repetitions (loop over trials)
+            ma, mb = trial == a, trial == b
+            ia, ib = idx[ma], idx[mb]
+            common, pa, pb = np.intersect1d(ia, ib, assume_unique=False, return_indices=True)
+            if common.size < 20:
+                continue
+            d = r[ma][pa] - r[mb][pb]
+            num += float(d @ d)
+            den += common.size
+    return num / (2 * den) if den else float("nan")
+
+
 def bootstrap_ci(sse: np.ndarray, n: np.ndarray, n_boot: int = 1000, seed: int = 0, level: float = 0.95):
     """Percentile CI of the pooled RMS sqrt(sum sse / sum n) resampling trials."""
     rng = np.random.default_rng(seed)

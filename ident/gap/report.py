@@ -40,7 +40,10 @@ def markdown(report: dict, plots: dict) -> str:
             L.append(f"- **{name}** channel ({ch['unit']}): held-out RMS {ch['heldout_rms_nominal']:.4g} "
                      f"[{lo:.4g}, {hi:.4g}] -> {ch['heldout_rms_final']:.4g} [{lo2:.4g}, {hi2:.4g}] "
                      f"after adding {sel}; white-noise floor {ch['noise_floor_rms']:.3g} "
-                     f"(remaining gap {ch['remaining_gap_over_noise']:.2f}x the floor).")
+                     f"(remaining gap {ch['remaining_gap_over_noise']:.2f}x the floor)"
+                     + (f"; noise from repetitions {ch['noise_floor_rms_repetitions']:.3g} (remaining gap "
+                        f"{ch['remaining_gap_over_repetition_noise']:.2f}x)" if ch.get("remaining_gap_over_repetition_noise")
+                        else "") + ".")
         L.append("")
         L += ["Where the torque gap lies (local refits):", "", "| regime | share |", "|---|---|"]
         L += [f"| {r['regime']} | {r['share']:.2f} |" for r in rep["localisation"]]
