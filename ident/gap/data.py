@@ -164,6 +164,8 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
         cols["load"].append((np.full(t.shape, tr.load_kg))[keep])
         if angles is not None and tr.id in angles:
             tm, ql = angles[tr.id]
+            # marker time is on the robot clock unless the trial declares an offset (FORMAT.md)
+            tm = tm + float(getattr(tr, "extra", {}).get("time_offset", 0.0))
             ok = np.isfinite(ql) & (tm >= t[0]) & (tm <= t[-1])
             tm, ql = tm[ok], ql[ok]
             cols["trial_m"].append(np.full(tm.shape, i))
