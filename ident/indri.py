@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from .jsonable import to_jsonable as _jsonable
 from scipy.optimize import minimize_scalar, nnls
 
 from .friction import Arctan, FrictionFit, FrictionModel, LuGreDM1, LuGreDM2, fit_arctan, fit_friction
@@ -896,22 +898,3 @@ def write_report(result: IndriResult, out_dir, tables: dict | None = None,
     if sink is not None and tables:
         sink.text("indri/tables", "\n".join(t.to_markdown(title=k) for k, t in tables.items()))
     return paths
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        return x if np.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, (np.bool_,)):
-        return bool(x)
-    if isinstance(x, FrictionModel):
-        return x.to_dict()
-    return x

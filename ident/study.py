@@ -45,6 +45,8 @@ from typing import Callable
 
 import numpy as np
 
+from .jsonable import to_jsonable as _jsonable
+
 from mocap.errors import InputError
 
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
@@ -206,22 +208,6 @@ def _read_record(path: Path, input_hash: str):
 def _write_record(path: Path, input_hash: str, result, tmp_dir: Path, outputs=()) -> None:
     rec = {"version": CACHE_VERSION, "hash": input_hash, "result": result, "outputs": list(outputs)}
     _write_atomic(path, pickle.dumps(rec, protocol=pickle.HIGHEST_PROTOCOL), tmp_dir)
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, Path):
-        return str(x)
-    return x
 
 
 # ---------------------------------------------------------------------------------------------

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..jsonable import to_jsonable as _jsonable
+
 
 def _fmt(x, nd=3):
     if x is None:
@@ -114,18 +116,6 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
             plt.close(fig)
             paths[f"joint{j}_residual"] = p.name
     return paths
-
-
-def _jsonable(o):
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, float) and not np.isfinite(o):
-        return None
-    return o
 
 
 def write_report(report: dict, series: dict, out_dir: Path, sink=None) -> dict:
