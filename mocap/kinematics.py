@@ -71,13 +71,19 @@ class Chain:
         Q = np.atleast_2d(q)
         if Q.shape[1] != self.n:
             raise ValueError(f"q has {Q.shape[1]} columns, the chain has {self.n} joints")
-        out = np.empty((Q.shape[0], self.n, 4, 4))
-        T = np.broadcast_to(np.eye(4), (Q.shape[0], 4, 4))
+        nf = Q.shape[0]
+        out = np.zeros((nf, self.n, 4, 4))
+        out[..., 3, 3] = 1.0
+        R = np.broadcast_to(np.eye(3), (nf, 3, 3))
+        p = np.zeros((nf, 3))
         for i in range(self.n):  # loop over joints (n <= ~7), vectorised over frames
+            Rp, pp = self.T_parent_joint[i, :3, :3], self.T_parent_joint[i, :3, 3]
+            p = p + (R.reshape(-1, 3) @ pp).reshape(nf, 3)
+            RRp = (R.reshape(-1, 3) @ Rp).reshape(nf, 3, 3)      # one BLAS call for all frames
             Rj = rotation_about_axis(self.axes[i], Q[:, i])
-            Tj = make_transform(Rj, np.zeros((Q.shape[0], 3)))
-            T = T @ self.T_parent_joint[i] @ Tj
-            out[:, i] = T
+            R = np.einsum("tij,tjk->tik", RRp, Rj, optimize=False)
+            out[:, i, :3, :3] = R
+            out[:, i, :3, 3] = p
         return out[0] if single else out
 
     def frame_transform(self, name: str, q: np.ndarray) -> np.ndarray:
