@@ -78,6 +78,13 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
     import matplotlib.pyplot as plt
 
     paths = {}
+
+    def save(fig, key):
+        fig.tight_layout()
+        fig.savefig(out_dir / f"{key}.png", dpi=100)
+        plt.close(fig)
+        paths[key] = f"{key}.png"
+
     for j, rep in report["joints"].items():
         if "localisation" not in rep:
             continue
@@ -86,22 +93,14 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
         ax.barh([r["regime"] for r in loc][::-1], [r["share"] for r in loc][::-1], color="tab:blue")
         ax.set_xlabel("share of held-out torque gap")
         ax.set_title(f"joint {j}: where the gap lies")
-        fig.tight_layout()
-        p = out_dir / f"joint{j}_localisation.png"
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
-        paths[f"joint{j}_localisation"] = p.name
+        save(fig, f"joint{j}_localisation")
         eff = [e for e in rep["effects"] if e.get("identifiable", True)]
         fig, ax = plt.subplots(figsize=(6, 3.5))
         ax.barh([e["effect"] for e in eff][::-1], [e["reduction"] for e in eff][::-1],
                 color=["tab:green" if e["significant"] else "tab:gray" for e in eff][::-1])
         ax.set_xlabel("held-out RMS reduction (fraction of nominal)")
         ax.set_title(f"joint {j}: candidate effects (green = significant)")
-        fig.tight_layout()
-        p = out_dir / f"joint{j}_effects.png"
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
-        paths[f"joint{j}_effects"] = p.name
+        save(fig, f"joint{j}_effects")
         s = series.get(j)
         if s is not None:
             fig, ax = plt.subplots(figsize=(6, 3.5))
@@ -110,11 +109,7 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
             ax.set_xlabel("joint velocity [rad/s]")
             ax.set_ylabel("held-out torque residual [N m]")
             ax.set_title(f"joint {j}: nominal model residual")
-            fig.tight_layout()
-            p = out_dir / f"joint{j}_residual.png"
-            fig.savefig(p, dpi=100)
-            plt.close(fig)
-            paths[f"joint{j}_residual"] = p.name
+            save(fig, f"joint{j}_residual")
     return paths
 
 
