@@ -288,6 +288,27 @@ def _one_blas_thread(fn):
 
 
 @_one_blas_thread
+def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int):
+    """Bounded ``least_squares`` from every start; (best result, total nfev, cost per start).
+    A start that fails numerically counts as infinite cost; all failing is an error."""
+    best, nfev, costs, last_error = None, 0, [], None
+    for x0 in starts:  # loop over starts (a handful)
+        try:
+            r = least_squares(resid, x0, bounds=bounds, method="trf", x_scale=x_scale,
+                              ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=max_nfev)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+            costs.append(np.inf)
+            last_error = exc
+            continue
+        nfev += r.nfev
+        costs.append(float(r.cost))
+        if best is None or r.cost < best.cost:
+            best = r
+    if best is None:
+        raise RuntimeError(f"{name}: every start failed; last error: {last_error}")
+    return best, nfev, costs
+
+
 def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, dt=None,
                  bounds=None, x0=None, n_starts: int = 8, seed: int = 0, weights=None,
                  settings=None) -> FrictionFit:
@@ -395,22 +416,8 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
             A, off, b = vp_solve(u)
             return sw * (tau - off - A @ b)
 
-        ulo, uhi = tr.ubounds()
-        best, nfev, costs, last_error = None, 0, [], None
-        for us in starts:
-            try:
-                r = least_squares(resid, us, bounds=(ulo, uhi), method="trf", x_scale=1.0,
-                                  ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=400)
-            except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-                costs.append(np.inf)
-                last_error = exc
-                continue
-            nfev += r.nfev
-            costs.append(float(r.cost))
-            if best is None or r.cost < best.cost:
-                best = r
-        if best is None:
-            raise RuntimeError(f"{model_cls.name}: every start failed; last error: {last_error}")
+        best, nfev, costs = _multistart(model_cls.name, resid, starts, tr.ubounds(),
+                                        x_scale=1.0, max_nfev=400)
         u_best = best.x
         _, _, b = vp_solve(u_best)
         beta_extra, linvals = b[:e], b[e:]
@@ -431,27 +438,12 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
             return sw * (tau - X @ lb[:e] - m.torque(qd, qdd, dt))
 
         ulo, uhi = tr.ubounds()
-        best, nfev, costs, last_error = None, 0, [], None
-        for us in starts:
-            _, _, b = vp_solve(us)
-            span = np.where(np.isfinite(jhi - jlo), jhi - jlo, 1.0)
-            b = np.clip(b, jlo + 1e-9 * span, jhi - 1e-9 * span)
-            w0 = np.concatenate([b, us])
-            try:
-                r = least_squares(resid, w0, bounds=(np.concatenate([jlo, ulo]),
-                                                     np.concatenate([jhi, uhi])),
-                                  method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12,
-                                  gtol=1e-12, max_nfev=400 * (len(w0) + 1))
-            except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-                costs.append(np.inf)
-                last_error = exc
-                continue
-            nfev += r.nfev
-            costs.append(float(r.cost))
-            if best is None or r.cost < best.cost:
-                best = r
-        if best is None:
-            raise RuntimeError(f"{model_cls.name}: every start failed; last error: {last_error}")
+        span = np.where(np.isfinite(jhi - jlo), jhi - jlo, 1.0)
+        w0s = [np.concatenate([np.clip(vp_solve(us)[2], jlo + 1e-9 * span, jhi - 1e-9 * span), us])
+               for us in starts]
+        best, nfev, costs = _multistart(model_cls.name, resid, w0s,
+                                        (np.concatenate([jlo, ulo]), np.concatenate([jhi, uhi])),
+                                        x_scale="jac", max_nfev=400 * (len(w0s[0]) + 1))
         lb, u_best = split(best.x)
         beta_extra, linvals = lb[:e], lb[e:]
         method = "joint bounded least squares"
