@@ -30,7 +30,8 @@ from mocap.errors import InputError
 
 from . import stats
 from .onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
-from .signals import FourierSmoother, one_blas_thread, prepare_joint_signals, read_angles
+from .signals import (FourierSmoother, angles_path, one_blas_thread, prepare_joint_signals,
+                      read_angles)
 
 __all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
            "campaign_tasks", "log_fits", "read_tx40_config", "fit_tx40", "Tx40Result"]
@@ -236,11 +237,7 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
                              label=tr.id)
         ang = None
         if angles_dir is not None:
-            p = Path(angles_dir) / f"{tr.id}.csv"
-            if not p.is_file():
-                raise InputError(f"no angles file for trial {tr.id!r} (run the angle solve first, "
-                                 "or leave out --angles to use motor angles)", path=p)
-            ang = str(p)
+            ang = str(angles_path(angles_dir, tr.id))
         off = tr.extra.get("time_offset", 0.0)
         if sync == "estimate":
             off = "estimate"

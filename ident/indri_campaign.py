@@ -49,7 +49,7 @@ import numpy as np
 from mocap.errors import InputError
 
 from . import indri as I
-from .signals import (FourierSmoother, SavGolSmoother, one_blas_thread, prepare_joint_signals,
+from .signals import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread, prepare_joint_signals,
                       read_angles)
 
 __all__ = ["DYNAMIC_MODELS", "JointDynamicData", "PartialIndriResult", "DynamicFits",
@@ -170,10 +170,7 @@ def _trial_data(tr, joint: int, robot, angles_dir,
                          path=tr.log, label=f"qm_{joint}")
     t_ang = q_link = None
     if angles_dir is not None:
-        p = Path(angles_dir) / f"{tr.id}.csv"
-        if not p.is_file():
-            raise InputError(f"no angles file for trial {tr.id!r} (run the angle solve first, or "
-                             "leave out --angles to use motor angles)", path=p)
+        p = angles_path(angles_dir, tr.id)
         track = read_angles(p)
         if joint in track.q:
             t_ang, q_link = track.time, track.q[joint]

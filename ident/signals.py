@@ -459,6 +459,15 @@ class AngleTrack:
     source: Path | None = None
 
 
+def angles_path(angles_dir: str | Path, trial_id: str) -> Path:
+    """``<angles_dir>/<trial id>.csv``, or a clear error when the angle solve has not run."""
+    p = Path(angles_dir) / f"{trial_id}.csv"
+    if not p.is_file():
+        raise InputError(f"no angles file for trial {trial_id!r} (run the angle solve first, "
+                         "or leave out --angles to use motor angles)", path=p)
+    return p
+
+
 def read_angles(path: str | Path) -> AngleTrack:
     """Read an angles CSV (FORMAT.md: columns ``time``, ``q_<j>``, ``rms_mm``, ``n_markers``;
     empty cells are NaN)."""
