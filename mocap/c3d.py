@@ -51,7 +51,7 @@ import numpy as np
 
 from .errors import InputError
 from .recording import MarkerRecording
-from .trc import UNIT_SCALE, normalise_units
+from .trc import UNIT_SCALE, check_writable, normalise_units
 
 #: POINT parameters that list non-marker (model output) points
 NON_MARKER_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
@@ -351,12 +351,7 @@ def write_c3d(path: str | Path, rec: MarkerRecording, overwrite: bool = False, u
     """
     import ezc3d
 
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-    units_in, units = units, normalise_units(units)
-    if units is None:
-        raise InputError(f"cannot write units {units_in!r} (expected one of mm, cm, m)", path=path)
+    path, units = check_writable(path, overwrite, units)
     rate = float(rec.rate_hz)
     if not (np.isfinite(rate) and rate > 0):
         raise InputError(f"rate_hz must be positive to write C3D, got {rate!r}", path=path)

@@ -296,6 +296,18 @@ def _raise_bad_cell(cells, blank, labels, line_no, path):
     raise InputError("a cell is not a number", path=path)  # pragma: no cover
 
 
+def check_writable(path, overwrite: bool, units: str) -> tuple[Path, str]:
+    """Shared checks of the marker writers: no silent overwrite, a known unit.
+    Returns the path and the normalised unit."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+    norm = normalise_units(units)
+    if norm is None:
+        raise InputError(f"cannot write units {units!r} (expected one of mm, cm, m)", path=path)
+    return path, norm
+
+
 def write_trc(path: str | Path, rec: MarkerRecording, units: str = "mm", overwrite: bool = False,
               fmt: str = "%.5f") -> Path:
     """Write ``rec`` as a tab-separated TRC file (the layout in the module docstring).
@@ -308,12 +320,7 @@ def write_trc(path: str | Path, rec: MarkerRecording, units: str = "mm", overwri
     ``overwrite`` (raises :class:`FileExistsError`). Creates missing parent folders. Returns
     the path written.
     """
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
-    units_in, units = units, normalise_units(units)
-    if units is None:
-        raise InputError(f"cannot write units {units_in!r} (expected one of mm, cm, m)", path=path)
+    path, units = check_writable(path, overwrite, units)
     for lb in rec.labels:
         if any(ch in lb for ch in "\t\n\r") or not lb.strip():
             raise InputError("a TRC label cannot be empty or contain tabs or newlines",
