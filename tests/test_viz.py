@@ -11,25 +11,12 @@ import numpy as np
 import pytest
 
 from mocap.campaign import load_campaign, write_manifest
-from mocap.recording import MarkerRecording
 from mocap.robot import Robot
 from mocap.robotlog import RobotLog, write_robot_log
+from two_link import URDF
 
 REPO = Path(__file__).resolve().parents[1]
 
-URDF = """<?xml version="1.0"?>
-<robot name="two">
-  <link name="base_link"/>
-  <link name="link1"><inertial><mass value="2"/><origin xyz="0 0 0.1"/>
-    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <link name="link2"><inertial><mass value="1"/><origin xyz="0.2 0 0"/>
-    <inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>
-  <joint name="joint1" type="revolute"><parent link="base_link"/><child link="link1"/>
-    <origin xyz="0 0 0.3"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="50" velocity="1"/></joint>
-  <joint name="joint2" type="revolute"><parent link="link1"/><child link="link2"/>
-    <origin xyz="0 0 0.2"/><axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="30" velocity="2"/></joint>
-</robot>
-"""
 
 DRIVES = """
 [[joint]]
@@ -323,26 +310,10 @@ def _write_trc(path, time, positions_m, labels):
     path.write_text("\n".join(head + rows) + "\n", encoding="utf-8")
 
 
-def _read_trc_fallback(path):
-    """Used only while mocap.trc (another module) is absent: the plain layout written above."""
-    lines = Path(path).read_text(encoding="utf-8").splitlines()
-    labels = [x for x in lines[3].split("\t")[2:] if x]
-    data = np.array([[float(c) if c else np.nan for c in ln.split("\t")] for ln in lines[6:] if ln])
-    t = data[:, 1]
-    P = data[:, 2:].reshape(len(t), len(labels), 3) / 1000.0
-    return MarkerRecording(t, P, tuple(labels), float(lines[2].split("\t")[0]), "mm", Path(path))
-
-
 @pytest.fixture
-def tiny_campaign(tmp_path, monkeypatch):
+def tiny_campaign(tmp_path):
     """Two recordings: a calibration sweep of joint 1 and a trial moving both joints (200 Hz log,
     100 Hz markers, 2.5 s). Ground truth: q1 = 0.8 sin(2 pi 0.4 t), q2 = 0.3 t in the trial."""
-    import ident.campaign_view as cv
-
-    try:
-        import mocap.trc  # noqa: F401
-    except ImportError:
-        monkeypatch.setattr(cv, "read_markers", _read_trc_fallback)
     root = tmp_path / "camp"
     (root / "robot").mkdir(parents=True)
     (root / "robot" / "arm.urdf").write_text(URDF)
