@@ -2,7 +2,6 @@
 effect forms unlike the simulator's): the verdict must still name the withheld effect."""
 import json
 
-import numpy as np
 import pytest
 
 from gap_synth import DRIVES, URDF, make_world
