@@ -44,7 +44,7 @@ from calib.base import pose_errors  # noqa: E402
 from calib.handeye import HandEyeEstimator  # noqa: E402
 from calib.pipeline import calibrate_sweeps, prepare_sweep  # noqa: E402
 from mocap.robot import Robot  # noqa: E402
-from mocap.urdf_tools import perturb_urdf  # noqa: E402
+from mocap.urdf import perturb_urdf  # noqa: E402
 
 PA10 = REPO / "fixtures" / "robots" / "pa10"
 

@@ -19,7 +19,7 @@ parameters, or 3 for NLS-v0), the ratio RMS/CRB and Table 2's single-run figure.
 
 A second scenario ("--rest", on by default) keeps logging 1 s after the stop: NLS fits the
 whole record (the stop is in its model); TDM and FDM are given the record cut at the first
-measured sample <= 0 (eq. 4 has no stop), as :func:`ident.coastdown.coastdown_from_trial`.
+measured sample <= 0 (eq. 4 has no stop), as :func:`ident.coastdown.estimators.coastdown_from_trial`.
 
 Run: ``python benchmarks/coastdown.py`` (200 runs, < 60 s) or ``--quick`` (20 runs, < 10 s).
 """
@@ -40,7 +40,7 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _here]
 
 import numpy as np  # noqa: E402
 
-from ident.coastdown import crb, fdm_batch, nls, simulate_coastdown, stop_time, tdm  # noqa: E402
+from ident.coastdown.estimators import crb, fdm_batch, nls, simulate_coastdown, stop_time, tdm  # noqa: E402
 
 J, KV, KC, V0 = 0.01, 0.01203, 0.0017, 10.0
 FS = 1000.0

@@ -44,7 +44,7 @@ def true_structure_rms(effect, camp, robot, truth):
     from ident.gap import build_joint_data
     from ident.gap.candidates import _presliding, ssign
     from ident.gap.diagnose import _cv, _torque_channel
-    from mocap.robotlog import read_robot_log
+    from mocap.io.robotlog import read_robot_log
 
     p = truth["joints"]["5"]["plant"]
     trials = [t for t in camp.trials if tuple(t.joints) == (5,)]
@@ -78,11 +78,11 @@ def true_structure_rms(effect, camp, robot, truth):
 
 def run_one(job):
     effect, magnitude, seed, small, workdir = job
-    from ident.cli import main as cli
-    from ident.commands.diagnose import link_angles
+    from ident.cli.main import main as cli
+    from ident.cli.commands.diagnose import link_angles
     from ident.gap import DiagnosisSettings
     from ident.gap.campaign import diagnose_campaign
-    from mocap.campaign import load_campaign
+    from mocap.io.campaign import load_campaign
 
     out = Path(workdir) / f"{effect}-m{magnitude:g}-s{seed}"
     args = ["synth", str(out), "--effect", effect, "--magnitude", str(magnitude), "--seed", str(seed),

@@ -23,7 +23,7 @@ REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "tx40"
 def diagnose_tx40(folder: Path, decimate: int = 5, n_segments: int = 20, seed: int = 0) -> dict:
     import numpy as np
 
-    from ident.fitting import load_tx40
+    from ident.thesis.campaign import load_tx40
     from ident.gap import DiagnosisSettings, diagnose_joint
     from ident.gap.data import build_joint_data_record
 

@@ -201,8 +201,8 @@ def read_mot(path: Path):
 
 
 def opensim_peer(py, robot, case, joints, n_frames, work: Path):
-    from mocap.io import write_markers
-    from mocap.recording import MarkerRecording
+    from mocap.io.markers import write_markers
+    from mocap.io.recording import MarkerRecording
 
     sl = slice(0, n_frames)
     sim = case["sim"]

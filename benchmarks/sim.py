@@ -25,10 +25,10 @@ import numpy as np  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from ident.effects import K_NOMINAL, Effect  # noqa: E402
-from ident.reference import fourier_excitation  # noqa: E402
-from ident.sim import Controller, JointPlant, simulate_multi, simulate_reference  # noqa: E402
-from ident.synth import PA10_CV, REST_POSE, PA10_DIR  # noqa: E402
+from ident.sim.effects import K_NOMINAL, Effect  # noqa: E402
+from ident.excitation.trajectories import fourier_excitation  # noqa: E402
+from ident.sim.plant import Controller, JointPlant, simulate_multi, simulate_reference  # noqa: E402
+from ident.sim.campaign import PA10_CV, REST_POSE, PA10_DIR  # noqa: E402
 from mocap.robot import Robot  # noqa: E402
 
 
@@ -76,7 +76,7 @@ def main() -> int:
     ok = ref.duration / rows[0][1] > 20
     print(f"goal > 20x real time (single joint, nominal): {'met' if ok else 'NOT met'}")
     if not args.quick:
-        from ident.cli import main as cli
+        from ident.cli.main import main as cli
 
         with tempfile.TemporaryDirectory() as tmp:
             t = time.perf_counter()

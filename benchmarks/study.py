@@ -30,9 +30,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from ident.cli import main as cli  # noqa: E402
-from ident.executor import make_executor  # noqa: E402
-from ident.study import Study, StudySettings  # noqa: E402
+from ident.cli.main import main as cli  # noqa: E402
+from ident.study.executor import make_executor  # noqa: E402
+from ident.study.study import Study, StudySettings  # noqa: E402
 
 FULL = dict(joints="1,2,3,4,5,6", loads="0,3.373", vmax="0.3,0.6,1.0", reps=5, duration=20.0, rate=200.0)
 QUICK = dict(joints="2,5", loads="0", vmax="0.3,0.6,1.0", reps=2, duration=8.0, rate=200.0)
@@ -102,7 +102,7 @@ def run_once(camp: Path, out: Path, settings: StudySettings, workers: int | None
              client=None) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     if client is not None:
-        from ident.executor import DaskExecutor
+        from ident.study.executor import DaskExecutor
 
         ex = DaskExecutor(client=client, progress=False)
     else:

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from mocap.kinematics import apply_transform, invert_transform, make_transform
-from mocap.recording import MarkerRecording
-from mocap.robotlog import RobotLog
+from mocap.io.recording import MarkerRecording
+from mocap.io.robotlog import RobotLog
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,9 +151,9 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
 
 def write_campaign(root, sim: SyntheticCalib, urdf, drives, overwrite: bool = False) -> Path:
     """Write ``sim`` as a FORMAT v1 campaign at ``root`` (robot files copied in)."""
-    from mocap.campaign import write_manifest
-    from mocap.io import write_markers
-    from mocap.robotlog import write_robot_log
+    from mocap.io.campaign import write_manifest
+    from mocap.io.markers import write_markers
+    from mocap.io.robotlog import write_robot_log
 
     root = Path(root)
     (root / "robot").mkdir(parents=True, exist_ok=True)

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 
-from .geometry import (angle_about, kabsch_batch, perp_basis, rotations_about, unit)
+from calib.geometry import (angle_about, kabsch_batch, perp_basis, rotations_about, unit)
 
 #: the thesis's 3-D residual of the motion-capture system, 0.845 mm RMS (section 4.1)
 DEFAULT_NOISE_MM = 0.85
@@ -311,7 +311,7 @@ def sweep_crb(positions, labels=None, sigma_mm: float = DEFAULT_NOISE_MM, fit: "
 
 def _rebase_cov(cov, src: AxisFit, dst: AxisFit) -> np.ndarray:
     """Express a chart covariance of ``src``'s axis in ``dst``'s chart (numerical Jacobian)."""
-    from .geometry import chart_coords, chart_line
+    from calib.geometry import chart_coords, chart_line
 
     u0, v0 = src.basis
     u1, v1 = dst.basis

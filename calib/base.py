@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 
-from .geometry import chart_coords, line_distance, rotation_angle, rotvec_to_matrix, unit
+from calib.geometry import chart_coords, line_distance, rotation_angle, rotvec_to_matrix, unit
 
 
 @dataclass(frozen=True, eq=False)

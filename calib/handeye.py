@@ -21,10 +21,10 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 from mocap.kinematics import invert_transform
 
-from .geometry import kabsch_batch, rotvec_to_matrix
+from calib.geometry import kabsch_batch, rotvec_to_matrix
 
 
 @dataclass(frozen=True, eq=False)

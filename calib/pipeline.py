@@ -13,11 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 
-from .axis import DEFAULT_NOISE_MM, AxisFit, CircleAxisEstimator, ClusterAxisEstimator
-from .base import BasePlacement, place_base
-from .geometry import angle_about, kabsch_batch
+from calib.axis import DEFAULT_NOISE_MM, AxisFit, CircleAxisEstimator, ClusterAxisEstimator
+from calib.base import BasePlacement, place_base
+from calib.geometry import angle_about, kabsch_batch
 
 ESTIMATORS = {"cluster": ClusterAxisEstimator, "circle": CircleAxisEstimator}
 
@@ -104,8 +104,8 @@ def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: flo
                   min_markers: int = 3, min_frames: int = 10) -> SweepData:
     """Check one sweep (one joint moving, far enough, enough markers) and select its markers.
 
-    ``rec`` is a :class:`mocap.recording.MarkerRecording`, ``log`` a
-    :class:`mocap.robotlog.RobotLog`, ``markers`` the campaign's link -> labels map.
+    ``rec`` is a :class:`mocap.io.recording.MarkerRecording`, ``log`` a
+    :class:`mocap.io.robotlog.RobotLog`, ``markers`` the campaign's link -> labels map.
     """
     mpath, lpath = rec.source, log.source
     n = chain.n
@@ -164,8 +164,8 @@ def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: flo
 
 def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> list:
     """Read and check the campaign's calibration sweeps of ``joints``."""
-    from mocap.io import read_markers
-    from mocap.robotlog import read_robot_log
+    from mocap.io.markers import read_markers
+    from mocap.io.robotlog import read_robot_log
 
     found = {c.joint: c for c in campaign.calib}
     missing = [j for j in joints if j not in found]
@@ -228,7 +228,7 @@ def calibrate_sweeps(sweeps, chain, method: str = "cluster", noise_mm: float = D
 def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
     """The hand-eye / robot-world peer (:class:`calib.handeye.HandEyeEstimator`) on the same
     sweeps: the most distal link with at least 3 markers seen in every sweep, all encoder angles."""
-    from .handeye import HandEyeEstimator
+    from calib.handeye import HandEyeEstimator
 
     if link is None:
         cands = [lk for lk in markers if lk in chain.frames
@@ -245,7 +245,7 @@ def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
 def calibrate(campaign, robot=None, method: str = "cluster", sink=None,
               noise_mm: float = DEFAULT_NOISE_MM, min_sweep_deg: float = 15.0, joints=(1, 2),
               cross_check: bool = False, **options) -> CalibResult:
-    """Calibrate ``T_camera_base`` for a loaded campaign (:func:`mocap.campaign.load_campaign`).
+    """Calibrate ``T_camera_base`` for a loaded campaign (:func:`mocap.io.campaign.load_campaign`).
 
     ``method`` is ``"cluster"`` (rigid-cluster screw axis + ML refinement) or ``"circle"``
     (per-marker Halvorsen circles + common-axis refinement); ``sink`` (a :class:`viz.Sink`)
@@ -257,7 +257,7 @@ def calibrate(campaign, robot=None, method: str = "cluster", sink=None,
     sweeps = load_sweeps(campaign, robot, min_sweep_deg, joints)
     result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm, **options)
     if cross_check:
-        from .base import pose_errors
+        from calib.base import pose_errors
 
         he = handeye_cross_check(sweeps, robot.chain, campaign.markers)
         dp, dr = pose_errors(he.T_camera_base, result.T_camera_base)

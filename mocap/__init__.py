@@ -2,7 +2,7 @@
 
 Readers convert to time-first arrays in metres once, at the file boundary.
 """
-from .errors import InputError
-from .recording import MarkerRecording
+from mocap.io.errors import InputError
+from mocap.io.recording import MarkerRecording
 
 __all__ = ["InputError", "MarkerRecording"]

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import apply_transform, make_transform, rotation_about_axis
+from mocap.kinematics import apply_transform, make_transform, rotation_about_axis
 
 # (joint name, parent link, child link, origin xyz, axis, child mass)
 PA10_LIKE = (
@@ -50,7 +50,7 @@ def pa10_like_urdf(path: str | Path) -> Path:
 
 
 def pa10_like_drives(path: str | Path) -> Path:
-    from .robot import Drive, write_drives
+    from mocap.robot import Drive, write_drives
 
     drives = [Drive(name=j[0], gear_ratio=100.0, motor_inertia=0.2, motor_viscous=0.5,
                     max_velocity=2.0, max_torque=100.0, encoder_resolution=1e-5) for j in PA10_LIKE]
@@ -58,7 +58,7 @@ def pa10_like_drives(path: str | Path) -> Path:
 
 
 def pa10_like_robot(tmpdir: str | Path):
-    from .robot import Robot
+    from mocap.robot import Robot
 
     tmpdir = Path(tmpdir)
     return Robot.from_urdf(pa10_like_urdf(tmpdir / "arm.urdf"), pa10_like_drives(tmpdir / "drives.toml"))
@@ -159,10 +159,10 @@ def write_campaign(root: str | Path, *, seed: int = 0, trials=({"id": "j2-r1", "
                    n_static: int = 2, deflection_rad: float = 2e-3, units: str = "mm") -> dict:
     """Write a FORMAT v1 campaign with the PA10-like arm; returns the truth
     (``T_camera_base``, marker positions, per-trial link angles at the marker times)."""
-    from .campaign import write_manifest
-    from .io import write_markers
-    from .recording import MarkerRecording
-    from .robotlog import RobotLog, write_robot_log
+    from mocap.io.campaign import write_manifest
+    from mocap.io.markers import write_markers
+    from mocap.io.recording import MarkerRecording
+    from mocap.io.robotlog import RobotLog, write_robot_log
 
     root = Path(root)
     rng = np.random.default_rng(seed)

@@ -17,7 +17,7 @@ def cramer_rao_bound(chain, joints, marker_joint, p_joint, q: np.ndarray, sigma_
 
     ``joints`` 0-based, ``q`` (T, n) the true angles, ``sigma_axis`` the per-axis marker noise
     (3-D RMS / sqrt 3), ``visible`` (T, M) the markers seen in each frame (default: all)."""
-    from .solve import MarkerSolver, _Chain
+    from mocap.solve import MarkerSolver, _Chain
 
     q = np.atleast_2d(np.asarray(q, float))
     solver = MarkerSolver(chain, joints, marker_joint, p_joint)

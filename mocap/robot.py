@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
-from .kinematics import Chain
+from mocap.io.errors import InputError
+from mocap.kinematics import Chain
 
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
                "encoder_resolution")

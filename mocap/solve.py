@@ -25,7 +25,7 @@ from, or no convergence are returned as NaN with a flag bit set.
 
 Frames. Everything is solved in the robot base frame: the caller maps the camera-frame markers
 with ``T_base_camera`` (from ``calib.json``, or estimated from the static poses by
-:mod:`mocap.reference`). Braked joints are held at their median log angle over the trial.
+:mod:`mocap.references`). Braked joints are held at their median log angle over the trial.
 """
 from __future__ import annotations
 
@@ -675,17 +675,17 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
                 **solver_settings) -> AnglesResult:
     """Link angles of one trial (thesis eq. 3-5) from its marker file and robot log.
 
-    ``trial``: a :class:`mocap.campaign.Trial` or its id. ``references``: from
-    :func:`mocap.reference.build_references`. ``T_camera_base`` defaults to the one the references
+    ``trial``: a :class:`mocap.io.campaign.Trial` or its id. ``references``: from
+    :func:`mocap.references.build_references`. ``T_camera_base`` defaults to the one the references
     were built with (pass another only if the references were built with it too). The markers
     are moved into the robot base frame; only markers on links moved by the trial's joints are
     used. ``refine``: re-estimate the marker positions over the trial's frames, anchored by the
     static poses (:func:`refine_markers`); ``refine_geometry``: also fit small placement offsets
     of the moving joints (axis tilt and position). ``solver_settings`` go to :class:`MarkerSolver`."""
-    from .errors import InputError
-    from .io import read_markers
-    from .kinematics import apply_transform, invert_transform
-    from .robotlog import read_robot_log
+    from mocap.io.errors import InputError
+    from mocap.io.markers import read_markers
+    from mocap.kinematics import apply_transform, invert_transform
+    from mocap.io.robotlog import read_robot_log
 
     if isinstance(trial, str):
         trial = campaign.trial(trial)
@@ -745,7 +745,7 @@ def _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
     """Markers on links the trial does not move must stay at their static reference: their RMS
     distance from it (base frame, held angles; distances of 10 mm or more counted in ``far_frac``)
     checks the camera pose and that nothing was bumped."""
-    from .kinematics import apply_transform, invert_transform
+    from mocap.kinematics import apply_transform, invert_transform
 
     labels = [lb for lb in link_of if chain.frames[link_of[lb]][0] < joints0[0]
               and lb in rec.labels and lb in references.labels]
@@ -835,7 +835,7 @@ def offset_chain(chain, joints, offsets):
     """A copy of ``chain`` whose solved joints' placements are corrected by ``offsets`` (S, 4):
     the joint frame tilted about the two directions e1, e2 perpendicular to its axis and shifted
     along them (the 4 placement errors that markers on the link cannot absorb)."""
-    from .kinematics import Chain, make_transform, rotation_about_axis
+    from mocap.kinematics import Chain, make_transform, rotation_about_axis
 
     Tp = np.array(chain.T_parent_joint, float)
     for k, j in enumerate(joints):  # loop over solved joints

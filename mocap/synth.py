@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kinematics import apply_transform, make_transform
-from .recording import MarkerRecording
+from mocap.kinematics import apply_transform, make_transform
+from mocap.io.recording import MarkerRecording
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,4 +1,4 @@
-"""A small closed-form joint world for gap-diagnosis unit tests, independent of ident.sim.
+"""A small closed-form joint world for gap-diagnosis unit tests, independent of ident.sim.plant.
 
 Rigid single-joint motion along a finite-Fourier reference, torque from the rigid-body model of
 a 2-joint test robot plus Coulomb+viscous friction, plus one effect written here in forms that
@@ -10,8 +10,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ident.fourier import FourierSeries
-from mocap.robotlog import RobotLog
+from ident.signals.fourier import FourierSeries
+from mocap.io.robotlog import RobotLog
 
 URDF = """<?xml version="1.0"?>
 <robot name="two">

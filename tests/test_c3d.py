@@ -7,11 +7,11 @@ import ezc3d
 import numpy as np
 import pytest
 
-import mocap.c3d as c3d_mod
-from mocap.c3d import check_c3d_structure, read_c3d, write_c3d
-from mocap.errors import InputError
-from mocap.recording import MarkerRecording
-from mocap.trc import read_trc
+import mocap.io.c3d as c3d_mod
+from mocap.io.c3d import check_c3d_structure, read_c3d, write_c3d
+from mocap.io.errors import InputError
+from mocap.io.recording import MarkerRecording
+from mocap.io.trc import read_trc
 
 REAL_C3D = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "c3d"
 BAD_NAME = "read_NOTworking2.c3d"

@@ -9,7 +9,7 @@ from calib.base import place_base, pose_errors
 from calib.geometry import chart_coords, chart_line, kabsch_batch, perp_basis, rotvec_to_matrix
 from calib.handeye import HandEyeEstimator
 from calib.pipeline import calibrate_sweeps, prepare_sweep
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 from mocap.kinematics import make_transform
 
 
@@ -168,7 +168,7 @@ def test_calibrate_sweeps_beats_goals_and_handeye(pa10):
 def test_perturbed_robot_offset_axes(pa10_dir, tmp_path):
     """A perturbed robot (axes 1 and 2 no longer intersect), known to the calibration."""
     from mocap.robot import Robot
-    from mocap.urdf_tools import perturb_urdf
+    from mocap.urdf import perturb_urdf
 
     urdf = perturb_urdf(pa10_dir / "pa10.urdf", tmp_path / "p.urdf", seed=4, length_std=0.01, angle_std_deg=1.0)
     robot = Robot.from_urdf(urdf, pa10_dir / "drives.toml")

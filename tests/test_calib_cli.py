@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from calib.base import pose_errors
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 from viz.sink import Sink
 
 
@@ -29,7 +29,7 @@ def campaign(pa10, pa10_dir, tmp_path_factory):
 
 
 def _manifest(path, camp_root, calib, markers):
-    from mocap.campaign import write_manifest
+    from mocap.io.campaign import write_manifest
 
     rel = str(camp_root.resolve())  # an absolute path: root / rel is rel
     doc = {"format": 1, "name": "variant",
@@ -42,7 +42,7 @@ def _manifest(path, camp_root, calib, markers):
 
 
 def test_cli_writes_calib_json(campaign, tmp_path, capsys):
-    from ident.cli import main
+    from ident.cli.main import main
 
     root, sim = campaign
     out = tmp_path / "out"
@@ -61,7 +61,7 @@ def test_cli_writes_calib_json(campaign, tmp_path, capsys):
         n = np.array(a["direction_camera"])
         assert abs(np.linalg.norm(n) - 1) < 1e-12
     # the direction follows the joint's positive rotation: it is the URDF axis mapped by T
-    from mocap.campaign import load_campaign
+    from mocap.io.campaign import load_campaign
 
     chain = load_campaign(root).load_robot().chain
     p, d = chain.joint_axis_lines(sim.q_rest)
@@ -74,7 +74,7 @@ def test_cli_writes_calib_json(campaign, tmp_path, capsys):
 
 
 def test_cli_refuses_out_inside_campaign(campaign, capsys):
-    from ident.cli import main
+    from ident.cli.main import main
 
     root, _ = campaign
     assert main(["calib", str(root), "--out", str(root / "out")]) == 2
@@ -83,7 +83,7 @@ def test_cli_refuses_out_inside_campaign(campaign, capsys):
 
 def test_missing_calibration_entry(campaign, tmp_path):
     from calib.pipeline import calibrate
-    from mocap.campaign import load_campaign
+    from mocap.io.campaign import load_campaign
 
     root, sim = campaign
     var = _manifest(tmp_path / "v", root, [(1, None)], {k: list(v) for k, v in sim.markers.items()})
@@ -94,7 +94,7 @@ def test_missing_calibration_entry(campaign, tmp_path):
 
 def test_too_few_markers_on_the_moving_link(campaign, tmp_path):
     from calib.pipeline import calibrate
-    from mocap.campaign import load_campaign
+    from mocap.io.campaign import load_campaign
 
     root, sim = campaign
     markers = {"link1": list(sim.markers["link1"]), "link2": list(sim.markers["link2"][:2])}
@@ -106,7 +106,7 @@ def test_too_few_markers_on_the_moving_link(campaign, tmp_path):
 
 def test_two_joints_moving_and_short_sweep(pa10, campaign):
     from calib.pipeline import prepare_sweep
-    from mocap.robotlog import RobotLog
+    from mocap.io.robotlog import RobotLog
 
     _, sim = campaign
     sw = sim.sweeps[0]
@@ -143,7 +143,7 @@ class _RecordingSink(Sink):
 
 def test_sink_gets_arcs_axes_and_base(campaign):
     from calib.pipeline import calibrate
-    from mocap.campaign import load_campaign
+    from mocap.io.campaign import load_campaign
 
     root, sim = campaign
     sink = _RecordingSink()
@@ -163,7 +163,7 @@ def test_cli_rrd_has_arcs_axes_and_base(campaign, tmp_path):
     pytest.importorskip("rerun")
     from rerun.chunk import RrdReader
 
-    from ident.cli import main
+    from ident.cli.main import main
 
     root, _ = campaign
     rrd = tmp_path / "calib.rrd"

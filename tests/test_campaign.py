@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from ident.cli import main
-from mocap.campaign import load_campaign, write_manifest
-from mocap.errors import InputError
+from ident.cli.main import main
+from mocap.io.campaign import load_campaign, write_manifest
+from mocap.io.errors import InputError
 from two_link import URDF
 
 

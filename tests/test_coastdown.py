@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from ident.coastdown import (_model_jac, coast_velocity, coastdown_from_trial, crb, fdm,
+from ident.coastdown.estimators import (_model_jac, coast_velocity, coastdown_from_trial, crb, fdm,
                              fdm_batch, nls, record_spectrum, simulate_coastdown, stop_time, tdm)
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 
 J, KV, KC, V0 = 0.01, 0.01203, 0.0017, 10.0   # paper Table 1
 FS = 1000.0
@@ -208,13 +208,13 @@ def test_bad_input_is_reported():
 
 
 def test_coastdown_from_the_flexible_joint_simulator():
-    """ident.sim's coast-down runs of a PA10 joint-5-like plant (flexible joint, motor
+    """ident.sim.plant's coast-down runs of a PA10 joint-5-like plant (flexible joint, motor
     viscous B, gravity compensated on the motor angle): from the motor velocity and the
     controller mode, each coast gives Kv = v + B and Kc = c of the rigid equivalent with
     J = I + J_motor. The coasts last 10-20 ms (Coulomb dominated), so 5 % on Kv, 1 % on Kc."""
-    from ident.effects import Effect
-    from ident.sim import Controller, JointPlant
-    from ident.sim import simulate_coastdown as sim_cd
+    from ident.sim.effects import Effect
+    from ident.sim.plant import Controller, JointPlant
+    from ident.sim.plant import simulate_coastdown as sim_cd
 
     I, a, b, Jm, B, c, v, tmax, vmax = 0.0041, 0.05, -0.65, 0.04, 0.15, 3.90, 0.84, 14.5, 2.43
     plant = JointPlant(I, a, b, Jm, B, Effect("none").joint_params(c, v, tmax, vmax, I + Jm))

@@ -9,8 +9,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from ident import indri as I
-from ident.codegen import c_identifier, export_c, export_models_c
+from ident.indri import framework as I
+from ident.indri.codegen import c_identifier, export_c, export_models_c
 from ident.friction import (Arctan, CoulombViscous, LuGreDM1, LuGreDM2, Stribeck, fit_arctan)
 
 STATIC = Arctan(tau_s=5.0, tau_sc=-1.5, tau_v=2.0, tau_nlv=0.3, delta=15.0)
@@ -120,7 +120,7 @@ def test_export_validates(tmp_path):
 def test_export_models_c_hook(tmp_path):
     qd = np.linspace(-2, 2, 4001)
     fit = fit_arctan(qd, STATIC.torque(qd))
-    class OneLinkLike:                       # ident.onelink fits expose .friction()
+    class OneLinkLike:                       # ident.model.onelink fits expose .friction()
         def friction(self):
             return MODELS["cv"]
 

@@ -1,4 +1,4 @@
-"""ident.design (thesis eq. 3-1) and `jointlab design`: constraints hold, cond(R) beats random
+"""ident.excitation.design (thesis eq. 3-1) and `jointlab design`: constraints hold, cond(R) beats random
 trajectories scaled to the same constraints, the CLI writes its files."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from ident.design import DesignLimits, ExcitationDesigner, regressor_cond
+from ident.excitation.design import DesignLimits, ExcitationDesigner, regressor_cond
 
 LIM = DesignLimits(q_lower=-2.86, q_upper=2.86, qd_max=2.43, qdd_max=20.0)
 
@@ -79,7 +79,7 @@ max_torque = 40.0
 
 
 def test_cli_design(tmp_path, capsys):
-    from ident.cli import main
+    from ident.cli.main import main
 
     urdf = _write_robot(tmp_path / "robot")
     out = tmp_path / "out"

@@ -5,8 +5,8 @@ import json
 
 import pytest
 
-from ident.cli import main
-from mocap.campaign import load_campaign
+from ident.cli.main import main
+from mocap.io.campaign import load_campaign
 from tests_paths import DEMO
 
 

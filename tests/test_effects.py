@@ -1,4 +1,4 @@
-"""Each withheld effect (ident.effects) shows its signature in the channel it lives in, scales
+"""Each withheld effect (ident.sim.effects) shows its signature in the channel it lives in, scales
 linearly with the magnitude, and is detectable above the torque noise at M = 0.3."""
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from ident.effects import EFFECTS, Effect, K_NOMINAL, SIZE, truth_models
-from ident.reference import reversals
-from ident.sim import Controller, JointPlant, simulate_reference
+from ident.sim.effects import EFFECTS, Effect, K_NOMINAL, SIZE, truth_models
+from ident.excitation.trajectories import reversals
+from ident.sim.plant import Controller, JointPlant, simulate_reference
 
 from test_sim import C5, TMAX5, V5, VMAX5, ctrl5, excitation, plant5, rigid_residual
 

@@ -16,11 +16,11 @@ import subprocess
 import numpy as np
 import pytest
 
-from ident import indri as I
-from ident.cli import main
-from ident.indri_campaign import fit_campaign_dynamic, split_reversals
-from mocap.campaign import load_campaign
-from mocap.errors import InputError
+from ident.indri import framework as I
+from ident.cli.main import main
+from ident.indri.campaign import fit_campaign_dynamic, split_reversals
+from mocap.io.campaign import load_campaign
+from mocap.io.errors import InputError
 
 PARAMS = {"arctan": ["tau_s", "tau_sc", "tau_v", "tau_nlv", "delta"],
           "dm1": ["sigma0", "sigma1"], "dm2": ["sigma0", "alpha", "beta", "gamma"],
@@ -81,7 +81,7 @@ def test_parameters_against_the_truth(fitted):
     # phase 2-A/2-B sigma0 (the slowest reversal data set): measured +3.1 %
     assert m["dm2"]["params"]["sigma0"] == pytest.approx(s0_true, rel=0.10)
     # constant true sigma1: eq. 23 gives alpha ~ 0 and beta ~ sigma1 + sigma0 Ts/2 (the
-    # velocity held over each sample, ident.indri docstring); measured 22.2 vs 23.4
+    # velocity held over each sample, ident.indri.framework docstring); measured 22.2 vs 23.4
     assert m["dm2"]["params"]["beta"] == pytest.approx(s1_true + s0_true * dt / 2, rel=0.2)
     assert m["dm2"]["params"]["alpha"] < 0.2 * m["dm2"]["params"]["beta"]
     # step 1: the Coulomb level at speed and the viscous slope (link friction + motor B)

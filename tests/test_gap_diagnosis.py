@@ -84,7 +84,7 @@ def test_continuous_multi_joint_record(tmp_path, effect):
     controller's log): rigid-body torque from pinocchio, segments as folds."""
     from gap_synth import robot as make_robot
 
-    from ident.fourier import FourierSeries
+    from ident.signals.fourier import FourierSeries
     from ident.gap.data import build_joint_data_record
 
     rb = make_robot(tmp_path)

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from gap_synth import DRIVES, URDF, make_world
-from ident.cli import main
+from ident.cli.main import main
 
 
 def _write_foreign_campaign(root, trials, logs):

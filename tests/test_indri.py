@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from ident import indri as I
+from ident.indri import framework as I
 from ident.friction import Arctan, LuGreDM1, LuGreDM2, s0
 
 STATIC = Arctan(tau_s=5.0, tau_sc=-1.5, tau_v=2.0, tau_nlv=0.3, delta=15.0)

@@ -8,7 +8,7 @@ import ezc3d
 import numpy as np
 import pytest
 
-from ident.cli import main
+from ident.cli.main import main
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 BAD_NAME = "read_NOTworking2.c3d"

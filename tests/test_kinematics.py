@@ -7,7 +7,7 @@ import pytest
 
 from mocap.kinematics import apply_transform, invert_transform, make_transform, rotation_about_axis
 from mocap.robot import Robot
-from mocap.urdf_tools import perturb_urdf
+from mocap.urdf import perturb_urdf
 
 SHOULDER, UPPER, FOREARM, WRIST = 0.317, 0.45, 0.48, 0.07
 
@@ -163,7 +163,7 @@ def test_tx40_fk_equals_pinocchio(real_dir, tmp_path):
 def test_urdf_rpy_convention_matches_pinocchio_and_round_trips():
     import pinocchio as pin
 
-    from mocap.urdf_tools import matrix_rpy, rpy_matrix
+    from mocap.urdf import matrix_rpy, rpy_matrix
 
     rng = np.random.default_rng(9)
     for rpy in rng.uniform([-np.pi, -1.5, -np.pi], [np.pi, 1.5, np.pi], size=(20, 3)):

@@ -7,10 +7,10 @@ import re
 import numpy as np
 import pytest
 
-from ident.cli import main
+from ident.cli.main import main
 from mocap._synthetic import write_campaign
-from mocap.campaign import load_campaign
-from mocap.reference import build_references
+from mocap.io.campaign import load_campaign
+from mocap.references import build_references
 from mocap.solve import solve_trial
 
 TRIALS = ({"id": "j2-r1", "joints": [2]}, {"id": "j35-r1", "joints": [3, 5]})

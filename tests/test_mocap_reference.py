@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from mocap._synthetic import default_camera_pose, pa10_like_robot, place_markers, simulate_markers
-from mocap.errors import InputError
-from mocap.recording import MarkerRecording
-from mocap.reference import fit_references, kabsch, read_static_pose, reduce_static
-from mocap.robotlog import RobotLog
+from mocap.io.errors import InputError
+from mocap.io.recording import MarkerRecording
+from mocap.references import fit_references, kabsch, read_static_pose, reduce_static
+from mocap.io.robotlog import RobotLog
 
 Q_REST = np.array([0.2, 0.4, 0.9, 0.1, 0.6, 0.0])
 

@@ -1,4 +1,4 @@
-"""ident.onelink: eq. 2-4 with the three friction models on seeded synthetic one-link data
+"""ident.model.onelink: eq. 2-4 with the three friction models on seeded synthetic one-link data
 (closed form: q from eq. 3-2, qm = q, tau = I qdd - mglx sin q + mgly cos q + f(qd) + J qmdd
 + B qmd + noise), and the TX40 real-data fit (slow)."""
 from __future__ import annotations
@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ident.fourier import FourierSeries
+from ident.signals.fourier import FourierSeries
 from ident.friction.base import CoulombViscous
 from ident.friction.static import Stribeck
-from ident.onelink import (OneLinkIdentifier, fit_cv_linear, name_degenerate, onelink_regressor,
+from ident.model.onelink import (OneLinkIdentifier, fit_cv_linear, name_degenerate, onelink_regressor,
                            onelink_target)
-from ident.signals import prepare_joint_signals
+from ident.signals.smoothing import prepare_joint_signals
 
 TRUE = {"I": 0.4, "mglx": 3.0, "mgly": 1.0}
 J, B = 0.35, 0.9
@@ -108,7 +108,7 @@ def test_tx40_cv_against_published(real_dir):
     """Real data: Staubli TX40 (figaroh-examples). Viscous within -10..+40 % of the published
     fv; the wrist-coupling armature Iam6 within 10 % of the config's 0.00964 (checks the
     motor-to-joint conversions). Coulomb comes out at ~0.55x the published fs (reported)."""
-    from ident.fitting import fit_tx40
+    from ident.thesis.campaign import fit_tx40
 
     folder = real_dir / "tx40"
     if not (folder / "curr_data.csv").is_file():

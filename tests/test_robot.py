@@ -1,5 +1,5 @@
 """The bundled PA10-6C description (fixtures/robots/pa10), mocap.robot.Robot dynamics on it,
-and mocap.urdf_tools (perturbed copies, visuals, link meshes)."""
+and mocap.urdf (perturbed copies, visuals, link meshes)."""
 from __future__ import annotations
 
 import math
@@ -10,10 +10,10 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 from mocap.kinematics import apply_transform
 from mocap.robot import Robot
-from mocap.urdf_tools import Primitive, load_link_meshes, perturb_urdf, resolve_mesh_uri, urdf_visuals
+from mocap.urdf import Primitive, load_link_meshes, perturb_urdf, resolve_mesh_uri, urdf_visuals
 
 LIMITS_DEG = np.array([177.0, 94.0, 165.0, 255.0, 164.0, 255.0])
 SPEEDS = np.array([1.00, 1.01, 2.03, 2.00, 2.43, 2.01])   # thesis tables, rad/s

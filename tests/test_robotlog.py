@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from mocap.errors import InputError
-from mocap.robotlog import RobotLog, read_robot_log, write_robot_log
+from mocap.io.errors import InputError
+from mocap.io.robotlog import RobotLog, read_robot_log, write_robot_log
 
 
 def _write(tmp_path, text, name="log.csv"):

@@ -1,15 +1,15 @@
-"""ident.signals: Fourier fits (eq. 3-2) with estimated fundamental and harmonics, the
+"""ident.signals.smoothing: Fourier fits (eq. 3-2) with estimated fundamental and harmonics, the
 non-periodic fallback, clock offsets and the angles CSV reader, on seeded synthetic data."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from ident.fourier import FourierSeries
-from ident.signals import (FourierSmoother, SavGolSmoother, estimate_fundamental,
+from ident.signals.fourier import FourierSeries
+from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, estimate_fundamental,
                            estimate_time_offset, prepare_joint_signals, read_angles,
                            select_harmonics)
-from mocap.errors import InputError
+from mocap.io.errors import InputError
 
 SERIES = FourierSeries(np.array([0.5, -0.3, 0.2, 0.1, -0.05]), np.array([0.2, 0.1, -0.3, 0.05, 0.02]),
                        2 * np.pi / 10, 0.3)

@@ -1,4 +1,4 @@
-"""The flexible-joint simulator (ident.sim) and the reference trajectories (ident.reference)."""
+"""The flexible-joint simulator (ident.sim.plant) and the reference trajectories (ident.excitation.trajectories)."""
 from __future__ import annotations
 
 import math
@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from ident.effects import Effect, JointEffects
-from ident.reference import (constant_velocity, fourier_excitation, min_jerk_path, reversals)
-from ident.sim import (Controller, JointPlant, JointState, energy, rest_state, simulate_coastdown,
+from ident.sim.effects import Effect, JointEffects
+from ident.excitation.trajectories import (constant_velocity, fourier_excitation, min_jerk_path, reversals)
+from ident.sim.plant import (Controller, JointPlant, JointState, energy, rest_state, simulate_coastdown,
                        simulate_multi, simulate_reference, simulate_single)
 
 # PA10 joint-5-like constants (link inertia, gravity sinusoid, motor side), thesis c, v

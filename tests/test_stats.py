@@ -1,4 +1,4 @@
-"""ident.stats and the campaign fit (ident.fitting, `jointlab fit`): thesis CV convention,
+"""ident.thesis.tables and the campaign fit (ident.thesis.campaign, `jointlab fit`): thesis CV convention,
 table layout, and a seeded synthetic campaign without unmodelled effects (goal: Coulomb and
 viscous within 3 % of truth, CV% at or below the thesis's Table 5-1 for 5 repetitions)."""
 from __future__ import annotations
@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ident import stats
-from ident.fitting import fit_campaign
-from ident.fourier import FourierSeries
-from mocap.campaign import load_campaign, write_manifest
-from mocap.robotlog import RobotLog, write_robot_log
+from ident.thesis import tables as stats
+from ident.thesis.campaign import fit_campaign
+from ident.signals.fourier import FourierSeries
+from mocap.io.campaign import load_campaign, write_manifest
+from mocap.io.robotlog import RobotLog, write_robot_log
 
 C_TRUE, V_TRUE = 4.13, 1.17          # thesis Table 5-1, joint 5, loaded, 2.43 rad/s
 J, B = 0.35, 0.9
@@ -173,7 +173,7 @@ class _RecordingSink:
 def test_cli_fit_with_angles_models_and_executor(tmp_path, capsys):
     from concurrent.futures import ThreadPoolExecutor
 
-    from ident.cli import main
+    from ident.cli.main import main
 
     root = make_campaign(tmp_path / "camp", vmax_fracs=(1.0,), reps=2, angles=True, seed=5)
     out = tmp_path / "out"
@@ -208,8 +208,8 @@ def test_simulator_campaign_without_effects(tmp_path):
     """Integration with `jointlab synth` (the project's simulator, flexible joint, holds,
     quantisation, noise): Coulomb and viscous within 3 % of the truth file, CV% at or below the
     thesis's Table 5-1 (joint 5, loaded, 100 %: c 3.10 %, v 2.73 %)."""
-    pytest.importorskip("ident.synth")
-    from ident.cli import main
+    pytest.importorskip("ident.sim.campaign")
+    from ident.cli.main import main
 
     camp = tmp_path / "sim"
     assert main(["synth", str(camp), "--effect", "none", "--seed", "3", "--loads", "3.373", "--vmax", "1.0",

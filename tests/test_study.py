@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ident.cli import main
-from ident.executor import PoolExecutor, SerialExecutor
-from ident.study import MANIFEST_NAME, STATE_DIR, Study, StudySettings
-from mocap.campaign import load_campaign
+from ident.cli.main import main
+from ident.study.executor import PoolExecutor, SerialExecutor
+from ident.study.study import MANIFEST_NAME, STATE_DIR, Study, StudySettings
+from mocap.io.campaign import load_campaign
 
 # fast settings: two models, few multi-starts, no recording unless a test asks for it
 FAST = StudySettings(models=("cv", "stribeck"), n_starts=2, rrd=False)
@@ -150,7 +150,7 @@ def dataclass_replace(obj, **kw):
 
 def test_interrupted_study_leaves_no_half_files_and_resumes(tiny, serial_run, tmp_path, monkeypatch):
     camp, _, _ = tiny
-    import ident.fitting as fitting
+    import ident.thesis.campaign as fitting
 
     real = fitting.fit_trial_joint
     calls = {"n": 0}
@@ -181,7 +181,7 @@ def test_interrupted_study_leaves_no_half_files_and_resumes(tiny, serial_run, tm
 
 def test_dask_local_cluster_same_code_path(tiny, serial_run, tmp_path):
     distributed = pytest.importorskip("distributed")
-    from ident.executor import DaskExecutor
+    from ident.study.executor import DaskExecutor
 
     camp, _, _ = tiny
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -220,7 +220,7 @@ def test_cli_refuses_output_inside_campaign(tiny, capsys):
 
 
 def test_demo_without_fixture_says_how_to_regenerate(tmp_path, monkeypatch, capsys):
-    import ident.commands.demo as demo
+    import ident.cli.commands.demo as demo
 
     monkeypatch.setattr(demo, "demo_campaign", lambda: tmp_path / "nowhere")
     rc = main(["demo", "--out", str(tmp_path / "o"), "--workers", "1"])
@@ -230,7 +230,7 @@ def test_demo_without_fixture_says_how_to_regenerate(tmp_path, monkeypatch, caps
 
 
 def test_settings_are_validated():
-    from mocap.errors import InputError
+    from mocap.io.errors import InputError
 
     with pytest.raises(InputError, match="unknown|model"):
         StudySettings(models=("nope",)).validate()

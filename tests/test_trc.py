@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocap.errors import InputError
-from mocap.recording import MarkerRecording
-from mocap.trc import read_trc, write_trc
+from mocap.io.errors import InputError
+from mocap.io.recording import MarkerRecording
+from mocap.io.trc import read_trc, write_trc
 
 REAL_TRC = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "trc"
 REAL_NAMES = sorted(p.name for p in REAL_TRC.glob("*.trc")) if REAL_TRC.is_dir() else []

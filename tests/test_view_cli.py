@@ -2,9 +2,9 @@
 links posed over time and the joint signals (read back with rerun's RrdReader)."""
 import pytest
 
-from ident.cli import main
-from mocap.campaign import load_campaign
-from mocap.io import read_markers
+from ident.cli.main import main
+from mocap.io.campaign import load_campaign
+from mocap.io.markers import read_markers
 from tests_paths import DEMO
 from test_viz import read_rrd
 

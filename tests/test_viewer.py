@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from ident.cli import main
+from ident.cli.main import main
 from viz.screenshot import is_blank
 
 DEMO_ARGS = ["--workers", "1", "--models", "cv,stribeck", "--starts", "2", "--quiet"]
@@ -34,7 +34,7 @@ def test_is_blank_detects_single_colour_images():
 
 
 def test_view_command_logs_a_campaign(tmp_path):
-    from ident.commands.demo import demo_campaign
+    from ident.cli.commands.demo import demo_campaign
     from rerun.chunk import RrdReader
 
     camp = demo_campaign()
@@ -49,7 +49,7 @@ def test_view_command_logs_a_campaign(tmp_path):
 
 @pytest.mark.slow  # about 25 s on 2 cores with a software rasterizer (the demo study + the viewer)
 def test_demo_recording_in_the_headless_viewer(viewer, tmp_path):
-    from ident.commands.demo import demo_campaign
+    from ident.cli.commands.demo import demo_campaign
     from viz.screenshot import screenshot_rrd
 
     if not (demo_campaign() / "campaign.toml").is_file():

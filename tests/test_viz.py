@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mocap.campaign import load_campaign, write_manifest
+from mocap.io.campaign import load_campaign, write_manifest
 from mocap.robot import Robot
-from mocap.robotlog import RobotLog, write_robot_log
+from mocap.io.robotlog import RobotLog, write_robot_log
 from two_link import URDF
 
 REPO = Path(__file__).resolve().parents[1]
@@ -243,7 +243,7 @@ def test_null_sink_imports_no_rerun():
     code = (
         "import sys, numpy as np\n"
         "from viz import make_sink, NullSink\n"
-        "import viz.plots, ident.campaign_view\n"
+        "import viz.plots, ident.study.view\n"
         "s = make_sink()\n"
         "assert isinstance(s, NullSink) and not s.enabled\n"
         "s.points_over_time('m', np.arange(3.0), np.zeros((3, 2, 3)))\n"
@@ -345,7 +345,7 @@ def tiny_campaign(tmp_path):
 
 
 def test_log_campaign_entities_rows_and_poses(tiny_campaign, rrd):
-    from ident.campaign_view import log_campaign
+    from ident.study.view import log_campaign
 
     campaign, t_log, t_mk, recs = tiny_campaign
     T_camera_base = np.eye(4)
@@ -388,7 +388,7 @@ def test_log_campaign_entities_rows_and_poses(tiny_campaign, rrd):
 
 
 def test_log_campaign_signal_decimation_and_null_sink(tiny_campaign, rrd):
-    from ident.campaign_view import log_campaign
+    from ident.study.view import log_campaign
     from viz import NullSink
 
     campaign, t_log, _, _ = tiny_campaign
@@ -403,7 +403,7 @@ def test_log_campaign_signal_decimation_and_null_sink(tiny_campaign, rrd):
 
 
 def test_decimate_indices_caps_the_rate():
-    from ident.campaign_view import decimate_indices
+    from ident.study.view import decimate_indices
 
     rng = np.random.default_rng(5)
     t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, size=20000))  # ~1 kHz, jittered, 20 s
@@ -416,7 +416,7 @@ def test_decimate_indices_caps_the_rate():
 
 
 def test_log_robot_description_static(rrd):
-    from ident.campaign_view import log_robot_description
+    from ident.study.view import log_robot_description
 
     urdf = rrd.parent / "arm.urdf"
     urdf.write_text(URDF)
@@ -440,7 +440,7 @@ def test_campaign_markers_and_posed_robot_agree_in_the_world(tmp_path, rrd):
     A wrong frame convention (inverted transform, quaternion order) is off by decimetres."""
     from scipy.spatial.transform import Rotation
 
-    from ident.campaign_view import log_campaign
+    from ident.study.view import log_campaign
     from mocap._synthetic import write_campaign
 
     for sub in ("static", "trials"):  # (write_trc does not create folders at the time of writing)

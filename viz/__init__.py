@@ -1,4 +1,4 @@
 """viz: the only package that imports rerun (lazily, inside :mod:`viz.rerun_sink`)."""
-from .sink import NullSink, Sink, make_sink
+from viz.sink import NullSink, Sink, make_sink
 
 __all__ = ["Sink", "NullSink", "make_sink"]

@@ -19,7 +19,7 @@ import numpy as np
 import rerun as rr
 from scipy.spatial.transform import Rotation
 
-from .sink import Sink
+from viz.sink import Sink
 
 _STRICT = True  # raise on non-loggable data instead of warning (our bug, surface it)
 
@@ -116,7 +116,7 @@ class RerunSink(Sink):
 
     def __init__(self, rrd: str | Path | None = None, spawn: bool = False, app_id: str = "jointlab",
                  blueprint=None, recording_id: str | None = None, port: int = 9876):
-        from .blueprint import default_blueprint
+        from viz.blueprint import default_blueprint
 
         self.rrd = None if rrd is None else Path(rrd)
         self.spawn = bool(spawn)
@@ -315,7 +315,7 @@ class RerunSink(Sink):
 
     # additions to the Sink interface -------------------------------------------------------
     def layout(self, series=None, world="/", text="/"):
-        from .blueprint import default_blueprint
+        from viz.blueprint import default_blueprint
 
         self.recording.send_blueprint(default_blueprint(world=world, series=series, text=text))
 

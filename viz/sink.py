@@ -80,6 +80,6 @@ def make_sink(rrd: str | None = None, spawn: bool = False, app_id: str = "jointl
     """A rerun sink when ``rrd`` or ``spawn`` is asked for, else a :class:`NullSink`."""
     if not rrd and not spawn:
         return NullSink()
-    from .rerun_sink import RerunSink
+    from viz.rerun_sink import RerunSink
 
     return RerunSink(rrd=rrd, spawn=spawn, app_id=app_id)

@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import FrictionModel
-from .static import Arctan, _2_PI, s0, s1
+from ident.friction.base import FrictionModel
+from ident.friction.static import Arctan, _2_PI, s0, s1
 
 
 # --------------------------------------------------------------------------------------------

@@ -30,8 +30,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from .base import CoulombViscous, FrictionModel
-from .static import Arctan, _2_PI, s0
+from ident.friction.base import CoulombViscous, FrictionModel
+from ident.friction.static import Arctan, _2_PI, s0
 
 DELTA_GRID_STEP = 0.1
 COND_DEGENERATE = 1e10

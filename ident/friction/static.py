@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .base import FrictionModel
+from ident.friction.base import FrictionModel
 
 _2_PI = 2.0 / np.pi
 

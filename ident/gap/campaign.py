@@ -6,11 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.errors import InputError
-from mocap.robotlog import read_robot_log
+from mocap.io.errors import InputError
+from mocap.io.robotlog import read_robot_log
 
-from .data import build_joint_data
-from .diagnose import DiagnosisSettings, diagnose_joint
+from ident.gap.data import build_joint_data
+from ident.gap.diagnose import DiagnosisSettings, diagnose_joint
 
 
 def read_angles_csv(path: str | Path) -> tuple[np.ndarray, dict]:

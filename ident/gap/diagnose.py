@@ -19,9 +19,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .candidates import CONFOUNDERS, Candidate, candidate_effects, ssign
-from .data import JointData
-from .engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, repetition_noise_floor,
+from ident.gap.candidates import CONFOUNDERS, Candidate, candidate_effects, ssign
+from ident.gap.data import JointData
+from ident.gap.engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, repetition_noise_floor,
                      sign_flip_pvalue,
                      trial_bounds, unexplained_fraction, white_noise_floor)
 
@@ -93,7 +93,7 @@ def _cv(channel: Channel, X: np.ndarray, fold: np.ndarray, hp_cols: dict | None 
           for hp, C in hp_cols.items()}
     if X.shape[1] == 0 and all(C.shape[1] == 0 for C in hp_cols.values()):
         g = next(iter(gb.values()))
-        from .engine import CVResult
+        from ident.gap.engine import CVResult
         return CVResult(g.yy.copy(), {}, np.zeros(0), None, float(g.yy.sum())), gb
     return cross_validate(gb, fold), gb
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..jsonable import to_jsonable as _jsonable
+from ident.common import to_jsonable as _jsonable
 
 
 def _fmt(x, nd=3):

@@ -1,0 +1,5 @@
+"""The ``jointlab`` command line (one module per subcommand in ``commands``)."""
+
+from .main import main
+
+__all__ = ["main"]

@@ -1,0 +1,59 @@
+"""``jointlab diagnose CAMPAIGN --out DIR``: where the sim-to-real gap lies and which effect causes it."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ident.cli.main import add_common, check_out_dir
+
+
+def register(sub):
+    p = sub.add_parser("diagnose", help="diagnose the sim-to-real gap of a campaign (diagnosis.json, .md, plots)")
+    p.add_argument("campaign", type=Path)
+    add_common(p, out_required=True)
+    p.add_argument("--nominal", default="cv", choices=["cv"],
+                   help="nominal friction model of the simulator (Coulomb + viscous)")
+    p.add_argument("--angles", type=Path, metavar="DIR",
+                   help="link angles from `jointlab mocap` (angles/<trial>.csv); default: solve them here")
+    p.add_argument("--no-markers", action="store_true", help="torque channel only (ignore marker files)")
+    p.add_argument("--joints", type=lambda s: [int(x) for x in s.split(",")], help="joints to diagnose, e.g. 5 or 2,3")
+    p.add_argument("--seed", type=int, default=0, help="seed of the randomisation tests and bootstrap")
+    return p
+
+
+def link_angles(campaign, robot, angles_dir=None, sink=None, progress=True):
+    """trial id -> (t, {joint: q_link}): from an angles folder, or solved from the markers."""
+    from ident.gap.campaign import load_angles_dir
+
+    if angles_dir is not None:
+        return load_angles_dir(angles_dir, campaign.trials)
+    from ident.study.angles import solve_campaign_angles
+
+    return solve_campaign_angles(campaign, robot, sink=sink, progress=progress)
+
+
+def run(args) -> int:
+    from mocap.io.campaign import load_campaign
+    from viz import make_sink
+
+    from ident.gap import DiagnosisSettings
+    from ident.gap.campaign import diagnose_campaign
+    from ident.gap.report import write_report
+
+    camp = load_campaign(args.campaign)
+    out = check_out_dir(args.out, [camp.root])
+    robot = camp.load_robot()
+    with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
+        angles = None if args.no_markers else link_angles(camp, robot, args.angles, sink)
+        report, series = diagnose_campaign(camp, robot, angles, DiagnosisSettings(seed=args.seed),
+                                           joints=args.joints, progress=True)
+        paths = write_report(report, series, out, sink)
+    summary = {j: {"verdict": r["verdict"], "heldout_rms_nominal": r.get("heldout_rms_nominal")}
+               for j, r in report["joints"].items()}
+    if args.json:
+        print(json.dumps({"out": str(out), "joints": summary}, indent=1))
+    else:
+        for j, s in summary.items():
+            print(f"joint {j}: verdict {s['verdict']}")
+        print(f"wrote {paths['json']} and {paths['md']}")
+    return 0

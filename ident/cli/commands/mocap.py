@@ -1,0 +1,91 @@
+"""``jointlab mocap CAMPAIGN --out DIR``: link angles of every trial from its markers.
+
+Static-pose references (thesis eq. 3-4), then the batched per-frame solve (eq. 3-5). Writes
+``angles/<trial id>.csv`` (FORMAT.md), ``references.json`` and the summary ``mocap.json``
+(per trial: frames, RMS residual, flagged frames, per-marker residuals, label swaps).
+Without ``--calib`` the camera pose is estimated from the static poses (needs two or more poses
+that differ in two non-parallel joints; see :mod:`mocap.references`), else from the campaign's
+``[[calib]]`` sweeps with :func:`calib.pipeline.calibrate` (the thesis's joint 1/2 axes).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ident.cli.main import add_common, check_out_dir
+
+
+def register(sub):
+    p = sub.add_parser("mocap", help="link angles of every trial from the markers (static-pose "
+                                     "references + batched per-frame solve)")
+    p.add_argument("campaign", type=Path, help="campaign folder (or its campaign.toml)")
+    p.add_argument("--calib", type=Path, metavar="JSON",
+                   help="calib.json with T_camera_base (default: estimate it from the static poses)")
+    p.add_argument("--trial", action="append", metavar="ID", help="solve only this trial (repeatable)")
+    p.add_argument("--min-markers", type=int, default=2,
+                   help="inlier markers needed distal to each solved joint (default 2)")
+    p.add_argument("--reject-sigma", type=float, default=5.0,
+                   help="outlier threshold in units of the estimated marker noise (default 5)")
+    p.add_argument("--refine", action="store_true",
+                   help="re-estimate marker positions over each trial's frames (anchored by the "
+                        "static poses) together with the angles")
+    p.add_argument("--refine-geometry", action="store_true",
+                   help="with --refine: also fit small placement offsets (axis tilt and position) "
+                        "of the moving joints")
+    add_common(p, out_required=True)
+    return p
+
+
+def run(args) -> int:
+    from mocap.io.campaign import load_campaign
+    from mocap.quality import summary
+    from mocap.references import read_calib
+    from mocap.solve import solve_trial
+    from viz import make_sink
+
+    camp = load_campaign(args.campaign)
+    out = check_out_dir(args.out, [camp.root] + ([args.calib] if args.calib else []))
+    robot = camp.load_robot()
+    T_cb = read_calib(args.calib) if args.calib else None
+    from ident.study.angles import campaign_references
+
+    if T_cb is None and not args.json:
+        print("camera pose: from the static pose(s) if they fix it, else from the [[calib]] sweeps "
+              "(save it with `jointlab calib`)")
+    refs, camera_from = campaign_references(camp, robot, T_cb)
+    trials = [camp.trial(t) for t in args.trial] if args.trial else list(camp.trials)
+    results = []
+    with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
+        if sink.enabled:
+            from mocap.kinematics import invert_transform
+
+            # world = the robot base frame; the camera entity's pose in it is T_base_camera
+            sink.transform("world/camera", invert_transform(refs.T_camera_base))
+        for tr in trials:
+            res = solve_trial(camp, tr, refs, sink=sink, robot=robot, refine=args.refine,
+                              refine_geometry=args.refine_geometry,
+                              min_markers=args.min_markers, reject_sigma=args.reject_sigma)
+            res.write_csv(out / "angles" / f"{tr.id}.csv", overwrite=True)
+            results.append(res)
+    doc = summary(results, refs)
+    doc["camera_from"] = camera_from
+    (out / "references.json").write_text(json.dumps(refs.to_dict(), indent=1), encoding="utf-8")
+    (out / "mocap.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    if args.json:
+        print(json.dumps(doc, indent=1))
+    else:
+        import numpy as np
+
+        fit = f", static fit RMS {1e3 * refs.fit_rms_m:.3f} mm" if len(refs.poses) > 1 else ""
+        print(f"references: {len(refs.labels)} markers from {len(refs.poses)} static pose(s), camera "
+              f"pose from {camera_from}{fit}, marker scatter while still "
+              f"{1e3 * np.nanmedian(refs.scatter_m):.3f} mm (median)")
+        for r in results:
+            d = r.to_dict()
+            rms = "n/a" if d["rms_mm"] is None else f"{d['rms_mm']:.3f} mm"
+            fx = d.get("fixed_markers")
+            fx = "" if not fx or fx["rms_mm"] is None else f", fixed links {fx['rms_mm']:.3f} mm"
+            print(f"  {r.trial_id:<28} joints {list(r.joints)}  {d['frames']} frames, RMS {rms}, "
+                  f"{d['flagged_frames']} flagged, {d['swaps']} swaps repaired{fx}")
+        print(f"wrote {out / 'angles'}/*.csv, {out / 'mocap.json'}")
+    return 0

@@ -1,0 +1,94 @@
+"""``jointlab study CAMPAIGN --out DIR [--workers N | --scheduler tcp://HOST:PORT]``: the whole
+study of a campaign (calibration, link angles, friction fits, gap diagnosis, report, one .rrd),
+resumable: a rerun skips every trial whose outputs exist and whose input hashes match."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from mocap.io.errors import InputError
+
+from ident.cli.main import add_common, check_out_dir
+
+
+def add_study_options(p) -> None:
+    """Options shared by ``study`` and ``demo``."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="local worker processes (default: one per core; 1: serial, in this process)")
+    g.add_argument("--scheduler", metavar="URL",
+                   help="run on a Dask cluster, e.g. tcp://host:8786 (needs the 'dask' extra; the "
+                        "campaign and --out must be on a file system every worker sees)")
+    p.add_argument("--models", default="cv,stribeck,hyperbolic", help="comma-separated friction models")
+    p.add_argument("--starts", type=int, default=8, help="multi-start count of the nonlinear fits")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sync", choices=("clock", "estimate"), default="clock",
+                   help="marker-to-robot clock: as recorded (+ the trial's time_offset) or estimated")
+    p.add_argument("--no-mocap", action="store_true", help="skip the angle solve (motor angles stand in)")
+    p.add_argument("--no-diagnosis", action="store_true", help="skip the gap diagnosis")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--no-rrd", action="store_true", help="do not write DIR/study.rrd")
+    p.add_argument("--rrd-trials", choices=("first", "all"), default="first",
+                   help="trials in the recording: the first repetition of each condition (default) or all")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def register(sub):
+    p = sub.add_parser("study", help="run calibration, link angles, friction fits and the gap diagnosis "
+                                     "over every trial; report + one .rrd (resumable)")
+    p.add_argument("campaign", type=Path, help="campaign folder (or its campaign.toml)")
+    add_common(p, out_required=True)
+    add_study_options(p)
+    return p
+
+
+def settings_from_args(args):
+    from ident.study.study import StudySettings
+
+    models = tuple(m.strip() for m in args.models.split(",") if m.strip())
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    return StudySettings(models=models, n_starts=args.starts, seed=args.seed, sync=args.sync,
+                         mocap=not args.no_mocap, diagnose=not args.no_diagnosis, plots=not args.no_plots,
+                         rrd=not args.no_rrd, rrd_trials=args.rrd_trials).validate()
+
+
+def run_from_args(args, campaign_path: Path) -> int:
+    from mocap.io.campaign import load_campaign
+
+    from ident.study.executor import make_executor
+    from ident.study.study import Study
+
+    settings = settings_from_args(args)
+    camp = load_campaign(campaign_path)
+    out = check_out_dir(args.out, [camp.root])
+    if args.rrd is not None:
+        check_out_dir(Path(args.rrd).resolve().parent, [camp.root])
+    try:
+        executor = make_executor(args.workers, args.scheduler, progress=not args.quiet)
+    except ImportError as exc:
+        raise InputError(str(exc)) from None
+    except OSError as exc:
+        raise InputError(f"cannot reach the Dask scheduler {args.scheduler}: {exc}") from None
+    try:
+        res = Study(settings, executor, progress=not args.quiet).run(camp, out, rrd=args.rrd,
+                                                                      spawn=args.spawn)
+    finally:
+        executor.close()
+    if args.json:
+        print(json.dumps(res.to_dict(), indent=1))
+        return 0
+    for name, st in res.stages.items():
+        extra = f" ({st['note']})" if st["note"] else ""
+        print(f"{name:<10} computed {st['computed']:>3}, reused {st['reused']:>3}, failed {st['failed']:>2}, "
+              f"{st['seconds']:7.1f} s{extra}")
+    for k, v in res.errors.items():
+        print(f"failed: {k}: {v}")
+    for j, v in res.verdicts.items():
+        print(f"joint {j}: gap verdict {v}")
+    print(f"wrote {res.paths.get('report')}" + (f" and {res.paths['rrd']}" if "rrd" in res.paths else ""))
+    return 0
+
+
+def run(args) -> int:
+    return run_from_args(args, args.campaign)

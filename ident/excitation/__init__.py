@@ -1,0 +1,1 @@
+"""Excitation: trajectory design (thesis eq. 3-1) and reference trajectories."""

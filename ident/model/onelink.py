@@ -1,0 +1,281 @@
+"""The one-link flexible-joint model of the thesis (002, eq. 2-4) and its friction fits.
+
+Eq. 2-4 moves the motor side to the right-hand side::
+
+    I qdd - m g lx sin(q) + m g ly cos(q) + f(qd) = u - J qmdd - B qmd      (2-4)
+
+so the target is ``y = u - J qmdd - B qmd`` (``J``, ``B`` from drives.toml, link side) and the
+regressor uses link-angle derivatives: ``[qdd, -sin q, cos q]`` for the rigid parameters
+``(I, mglx, mgly)`` followed by the friction model's columns (for Coulomb + viscous, eq. 2-5,
+``[sign qd, qd]``: the thesis's ``R``).
+
+Friction models (FORMAT.md names): ``cv`` by linear least squares; ``stribeck`` (eq. 2-6)
+and ``hyperbolic`` (eq. 2-7) by bounded nonlinear least squares, multi-start, with the initial
+guess from the Coulomb + viscous fit, through :func:`ident.friction.fit.fit_friction`: the
+parameters the model is linear in (``Fk, Fv, Fs``; ``g1, g4, g6``) and the rigid ones are
+eliminated by variable projection, so only the nonlinear ones (``Vc``; ``g2, g3, g5``) are
+searched, from a start scaled by the Coulomb + viscous fit and the data's peak speed.
+
+Degenerate forms the thesis reports (ch. 5) are detected and named (:func:`name_degenerate`):
+
+- ``stribeck_as_cv``: ``Fs`` ~ 0 (under 2 % of the friction scale or within two standard
+  errors of 0), the Stribeck model is Coulomb + viscous (thesis joint 3);
+- ``stribeck_coulomb_in_Fs``: ``Fk`` ~ 0 with small ``Vc`` and negative ``Fs``: Coulomb
+  friction is carried by ``-Fs`` (thesis joint 5). When ``Vc`` falls below the slowest
+  sampled speeds only ``Fk - Fs`` is identifiable and the fit is reported in this form
+  (``Fk = 0``);
+- ``stribeck_Vc_at_bound``: ``Vc`` sits on a bound (thesis joints 2, 3: ``Vc = 1.00``, CV 0);
+- ``hyperbolic_stribeck_nonunique``: ``g1``, ``g2``, ``g3`` poorly determined (relative
+  standard error > 50 %, or ``g2`` ~ ``g3`` so the Stribeck term vanishes): non-unique
+  combinations give the same curve (thesis, hyperbolic model discussion);
+- ``<model>_degenerate``: none of the above, but :func:`ident.friction.fit.fit_friction`
+  flagged the fit (a nonlinear parameter at a bound, a near-singular Jacobian); its sentence
+  is kept in ``OneLinkFit.note``. ``stribeck_Vc_at_bound`` needs user ``bounds`` on ``Vc``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ident.friction import MODELS
+from ident.friction.base import CoulombViscous
+
+
+def model_class(name: str):
+    """The friction model class registered under ``name`` (FORMAT.md model names)."""
+    if name in MODELS:
+        return MODELS[name]
+    try:
+        from ident.friction import static
+    except ImportError:  # pragma: no cover
+        static = None
+    for cls in vars(static).values() if static else ():
+        if isinstance(cls, type) and getattr(cls, "name", None) == name:
+            return cls
+    raise KeyError(f"unknown friction model {name!r} (known: {', '.join(sorted(MODELS))})")
+
+RIGID_NAMES = ("I", "mglx", "mgly")
+
+__all__ = ["RIGID_NAMES", "onelink_target", "onelink_regressor", "OneLinkFit",
+           "OneLinkIdentifier", "fit_cv_linear", "name_degenerate", "initial_guess"]
+
+
+def onelink_target(u, qmd, qmdd, J: float, B: float) -> np.ndarray:
+    """Right-hand side of eq. 2-4: ``y = u - J qmdd - B qmd`` (N m)."""
+    return np.asarray(u, float) - J * np.asarray(qmdd, float) - B * np.asarray(qmd, float)
+
+
+def onelink_regressor(q, qdd) -> np.ndarray:
+    """Rigid columns of eq. 2-4, (T, 3): ``[qdd, -sin q, cos q]`` for ``(I, mglx, mgly)``."""
+    q = np.asarray(q, float)
+    return np.column_stack([np.asarray(qdd, float), -np.sin(q), np.cos(q)])
+
+
+@dataclass(frozen=True, eq=False)
+class OneLinkFit:
+    """One friction model fitted through eq. 2-4 on one joint of one trial.
+
+    ``params``: friction parameters (FORMAT.md names); ``rigid``: ``I``, ``mglx``, ``mgly``;
+    ``stderr`` covers both; ``rms``: residual RMS of eq. 2-4 (N m); ``degenerate``: the name
+    of a degenerate form or ``None``.
+    """
+
+    model: str
+    params: dict
+    rigid: dict
+    stderr: dict
+    rms: float
+    n: int
+    cond: float
+    nfev: int = 1
+    converged: bool = True
+    degenerate: str | None = None
+    cov: np.ndarray | None = field(default=None, repr=False)
+    note: str | None = None
+
+    def friction(self):
+        """The fitted friction model object."""
+        return model_class(self.model)(**self.params)
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "params": dict(self.params), "rigid": dict(self.rigid),
+                "stderr": dict(self.stderr), "rms": self.rms, "n": self.n, "cond": self.cond,
+                "nfev": self.nfev, "converged": self.converged, "degenerate": self.degenerate,
+                "note": self.note}
+
+
+def _stderr(X, r, n_par):
+    n = X.shape[0]
+    dof = max(n - n_par, 1)
+    s2 = float(r @ r) / dof
+    try:
+        XtX_inv = np.linalg.pinv(X.T @ X)
+    except np.linalg.LinAlgError:  # pragma: no cover
+        XtX_inv = np.full((n_par, n_par), np.nan)
+    cov = s2 * XtX_inv
+    return cov, np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
+def fit_cv_linear(q, qd, qdd, y, weights=None) -> OneLinkFit:
+    """Coulomb + viscous through eq. 2-4 by linear least squares on the regressor
+    ``R = [qdd, -sin q, cos q, sign qd, qd]`` (thesis, after eq. 2-5)."""
+    X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])
+    y = np.asarray(y, float)
+    w = None if weights is None else np.sqrt(np.asarray(weights, float))
+    Xw, yw = (X, y) if w is None else (X * w[:, None], y * w)
+    beta, *_ = np.linalg.lstsq(Xw, yw, rcond=None)
+    r = yw - Xw @ beta
+    cov, se = _stderr(Xw, r, X.shape[1])
+    names = RIGID_NAMES + CoulombViscous.param_names
+    rms = float(np.sqrt(np.mean((y - X @ beta) ** 2)))
+    return OneLinkFit("cv", dict(zip(("c", "v"), map(float, beta[3:]))),
+                      dict(zip(RIGID_NAMES, map(float, beta[:3]))),
+                      dict(zip(names, map(float, se))), rms, int(y.size), float(np.linalg.cond(Xw)),
+                      cov=cov)
+
+
+def initial_guess(model: str, cv: OneLinkFit, qd) -> dict:
+    """Start of the nonlinear fits from the Coulomb + viscous fit (thesis: "an initial guess
+    from the Coulomb + Viscous model")."""
+    c, v = cv.params["c"], cv.params["v"]
+    vmax = float(np.max(np.abs(qd))) if np.size(qd) else 1.0
+    if model == "stribeck":
+        return {"Fk": 1.1 * c, "Fv": v, "Fs": 0.1 * c, "Vc": 0.05 * vmax}
+    if model == "hyperbolic":
+        return {"g1": 0.1 * abs(c), "g2": 100.0 / vmax, "g3": 10.0 / vmax, "g4": c,
+                "g5": 50.0 / vmax, "g6": v}
+    return {}
+
+
+def name_degenerate(model: str, params: dict, stderr: dict, qd=None, bounds=None) -> str | None:
+    """Name the thesis's degenerate forms (module docstring) or return ``None``."""
+    rel = lambda k: abs(stderr.get(k, np.nan)) / max(abs(params[k]), 1e-12)  # noqa: E731
+    if model == "stribeck":
+        Fk, Fs, Vc = params["Fk"], params["Fs"], params["Vc"]
+        scale = max(abs(Fk), abs(Fs), 1e-9)
+        vmax = float(np.max(np.abs(qd))) if qd is not None and np.size(qd) else 1.0
+        if abs(Fk) < 0.05 * scale and Fs < 0 and Vc < 0.05 * vmax:
+            return "stribeck_coulomb_in_Fs"
+        se_fs = abs(stderr.get("Fs", np.nan))
+        if abs(Fs) < 0.02 * scale or (np.isfinite(se_fs) and abs(Fs) < 2.0 * se_fs):
+            return "stribeck_as_cv"
+        if bounds is not None:
+            lo, hi = bounds
+            if np.isclose(Vc, hi[3], rtol=1e-3) or np.isclose(Vc, lo[3], rtol=1e-2):
+                return "stribeck_Vc_at_bound"
+    elif model == "hyperbolic":
+        g1, g2, g3 = params["g1"], params["g2"], params["g3"]
+        if abs(g2 - g3) < 0.02 * max(abs(g2), abs(g3), 1e-9) or abs(g1) < 1e-9:
+            return "hyperbolic_stribeck_nonunique"
+        if any(not np.isfinite(rel(k)) or rel(k) > 0.5 for k in ("g1", "g2", "g3")):
+            return "hyperbolic_stribeck_nonunique"
+    return None
+
+
+def _canonical_stribeck(params, se, ff, qd):
+    """When ``Vc`` is below the slowest sampled speeds (2nd percentile of |qd| over 5),
+    ``1 - exp(-|qd|/Vc) = 1`` on every sample and only ``Fk - Fs`` is identifiable; report the
+    thesis's representative (its joint 5 form): ``Fk = 0``, ``Fs = -(Fk - Fs)``, with the
+    standard error of ``Fk - Fs`` on ``Fs`` and NaN on ``Fk``."""
+    a = np.abs(np.asarray(qd, float))
+    a = a[a > 0]
+    if a.size == 0 or not params["Vc"] < np.percentile(a, 2.0) / 5.0:
+        return params, se
+    names = list(getattr(ff, "names", ()))
+    var = np.nan
+    if ff.cov is not None and "Fk" in names and "Fs" in names:
+        i, k = names.index("Fk"), names.index("Fs")
+        C = np.asarray(ff.cov, float)
+        var = C[i, i] + C[k, k] - 2 * C[i, k]
+    out = dict(params)
+    out["Fs"] = params["Fs"] - params["Fk"]
+    out["Fk"] = 0.0
+    se = dict(se)
+    se["Fs"] = float(np.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
+    se["Fk"] = float("nan")
+    return out, se
+
+
+def _note(cls, params, qd, y):
+    """The model's own sentence on its degenerate form (``degeneracy``), when it has one."""
+    try:
+        return cls(**params).degeneracy(qd, float(np.max(np.abs(y))))
+    except (AttributeError, TypeError, ValueError):
+        return None
+
+
+class OneLinkIdentifier:
+    """Fit friction models through eq. 2-4 on one joint's signals.
+
+    Settings: ``models`` (FORMAT.md names), ``n_starts`` and ``seed`` for the multi-start
+    nonlinear fits, optional ``bounds`` {model: {param: (lo, hi)}} (else the models' own
+    data-scaled bounds; the thesis bounded ``Vc`` to ``(0, 1]``). Samples slower than
+    ``rest_frac`` of the peak speed are left out: at standstill the friction is static (it holds
+    whatever the gravity and motor torques leave), which eq. 2-5 to 2-7 do not describe
+    (``sign(0) = 0``), and a smoothed speed's sign there is noise; near reversals a real
+    joint sticks for a moment, which a smooth (Fourier) speed cannot resolve. Measured on a
+    simulated Stribeck joint (Fk 5.66, Fs 1.76, Vc 0.05 rad/s, peak 2.43 rad/s): the default
+    1 % recovers Fk 5.53, Fs 1.64, Vc 0.07, where 0.2 % gives a degenerate fit.
+    ``fit(q, qd, qdd, y)`` returns {model: :class:`OneLinkFit`}; ``fit_signals(sig, J, B)``
+    builds ``y`` from a :class:`ident.signals.smoothing.JointSignals`.
+    """
+
+    def __init__(self, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8, seed: int = 0,
+                 bounds: dict | None = None, rest_frac: float = 0.01):
+        self.models = tuple(models)
+        self.n_starts = int(n_starts)
+        self.seed = int(seed)
+        self.bounds = dict(bounds) if bounds else {}
+        self.rest_frac = float(rest_frac)
+
+    def fit_signals(self, sig, J: float, B: float) -> dict:
+        y = onelink_target(sig.tau, sig.qmd, sig.qmdd, J, B)
+        return self.fit(sig.q, sig.qd, sig.qdd, y)
+
+    def fit(self, q, qd, qdd, y) -> dict:
+        from ident.signals.smoothing import one_blas_thread
+
+        with one_blas_thread():
+            return self._fit(q, qd, qdd, y)
+
+    def _fit(self, q, qd, qdd, y) -> dict:
+        q, qd, qdd, y = (np.asarray(a, float) for a in (q, qd, qdd, y))
+        if self.rest_frac > 0 and qd.size:
+            keep = np.abs(qd) >= self.rest_frac * np.max(np.abs(qd))
+            q, qd, qdd, y = q[keep], qd[keep], qdd[keep], y[keep]
+        cv = fit_cv_linear(q, qd, qdd, y)
+        out = {}
+        for name in self.models:
+            if name == "cv":
+                out["cv"] = cv
+                continue
+            out[name] = self._fit_nonlinear(name, q, qd, qdd, y, cv)
+        return out
+
+    def _fit_nonlinear(self, name, q, qd, qdd, y, cv) -> OneLinkFit:
+        from ident.friction.fit import fit_friction
+
+        cls = model_class(name)
+        X = onelink_regressor(q, qdd)
+        x0 = {k: v for k, v in initial_guess(name, cv, qd).items()
+              if k not in getattr(cls, "linear_names", ())}
+        bounds = self.bounds.get(name)
+        ff = fit_friction(cls, qd, y, X_extra=X, extra_names=RIGID_NAMES, bounds=bounds, x0=x0 or None,
+                          n_starts=self.n_starts, seed=self.seed)
+        raw = dict(ff.model.params)
+        params = cls.canonical(raw) if hasattr(cls, "canonical") else raw
+        se = {k: float(v) for k, v in ff.stderr.items()}
+        if params != raw and "g2" in params:  # hyperbolic representative with g2 >= g3
+            se["g2"], se["g3"] = se.get("g3", np.nan), se.get("g2", np.nan)
+        if name == "stribeck":
+            params, se = _canonical_stribeck(params, se, ff, qd)
+        vc_bounds = None
+        if name == "stribeck" and bounds and "Vc" in bounds:
+            vc_bounds = (np.array([0, 0, 0, bounds["Vc"][0]]), np.array([0, 0, 0, bounds["Vc"][1]]))
+        deg = name_degenerate(name, params, se, qd, vc_bounds)
+        if deg is None and ff.degenerate:
+            deg = f"{name}_degenerate"
+        return OneLinkFit(name, params, {k: float(ff.extra[k]) for k in RIGID_NAMES}, se, float(ff.rms),
+                          int(ff.n), float(ff.cond), int(ff.nfev), bool(ff.converged), deg, ff.cov,
+                          ff.degenerate or _note(cls, params, qd, y))

@@ -1,0 +1,1 @@
+"""Signals for identification: the finite Fourier series (thesis eq. 3-2), smoothing and derivatives, synchronisation."""

@@ -1,0 +1,505 @@
+"""Signals for identification: one time base, finite Fourier fits, analytic derivatives.
+
+The thesis (002, ch. 3-4) fits finite Fourier series (eq. 3-2) to the motor angle ``qm``
+(robot clock) and to the link angle ``q`` (motion-capture clock) and differentiates the
+series analytically; the fit error it reports is under 0.05 deg for motor angles and 0.2 deg
+for link angles. This module does the same and puts everything on the robot log's samples.
+
+How a fit is chosen (:class:`FourierSmoother`):
+
+1. **Fundamental** ``wf`` (:func:`estimate_fundamental`): candidates are ``2 pi k / D`` for a
+   trial of duration ``D`` holding ``k = 1..8`` whole periods, and ``w_peak / h`` for the
+   periodogram's highest peak ``w_peak`` (``h = 1..6``). Each candidate is scored by BIC with
+   its best number of harmonics; the winner is refined by a bounded 1-D search of the
+   residual over +-half a frequency bin (``pi / D``).
+2. **Harmonics** ``N``: the Bayesian information criterion ``n log(RSS/n) + (2N+1) log n``
+   over ``N = 1..max_harmonics`` (all ``N`` from one QR factorisation).
+3. **Rests**: samples before the first and after the last one moving faster than 1 % of the
+   peak speed (the still holds around the excitation) are left out of the Fourier fit.
+4. **Non-periodic fallback**: if the Fourier residual RMS exceeds ``periodic_ratio`` times the
+   noise level (the residual of the smoother below) plus ``periodic_atol``, the trial is not
+   one or more periods of a finite Fourier series and :class:`SavGolSmoother` is used:
+   a Savitzky-Golay filter (cubic, ``window_s`` long) on a uniform grid at the median sample
+   interval, whose local polynomials also give the velocity and acceleration.
+
+Time bases: the robot log clock is the reference. Link angles come on the marker clock;
+``t_robot = t_marker + time_offset`` (FORMAT.md: 0 unless the trial says otherwise; it may be
+estimated with :func:`estimate_time_offset`).
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.signal import savgol_filter
+
+from mocap.io.errors import InputError
+
+from ident.signals.fourier import FourierSeries, design_matrix
+
+__all__ = ["SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundamental",
+           "select_harmonics", "estimate_time_offset", "JointSignals", "prepare_joint_signals",
+           "read_angles", "AngleTrack", "one_blas_thread"]
+
+
+def one_blas_thread():
+    """Context: BLAS limited to one thread (DESIGN.md: 2-10x faster for these small solves on
+    shared 2-core machines). A no-op context when threadpoolctl is absent."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(1, "blas")
+
+
+# ---------------------------------------------------------------------------------------------
+# uniform grids
+# ---------------------------------------------------------------------------------------------
+def _clean(t, q):
+    t = np.asarray(t, float)
+    q = np.asarray(q, float)
+    if t.ndim != 1 or q.shape != t.shape:
+        raise ValueError(f"time {t.shape} and signal {q.shape} must be 1-D of equal length")
+    ok = np.isfinite(t) & np.isfinite(q)
+    if ok.sum() < 8:
+        raise InputError(f"only {int(ok.sum())} finite samples; at least 8 are needed to fit a signal")
+    return t[ok], q[ok]
+
+
+def _uniform(t, q):
+    """Resample onto a uniform grid at the median interval (linear interpolation over gaps)."""
+    dt = float(np.median(np.diff(t)))
+    n = int(np.floor((t[-1] - t[0]) / dt)) + 1
+    tu = t[0] + dt * np.arange(n)
+    return tu, np.interp(tu, t, q), dt
+
+
+# ---------------------------------------------------------------------------------------------
+# results
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class SmoothFit:
+    """A smooth model of one signal: evaluate it (and its derivatives) at any time.
+
+    ``method`` is ``"fourier"`` (``series`` set) or ``"savgol"`` (grid values set).
+    ``rms``/``max_abs`` are the residuals against the samples (signal units, rad).
+    """
+
+    method: str
+    rms: float
+    max_abs: float
+    n_samples: int
+    t_start: float
+    t_end: float
+    series: FourierSeries | None = None
+    cond: float = float("nan")
+    noise_rms: float = float("nan")
+    grid: tuple = field(default=(), repr=False)  # (t, q, qd, qdd) for the smoother
+
+    @property
+    def wf(self) -> float:
+        return float(self.series.wf) if self.series is not None else float("nan")
+
+    @property
+    def n_harmonics(self) -> int:
+        return self.series.n_harmonics if self.series is not None else 0
+
+    def evaluate(self, t, order: int = 2):
+        """(q, qd, qdd) at ``t`` (rad, rad/s, rad/s^2); ``order`` limits how many are returned."""
+        t = np.asarray(t, float)
+        if self.series is not None:
+            return self.series.evaluate(t, order)
+        tg = self.grid[0]
+        return tuple(np.interp(t, tg, g) for g in self.grid[1:2 + order])
+
+    def to_dict(self) -> dict:
+        d = {"method": self.method, "rms": self.rms, "rms_deg": float(np.degrees(self.rms)),
+             "max_abs": self.max_abs, "n_samples": self.n_samples, "noise_rms": self.noise_rms,
+             "t_start": self.t_start, "t_end": self.t_end}
+        if self.series is not None:
+            d.update({"wf": self.wf, "n_harmonics": self.n_harmonics, "cond": self.cond,
+                      "q0": float(self.series.q0), "a": np.asarray(self.series.a).tolist(),
+                      "b": np.asarray(self.series.b).tolist()})
+        return d
+
+
+# ---------------------------------------------------------------------------------------------
+# Savitzky-Golay smoother (non-periodic fallback)
+# ---------------------------------------------------------------------------------------------
+class SavGolSmoother:
+    """Savitzky-Golay smoothing and differentiation on a uniform grid (the fallback for
+    non-periodic trials). ``window_s``: window length in seconds; ``polyorder``: local
+    polynomial degree."""
+
+    def __init__(self, window_s: float = 0.1, polyorder: int = 3):
+        if window_s <= 0 or polyorder < 2:
+            raise ValueError("window_s must be > 0 and polyorder >= 2")
+        self.window_s = float(window_s)
+        self.polyorder = int(polyorder)
+
+    def _window(self, dt: float, n: int) -> int:
+        w = int(round(self.window_s / dt)) | 1
+        w = max(w, self.polyorder + 2 + (self.polyorder % 2 == 0))
+        w = min(w, n - 1 if n % 2 == 0 else n)
+        if w % 2 == 0:
+            w -= 1
+        return w
+
+    def fit(self, t, q) -> SmoothFit:
+        t, q = _clean(t, q)
+        tu, qu, dt = _uniform(t, q)
+        w = self._window(dt, tu.size)
+        if w <= self.polyorder:
+            raise InputError(f"{tu.size} samples are too few for a Savitzky-Golay window")
+        kw = dict(window_length=w, polyorder=self.polyorder, delta=dt, mode="interp")
+        g0 = savgol_filter(qu, deriv=0, **kw)
+        g1 = savgol_filter(qu, deriv=1, **kw)
+        g2 = savgol_filter(qu, deriv=2, **kw)
+        r = q - np.interp(t, tu, g0)
+        rms = float(np.sqrt(np.mean(r ** 2)))
+        return SmoothFit("savgol", rms, float(np.max(np.abs(r))), int(t.size), float(t[0]),
+                         float(t[-1]), None, float("nan"), rms, (tu, g0, g1, g2))
+
+
+# ---------------------------------------------------------------------------------------------
+# Fourier: harmonics and fundamental
+# ---------------------------------------------------------------------------------------------
+def _ordered_design(t, wf, n):
+    """Columns [1, s1, c1, s2, c2, ...] (a column permutation of design_matrix) so that the
+    first 2N+1 columns are the model with N harmonics."""
+    X = design_matrix(t, wf, n)
+    order = [0] + [c for l in range(n) for c in (1 + l, 1 + n + l)]
+    return X[:, order]
+
+
+def _rss_by_harmonics(t, q, wf, n_max):
+    """RSS of the eq. 3-2 fit for N = 1..n_max harmonics, from one QR factorisation."""
+    X = _ordered_design(t - t[0], wf, n_max)
+    Q, R = np.linalg.qr(X)
+    proj = (Q.T @ q) ** 2
+    # guard against rank loss (a harmonic above Nyquist): drop tiny diagonal entries
+    ok = np.abs(np.diag(R)) > 1e-10 * np.abs(R[0, 0])
+    proj = np.where(ok, proj, 0.0)
+    total = float(q @ q)
+    cums = np.cumsum(proj)
+    return np.maximum(total - cums[2 * np.arange(1, n_max + 1)], 1e-300)
+
+
+def _bic(rss, n, k):
+    return n * np.log(rss / n) + k * np.log(n)
+
+
+def _max_harmonics(t, wf, cap):
+    dt = float(np.median(np.diff(t)))
+    nyq = np.pi / dt
+    n_samples_cap = (t.size - 2) // 4
+    return int(max(1, min(cap, np.floor(0.8 * nyq / wf), n_samples_cap)))
+
+
+def select_harmonics(t, q, wf: float, max_harmonics: int = 20) -> tuple[int, float]:
+    """Number of harmonics of eq. 3-2 by BIC; returns ``(N, rss)``."""
+    t, q = _clean(t, q)
+    nmax = _max_harmonics(t, wf, max_harmonics)
+    rss = _rss_by_harmonics(t, q, wf, nmax)
+    n = np.arange(1, nmax + 1)
+    k = int(np.argmin(_bic(rss, t.size, 2 * n + 1)))
+    return int(n[k]), float(rss[k])
+
+
+def _best_bic(t, q, wf, max_harmonics):
+    nmax = _max_harmonics(t, wf, max_harmonics)
+    rss = _rss_by_harmonics(t, q, wf, nmax)
+    b = _bic(rss, t.size, 2 * np.arange(1, nmax + 1) + 1)
+    k = int(np.argmin(b))
+    return float(b[k]), k + 1
+
+
+def estimate_fundamental(t, q, max_harmonics: int = 20, max_periods: int = 8,
+                         max_samples: int = 1500, n_refine: int = 3) -> float:
+    """Fundamental ``wf`` (rad/s) of a signal made of one or more periods of eq. 3-2.
+
+    Candidates ``2 pi k / D`` (k = 1..max_periods, ``D`` = duration plus one sample) and
+    ``w_peak / h`` (h = 1..6, ``w_peak`` the periodogram's highest peak) are scored by BIC
+    (each with its best N); the ``n_refine`` best are refined by a 9-point grid over
+    +-``pi / D`` and a bounded 1-D search of the BIC, and the best refined one is returned.
+    At most ``max_samples`` evenly strided samples are used for the search.
+    """
+    with one_blas_thread():
+        return _estimate_fundamental(t, q, max_harmonics, max_periods, max_samples, n_refine)
+
+
+def _estimate_fundamental(t, q, max_harmonics, max_periods, max_samples, n_refine):
+    t, q = _clean(t, q)
+    dt_med = float(np.median(np.diff(t)))
+    D = float(t[-1] - t[0]) + dt_med
+    if t[-1] <= t[0]:
+        raise InputError("a signal with zero duration has no fundamental")
+    tu, qu, dt = _uniform(t, q)
+    x = qu - qu.mean()
+    nfft = 8 * int(2 ** np.ceil(np.log2(x.size)))
+    spec = np.abs(np.fft.rfft(x * np.hanning(x.size), nfft)) ** 2
+    freqs = 2 * np.pi * np.fft.rfftfreq(nfft, dt)
+    spec[freqs < np.pi / D] = 0.0
+    w_peak = float(freqs[int(np.argmax(spec))])
+    stride = max(1, t.size // max_samples)
+    ts, qs = t[::stride], q[::stride]
+    cands = {2 * np.pi * k / D for k in range(1, max_periods + 1)}
+    cands |= {w_peak / h for h in range(1, 7) if w_peak / h >= 2 * np.pi / D}
+    scored = sorted((_best_bic(ts, qs, w, max_harmonics)[0], w) for w in cands)
+    half_bin = np.pi / D
+    best = None
+    for _, w0 in scored[:n_refine]:
+        grid = np.linspace(max(w0 - half_bin, 0.95 * 2 * np.pi / D), w0 + half_bin, 9)
+        vals = np.array([_best_bic(ts, qs, w, max_harmonics)[0] for w in grid])
+        k = int(np.argmin(vals))
+        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+        res = minimize_scalar(lambda w: _best_bic(ts, qs, w, max_harmonics)[0], bounds=(lo, hi),
+                              method="bounded", options={"xatol": 1e-6 * w0})
+        cand = (float(res.fun), float(res.x)) if res.fun <= vals[k] else (float(vals[k]), float(grid[k]))
+        if best is None or cand[0] < best[0]:
+            best = cand
+    return best[1]
+
+
+class FourierSmoother:
+    """Fit eq. 3-2 to a signal, with the fundamental and harmonics estimated when not given
+    (see the module docstring), falling back to ``fallback`` (default
+    :class:`SavGolSmoother`) when the signal is not periodic.
+
+    ``periodic``: ``None`` decides from the residual; ``True`` always uses Fourier; ``False``
+    always uses the fallback. ``trim_rest``: the Fourier series is fitted from the first to the
+    last sample moving faster than ``rest_frac`` of the peak speed (a trial holds still before
+    and after its periods; a rest is not part of eq. 3-2); the fit's ``t_start``/``t_end`` say
+    which span it covers.
+    """
+
+    def __init__(self, wf: float | None = None, n_harmonics: int | None = None,
+                 max_harmonics: int = 20, periodic: bool | None = None,
+                 periodic_ratio: float = 2.0, periodic_atol: float = 2e-5, fallback=None,
+                 trim_rest: bool = True, rest_frac: float = 0.01):
+        self.wf = wf
+        self.n_harmonics = n_harmonics
+        self.max_harmonics = int(max_harmonics)
+        self.periodic = periodic
+        self.periodic_ratio = float(periodic_ratio)
+        self.periodic_atol = float(periodic_atol)
+        self.fallback = fallback if fallback is not None else SavGolSmoother()
+        self.trim_rest = bool(trim_rest)
+        self.rest_frac = float(rest_frac)
+
+    def fit_fourier(self, t, q) -> SmoothFit:
+        t, q = _clean(t, q)
+        wf = float(self.wf) if self.wf else estimate_fundamental(t, q, self.max_harmonics)
+        n = int(self.n_harmonics) if self.n_harmonics else select_harmonics(t, q, wf, self.max_harmonics)[0]
+        X = design_matrix(t, wf, n)
+        coef, *_ = np.linalg.lstsq(X, q, rcond=None)
+        r = q - X @ coef
+        series = FourierSeries(coef[1:1 + n], coef[1 + n:], wf, float(coef[0]))
+        return SmoothFit("fourier", float(np.sqrt(np.mean(r ** 2))), float(np.max(np.abs(r))),
+                         int(t.size), float(t[0]), float(t[-1]), series, float(np.linalg.cond(X)))
+
+    def fit(self, t, q) -> SmoothFit:
+        with one_blas_thread():
+            return self._fit(t, q)
+
+    def _moving_span(self, t, smooth):
+        """Indices [i0, i1] from the first to the last sample whose smoothed speed exceeds
+        ``rest_frac`` of the peak speed (the rests before and after the excitation)."""
+        qd = smooth.evaluate(t, order=1)[1]
+        peak = float(np.max(np.abs(qd)))
+        moving = np.flatnonzero(np.abs(qd) > self.rest_frac * peak) if peak > 0 else np.array([], int)
+        if moving.size < 8:
+            return 0, t.size - 1
+        return int(moving[0]), int(moving[-1])
+
+    def _fit(self, t, q) -> SmoothFit:
+        t, q = _clean(t, q)
+        if self.periodic is False:
+            return self.fallback.fit(t, q)
+        smooth = None
+        if self.trim_rest or self.periodic is None:
+            smooth = self.fallback.fit(t, q)
+        if self.trim_rest:
+            i0, i1 = self._moving_span(t, smooth)
+            if i1 - i0 + 1 < t.size:
+                t, q = t[i0:i1 + 1], q[i0:i1 + 1]
+        four = self.fit_fourier(t, q)
+        if self.periodic is True:
+            return four
+        noise = smooth.rms
+        if four.rms <= self.periodic_ratio * noise + self.periodic_atol:
+            return SmoothFit(four.method, four.rms, four.max_abs, four.n_samples, four.t_start,
+                             four.t_end, four.series, four.cond, noise)
+        return smooth
+
+
+# ---------------------------------------------------------------------------------------------
+# synchronisation
+# ---------------------------------------------------------------------------------------------
+def estimate_time_offset(t_link, q_link, motor_fit: SmoothFit, max_shift: float = 0.5) -> float:
+    """Offset ``d`` (s) with ``t_robot = t_marker + d`` that best aligns the link angle with the
+    smooth motor angle (least squares over a grid at 1/4 sample, then bounded refinement;
+    the constant deflection is removed)."""
+    t, q = _clean(t_link, q_link)
+    dt = float(np.median(np.diff(t)))
+
+    def cost(d):
+        qm = motor_fit.evaluate(t + d, order=0)[0]
+        inside = (t + d >= motor_fit.t_start) & (t + d <= motor_fit.t_end)
+        if inside.sum() < 8:
+            return np.inf
+        r = q[inside] - qm[inside]
+        return float(np.mean((r - r.mean()) ** 2))
+
+    grid = np.arange(-max_shift, max_shift + dt / 8, dt / 4)
+    costs = np.array([cost(d) for d in grid])
+    k = int(np.argmin(costs))
+    res = minimize_scalar(cost, bounds=(grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]),
+                          method="bounded", options={"xatol": dt * 1e-4})
+    return float(res.x) if res.fun <= costs[k] else float(grid[k])
+
+
+@dataclass(frozen=True, eq=False)
+class JointSignals:
+    """All signals of one joint of one trial on the robot log's samples (link side, SI).
+
+    ``link_source`` is ``"mocap"`` or ``"motor"`` (motor angle used as the link angle).
+    """
+
+    joint: int
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    qm: np.ndarray
+    qmd: np.ndarray
+    qmdd: np.ndarray
+    tau: np.ndarray
+    link_fit: SmoothFit
+    motor_fit: SmoothFit
+    link_source: str = "mocap"
+    time_offset: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {"joint": self.joint, "n_samples": int(self.time.size), "link_source": self.link_source,
+                "time_offset": self.time_offset, "link_fit": self.link_fit.to_dict(),
+                "motor_fit": self.motor_fit.to_dict(),
+                "link_fit_rms_deg": float(np.degrees(self.link_fit.rms)),
+                "motor_fit_rms_deg": float(np.degrees(self.motor_fit.rms)),
+                "peak_speed": float(np.max(np.abs(self.qd))) if self.qd.size else float("nan"),
+                "max_abs_tau": float(np.max(np.abs(self.tau))) if self.tau.size else float("nan")}
+
+
+def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link=None,
+                          time_offset: float | str = 0.0, smoother=None,
+                          link_smoother=None) -> JointSignals:
+    """Put one joint's link angle (marker clock) and motor angle/torque (robot clock) on the
+    robot log's samples, smoothing both with eq. 3-2 fits and analytic derivatives.
+
+    ``joint`` is 1-based (for naming only); ``qm``, ``tau`` are that joint's log columns.
+    ``q_link`` None: the motor angle stands in for the link angle (``link_source="motor"``).
+    ``time_offset``: seconds added to marker times, or ``"estimate"``.
+    The link fit reuses the motor fit's fundamental (same commanded trajectory) and chooses
+    its own number of harmonics. Samples outside the span of both signals are dropped.
+    """
+    smoother = smoother if smoother is not None else FourierSmoother()
+    log_time = np.asarray(log_time, float)
+    qm = np.asarray(qm, float)
+    tau = np.asarray(tau, float)
+    fm = smoother.fit(log_time, qm)
+    if q_link is None:
+        fl, source, offset = fm, "motor", 0.0
+    else:
+        ta = np.asarray(angle_time, float)
+        offset = estimate_time_offset(ta, q_link, fm) if time_offset == "estimate" else float(time_offset)
+        ta = ta + offset
+        ql = np.asarray(q_link, float)
+        if link_smoother is None and isinstance(smoother, FourierSmoother):
+            # same commanded trajectory: the motor fit's fundamental and moving span (the
+            # noisier link angle would blur the rest detection)
+            link_smoother = FourierSmoother(
+                wf=fm.wf if fm.method == "fourier" else None, max_harmonics=smoother.max_harmonics,
+                periodic=None if fm.method == "fourier" else False,
+                periodic_ratio=smoother.periodic_ratio, periodic_atol=smoother.periodic_atol,
+                fallback=smoother.fallback, trim_rest=False)
+            if fm.method == "fourier":
+                inside = (ta >= fm.t_start) & (ta <= fm.t_end)
+                ta, ql = ta[inside], ql[inside]
+        elif link_smoother is None:
+            link_smoother = smoother
+        fl = link_smoother.fit(ta, ql)
+        source = "mocap"
+    lo, hi = max(fm.t_start, fl.t_start), min(fm.t_end, fl.t_end)
+    keep = (log_time >= lo) & (log_time <= hi) & np.isfinite(tau) & np.isfinite(qm)
+    t = log_time[keep]
+    if t.size < 8:
+        raise InputError(f"joint {joint}: the link angles and the robot log overlap in only {t.size} samples")
+    q, qd, qdd = fl.evaluate(t)
+    qms, qmd, qmdd = fm.evaluate(t)
+    return JointSignals(joint, t, q, qd, qdd, qms, qmd, qmdd, tau[keep], fl, fm, source, offset)
+
+
+# ---------------------------------------------------------------------------------------------
+# angles/<trial>.csv (FORMAT.md)
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class AngleTrack:
+    """``angles/<trial id>.csv``: ``time`` (marker clock), ``q`` {joint: (T,)}, ``rms_mm``,
+    ``n_markers``."""
+
+    time: np.ndarray
+    q: dict
+    rms_mm: np.ndarray
+    n_markers: np.ndarray
+    source: Path | None = None
+
+
+def angles_path(angles_dir: str | Path, trial_id: str) -> Path:
+    """``<angles_dir>/<trial id>.csv``, or a clear error when the angle solve has not run."""
+    p = Path(angles_dir) / f"{trial_id}.csv"
+    if not p.is_file():
+        raise InputError(f"no angles file for trial {trial_id!r} (run the angle solve first, "
+                         "or leave out --angles to use motor angles)", path=p)
+    return p
+
+
+def read_angles(path: str | Path) -> AngleTrack:
+    """Read an angles CSV (FORMAT.md: columns ``time``, ``q_<j>``, ``rms_mm``, ``n_markers``;
+    empty cells are NaN)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("angles file not found", path=path)
+    with path.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise InputError("empty angles file", path=path)
+    header = [h.strip() for h in rows[0]]
+    if "time" not in header:
+        raise InputError("no 'time' column", path=path, line=1)
+    qcols = {int(h[2:]): k for k, h in enumerate(header) if h.startswith("q_") and h[2:].isdigit()}
+    if not qcols:
+        raise InputError("no q_<j> column", path=path, line=1)
+    data = np.full((len(rows) - 1, len(header)), np.nan)
+    for i, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise InputError(f"{len(row)} cells, header has {len(header)}", path=path, line=i)
+        for k, cell in enumerate(row):
+            cell = cell.strip()
+            if cell:
+                try:
+                    data[i - 2, k] = float(cell)
+                except ValueError:
+                    raise InputError(f"not a number: {cell!r}", path=path, line=i,
+                                     label=header[k]) from None
+    time = data[:, header.index("time")]
+    if not np.all(np.diff(time) > 0):
+        bad = int(np.argmax(np.diff(time) <= 0)) + 3
+        raise InputError("time is not strictly increasing", path=path, line=bad)
+    col = lambda name: data[:, header.index(name)] if name in header else np.full(time.shape, np.nan)  # noqa: E731
+    return AngleTrack(time, {j: data[:, k] for j, k in sorted(qcols.items())}, col("rms_mm"),
+                      col("n_markers"), path)

@@ -1,0 +1,1 @@
+"""The simulated world: flexible-joint plant, withheld effects, campaign writer."""

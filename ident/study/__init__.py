@@ -1,0 +1,1 @@
+"""Batch studies: stages, executor seam, campaign angles, campaign view."""

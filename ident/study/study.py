@@ -1,0 +1,1065 @@
+"""Batch studies end to end: calibration, link angles, friction fits, gap diagnosis, report.
+
+One campaign (FORMAT.md) in, one study folder out::
+
+    DIR/calib.json                 camera-to-base calibration (the [[calib]] sweeps, thesis ch. 3)
+    DIR/references.json            static-pose marker references (thesis eq. 3-4)
+    DIR/angles/<trial id>.csv      link angles per trial (eq. 3-5), FORMAT.md
+    DIR/mocap.json                 per-trial solve summary
+    DIR/fits/                      fits.json, fits_diagnostics.json, tables/ (Tables 5-1..5-3, A, B),
+                                   plots/ (friction vs speed per condition), from eq. 2-4
+    DIR/diagnosis/                 diagnosis.json, diagnosis.md and its plots (the gap diagnosis)
+    DIR/report.md                  the study report (thesis-style tables, plots, verdicts)
+    DIR/plots/                     friction curves per joint, parameter spread over repetitions
+    DIR/csv/                       trials.csv (one row per trial and joint), diagnosis_effects.csv
+    DIR/study.rrd                  one rerun recording: markers + robot, joint signals, fits, diagnosis
+    DIR/.jointlab-study.json       the manifest: input hashes and outputs of every stage item
+    DIR/.jointlab-study/           records of finished items (results reused by a rerun), temp files
+
+Work per trial (the angle solve, the fits) and per joint (the diagnosis) goes through the one
+executor seam (:mod:`ident.study.executor`: serial, a local process pool, a Dask cluster). Workers write
+their outputs themselves, each to a temporary name then :func:`os.replace` (so an interrupted
+study leaves no half-written file, and the items finished before the interruption are kept), and
+then a record holding the item's input hash and result. A rerun skips every item whose record
+has the current input hash and whose outputs exist. Input hashes are sha256 over the item's
+files (marker file, robot log, campaign.toml, the robot's URDF and drives, upstream outputs such as
+calib.json and the angles) and the settings that change the result. With a Dask cluster, the
+campaign and the study folder must be on a file system every worker sees at the same path.
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+import hashlib
+import io
+import json
+import os
+import pickle
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ident.common import to_jsonable as _jsonable
+
+from mocap.io.errors import InputError
+
+__all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
+
+MANIFEST_NAME = ".jointlab-study.json"
+STATE_DIR = ".jointlab-study"
+CACHE_VERSION = 1     # bump when a record's content changes meaning
+
+
+# ---------------------------------------------------------------------------------------------
+# settings and result
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StudySettings:
+    """What a study computes. Everything here that changes a result is part of the input hashes.
+
+    ``models``: friction models of the fits (eq. 2-4); ``n_starts``/``seed``/``sync``: see
+    :func:`ident.thesis.campaign.fit_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
+    ``mocap``/``diagnose``: run those stages; ``plots``: PNG plots; ``rrd``: write the study
+    recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
+    speed) condition to the recording (keeps it small), ``"all"`` every trial."""
+
+    models: tuple = ("cv", "stribeck", "hyperbolic")
+    n_starts: int = 8
+    seed: int = 0
+    sync: str = "clock"
+    calib_method: str = "cluster"
+    mocap: bool = True
+    diagnose: bool = True
+    plots: bool = True
+    rrd: bool = True
+    rrd_trials: str = "first"
+
+    def validate(self) -> "StudySettings":
+        from ident.model.onelink import model_class
+
+        if not self.models:
+            raise InputError("no friction models given")
+        for m in self.models:
+            try:
+                model_class(m)
+            except KeyError as exc:
+                raise InputError(str(exc.args[0]), label=m) from None
+        if self.sync not in ("clock", "estimate"):
+            raise InputError(f"sync must be 'clock' or 'estimate', got {self.sync!r}")
+        if self.calib_method not in ("cluster", "circle"):
+            raise InputError(f"calib method must be 'cluster' or 'circle', got {self.calib_method!r}")
+        if self.rrd_trials not in ("first", "all"):
+            raise InputError(f"rrd_trials must be 'first' or 'all', got {self.rrd_trials!r}")
+        if self.n_starts < 1:
+            raise InputError("n_starts must be >= 1")
+        return self
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["models"] = list(self.models)
+        return d
+
+
+@dataclass(frozen=True)
+class StudyResult:
+    """What a study did: per stage the items computed, reused and failed, and the wall time;
+    the paths written; the calibration accuracy and the diagnosis verdicts."""
+
+    out: Path
+    campaign: str
+    n_trials: int
+    stages: dict          # stage -> {"computed", "reused", "failed", "seconds", "note"}
+    paths: dict           # name -> path (str) of the main outputs
+    verdicts: dict        # joint (str) -> verdict
+    calib: dict | None = None
+    errors: dict = field(default_factory=dict)   # "<stage>/<item>" -> message
+
+    def to_dict(self) -> dict:
+        return {"format": 1, "out": str(self.out), "campaign": self.campaign,
+                "n_trials": self.n_trials, "stages": self.stages,
+                "paths": {k: str(v) for k, v in self.paths.items()}, "verdicts": self.verdicts,
+                "calib": self.calib, "errors": self.errors}
+
+
+# ---------------------------------------------------------------------------------------------
+# hashing and atomic writes
+# ---------------------------------------------------------------------------------------------
+def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
+    """sha256 hex digest of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        while True:
+            b = fh.read(chunk)
+            if not b:
+                break
+            h.update(b)
+    return h.hexdigest()
+
+
+class _Hasher:
+    """File digests memoised by (path, size, mtime) for one run; combined digests of parts."""
+
+    def __init__(self):
+        self._memo: dict = {}
+
+    def file(self, path) -> str:
+        p = Path(path)
+        if not p.is_file():
+            return "missing:" + str(p)
+        st = p.stat()
+        key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
+        if key not in self._memo:
+            self._memo[key] = file_sha256(p)
+        return self._memo[key]
+
+    @staticmethod
+    def combine(*parts) -> str:
+        return hashlib.sha256(json.dumps([CACHE_VERSION, *parts], sort_keys=True,
+                                         default=str).encode()).hexdigest()
+
+
+def _tmp_name(tmp_dir: Path, final: Path) -> Path:
+    return Path(tmp_dir) / f"{final.name}.{os.getpid()}.{time.monotonic_ns()}.tmp"
+
+
+def _write_atomic(path: Path, data: bytes | str, tmp_dir: Path) -> Path:
+    """Write to a temporary name in ``tmp_dir`` (same file system), then rename into place."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _tmp_name(tmp_dir, path)
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    with open(tmp, "wb") as fh:
+        fh.write(data.encode("utf-8") if isinstance(data, str) else data)
+    os.replace(tmp, path)
+    return path
+
+
+def _replace_dir(tmp: Path, final: Path) -> None:
+    """Move a finished folder into place (the old one goes away only after the new one is in)."""
+    if final.exists():
+        old = tmp.parent / f"{final.name}.old.{os.getpid()}.{time.monotonic_ns()}"
+        os.replace(final, old)
+        os.replace(tmp, final)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, final)
+
+
+def _read_record(path: Path, input_hash: str):
+    """The result stored in a record if its input hash matches, else ``None``."""
+    try:
+        with open(path, "rb") as fh:
+            rec = pickle.load(fh)
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError, TypeError,
+            ValueError):
+        return None
+    if not isinstance(rec, dict) or rec.get("hash") != input_hash or rec.get("version") != CACHE_VERSION:
+        return None
+    return rec
+
+
+def _write_record(path: Path, input_hash: str, result, tmp_dir: Path, outputs=()) -> None:
+    rec = {"version": CACHE_VERSION, "hash": input_hash, "result": result, "outputs": list(outputs)}
+    _write_atomic(path, pickle.dumps(rec, protocol=pickle.HIGHEST_PROTOCOL), tmp_dir)
+
+
+# ---------------------------------------------------------------------------------------------
+# worker side (top-level, picklable: run by any executor)
+# ---------------------------------------------------------------------------------------------
+@lru_cache(maxsize=4)
+def _campaign_and_robot(manifest: str, stamp: int):
+    """The campaign and its robot, loaded once per worker process (keyed by the manifest's mtime)."""
+    from mocap.io.campaign import load_campaign
+
+    camp = load_campaign(manifest)
+    return camp, camp.load_robot()
+
+
+def _load(manifest: str):
+    return _campaign_and_robot(manifest, Path(manifest).stat().st_mtime_ns)
+
+
+def _error_text(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"
+
+
+@dataclass(frozen=True)
+class _MocapJob:
+    manifest: str
+    trial: str
+    references: object
+    solve: Callable
+    report: Callable | None
+    out_csv: str
+    record: str
+    tmp_dir: str
+    input_hash: str
+
+
+def _run_mocap_job(job: _MocapJob) -> dict:
+    """Solve one trial's link angles, write ``angles/<id>.csv`` then the record."""
+    from ident.signals.smoothing import one_blas_thread
+
+    t0 = time.perf_counter()
+    try:
+        camp, robot = _load(job.manifest)
+        with one_blas_thread():
+            res = job.solve(camp, job.trial, job.references, robot=robot)
+        tmp = _tmp_name(Path(job.tmp_dir), Path(job.out_csv))
+        tmp.parent.mkdir(parents=True, exist_ok=True)
+        res.write_csv(tmp, overwrite=True)
+        Path(job.out_csv).parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, job.out_csv)
+        summary = _jsonable(res.to_dict())
+        if job.report is not None:
+            summary["markers"] = _jsonable(job.report(res.solve))
+        result = {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0}
+    except (InputError, ValueError, np.linalg.LinAlgError, FileNotFoundError) as exc:
+        return {"ok": False, "error": _error_text(exc)}
+    _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir), [job.out_csv])
+    return result
+
+
+@dataclass(frozen=True)
+class _FitJob:
+    trial: str
+    tasks: tuple
+    record: str
+    tmp_dir: str
+    input_hash: str
+
+
+def _run_fit_job(job: _FitJob) -> dict:
+    """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign.fit_trial_joint`)."""
+    from ident.thesis.campaign import fit_trial_joint
+
+    t0 = time.perf_counter()
+    try:
+        entries = [fit_trial_joint(t) for t in job.tasks]  # loop over the trial's joints
+    except (InputError, ValueError, np.linalg.LinAlgError, FileNotFoundError) as exc:
+        return {"ok": False, "error": _error_text(exc)}
+    result = {"ok": True, "entries": entries, "seconds": time.perf_counter() - t0}
+    _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
+    return result
+
+
+@dataclass(frozen=True)
+class _DiagJob:
+    manifest: str
+    joint: int
+    angles_dir: str | None
+    settings: object
+    record: str
+    tmp_dir: str
+    input_hash: str
+
+
+def _run_diag_job(job: _DiagJob) -> dict:
+    """The gap diagnosis of one joint (:func:`ident.gap.campaign.diagnose_campaign`)."""
+    from ident.gap.campaign import diagnose_campaign, load_angles_dir
+    from ident.signals.smoothing import one_blas_thread
+
+    t0 = time.perf_counter()
+    try:
+        camp, robot = _load(job.manifest)
+        angles = None
+        if job.angles_dir is not None:
+            trials = [t for t in camp.trials if tuple(t.joints) == (job.joint,)]
+            angles = load_angles_dir(job.angles_dir, trials) or None
+        with one_blas_thread():
+            report, series = diagnose_campaign(camp, robot, angles, job.settings, joints=[job.joint])
+        key = str(job.joint)
+        result = {"ok": True, "report": report["joints"].get(key), "series": series.get(key),
+                  "link_angles": bool(report.get("link_angles")),
+                  "skipped_trials": report.get("skipped_trials", []),
+                  "seconds": time.perf_counter() - t0}
+    except (InputError, ValueError, np.linalg.LinAlgError, FileNotFoundError) as exc:
+        return {"ok": False, "error": _error_text(exc)}
+    _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
+    return result
+
+
+# ---------------------------------------------------------------------------------------------
+# the mocap stage adapter (the one place that knows the mocap API)
+# ---------------------------------------------------------------------------------------------
+class _StageUnavailable(Exception):
+    """A stage that cannot run (missing module, unidentifiable camera pose): noted and skipped."""
+
+
+def _mocap_stage(campaign, robot, T_camera_base):
+    """Adapter to the mocap stage: static-pose references (thesis eq. 3-4, built here, once) and
+    the per-trial solver (eq. 3-5, run by the workers).
+
+    Returns ``(references, solve, report)``: ``solve(campaign, trial_id, references, robot=)`` ->
+    an object with ``write_csv(path, overwrite=)``, ``to_dict()`` and ``.solve``;
+    ``report(solve)`` -> per-marker summary (or ``None``). Raises :class:`_StageUnavailable` with
+    the reason when the stage cannot run. Rewire here when the mocap API changes."""
+    try:
+        from mocap.references import build_references
+        from mocap.solve import solve_trial
+    except ImportError as exc:
+        raise _StageUnavailable(f"the mocap solver is not available ({exc})") from None
+    try:
+        from mocap.quality import marker_report
+    except ImportError:
+        marker_report = None
+    try:
+        refs = build_references(campaign, robot, T_camera_base)
+    except InputError as exc:
+        raise _StageUnavailable(f"no marker references: {exc}") from None
+    return refs, solve_trial, marker_report
+
+
+# ---------------------------------------------------------------------------------------------
+# the study
+# ---------------------------------------------------------------------------------------------
+def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0):
+    """One stage's bookkeeping; ``work_s``: the summed wall time of its computed items as the
+    workers measured them (``work_s / (workers * seconds)`` is the parallel efficiency)."""
+    return {"computed": computed, "reused": reused, "failed": failed, "seconds": round(seconds, 3),
+            "work_s": round(work, 3), "note": note}
+
+
+def _work(jobs, done, key) -> float:
+    return float(sum(done[getattr(j, key)].get("seconds", 0.0) for j in jobs))
+
+
+class Study:
+    """A batch study of one campaign (see the module docstring for the folder it writes).
+
+    Parameters
+    ----------
+    settings : :class:`StudySettings`.
+    executor : anything with ``map(fn, items, desc)`` (:func:`ident.study.executor.make_executor`);
+        ``None`` runs serially in this process.
+    progress : progress bars and stage lines on stderr.
+    """
+
+    def __init__(self, settings: StudySettings | None = None, executor=None, progress: bool = True):
+        self.settings = (settings or StudySettings()).validate()
+        self.executor = executor
+        self.progress = progress
+
+    # helpers -------------------------------------------------------------------------------
+    def _say(self, msg: str) -> None:
+        if self.progress:
+            print(f"study: {msg}", file=sys.stderr, flush=True)
+
+    def _map(self, fn, items, desc):
+        if not items:
+            return []
+        if self.executor is None:
+            from ident.study.executor import SerialExecutor
+
+            return SerialExecutor(self.progress).map(fn, items, desc)
+        return self.executor.map(fn, items, desc)
+
+    # main ------------------------------------------------------------------------------------
+    def run(self, campaign, out, rrd: str | Path | None = None, spawn: bool = False) -> StudyResult:
+        """Run (or resume) the study of ``campaign`` (a folder, a campaign.toml or a loaded
+        :class:`mocap.io.campaign.Campaign`) into the folder ``out``. ``rrd``: where to write the
+        recording (default ``out/study.rrd`` when ``settings.rrd``); ``spawn``: also stream it to
+        a viewer."""
+        from mocap.io.campaign import Campaign, load_campaign
+
+        camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
+        out = Path(out).resolve()
+        root = Path(camp.root).resolve()
+        if out == root or root in out.parents:
+            raise InputError(f"the study folder {out} is inside the campaign folder {root}; choose another",
+                             path=out)
+        out.mkdir(parents=True, exist_ok=True)
+        state = out / STATE_DIR
+        tmp_dir = state / "tmp"
+        shutil.rmtree(tmp_dir, ignore_errors=True)   # leftovers of an interrupted run
+        tmp_dir.mkdir(parents=True, exist_ok=True)
+        robot = camp.load_robot()
+        hasher = _Hasher()
+        s = self.settings
+        base_hash = hasher.combine(hasher.file(camp.manifest), hasher.file(camp.urdf),
+                                   hasher.file(camp.drives))
+        manifest_path = out / MANIFEST_NAME
+        old = _read_manifest(manifest_path)
+        man = {"format": 1, "campaign": camp.name, "campaign_root": str(camp.root),
+               "settings": s.to_dict(), "stages": {}}
+        stages, errors, paths = {}, {}, {}
+        ctx = _Context(camp, robot, out, state, tmp_dir, hasher, base_hash, man, old, stages,
+                       errors, paths)
+
+        T_cb, calib_res = self._calib(ctx)
+        _write_manifest(manifest_path, man, tmp_dir)
+        angles_dir, mocap_summary, refs = self._mocap(ctx, T_cb)
+        _write_manifest(manifest_path, man, tmp_dir)
+        fits = self._fits(ctx, angles_dir)
+        _write_manifest(manifest_path, man, tmp_dir)
+        diag = self._diagnosis(ctx, angles_dir)
+        _write_manifest(manifest_path, man, tmp_dir)
+        rrd_path = None
+        if s.rrd or rrd is not None or spawn:
+            rrd_path = Path(rrd).resolve() if rrd is not None else (out / "study.rrd" if s.rrd else None)
+        self._report(ctx, calib_res, refs, mocap_summary, fits, diag, angles_dir, rrd_path, spawn)
+        _write_manifest(manifest_path, man, tmp_dir)
+        shutil.rmtree(tmp_dir, ignore_errors=True)
+        paths["manifest"] = manifest_path
+        verdicts = {j: r.get("verdict", "none") for j, r in (diag[0]["joints"].items() if diag else [])}
+        calib = None
+        if calib_res is not None:
+            calib = {"origin_std_mm": float(calib_res.origin_std_mm),
+                     "rotation_std_deg": float(calib_res.rotation_std_deg)}
+        return StudyResult(out, camp.name, len(camp.trials), stages, paths, verdicts, calib, errors)
+
+    # stage 1: calibration ----------------------------------------------------------------------
+    def _calib(self, ctx):
+        t0 = time.perf_counter()
+        camp, s = ctx.camp, self.settings
+        if not camp.calib:
+            ctx.stages["calib"] = _stage_row(note="no [[calib]] sweeps: the camera pose comes from "
+                                                  "the static poses")
+            return None, None
+        files = [ctx.hasher.file(p) for c in camp.calib for p in (c.markers, c.log)]
+        h = ctx.hasher.combine("calib", ctx.base_hash, files, s.calib_method)
+        path = ctx.out / "calib.json"
+        record = ctx.state / "records" / "calib.pkl"
+        rec = _read_record(record, h) if path.is_file() else None
+        if rec is not None:
+            res = rec["result"]
+            ctx.stages["calib"] = _stage_row(reused=1, seconds=time.perf_counter() - t0)
+        else:
+            from calib.pipeline import calibrate
+
+            self._say("calibrating the camera from the [[calib]] sweeps")
+            from ident.signals.smoothing import one_blas_thread
+
+            try:
+                with one_blas_thread():
+                    res = calibrate(camp, ctx.robot, method=s.calib_method)
+            except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+                ctx.errors["calib"] = _error_text(exc)
+                ctx.stages["calib"] = _stage_row(failed=1, seconds=time.perf_counter() - t0,
+                                                 note=_error_text(exc))
+                return None, None
+            _write_atomic(path, json.dumps(_jsonable(res.to_dict()), indent=1), ctx.tmp_dir)
+            _write_record(record, h, res, ctx.tmp_dir, [str(path)])
+            ctx.stages["calib"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
+        ctx.man["stages"]["calib"] = {"hash": h, "outputs": ["calib.json"]}
+        ctx.paths["calib"] = path
+        return np.asarray(res.T_camera_base, float), res
+
+    # stage 2: link angles ----------------------------------------------------------------------
+    def _mocap(self, ctx, T_cb):
+        t0 = time.perf_counter()
+        camp, s = ctx.camp, self.settings
+        if not s.mocap:
+            ctx.stages["mocap"] = _stage_row(note="switched off: motor angles stand in for link angles")
+            return None, None, None
+        from ident.signals.smoothing import one_blas_thread
+
+        try:
+            with one_blas_thread():
+                refs, solve, report = _mocap_stage(camp, ctx.robot, T_cb)
+        except _StageUnavailable as exc:
+            note = f"skipped: {exc}; motor angles stand in for link angles"
+            self._say(f"mocap {note}")
+            ctx.stages["mocap"] = _stage_row(seconds=time.perf_counter() - t0, note=note)
+            return None, None, None
+        _write_atomic(ctx.out / "references.json", json.dumps(_jsonable(refs.to_dict()), indent=1),
+                      ctx.tmp_dir)
+        refs_hash = ctx.hasher.file(ctx.out / "references.json")
+        angles_dir = ctx.out / "angles"
+        jobs, hashes, done = [], {}, {}
+        for tr in camp.trials:  # loop over trials (hashing and bookkeeping only)
+            h = ctx.hasher.combine("mocap", ctx.base_hash, refs_hash, ctx.hasher.file(tr.markers),
+                                   ctx.hasher.file(tr.log))
+            hashes[tr.id] = h
+            csv_path = angles_dir / f"{tr.id}.csv"
+            record = ctx.state / "records" / "mocap" / f"{tr.id}.pkl"
+            rec = _read_record(record, h) if csv_path.is_file() else None
+            if rec is not None:
+                done[tr.id] = rec["result"]
+                continue
+            jobs.append(_MocapJob(str(camp.manifest), tr.id, refs, solve, report, str(csv_path),
+                                  str(record), str(ctx.tmp_dir), h))
+        self._say(f"link angles: {len(jobs)} trial(s) to solve, {len(done)} reused")
+        for job, res in zip(jobs, self._map(_run_mocap_job, jobs, "mocap")):
+            done[job.trial] = res
+        failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
+        for tid, msg in failed.items():
+            ctx.errors[f"mocap/{tid}"] = msg
+        items = {tid: {"hash": hashes[tid], "outputs": [f"angles/{tid}.csv"]}
+                 for tid in hashes if tid in done and done[tid].get("ok")}
+        ctx.man["stages"]["mocap"] = {"references_hash": refs_hash, "items": items}
+        summary = {"format": 1, "camera_from": "calib.json" if T_cb is not None else "static_poses",
+                   "references": _jsonable(refs.to_dict()),
+                   "trials": {tid: done[tid]["summary"] for tid in hashes if done[tid].get("ok")},
+                   "failed": failed}
+        _write_atomic(ctx.out / "mocap.json", json.dumps(summary, indent=1), ctx.tmp_dir)
+        ctx.paths["angles"] = angles_dir
+        ctx.paths["mocap"] = ctx.out / "mocap.json"
+        ctx.stages["mocap"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
+                                         len(done) - len(jobs), len(failed), time.perf_counter() - t0,
+                                         work=_work(jobs, done, "trial"))
+        return (angles_dir if items else None), summary, refs
+
+    # stage 3: friction fits ------------------------------------------------------------------
+    def _fits(self, ctx, angles_dir):
+        from ident.thesis.campaign import FitsResult, campaign_tasks
+
+        t0 = time.perf_counter()
+        camp, s = ctx.camp, self.settings
+        tasks, skipped = campaign_tasks(camp, None, s.models, s.n_starts, s.seed, s.sync, robot=ctx.robot)
+        by_trial: dict = {}
+        for t in tasks:  # loop over (trial, joint) tasks
+            by_trial.setdefault(t.trial, []).append(t)
+        jobs, done, hashes = [], {}, {}
+        fit_settings = [list(s.models), s.n_starts, s.seed, s.sync]
+        for tr in camp.trials:  # loop over trials
+            if tr.id not in by_trial:
+                continue
+            ang = None
+            if angles_dir is not None and (angles_dir / f"{tr.id}.csv").is_file():
+                ang = angles_dir / f"{tr.id}.csv"
+            ttasks = tuple(dataclasses.replace(t, angles=None if ang is None else str(ang))
+                           for t in by_trial[tr.id])
+            h = ctx.hasher.combine("fits", ctx.base_hash, ctx.hasher.file(tr.log),
+                                   None if ang is None else ctx.hasher.file(ang), fit_settings,
+                                   [dataclasses.asdict(t) | {"log": "", "angles": ""} for t in ttasks])
+            hashes[tr.id] = h
+            record = ctx.state / "records" / "fits" / f"{tr.id}.pkl"
+            rec = _read_record(record, h)
+            if rec is not None:
+                done[tr.id] = rec["result"]
+                continue
+            jobs.append(_FitJob(tr.id, ttasks, str(record), str(ctx.tmp_dir), h))
+        self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
+        for job, res in zip(jobs, self._map(_run_fit_job, jobs, "fits")):
+            done[job.trial] = res
+        failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
+        for tid, msg in failed.items():
+            ctx.errors[f"fits/{tid}"] = msg
+        entries = tuple(e for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
+                        for e in done[tr.id]["entries"])
+        result = FitsResult(entries, tuple(s.models), camp.name, tuple(skipped))
+        stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots)
+        fits_dir = ctx.out / "fits"
+        prev = ctx.old.get("stages", {}).get("fits", {})
+        if not (prev.get("hash") == stage_hash and (fits_dir / "fits.json").is_file()):
+            if entries:
+                tmp = ctx.tmp_dir / "fits-new"
+                result.write(tmp, plots=s.plots)
+                _replace_dir(tmp, fits_dir)
+        ctx.man["stages"]["fits"] = {"hash": stage_hash, "outputs": ["fits/"],
+                                     "items": {tid: {"hash": h} for tid, h in hashes.items()
+                                               if tid in done and done[tid].get("ok")}}
+        if entries:
+            ctx.paths["fits"] = fits_dir / "fits.json"
+        ctx.stages["fits"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
+                                        len(done) - len(jobs), len(failed), time.perf_counter() - t0,
+                                        f"skipped (coast-down): {', '.join(skipped)}" if skipped else "",
+                                        work=_work(jobs, done, "trial"))
+        return result
+
+    # stage 4: gap diagnosis ------------------------------------------------------------------
+    def _diagnosis(self, ctx, angles_dir):
+        from ident.gap import DiagnosisSettings
+
+        t0 = time.perf_counter()
+        camp, s = ctx.camp, self.settings
+        if not s.diagnose:
+            ctx.stages["diagnosis"] = _stage_row(note="switched off")
+            return None
+        dset = DiagnosisSettings(seed=s.seed)
+        by_joint: dict = {}
+        for t in camp.trials:  # loop over trials
+            if len(t.joints) == 1:
+                by_joint.setdefault(int(t.joints[0]), []).append(t)
+        if not by_joint:
+            ctx.stages["diagnosis"] = _stage_row(note="no single-joint trials to diagnose")
+            return None
+        jobs, done, hashes = [], {}, {}
+        for j, trials in sorted(by_joint.items()):  # loop over joints
+            files = [[ctx.hasher.file(t.log),
+                      ctx.hasher.file(angles_dir / f"{t.id}.csv") if angles_dir is not None else None]
+                     for t in trials]
+            h = ctx.hasher.combine("diagnosis", ctx.base_hash, j, files, dset.to_dict())
+            hashes[j] = h
+            record = ctx.state / "records" / "diagnosis" / f"joint{j}.pkl"
+            rec = _read_record(record, h)
+            if rec is not None:
+                done[j] = rec["result"]
+                continue
+            jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
+                                 dset, str(record), str(ctx.tmp_dir), h))
+        self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
+        for job, res in zip(jobs, self._map(_run_diag_job, jobs, "diagnosis")):
+            done[job.joint] = res
+        failed = {j: r["error"] for j, r in done.items() if not r.get("ok")}
+        for j, msg in failed.items():
+            ctx.errors[f"diagnosis/joint{j}"] = msg
+        ok = {j: r for j, r in sorted(done.items()) if r.get("ok")}
+        report = {"format": 1, "campaign": camp.name, "settings": dset.to_dict(),
+                  "joints": {str(j): r["report"] for j, r in ok.items() if r["report"] is not None},
+                  "skipped_trials": [t.id for t in camp.trials if len(t.joints) != 1],
+                  "link_angles": any(r["link_angles"] for r in ok.values())}
+        series = {str(j): r["series"] for j, r in ok.items()}
+        stage_hash = ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()))
+        diag_dir = ctx.out / "diagnosis"
+        prev = ctx.old.get("stages", {}).get("diagnosis", {})
+        if report["joints"] and not (prev.get("hash") == stage_hash
+                                     and (diag_dir / "diagnosis.json").is_file()):
+            from ident.gap.report import write_report
+
+            tmp = ctx.tmp_dir / "diagnosis-new"
+            write_report(report, series, tmp, None)
+            _replace_dir(tmp, diag_dir)
+        ctx.man["stages"]["diagnosis"] = {"hash": stage_hash, "outputs": ["diagnosis/"],
+                                          "items": {str(j): {"hash": h} for j, h in hashes.items()
+                                                    if j in ok}}
+        if report["joints"]:
+            ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
+        ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
+                                             len(done) - len(jobs), len(failed),
+                                             time.perf_counter() - t0, work=_work(jobs, done, "joint"))
+        return report, series
+
+    # stage 5: report and recording -------------------------------------------------------------
+    def _report(self, ctx, calib_res, refs, mocap_summary, fits, diag, angles_dir, rrd_path, spawn):
+        t0 = time.perf_counter()
+        s = self.settings
+        up = ctx.man["stages"]
+        h = ctx.hasher.combine("report", s.to_dict(),
+                               {k: v.get("hash") or v.get("items") for k, v in up.items()},
+                               str(rrd_path), ctx.errors)
+        outputs = ["report.md", "csv/"] + (["plots/"] if s.plots else [])
+        prev = ctx.old.get("stages", {}).get("report", {})
+        have = all((ctx.out / o).exists() for o in outputs) and (rrd_path is None or rrd_path.is_file())
+        ctx.paths["report"] = ctx.out / "report.md"
+        if rrd_path is not None:
+            ctx.paths["rrd"] = rrd_path
+        if prev.get("hash") == h and have and not spawn:
+            up["report"] = prev
+            ctx.stages["report"] = _stage_row(reused=1, seconds=time.perf_counter() - t0)
+            return
+        self._say("writing the report" + (" and the recording" if rrd_path or spawn else ""))
+        plots = {}
+        if s.plots and fits is not None and fits.entries:
+            tmp = ctx.tmp_dir / "plots-new"
+            plots = write_study_plots(fits, tmp)
+            _replace_dir(tmp, ctx.out / "plots")
+        tmp = ctx.tmp_dir / "csv-new"
+        write_study_csvs(ctx.camp, mocap_summary, fits, diag[0] if diag else None, tmp)
+        _replace_dir(tmp, ctx.out / "csv")
+        md = report_markdown(ctx.camp, ctx.stages, calib_res, mocap_summary, fits,
+                             diag[0] if diag else None, plots, ctx.out, ctx.errors)
+        _write_atomic(ctx.out / "report.md", md, ctx.tmp_dir)
+        if rrd_path is not None or spawn:
+            log_study(ctx.camp, ctx.robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, md,
+                      ctx.out, s.rrd_trials, ctx.tmp_dir)
+        up["report"] = {"hash": h, "outputs": outputs + ([str(rrd_path)] if rrd_path else [])}
+        ctx.stages["report"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
+
+
+@dataclass
+class _Context:
+    camp: object
+    robot: object
+    out: Path
+    state: Path
+    tmp_dir: Path
+    hasher: _Hasher
+    base_hash: str
+    man: dict
+    old: dict
+    stages: dict
+    errors: dict
+    paths: dict
+
+
+def _read_manifest(path: Path) -> dict:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError):
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _write_manifest(path: Path, man: dict, tmp_dir: Path) -> None:
+    _write_atomic(path, json.dumps(_jsonable(man), indent=1), tmp_dir)
+
+
+def run_study(campaign, out, settings: StudySettings | None = None, executor=None,
+              rrd: str | Path | None = None, spawn: bool = False, progress: bool = True) -> StudyResult:
+    """``Study(settings, executor, progress).run(campaign, out, rrd, spawn)``."""
+    return Study(settings, executor, progress).run(campaign, out, rrd=rrd, spawn=spawn)
+
+
+# ---------------------------------------------------------------------------------------------
+# report pieces
+# ---------------------------------------------------------------------------------------------
+def _conditions(entries, joint):
+    """(load, vmax) -> entries of ``joint``, in thesis order (load down, speed down)."""
+    out: dict = {}
+    for e in entries:
+        if e.task.joint == joint:
+            out.setdefault((e.task.load_kg, e.task.vmax_frac), []).append(e)
+    return dict(sorted(out.items(), key=lambda kv: (-kv[0][0], -kv[0][1])))
+
+
+SPREAD_MODELS = ("cv", "stribeck")
+
+
+def write_study_plots(fits, out_dir: Path) -> dict:
+    """Per joint: ``friction_joint<j>.png`` (measured friction vs link speed of the first
+    repetition of every condition with its fitted curve, thesis Figs. 5-1/5-2) and
+    ``spread_joint<j>.png`` (each parameter of the Coulomb + viscous and Stribeck models over
+    the repetitions of every condition: dots, mean and +-1 std). Returns {name: file name}."""
+    from viz.plots import new_figure, save_png
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    joints = sorted({e.task.joint for e in fits.entries})
+    colors = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown",
+              "tab:pink", "tab:gray", "tab:olive", "tab:cyan"]
+    for j in joints:  # loop over joints
+        conds = _conditions(fits.entries, j)
+        fig = new_figure(7.0, 4.6, dpi=100)
+        ax = fig.add_subplot(1, 1, 1)
+        curve_model = next((m for m in ("stribeck", "cv") if m in fits.models), fits.models[0])
+        for k, ((load, vf), ents) in enumerate(conds.items()):  # loop over conditions
+            e = min(ents, key=lambda x: x.task.repetition)
+            c = colors[k % len(colors)]
+            if e.plot:
+                step = max(1, e.plot["qd"].size // 1500)
+                ax.plot(e.plot["qd"][::step], e.plot["f_measured"][::step], ".", ms=1.2, color=c,
+                        alpha=0.35, rasterized=True)
+                lim = float(np.max(np.abs(e.plot["qd"])))
+                v = np.linspace(-lim, lim, 401)
+                if curve_model in e.fits:
+                    ax.plot(v, e.fits[curve_model].friction().torque(v), color=c, lw=1.6,
+                            label=f"{load:g} kg, {100 * vf:g} % speed ({curve_model})")
+        ax.axhline(0, color="0.85", lw=0.8)
+        ax.axvline(0, color="0.85", lw=0.8)
+        ax.set_xlabel("link speed qd (rad/s)")
+        ax.set_ylabel("friction torque (N m)")
+        ax.set_title(f"joint {j}: friction vs speed (first repetition of each condition)", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left")
+        fig.tight_layout()
+        name = f"friction_joint{j}.png"
+        save_png(fig, out_dir / name, overwrite=True)
+        paths[f"friction_joint{j}"] = name
+
+        params = [(m, p) for m in SPREAD_MODELS if m in fits.models
+                  for p in _param_names(fits.entries, j, m)]
+        if not params:
+            continue
+        ncol = min(3, len(params))
+        nrow = -(-len(params) // ncol)
+        fig = new_figure(3.2 * ncol, 2.5 * nrow + 0.6, dpi=100)
+        labels = [f"{load:g}kg\n{100 * vf:g}%" for (load, vf) in conds]
+        for i, (m, p) in enumerate(params):  # loop over parameters
+            ax = fig.add_subplot(nrow, ncol, i + 1)
+            for k, ents in enumerate(conds.values()):  # loop over conditions
+                vals = np.array([e.fits[m].params.get(p, np.nan) for e in ents if m in e.fits], float)
+                vals = vals[np.isfinite(vals)]
+                if vals.size == 0:
+                    continue
+                ax.plot(np.full(vals.size, k), vals, "o", ms=3, color="tab:blue", alpha=0.6)
+                ax.errorbar(k + 0.18, vals.mean(), yerr=vals.std(), fmt="s", ms=4, color="black",
+                            capsize=3)
+            ax.set_xticks(range(len(labels)))
+            ax.set_xticklabels(labels, fontsize=7)
+            ax.set_title(f"{m}: {p}", fontsize=9)
+        fig.suptitle(f"joint {j}: parameter spread over repetitions (dots: repetitions; "
+                     "square: mean +- std)", fontsize=9)
+        fig.tight_layout()
+        name = f"spread_joint{j}.png"
+        save_png(fig, out_dir / name, overwrite=True)
+        paths[f"spread_joint{j}"] = name
+    return paths
+
+
+def _param_names(entries, joint, model):
+    for e in entries:
+        if e.task.joint == joint and model in e.fits:
+            return list(e.fits[model].params)
+    return []
+
+
+def write_study_csvs(campaign, mocap_summary, fits, diagnosis, out_dir: Path) -> list[Path]:
+    """``trials.csv``: one row per (trial, moving joint): condition, link-angle residual and
+    flagged frames, each model's RMS; ``diagnosis_effects.csv``: one row per (joint, candidate
+    effect) of the first selection step."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    models = list(fits.models) if fits is not None else []
+    fit_of = {(e.task.trial, e.task.joint): e for e in (fits.entries if fits is not None else ())}
+    mtrials = (mocap_summary or {}).get("trials", {})
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["trial", "joint", "kind", "load_kg", "vmax_frac", "repetition", "angles_rms_mm",
+                "flagged_frames", "peak_speed", "max_abs_tau"] + [f"rms_{m}" for m in models])
+    for tr in campaign.trials:  # loop over trials
+        md = mtrials.get(tr.id, {})
+        for j in tr.joints:
+            e = fit_of.get((tr.id, j))
+            row = [tr.id, j, tr.kind, tr.load_kg, tr.vmax_frac, tr.repetition,
+                   _cell(md.get("rms_mm")), _cell(md.get("flagged_frames")),
+                   _cell(e.peak_speed if e else None), _cell(e.max_abs_tau if e else None)]
+            row += [_cell(e.fits[m].rms if e and m in e.fits else None) for m in models]
+            w.writerow(row)
+    paths = [out_dir / "trials.csv"]
+    paths[0].write_text(buf.getvalue(), encoding="utf-8")
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["joint", "effect", "channel", "heldout_rms", "reduction", "p_adjusted", "significant",
+                "verdict"])
+    for j, rep in ((diagnosis or {}).get("joints") or {}).items():
+        for e in rep.get("effects", []):
+            w.writerow([j, e.get("effect"), e.get("channel"), _cell(e.get("heldout_rms")),
+                        _cell(e.get("reduction")), _cell(e.get("p_adjusted")), e.get("significant"),
+                        rep.get("verdict")])
+    paths.append(out_dir / "diagnosis_effects.csv")
+    paths[1].write_text(buf.getvalue(), encoding="utf-8")
+    return paths
+
+
+def _cell(x):
+    if x is None:
+        return ""
+    if isinstance(x, (float, np.floating)):
+        return "" if not np.isfinite(x) else f"{float(x):.6g}"
+    return x
+
+
+def _f(x, nd=3):
+    if x is None:
+        return "-"
+    if isinstance(x, (float, np.floating)):
+        return "-" if not np.isfinite(x) else f"{float(x):.{nd}g}"
+    return str(x)
+
+
+def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis, plots, out: Path,
+                    errors=None) -> str:
+    """The study report: stages, calibration, link-angle quality, the thesis tables (Tables
+    5-1..5-3 / A / B of 002), the plots and the gap-diagnosis verdicts."""
+    trials = campaign.trials
+    joints = sorted({j for t in trials for j in t.joints})
+    loads = sorted({t.load_kg for t in trials})
+    speeds = sorted({t.vmax_frac for t in trials})
+    reps = max((t.repetition for t in trials), default=0)
+    L = [f"# Study of campaign `{campaign.name}`", "",
+         f"{len(trials)} trials: joint(s) {', '.join(map(str, joints))}; loads "
+         f"{', '.join(f'{x:g}' for x in loads)} kg; speed ranges "
+         f"{', '.join(f'{100 * x:g} %' for x in speeds)} of the maximum; up to {reps} repetitions.", "",
+         "## Stages", "", "| stage | computed | reused | failed | seconds | note |", "|---|---|---|---|---|---|"]
+    for name, r in stages.items():
+        L.append(f"| {name} | {r['computed']} | {r['reused']} | {r['failed']} | {r['seconds']:.1f} | "
+                 f"{r['note']} |")
+    if errors:
+        L += ["", "Failures:", ""] + [f"- `{k}`: {v}" for k, v in sorted(errors.items())]
+    L += ["", "## Camera-to-base calibration", ""]
+    if calib_res is not None:
+        from calib.pipeline import summary_markdown
+
+        L += [summary_markdown(calib_res).replace("## ", "### ", 1), "", "Written to `calib.json`."]
+    else:
+        L.append(stages.get("calib", {}).get("note") or "No calibration.")
+    L += ["", "## Link angles from the markers", ""]
+    if mocap_summary and mocap_summary.get("trials"):
+        L += [f"Camera pose from {mocap_summary['camera_from']}; per-trial CSVs in `angles/`.", "",
+              "| trial | joints | frames | RMS residual (mm) | flagged frames | link - motor RMS (mrad) |",
+              "|---|---|---|---|---|---|"]
+        for tid, d in mocap_summary["trials"].items():
+            lm = d.get("link_minus_motor_rms_rad") or []
+            lm = ", ".join(_f(None if x is None else 1e3 * x) for x in lm)
+            L.append(f"| {tid} | {', '.join(map(str, campaign.trial(tid).joints))} | {d.get('frames')} | {_f(d.get('rms_mm'))} | "
+                     f"{d.get('flagged_frames', '-')} | {lm} |")
+    else:
+        L.append(stages.get("mocap", {}).get("note") or "No link angles.")
+    L += ["", "## Friction identification (thesis eq. 2-4)", ""]
+    tables = out / "fits" / "tables" / "tables.md"
+    if fits is not None and fits.entries and tables.is_file():
+        L += [f"{len(fits.entries)} trial-joint fits of {', '.join(fits.models)}; statistics over the "
+              "repetitions of each (joint, load, speed range) condition (CV = population std / |mean|).",
+              "", tables.read_text(encoding="utf-8"), ""]
+        for key, name in plots.items():
+            L += [f"![{key}](plots/{name})", ""]
+        L.append("Per-condition plots: `fits/plots/`; all parameters with standard errors: "
+                 "`fits/fits.json`, `fits/fits_diagnostics.json`.")
+    else:
+        L.append("No fits.")
+    L += ["", "## Sim-to-real gap", ""]
+    if diagnosis and diagnosis.get("joints"):
+        L += ["| joint | verdict | held-out RMS nominal | best effect | reduction | largest gap share |",
+              "|---|---|---|---|---|---|"]
+        for j, rep in diagnosis["joints"].items():
+            eff = [e for e in rep.get("effects", []) if e.get("identifiable", True)
+                   and e.get("reduction") is not None]
+            best = max(eff, key=lambda e: e["reduction"]) if eff else None
+            loc = rep.get("localisation") or []
+            top = max(loc, key=lambda r: r["share"]) if loc else None
+            L.append(f"| {j} | **{rep.get('verdict')}** | {_f(rep.get('heldout_rms_nominal'))} | "
+                     f"{best['effect'] if best else '-'} | {_f(best['reduction']) if best else '-'} | "
+                     f"{(top['regime'] + ' ' + _f(top['share'], 2)) if top else '-'} |")
+        L.append("")
+        for j in diagnosis["joints"]:
+            for kind in ("localisation", "effects"):
+                p = out / "diagnosis" / f"joint{j}_{kind}.png"
+                if p.is_file():
+                    L += [f"![joint {j} {kind}](diagnosis/{p.name})", ""]
+        L.append("Full report: `diagnosis/diagnosis.md`, `diagnosis/diagnosis.json`.")
+    else:
+        L.append(stages.get("diagnosis", {}).get("note") or "No diagnosis.")
+    L += ["", "## Files", "",
+          "`calib.json`, `references.json`, `angles/`, `mocap.json`, `fits/`, `diagnosis/`, `plots/`, "
+          "`csv/trials.csv`, `csv/diagnosis_effects.csv`, `study.rrd` (open with `jointlab view`), "
+          f"`{MANIFEST_NAME}` (input hashes: a rerun skips what is up to date).", ""]
+    return "\n".join(L)
+
+
+def _rrd_trials(campaign, which: str):
+    if which == "all":
+        return list(campaign.trials)
+    seen, out = set(), []
+    for t in sorted(campaign.trials, key=lambda t: t.repetition):
+        key = (tuple(t.joints), t.load_kg, t.vmax_frac, t.kind)
+        if key not in seen:
+            seen.add(key)
+            out.append(t)
+    order = {t.id: k for k, t in enumerate(campaign.trials)}
+    return sorted(out, key=lambda t: order[t.id])
+
+
+def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, report_md, out,
+              which: str = "first", tmp_dir: Path | None = None) -> list[str]:
+    """One recording of the study: the campaign (markers in the camera frame, the robot posed
+    by the motor angles and placed by the calibration, joint signals), the calibration, the link
+    angles, the fits and the diagnosis, with a blueprint showing all of them. Written to a
+    temporary file and renamed to ``rrd_path`` when complete."""
+    sub = dataclasses.replace(campaign, trials=tuple(_rrd_trials(campaign, which)))
+    ids = {t.id for t in sub.trials}
+    tmp = None
+    if rrd_path is not None:
+        rrd_path = Path(rrd_path)
+        rrd_path.parent.mkdir(parents=True, exist_ok=True)
+        same_fs = tmp_dir is not None and Path(out).resolve() in rrd_path.resolve().parents
+        tmp = (Path(tmp_dir) if same_fs else rrd_path.parent) / f".{rrd_path.name}.{os.getpid()}.tmp"
+    try:
+        logged = _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report_md, out, ids)
+    except BaseException:
+        if tmp is not None:
+            tmp.unlink(missing_ok=True)
+        raise
+    if tmp is not None:
+        os.replace(tmp, rrd_path)
+    return logged
+
+
+def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report_md, out, ids):
+    from viz import make_sink
+
+    from ident.study.view import log_campaign
+
+    T_cb = None if calib_res is None else np.asarray(calib_res.T_camera_base, float)
+    with make_sink(str(tmp) if tmp else None, spawn, app_id="jointlab-study") as sink:
+        logged = log_campaign(sub, sink, robot, T_camera_base=T_cb, max_signal_rate_hz=100.0)
+        if calib_res is not None:
+            from calib.pipeline import log_calibration
+
+            log_calibration(sink, calib_res, prefix="campaign/calib")
+        if angles_dir is not None:
+            from ident.gap.campaign import read_angles_csv
+
+            for t in sub.trials:  # loop over logged trials
+                p = Path(angles_dir) / f"{t.id}.csv"
+                if p.is_file():
+                    ta, q = read_angles_csv(p)
+                    if q:
+                        sink.scalars(f"mocap/{t.id}", ta, np.column_stack([q[j] for j in sorted(q)]),
+                                     names=[f"q_{j}" for j in sorted(q)])
+        if fits is not None and fits.entries:
+            from ident.thesis.campaign import FitsResult, log_fits
+
+            log_fits(FitsResult(tuple(e for e in fits.entries if e.task.trial in ids), fits.models,
+                                fits.campaign, fits.skipped), sink)
+        if diag is not None:
+            report, series = diag
+            from ident.gap.report import markdown
+
+            diag_dir = Path(out) / "diagnosis"
+            plots = {p.stem: p.name for p in sorted(diag_dir.glob("*.png"))}
+            sink.text("diagnosis/report", markdown(report, plots))
+            for j, srs in series.items():  # loop over joints
+                if srs is not None and "residual_nominal" in srs:
+                    t = srs["t"] if "t" in srs else np.arange(srs["residual_nominal"].size, dtype=float)
+                    sink.scalars(f"diagnosis/joint{j}/residual_nominal", t, srs["residual_nominal"])
+            _log_pngs(sink, diag_dir, "diagnosis/plots")
+        _log_pngs(sink, Path(out) / "plots", "study/plots")
+        sink.text("study/report", report_md)  # the text view's one document
+        trial_sig = [f"/{b}/signals/**" for b in logged if "/trial/" in b]
+        series_views = {"joint signals (robot log)": trial_sig or ["/campaign/**"],
+                        "link angles (markers)": ["/mocap/**"],
+                        "friction fits (eq. 2-4)": ["/fits/**"],
+                        "gap diagnosis": ["/diagnosis/**"]}
+        sink.layout(series=series_views, world="/campaign", text="/study")  # one document per text view
+    return logged
+
+
+def _log_pngs(sink, folder: Path, prefix: str) -> None:
+    if not getattr(sink, "enabled", False) or not folder.is_dir():
+        return
+    import matplotlib.image as mpimg
+
+    for p in sorted(folder.glob("*.png")):  # loop over a handful of plots
+        img = mpimg.imread(p)
+        if img.dtype != np.uint8:
+            img = (np.clip(img[..., :3], 0, 1) * 255).astype(np.uint8)
+        sink.image(f"{prefix}/{p.stem}", np.ascontiguousarray(img[..., :3]))

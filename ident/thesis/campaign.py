@@ -1,0 +1,475 @@
+"""The campaign-level friction fit (thesis 002, ch. 4-5): every trial, every moving joint,
+every friction model, then statistics over the repetitions.
+
+Per (trial, joint) — :func:`fit_trial_joint`, a pure function of a picklable
+:class:`FitTask`, so any executor can run it:
+
+1. read the robot log (and ``angles/<trial id>.csv`` when an angles folder is given; without
+   it, or without that joint's column, the motor angle stands in for the link angle and the
+   result says ``link_source = "motor"``);
+2. :func:`ident.signals.smoothing.prepare_joint_signals`: Fourier fits (eq. 3-2) of ``qm`` and ``q`` on one
+   time base (marker time + ``time_offset``: the trial's ``time_offset`` key, 0 by default, or
+   estimated when ``sync="estimate"``); trials of a kind other than ``excitation`` use the
+   documented smoother;
+3. :class:`ident.model.onelink.OneLinkIdentifier`: eq. 2-4 with each friction model.
+
+:func:`fit_campaign` runs the tasks through ``executor.map`` (serial ``map`` by default),
+then :class:`FitsResult` builds ``fits.json`` (FORMAT.md), the thesis tables
+(:mod:`ident.thesis.tables`), friction-vs-speed plots and the sink log. Coast-down trials are skipped
+(another estimator handles them).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mocap.io.errors import InputError
+
+from ident.thesis import tables as stats
+from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
+from ident.signals.smoothing import (FourierSmoother, angles_path, one_blas_thread, prepare_joint_signals,
+                      read_angles)
+
+__all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
+           "campaign_tasks", "log_fits", "read_tx40_config", "fit_tx40", "Tx40Result"]
+
+_PLOT_POINTS = 3000
+
+
+@dataclass(frozen=True)
+class FitTask:
+    """Everything one (trial, joint) fit needs, as plain picklable values."""
+
+    trial: str
+    joint: int                      # 1-based
+    log: str
+    angles: str | None
+    J: float
+    B: float
+    n_joints: int
+    load_kg: float = 0.0
+    vmax_frac: float = 1.0
+    repetition: int = 1
+    kind: str = "excitation"
+    models: tuple = ("cv", "stribeck", "hyperbolic")
+    n_starts: int = 8
+    seed: int = 0
+    time_offset: float | str = 0.0
+    max_harmonics: int = 20
+
+
+@dataclass(frozen=True, eq=False)
+class TrialJointFit:
+    """The fits of one joint of one trial, with the signal diagnostics and plot samples."""
+
+    task: FitTask
+    fits: dict                      # model -> OneLinkFit
+    signals: dict                   # JointSignals.to_dict()
+    max_abs_tau: float
+    peak_speed: float
+    notes: tuple = ()
+    plot: dict = field(default_factory=dict, repr=False)   # time, qd, y, f_measured, pred_<model>
+
+    def records(self) -> list[dict]:
+        t = self.task
+        return [{"trial": t.trial, "joint": t.joint, "load_kg": t.load_kg, "vmax_frac": t.vmax_frac,
+                 "repetition": t.repetition, "model": m, "params": dict(f.params),
+                 "stderr": {k: f.stderr.get(k, float("nan")) for k in f.params}, "rms": f.rms,
+                 "max_abs_tau": self.max_abs_tau, "peak_speed": self.peak_speed}
+                for m, f in self.fits.items()]
+
+
+def _jnum(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def fit_trial_joint(task: FitTask) -> TrialJointFit:
+    """Signals + eq. 2-4 fits for one (trial, joint) (see the module docstring)."""
+    with one_blas_thread():
+        return _fit_trial_joint(task)
+
+
+def _fit_trial_joint(task: FitTask) -> TrialJointFit:
+    from mocap.io.robotlog import read_robot_log
+
+    log = read_robot_log(task.log, n_joints=task.n_joints)
+    j0 = task.joint - 1
+    notes = []
+    t_ang = q_link = None
+    if task.angles is not None:
+        track = read_angles(task.angles)
+        if task.joint in track.q:
+            t_ang, q_link = track.time, track.q[task.joint]
+        else:
+            notes.append(f"{task.angles} has no q_{task.joint}: the motor angle is used as the link angle")
+    else:
+        notes.append("no angles folder: the motor angle is used as the link angle (rigid-joint approximation)")
+    periodic = None if task.kind == "excitation" else False
+    smoother = FourierSmoother(max_harmonics=task.max_harmonics, periodic=periodic)
+    qm, tau = log.qm[:, j0], log.tau[:, j0]
+    if not np.isfinite(qm).any() or not np.isfinite(tau).any():
+        raise InputError(f"trial {task.trial!r}: the log has no qm_{task.joint}/tau_{task.joint} data",
+                         path=task.log, label=f"qm_{task.joint}")
+    sig = prepare_joint_signals(task.joint, log.time, qm, tau, t_ang, q_link,
+                                time_offset=task.time_offset, smoother=smoother)
+    ident = OneLinkIdentifier(task.models, n_starts=task.n_starts, seed=task.seed)
+    y = onelink_target(sig.tau, sig.qmd, sig.qmdd, task.J, task.B)
+    fits = ident.fit(sig.q, sig.qd, sig.qdd, y)
+    # plot samples: measured friction = y - rigid part of the cv fit (or of the first model)
+    ref = fits.get("cv") or next(iter(fits.values()))
+    X = onelink_regressor(sig.q, sig.qdd)
+    rigid = np.array([ref.rigid[k] for k in ("I", "mglx", "mgly")])
+    f_meas = y - X @ rigid
+    step = max(1, sig.time.size // _PLOT_POINTS)
+    plot = {"time": sig.time[::step], "qd": sig.qd[::step], "y": y[::step], "f_measured": f_meas[::step]}
+    for m, f in fits.items():
+        pr = X @ np.array([f.rigid[k] for k in ("I", "mglx", "mgly")]) + f.friction().torque(sig.qd)
+        plot[f"pred_{m}"] = pr[::step]
+    sd = sig.to_dict()
+    return TrialJointFit(task, fits, sd, float(np.max(np.abs(sig.tau))), float(np.max(np.abs(sig.qd))),
+                         tuple(notes), plot)
+
+
+@dataclass(frozen=True, eq=False)
+class FitsResult:
+    """All (trial, joint) fits of a campaign plus the statistics over repetitions."""
+
+    entries: tuple
+    models: tuple
+    campaign: str = ""
+    skipped: tuple = ()
+
+    def records(self) -> list[dict]:
+        return [r for e in self.entries for r in e.records()]
+
+    @property
+    def summary(self) -> list[dict]:
+        return stats.summarize(self.records())
+
+    def to_dict(self) -> dict:
+        """The ``fits.json`` document (FORMAT.md): trials -> id -> joint -> model ->
+        {params, stderr, rms}, and the summary list."""
+        trials: dict = {}
+        for e in self.entries:
+            tj = trials.setdefault(e.task.trial, {}).setdefault(str(e.task.joint), {})
+            for m, f in e.fits.items():
+                tj[m] = {"params": {k: _jnum(v) for k, v in f.params.items()},
+                         "stderr": {k: _jnum(f.stderr.get(k, np.nan)) for k in f.params},
+                         "rms": _jnum(f.rms)}
+        summ = [{k: r[k] for k in ("joint", "load_kg", "vmax_frac", "model", "param", "mean", "cv_percent")}
+                for r in self.summary]
+        return {"format": 1, "trials": trials, "summary": summ}
+
+    def diagnostics(self) -> dict:
+        """Everything else: rigid parameters, conditioning, degenerate forms, signal fits,
+        the RMS statistics (``fits_diagnostics.json``)."""
+        out = {"format": 1, "campaign": self.campaign, "models": list(self.models),
+               "skipped": list(self.skipped), "trials": {}, "rms_summary": stats.rms_summary(self.records())}
+        for e in self.entries:
+            d = out["trials"].setdefault(e.task.trial, {})
+            d[str(e.task.joint)] = {
+                "signals": e.signals, "notes": list(e.notes), "max_abs_tau": e.max_abs_tau,
+                "peak_speed": e.peak_speed, "load_kg": e.task.load_kg, "vmax_frac": e.task.vmax_frac,
+                "repetition": e.task.repetition,
+                "fits": {m: f.to_dict() for m, f in e.fits.items()}}
+        return out
+
+    def write(self, out_dir: str | Path, plots: bool = True) -> dict:
+        """Write fits.json, fits_diagnostics.json, tables/ and plots/ into ``out_dir``."""
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        paths = {"fits": out_dir / "fits.json", "diagnostics": out_dir / "fits_diagnostics.json"}
+        paths["fits"].write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False), encoding="utf-8")
+        paths["diagnostics"].write_text(json.dumps(_clean_json(self.diagnostics()), indent=1,
+                                                   allow_nan=False), encoding="utf-8")
+        recs = self.records()
+        paths["tables"] = stats.write_tables(recs, out_dir / "tables", self.models) if recs else []
+        paths["plots"] = self.write_plots(out_dir / "plots") if plots else []
+        return paths
+
+    def write_plots(self, plot_dir: Path) -> list[Path]:
+        """One friction-vs-speed PNG per (joint, load, speed range): its first repetition."""
+        done, out = set(), []
+        for e in sorted(self.entries, key=lambda e: (e.task.joint, -e.task.load_kg, -e.task.vmax_frac,
+                                                    e.task.repetition)):
+            key = (e.task.joint, e.task.load_kg, e.task.vmax_frac)
+            if key in done or not e.plot:
+                continue
+            done.add(key)
+            models = {m: f.friction() for m, f in e.fits.items()}
+            title = (f"joint {e.task.joint}, load {e.task.load_kg:g} kg, {100 * e.task.vmax_frac:g} % "
+                     f"speed (trial {e.task.trial})")
+            name = f"friction_joint{e.task.joint}_load{e.task.load_kg:g}_v{100 * e.task.vmax_frac:g}.png"
+            out.append(stats.plot_friction_vs_speed(plot_dir / name, e.plot["qd"], e.plot["f_measured"],
+                                                    models, title))
+        return out
+
+
+def _clean_json(x):
+    if isinstance(x, dict):
+        return {str(k): _clean_json(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean_json(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.ndarray):
+        return _clean_json(x.tolist())
+    return x
+
+
+def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8,
+                   seed: int = 0, sync: str = "clock", robot=None) -> tuple[list[FitTask], list[str]]:
+    """The (trial, joint) tasks of a campaign and the ids of skipped (coast-down) trials."""
+    robot = robot if robot is not None else campaign.load_robot()
+    tasks, skipped = [], []
+    for k, tr in enumerate(campaign.trials):
+        if tr.kind == "coastdown":
+            skipped.append(tr.id)
+            continue
+        if not Path(tr.log).is_file():
+            raise InputError(f"trial {tr.id!r}: log file {tr.log} not found", path=campaign.manifest,
+                             label=tr.id)
+        ang = None
+        if angles_dir is not None:
+            ang = str(angles_path(angles_dir, tr.id))
+        off = tr.extra.get("time_offset", 0.0)
+        if sync == "estimate":
+            off = "estimate"
+        for j in tr.joints:
+            d = robot.drives[j - 1]
+            tasks.append(FitTask(tr.id, int(j), str(tr.log), ang, float(d.motor_inertia),
+                                 float(d.motor_viscous), robot.n, tr.load_kg, tr.vmax_frac,
+                                 tr.repetition, tr.kind, tuple(models), n_starts,
+                                 int(seed) + 1000 * k + int(j), off))
+    return tasks, skipped
+
+
+def fit_campaign(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbolic"), sink=None,
+                 executor=None, n_starts: int = 8, seed: int = 0, sync: str = "clock") -> FitsResult:
+    """Fit every (trial, joint) of ``campaign`` (a :class:`mocap.io.campaign.Campaign`) with each
+    friction model; ``executor``: anything with ``map(fn, iterable)`` (a
+    ``concurrent.futures`` executor, the project's executor seam), default serial.
+    ``sync``: ``"clock"`` (marker time + the trial's ``time_offset``) or ``"estimate"``."""
+    for m in models:
+        model_class(m)
+    tasks, skipped = campaign_tasks(campaign, angles_dir, models, n_starts, seed, sync)
+    mapper = executor.map if executor is not None else map
+    entries = tuple(mapper(fit_trial_joint, tasks))
+    res = FitsResult(entries, tuple(models), campaign.name, tuple(skipped))
+    if sink is not None:
+        log_fits(res, sink)
+    return res
+
+
+def log_fits(result: FitsResult, sink) -> None:
+    """Scalars (eq. 2-4 target and model predictions over time) and points (friction vs speed,
+    as (qd, f, 0)) for every (trial, joint) under ``fits/<trial>/joint<j>``."""
+    if not getattr(sink, "enabled", False):
+        return
+    for e in result.entries:
+        base = f"fits/{e.task.trial}/joint{e.task.joint}"
+        p = e.plot
+        names = ["y"] + [f"pred_{m}" for m in e.fits]
+        sink.scalars(f"{base}/torque", p["time"], np.column_stack([p[n] for n in names]), names=names)
+        pts = np.column_stack([p["qd"], p["f_measured"], np.zeros_like(p["qd"])])
+        sink.points(f"{base}/friction_vs_speed/data", pts)
+        v = np.linspace(-np.max(np.abs(p["qd"])), np.max(np.abs(p["qd"])), 201)
+        for m, f in e.fits.items():
+            curve = np.column_stack([v, f.friction().torque(v), np.zeros_like(v)])
+            sink.points(f"{base}/friction_vs_speed/{m}", curve)
+
+
+# ---------------------------------------------------------------------------------------------
+# Staubli TX40 (real data, figaroh-examples)
+# ---------------------------------------------------------------------------------------------
+def read_tx40_config(path: str | Path) -> dict:
+    """The few numeric list/scalar keys of ``TX40_config.yaml`` (``fv``, ``fs``, ``Ia``,
+    ``offset``, ``reduction_ratio``, ``ts``, ...): a tiny ``key : value`` line parser, no YAML
+    dependency."""
+    out = {}
+    path = Path(path)
+    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        s = line.split("#", 1)[0].strip().lstrip("- ").strip()
+        if ":" not in s:
+            continue
+        key, val = (x.strip() for x in s.split(":", 1))
+        if not val:
+            continue
+        try:
+            if val.startswith("["):
+                out[key] = [float(x) for x in val.strip("[]").split(",") if x.strip()]
+            else:
+                out[key] = float(val)
+        except ValueError:
+            continue
+    for k in ("fv", "fs", "reduction_ratio", "ts"):
+        if k not in out:
+            raise InputError(f"no numeric '{k}' key", path=path, label=k)
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Tx40Result:
+    """Per-joint Coulomb + viscous fits on the TX40 logs (joint side, N m and N m s/rad),
+    with the published values from the config for comparison."""
+
+    fv: np.ndarray
+    fs: np.ndarray
+    offset: np.ndarray
+    stderr_fv: np.ndarray
+    stderr_fs: np.ndarray
+    rms: np.ndarray
+    fv_published: np.ndarray
+    fs_published: np.ndarray
+    n_samples: int
+    method: str
+    coupling: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()}
+
+    def table(self) -> str:
+        lines = ["joint  fv_fit   fv_pub  ratio |  fs_fit   fs_pub  ratio |  rms"]
+        for j in range(self.fv.size):
+            lines.append(f"{j + 1:5d} {self.fv[j]:7.3f} {self.fv_published[j]:7.3f} "
+                         f"{self.fv[j] / self.fv_published[j]:6.2f} | {self.fs[j]:7.3f} "
+                         f"{self.fs_published[j]:7.3f} {self.fs[j] / self.fs_published[j]:6.2f} | "
+                         f"{self.rms[j]:6.3f}")
+        return "\n".join(lines)
+
+
+def _read_numeric_csv(path: Path) -> np.ndarray:
+    try:
+        return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError as exc:
+        raise InputError(f"not a numeric CSV: {exc}", path=path) from None
+
+
+def load_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02):
+    """The TX40 logs on the joint side: ``(t, q, qd, qdd, tau, robot, cfg)``, smoothed with
+    Savitzky-Golay (``window_s``), edges dropped, every ``decimate``-th sample (see
+    :func:`fit_tx40` for the conversion)."""
+    from mocap.robot import Robot
+
+    from ident.signals.smoothing import SavGolSmoother
+
+    folder = Path(folder)
+    cfg = read_tx40_config(folder / "TX40_config.yaml")
+    urdf = next(iter(sorted(folder.glob("*.urdf"))), None)
+    if urdf is None:
+        raise InputError("no URDF in the TX40 folder", path=folder)
+    pos = _read_numeric_csv(folder / "pos_read_data.csv")
+    cur = _read_numeric_csv(folder / "curr_data.csv")
+    if pos.shape != cur.shape or pos.shape[1] != 6:
+        raise InputError(f"position {pos.shape} and torque {cur.shape} tables must both be (T, 6)",
+                         path=folder)
+    r = np.asarray(cfg["reduction_ratio"], float)
+    Nq = np.diag(r)
+    Nq[5, 4] = r[5]
+    q = np.linalg.solve(Nq, pos.T).T
+    q[:, 1] -= np.pi / 2
+    q[:, 2] += np.pi / 2
+    Nt = np.diag(r)
+    Nt[4, 5] = r[5]
+    tau = cur @ Nt.T
+    t = np.arange(pos.shape[0]) * float(cfg["ts"])
+    sm = SavGolSmoother(window_s=window_s, polyorder=3)
+    qs, qd, qdd = (np.empty_like(q) for _ in range(3))
+    for j in range(6):
+        f = sm.fit(t, q[:, j])
+        qs[:, j], qd[:, j], qdd[:, j] = f.evaluate(t)
+    # drop the filter's edges and decimate
+    edge = int(round(window_s / float(cfg["ts"])))
+    sl = slice(edge, q.shape[0] - edge, int(decimate))
+    robot = Robot.from_urdf(urdf)
+    if robot.n != 6:
+        raise InputError(f"the TX40 URDF has {robot.n} revolute joints, expected 6", path=urdf)
+    return t[sl], qs[sl], qd[sl], qdd[sl], tau[sl], robot, cfg
+
+
+def fit_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02,
+             with_inertia: bool = True, coupled_wrist: bool = True) -> Tx40Result:
+    """Fit Coulomb + viscous friction per joint on the Staubli TX40 logs (figaroh-examples).
+
+    Data: ``pos_read_data.csv`` motor positions (rad), ``curr_data.csv`` motor torques, both at
+    ``ts`` (0.2 ms). Conversion as in figaroh's TX40 tools: ``q = N^-1 qm`` with the wrist
+    coupling ``N[5, 4] = r6``, joint offsets -pi/2 (joint 2) and +pi/2 (joint 3), joint torques
+    ``tau = N_tau tau_m`` with ``N_tau[4, 5] = r6``. Derivatives: the Savitzky-Golay smoother
+    of :mod:`ident.signals.smoothing` (``window_s``), then every ``decimate``-th sample.
+
+    Model (the thesis's rigid-joint one-link regression generalised to the arm): with
+    ``with_inertia`` the joint torques are regressed jointly on pinocchio's joint torque
+    regressor of the TX40 URDF (all inertial parameters, min-norm least squares for the
+    unidentifiable combinations) plus, per joint, ``[sign qd, qd, 1, qdd]`` (Coulomb ``fs``,
+    viscous ``fv``, offset, armature ``Ia``) — the standard figaroh/Indri & Trapani setting —
+    and, with ``coupled_wrist``, figaroh's wrist-coupling columns (``Iam6``, ``fvm6``,
+    ``fsm6`` on joints 5 and 6 with ``sign(qd5 + qd6)``).
+    Without it, residual = tau - rnea(URDF) - Ia qdd is fitted per joint with
+    ``[sign qd, qd, 1]`` (a simplification: URDF inertial values taken as exact).
+    """
+    import pinocchio as pin
+
+    t, qs, qd, qdd, tau, robot, cfg = load_tx40(folder, decimate, window_s)
+    model = robot.model
+    T = qs.shape[0]
+    Ia = np.asarray(cfg.get("Ia", [0.0] * 6), float)
+    fv, fs, off, se_fv, se_fs, rms = (np.zeros(6) for _ in range(6))
+    coupling = {}
+    if with_inertia:
+        data = model.createData()
+        W = np.empty((T, 6, 10 * model.njoints - 10))
+        for k in range(T):
+            W[k] = pin.computeJointTorqueRegressor(model, data, qs[k], qd[k], qdd[k])
+        nW = W.shape[2]
+        A = np.zeros((T, 6, nW + 24))
+        A[:, :, :nW] = W
+        for j in range(6):
+            A[:, j, nW + 4 * j:nW + 4 * j + 4] = np.column_stack(
+                [np.sign(qd[:, j]), qd[:, j], np.ones(T), qdd[:, j]])
+        if coupled_wrist:  # figaroh's TX40 wrist coupling: Iam6, fvm6, fsm6 (joints 5 and 6)
+            sg = np.sign(qd[:, 4] + qd[:, 5])
+            A = np.concatenate([A, np.zeros((T, 6, 3))], axis=2)
+            A[:, 4, -3:] = np.column_stack([qdd[:, 5], qd[:, 5], sg])
+            A[:, 5, -3:] = np.column_stack([qdd[:, 4], qd[:, 4], sg])
+        A2 = A.reshape(T * 6, -1)
+        y = tau.reshape(-1)
+        # scale rows per joint so each joint's torque counts equally
+        sj = np.std(tau, axis=0)
+        wrow = np.tile(1.0 / sj, T)
+        beta, *_ = np.linalg.lstsq(A2 * wrow[:, None], y * wrow, rcond=None)
+        res = (y - A2 @ beta).reshape(T, 6)
+        # standard errors of the friction columns: residual variance per joint, projected
+        U, S, Vt = np.linalg.svd(A2 * wrow[:, None], full_matrices=False)
+        keep = S > S[0] * 1e-10
+        cov_n = (Vt[keep].T / S[keep] ** 2) @ Vt[keep]
+        s2 = float(np.sum((res / sj) ** 2)) / max(T * 6 - keep.sum(), 1)
+        se = np.sqrt(np.maximum(np.diag(cov_n) * s2, 0.0))
+        for j in range(6):
+            b = nW + 4 * j
+            fs[j], fv[j], off[j] = beta[b], beta[b + 1], beta[b + 2]
+            se_fs[j], se_fv[j] = se[b], se[b + 1]
+            rms[j] = np.sqrt(np.mean(res[:, j] ** 2))
+        method = "joint LS: pinocchio torque regressor + per-joint [sign qd, qd, 1, qdd]"
+        if coupled_wrist:
+            method += " + wrist coupling [Iam6, fvm6, fsm6]"
+            coupling = {k: float(v) for k, v in zip(("Iam6", "fvm6", "fsm6"), beta[-3:])}
+    else:
+        tau_rb = robot.rnea(qs, qd, qdd)
+        for j in range(6):
+            yj = tau[:, j] - tau_rb[:, j] - Ia[j] * qdd[:, j]
+            X = np.column_stack([np.sign(qd[:, j]), qd[:, j], np.ones(T)])
+            b, *_ = np.linalg.lstsq(X, yj, rcond=None)
+            rr = yj - X @ b
+            cov = np.linalg.inv(X.T @ X) * float(rr @ rr) / max(T - 3, 1)
+            fs[j], fv[j], off[j] = b
+            se_fs[j], se_fv[j] = np.sqrt(np.diag(cov)[:2])
+            rms[j] = np.sqrt(np.mean(rr ** 2))
+        method = "per joint: tau - rnea(URDF) - Ia qdd ~ [sign qd, qd, 1]"
+    return Tx40Result(fv, fs, off, se_fv, se_fs, rms, np.asarray(cfg["fv"], float),
+                      np.asarray(cfg["fs"], float), int(T), method, coupling)

@@ -1,0 +1,231 @@
+"""The campaign manifest (FORMAT.md, ``campaign.toml``) and its validation."""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mocap.io.errors import InputError
+
+TRIAL_KINDS = ("excitation", "coastdown", "reversals", "constant_velocity")
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A marker file plus the robot log of the same interval."""
+
+    markers: Path
+    log: Path
+
+
+@dataclass(frozen=True)
+class CalibSweep(Recording):
+    joint: int = 1
+
+
+@dataclass(frozen=True)
+class Trial(Recording):
+    id: str = ""
+    joints: tuple[int, ...] = ()
+    load_kg: float = 0.0
+    vmax_frac: float = 1.0
+    repetition: int = 1
+    kind: str = "excitation"
+    note: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Campaign:
+    root: Path
+    name: str
+    urdf: Path
+    drives: Path
+    gravity: tuple[float, float, float]
+    markers: dict  # link name -> tuple of labels
+    static: tuple[Recording, ...]
+    calib: tuple[CalibSweep, ...]
+    trials: tuple[Trial, ...]
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def manifest(self) -> Path:
+        return self.root / "campaign.toml"
+
+    def trial(self, trial_id: str) -> Trial:
+        for t in self.trials:
+            if t.id == trial_id:
+                return t
+        raise InputError(f"no trial {trial_id!r} in the campaign", path=self.manifest)
+
+    def link_of_label(self) -> dict:
+        return {lb: link for link, labels in self.markers.items() for lb in labels}
+
+    def load_robot(self):
+        from mocap.robot import Robot
+
+        robot = Robot.from_urdf(self.urdf, self.drives, self.gravity)
+        missing = [lk for lk in self.markers if lk not in robot.chain.frames]
+        if missing:
+            raise InputError(f"[markers] names link {missing[0]!r}, which is not in the URDF "
+                             f"(links: {', '.join(robot.link_names)})", path=self.manifest,
+                             label=missing[0])
+        for t in self.trials:
+            bad = [j for j in t.joints if not 1 <= j <= robot.n]
+            if bad:
+                raise InputError(f"trial {t.id!r} moves joint {bad[0]}, but the robot has {robot.n} joints",
+                                 path=self.manifest, label=t.id)
+        for c in self.calib:
+            if not 1 <= c.joint <= robot.n:
+                raise InputError(f"calibration sweep of joint {c.joint}, but the robot has {robot.n} joints",
+                                 path=self.manifest)
+        return robot
+
+    def recordings(self):
+        """Every (kind, name, Recording) in the manifest."""
+        for k, s in enumerate(self.static, 1):
+            yield "static", f"static-{k}", s
+        for c in self.calib:
+            yield "calib", f"calib-joint-{c.joint}", c
+        for t in self.trials:
+            yield "trial", t.id, t
+
+
+def _req(tab: dict, key: str, where: str, path: Path):
+    if key not in tab:
+        raise InputError(f"{where} has no '{key}'", path=path, label=key)
+    return tab[key]
+
+
+def _num(v, key: str, where: str, path: Path) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputError(f"{where}: '{key}' must be a number, got {v!r}", path=path, label=key)
+    return float(v)
+
+
+def _file(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
+    if not isinstance(rel, str):
+        raise InputError(f"{where}: '{key}' must be a path string", path=manifest, label=key)
+    p = (root / rel)
+    if not p.is_file():
+        raise InputError(f"{where}: {key} file {rel!r} not found", path=manifest, label=key)
+    return p
+
+
+def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
+    """Read and validate ``campaign.toml`` (``path`` is the folder or the manifest itself)."""
+    path = Path(path)
+    manifest = path / "campaign.toml" if path.is_dir() else path
+    if not manifest.is_file():
+        raise InputError("no campaign.toml here", path=manifest)
+    root = manifest.parent
+    try:
+        doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", path=manifest) from None
+    fmt = doc.get("format")
+    if fmt != 1:
+        raise InputError(f"unsupported campaign format {fmt!r} (this workbench reads format = 1)",
+                         path=manifest, label="format")
+    chk = (lambda rel, key, where: _file(root, rel, key, where, manifest)) if check_files else \
+        (lambda rel, key, where: root / rel)
+    rob = _req(doc, "robot", "the manifest", manifest)
+    urdf = chk(_req(rob, "urdf", "[robot]", manifest), "urdf", "[robot]")
+    drives = chk(_req(rob, "drives", "[robot]", manifest), "drives", "[robot]")
+    grav = rob.get("gravity", [0.0, 0.0, -9.81])
+    if not (isinstance(grav, list) and len(grav) == 3):
+        raise InputError("[robot] gravity must be a list of 3 numbers", path=manifest, label="gravity")
+    grav = tuple(_num(g, "gravity", "[robot]", manifest) for g in grav)
+
+    markers = {}
+    seen = {}
+    for link, labels in doc.get("markers", {}).items():
+        if not (isinstance(labels, list) and all(isinstance(x, str) for x in labels)):
+            raise InputError(f"[markers] {link} must be a list of labels", path=manifest, label=link)
+        for lb in labels:
+            if lb in seen:
+                raise InputError(f"marker {lb!r} is listed for both {seen[lb]!r} and {link!r}",
+                                 path=manifest, label=lb)
+            seen[lb] = link
+        markers[link] = tuple(labels)
+    if not markers:
+        raise InputError("no [markers] table: which link is each marker glued to?", path=manifest)
+
+    static = []
+    for k, tab in enumerate(doc.get("static", []), 1):
+        w = f"[[static]] number {k}"
+        static.append(Recording(chk(_req(tab, "markers", w, manifest), "markers", w),
+                                chk(_req(tab, "log", w, manifest), "log", w)))
+    calib = []
+    for k, tab in enumerate(doc.get("calib", []), 1):
+        w = f"[[calib]] number {k}"
+        j = _req(tab, "joint", w, manifest)
+        if isinstance(j, bool) or not isinstance(j, int):
+            raise InputError(f"{w}: 'joint' must be an integer", path=manifest, label="joint")
+        calib.append(CalibSweep(chk(_req(tab, "markers", w, manifest), "markers", w),
+                                chk(_req(tab, "log", w, manifest), "log", w), joint=j))
+    trials = []
+    ids = set()
+    known = {"id", "joints", "load_kg", "vmax_frac", "repetition", "markers", "log", "kind", "note"}
+    for k, tab in enumerate(doc.get("trial", []), 1):
+        tid = _req(tab, "id", f"[[trial]] number {k}", manifest)
+        w = f"trial {tid!r}"
+        if tid in ids:
+            raise InputError(f"duplicate trial id {tid!r}", path=manifest, label=str(tid))
+        ids.add(tid)
+        joints = _req(tab, "joints", w, manifest)
+        if not (isinstance(joints, list) and joints and
+                all(isinstance(j, int) and not isinstance(j, bool) for j in joints)):
+            raise InputError(f"{w}: 'joints' must be a non-empty list of joint numbers",
+                             path=manifest, label="joints")
+        kind = tab.get("kind", "excitation")
+        if kind not in TRIAL_KINDS:
+            raise InputError(f"{w}: kind {kind!r} is not one of {', '.join(TRIAL_KINDS)}",
+                             path=manifest, label="kind")
+        rep = tab.get("repetition", 1)
+        if isinstance(rep, bool) or not isinstance(rep, int):
+            raise InputError(f"{w}: 'repetition' must be an integer", path=manifest, label="repetition")
+        trials.append(Trial(
+            markers=chk(_req(tab, "markers", w, manifest), "markers", w),
+            log=chk(_req(tab, "log", w, manifest), "log", w),
+            id=str(tid), joints=tuple(joints),
+            load_kg=_num(tab.get("load_kg", 0.0), "load_kg", w, manifest),
+            vmax_frac=_num(tab.get("vmax_frac", 1.0), "vmax_frac", w, manifest),
+            repetition=rep, kind=kind, note=str(tab.get("note", "")),
+            extra={kk: vv for kk, vv in tab.items() if kk not in known}))
+    top_known = {"format", "name", "robot", "markers", "static", "calib", "trial"}
+    return Campaign(root=root, name=str(doc.get("name", root.name)), urdf=urdf, drives=drives,
+                    gravity=grav, markers=markers, static=tuple(static), calib=tuple(calib),
+                    trials=tuple(trials), extra={k: v for k, v in doc.items() if k not in top_known})
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def write_manifest(path: str | Path, doc: dict, overwrite: bool = False) -> Path:
+    """Write a FORMAT v1 manifest from a plain dict (keys as in FORMAT.md; paths relative)."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; refusing to overwrite")
+    lines = []
+    for k in ("format", "name"):
+        if k in doc:
+            lines.append(f"{k} = {_toml_value(doc[k])}")
+    for table in ("robot", "markers"):
+        if table in doc:
+            lines += ["", f"[{table}]"] + [f"{k} = {_toml_value(v)}" for k, v in doc[table].items()]
+    for arr in ("static", "calib", "trial"):
+        for tab in doc.get(arr, []):
+            lines += ["", f"[[{arr}]]"] + [f"{k} = {_toml_value(v)}" for k, v in tab.items()]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path

@@ -1,0 +1,163 @@
+"""Robot controller logs (FORMAT.md, "Robot log (.csv)")."""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mocap.io.errors import InputError
+
+_QM = re.compile(r"^qm_(\d+)$")
+_TAU = re.compile(r"^tau_(\d+)$")
+
+
+@dataclass(frozen=True, eq=False)
+class RobotLog:
+    """A robot log: ``time`` (T,), ``qm`` and ``tau`` (T, n) with column j-1 for joint j.
+
+    Joints whose columns are absent are NaN. ``extra`` keeps every other column by name.
+    """
+
+    time: np.ndarray
+    qm: np.ndarray
+    tau: np.ndarray
+    extra: dict = field(default_factory=dict)
+    source: Path | None = None
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.time.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.qm.shape[1])
+
+    @property
+    def rate_hz(self) -> float:
+        return float(1.0 / np.median(np.diff(self.time))) if self.n_samples > 1 else float("nan")
+
+    def columns(self) -> dict[str, np.ndarray]:
+        cols = {"time": self.time}
+        for j in range(self.n_joints):
+            cols[f"qm_{j + 1}"] = self.qm[:, j]
+        for j in range(self.n_joints):
+            cols[f"tau_{j + 1}"] = self.tau[:, j]
+        cols.update(self.extra)
+        return cols
+
+
+def _parse_float_table(rows: list[list[str]], header: list[str], path: Path) -> np.ndarray:
+    arr = np.array(rows, dtype=object)
+    strs = np.char.strip(arr.astype(str))
+    empty = (strs == "") | (np.char.lower(strs) == "nan")
+    strs = np.where(empty, "nan", strs)
+    try:
+        return strs.astype(float)
+    except ValueError:
+        # locate the offending cell for the message (rare path)
+        for i, row in enumerate(strs):
+            for k, cell in enumerate(row):
+                try:
+                    float(cell)
+                except ValueError:
+                    raise InputError(f"column {header[k]!r} has a non-numeric value {cell!r}",
+                                     path=path, line=i + 2) from None
+        raise
+
+
+def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
+    """Read a robot log CSV.
+
+    ``n_joints`` (from the URDF) fixes the width of ``qm``/``tau``; a log naming a joint
+    beyond it is an error. Without it, the width is the highest joint index found.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("robot log not found", path=path)
+    text = path.read_text(encoding="utf-8-sig")
+    lines = text.splitlines()
+    if not lines:
+        raise InputError("robot log is empty", path=path)
+    header = [h.strip() for h in lines[0].split(",")]
+    if "time" not in header:
+        raise InputError(f"no 'time' column in the header (found {header})", path=path, line=1)
+    if len(set(header)) != len(header):
+        raise InputError("duplicate column names in the header", path=path, line=1)
+    data = None
+    try:  # fast path: a complete numeric table (C parser); anything unusual takes the slow path
+        data = np.loadtxt(lines[1:], delimiter=",", dtype=float, ndmin=2)
+        if data.shape[1] != len(header):
+            data = None
+    except ValueError:
+        data = None
+    if data is not None and data.shape[0] == 0:
+        raise InputError("robot log has a header but no samples", path=path)
+    rows = [] if data is None else None
+    for i, ln in enumerate(lines[1:] if data is None else [], start=2):
+        if not ln.strip():
+            continue
+        cells = ln.split(",")
+        if len(cells) != len(header):
+            raise InputError(f"expected {len(header)} cells, found {len(cells)}", path=path, line=i)
+        rows.append(cells)
+    if data is None:
+        if not rows:
+            raise InputError("robot log has a header but no samples", path=path)
+        data = _parse_float_table(rows, header, path)
+    col = {h: data[:, k] for k, h in enumerate(header)}
+    t = col["time"]
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise InputError("missing time value", path=path, line=int(bad[0]) + 2)
+    nonmono = np.flatnonzero(np.diff(t) <= 0)
+    if nonmono.size:
+        i = int(nonmono[0]) + 1
+        raise InputError(f"time is not strictly increasing ({t[i - 1]!r} then {t[i]!r})",
+                         path=path, line=i + 2)
+    idx = [int(m.group(1)) for h in header for m in [_QM.match(h) or _TAU.match(h)] if m]
+    if any(j < 1 for j in idx):
+        raise InputError("joint indices start at 1 (qm_1, tau_1, ...)", path=path, line=1)
+    n_found = max(idx, default=0)
+    if n_joints is None:
+        n_joints = n_found
+    elif n_found > n_joints:
+        raise InputError(f"log has columns for joint {n_found} but the robot has {n_joints} joints",
+                         path=path, line=1)
+    T = t.shape[0]
+    qm = np.full((T, n_joints), np.nan)
+    tau = np.full((T, n_joints), np.nan)
+    extra = {}
+    for h in header:
+        if h == "time":
+            continue
+        m_q, m_t = _QM.match(h), _TAU.match(h)
+        if m_q:
+            qm[:, int(m_q.group(1)) - 1] = col[h]
+        elif m_t:
+            tau[:, int(m_t.group(1)) - 1] = col[h]
+        else:
+            extra[h] = col[h]
+    return RobotLog(t, qm, tau, extra, path)
+
+
+def write_robot_log(path: str | Path, log: RobotLog, joints=None, overwrite: bool = False,
+                    fmt: str = "%.9g") -> Path:
+    """Write a robot log CSV (NaN written as empty cells). ``joints`` (1-based) selects columns."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; refusing to overwrite")
+    joints = range(1, log.n_joints + 1) if joints is None else list(joints)
+    names = ["time"] + [f"qm_{j}" for j in joints] + [f"tau_{j}" for j in joints] + list(log.extra)
+    cols = [log.time] + [log.qm[:, j - 1] for j in joints] + [log.tau[:, j - 1] for j in joints] \
+        + [np.asarray(v, float) for v in log.extra.values()]
+    data = np.column_stack(cols)
+    body = np.char.mod(fmt, data)
+    body[~np.isfinite(data)] = ""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(",".join(names) + "\n")
+        fh.write("\n".join(",".join(r) for r in body))
+        fh.write("\n")
+    return path

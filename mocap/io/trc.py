@@ -1,0 +1,370 @@
+"""TRC marker files (Motion Analysis text format), FORMAT.md "Marker file (.trc)".
+
+Layout (tab separated; comma separated files exported by other tools are accepted too)::
+
+    line 1  PathFileType  4  (X/Y/Z)  <name>
+    line 2  DataRate CameraRate NumFrames NumMarkers Units OrigDataRate OrigDataStartFrame OrigNumFrames
+    line 3  the values of line 2
+    line 4  Frame#  Time  <label 1>  ''  ''  <label 2> ...   (padded: each label spans 3 columns;
+                                                            compact lists, one cell per label, are accepted)
+    line 5  ''  ''  X1  Y1  Z1  X2 ...                        (optional)
+    line 6  blank                                             (optional)
+    then    one row per frame: frame number, time, 3 coordinates per marker
+
+An occluded marker is empty (or ``NaN``) cells; a marker with any of its three cells empty is
+missing in that frame (all three coordinates NaN). Coordinates are converted once, here, from
+the declared ``Units`` (``mm``, ``cm`` or ``m``) to metres; ``rec.units`` keeps the declared unit.
+
+Header fields are kept in ``rec.meta`` under their own names (``NumFrames`` is the *header*
+value). The rows are the data: when the header disagrees with them (``NumFrames`` is often the
+length of the original take, not of the exported excerpt) the rows win and
+``meta["header_mismatch"]`` says what disagreed. ``meta["first_frame"]`` is the frame number of
+the first row, ``meta["n_rows"]`` the number of data rows, ``meta["delimiter"]`` the separator.
+
+Parsing is vectorised, with no Python loop over rows or cells on the happy path: blank lines
+and per-row cell counts are found on the raw bytes with numpy (``reduceat`` over line
+segments), empty cells become ``nan`` by string replacement, and numpy's C text parser
+(``np.loadtxt``) converts the whole block. Ragged rows (trailing separators on some rows only)
+or odd cells take a careful path that splits per line into a string array; only the error path
+looks at single cells, to name the bad one.
+"""
+from __future__ import annotations
+
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+
+from mocap.io.errors import InputError
+from mocap.io.recording import MarkerRecording
+
+HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",
+               "OrigDataRate", "OrigDataStartFrame", "OrigNumFrames")
+
+#: metres per declared unit
+UNIT_SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+#: spellings seen in exported files, mapped to the short unit name kept in ``rec.units``
+UNIT_ALIASES = {"millimeters": "mm", "millimetres": "mm", "millimeter": "mm", "millimetre": "mm",
+                "centimeters": "cm", "centimetres": "cm", "meters": "m", "metres": "m",
+                "meter": "m", "metre": "m"}
+
+
+def normalise_units(units) -> str | None:
+    """``'MM'``, ``' mm '``, ``'millimeters'`` -> ``'mm'``; None if not a known length unit."""
+    u = str(units).strip().lower()
+    u = UNIT_ALIASES.get(u, u)
+    return u if u in UNIT_SCALE else None
+
+_COORD_RE = re.compile(r"^([XYZ])(\d+)$", re.IGNORECASE)
+
+
+def _header_value(s: str):
+    """A header cell as int, float or (stripped) string."""
+    s = s.strip()
+    try:
+        return int(s)
+    except ValueError:
+        pass
+    try:
+        return float(s)
+    except ValueError:
+        return s
+
+
+def _decode(path: Path) -> str:
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def _sniff_delimiter(lines: list[str], path: Path) -> str:
+    """Tab if the key line (line 2) has tabs, else comma."""
+    probe = lines[1] if len(lines) > 1 else lines[0]
+    if "\t" in probe:
+        return "\t"
+    if "," in probe:
+        return ","
+    raise InputError("cannot tell the column separator (expected tabs or commas in the header "
+                     "line 'DataRate CameraRate NumFrames ...')", path=path, line=2)
+
+
+def read_trc(path: str | Path) -> MarkerRecording:
+    """Read a TRC file into a :class:`MarkerRecording` (time-first, metres, NaN = occluded).
+
+    Raises :class:`InputError` naming the file and line for anything that does not fit the
+    layout: a missing header, unknown units, a data row with fewer cells than
+    ``2 + 3 * n_markers`` or with non-empty cells beyond them, a cell that is not a number,
+    a blank or non-increasing time.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("TRC file not found", path=path)
+    lines = _decode(path).split("\n")
+    if len(lines) < 4 or not lines[0].strip():
+        raise InputError("too short for a TRC file (needs at least 4 header lines)", path=path)
+    sep = _sniff_delimiter(lines, path)
+
+    # ---- line 1: PathFileType 4 (X/Y/Z) <name>
+    first = [c.strip() for c in lines[0].split(sep)]
+    if first[0].lower() != "pathfiletype":
+        raise InputError(f"not a TRC file: line 1 starts with {first[0][:40]!r}, expected 'PathFileType'",
+                         path=path, line=1)
+    first = [c for c in first if c]
+    meta: dict = {"PathFileType": _header_value(first[1]) if len(first) > 1 else None,
+                  "path_type": first[2] if len(first) > 2 else None,
+                  "name": sep.join(first[3:]) if len(first) > 3 else None,
+                  "delimiter": sep}
+
+    # ---- lines 2-3: header keys and values
+    keys = [c.strip() for c in lines[1].split(sep)]
+    vals = [c.strip() for c in lines[2].split(sep)]
+    header = {}
+    for k, v in zip(keys, vals + [""] * max(0, len(keys) - len(vals))):
+        if k:
+            header[k] = _header_value(v)
+    if "DataRate" not in header:
+        raise InputError("header has no DataRate key (line 2 should list DataRate CameraRate "
+                         "NumFrames NumMarkers Units ...)", path=path, line=2)
+    rate = header["DataRate"]
+    if not isinstance(rate, (int, float)) or not np.isfinite(rate) or rate <= 0:
+        raise InputError(f"DataRate must be a positive number, got {rate!r}", path=path, line=3)
+    units_raw = header.get("Units")
+    if units_raw is None or str(units_raw).strip() == "":
+        raise InputError("header has no Units value (expected mm, cm or m)", path=path, line=3)
+    units = normalise_units(units_raw)
+    if units is None:
+        raise InputError(f"unknown Units {units_raw!r} (expected one of mm, cm, m)", path=path, line=3)
+    meta.update(header)
+
+    # ---- line 4: Frame#, Time, labels
+    cells4 = [c.strip() for c in lines[3].split(sep)]
+    if len(cells4) < 2 or cells4[0].lower().rstrip("#") not in ("frame", "frame#") \
+            or cells4[1].lower() != "time":
+        raise InputError(f"line 4 must start with 'Frame#' and 'Time', got {cells4[:2]}",
+                         path=path, line=4)
+    labels = [c for c in cells4[2:] if c]
+
+    # ---- line 5: optional X1 Y1 Z1 ... line
+    data_start = 4  # 0-based index of the first line after the header
+    n_markers = len(labels)
+    if len(lines) > 4:
+        cells5 = [c.strip() for c in lines[4].split(sep)]
+        coord = [c for c in cells5[2:] if c]
+        if coord and _COORD_RE.match(coord[0]):
+            data_start = 5
+            if len(coord) % 3:
+                raise InputError(f"line 5 has {len(coord)} coordinate names, not a multiple of 3",
+                                 path=path, line=5)
+            n_markers = len(coord) // 3
+            expected = [f"{a}{k}" for k in range(1, n_markers + 1) for a in "XYZ"]
+            got = [c.upper() for c in coord]
+            if got != expected:
+                bad = next(i for i, (g, e) in enumerate(zip(got, expected)) if g != e)
+                raise InputError(f"line 5: coordinate column {bad + 3} is {coord[bad]!r}, expected "
+                                 f"{expected[bad]!r} (X1 Y1 Z1 X2 ... in order)", path=path, line=5)
+    if n_markers != len(labels):
+        raise InputError(f"line 4 names {len(labels)} markers but the coordinate line 5 has columns "
+                         f"for {n_markers}", path=path, line=4)
+    if n_markers == 0:
+        raise InputError("no marker labels on line 4", path=path, line=4)
+    if isinstance(header.get("NumMarkers"), int) and header["NumMarkers"] != n_markers:
+        raise InputError(f"header NumMarkers is {header['NumMarkers']} but line 4 names {n_markers} "
+                         f"markers ({', '.join(labels[:5])}...)", path=path, line=3)
+
+    # ---- data rows (blank lines, such as the usual line 6 and a final newline, are skipped)
+    n_cols = 2 + 3 * n_markers
+    body_text, line_no, n_cells = _scan_body("\n".join(lines[data_start:]), sep, data_start + 1)
+    short = np.flatnonzero(n_cells < n_cols)
+    if short.size:
+        i = short[0]
+        raise InputError(f"row has {n_cells[i]} cells, expected {n_cols} (Frame#, Time and 3 per "
+                         f"marker for {n_markers} markers)", path=path, line=int(line_no[i]))
+    values = None
+    if line_no.size and np.all(n_cells == n_cells[0]):
+        values = _fast_values(body_text, sep, line_no.size)   # C parser; None if a cell needs care
+        if values is not None and values.shape[1] > n_cols:
+            bad_rows = np.flatnonzero(np.any(~np.isnan(values[:, n_cols:]), axis=1))
+            if bad_rows.size:
+                _raise_extra(n_cells, bad_rows[0], n_cols, n_markers, line_no, path)
+            values = values[:, :n_cols]
+    if values is None:
+        body = body_text.split("\n") if line_no.size else []
+        values = _careful_values(body, n_cells, sep, n_cols, n_markers, labels, line_no, path)
+    frame_col, time = values[:, 0], values[:, 1]
+    bad_t = np.flatnonzero(~np.isfinite(time))
+    if bad_t.size:
+        raise InputError("the Time cell is empty or not finite", path=path, line=int(line_no[bad_t[0]]))
+    back = np.flatnonzero(np.diff(time) <= 0)
+    if back.size:
+        i = back[0] + 1
+        raise InputError(f"Time {time[i]:g} is not after the previous row's {time[i - 1]:g} "
+                         "(time must increase strictly)", path=path, line=int(line_no[i]))
+
+    xyz = values[:, 2:].reshape(-1, n_markers, 3)
+    missing = ~np.all(np.isfinite(xyz), axis=2)   # any blank/NaN/inf cell: the whole marker is out
+    xyz[missing] = np.nan
+    positions = xyz * UNIT_SCALE[units]
+
+    n_rows = int(time.shape[0])
+    meta["n_rows"] = n_rows
+    meta["first_frame"] = int(frame_col[0]) if n_rows and np.isfinite(frame_col[0]) else None
+    mismatch = []
+    if isinstance(header.get("NumFrames"), int) and header["NumFrames"] != n_rows:
+        mismatch.append(f"NumFrames: header {header['NumFrames']}, file has {n_rows} rows")
+    meta["header_mismatch"] = mismatch
+    return MarkerRecording(time=time, positions=positions, labels=tuple(labels), rate_hz=float(rate),
+                           units=units, source=path, meta=meta)
+
+
+def _scan_body(text: str, sep: str, first_line: int):
+    """Drop blank lines (only separators/spaces) from the data block, vectorised over bytes.
+
+    Returns the kept lines joined by newlines, their 1-based line numbers in the file, and
+    the number of cells on each.
+    """
+    buf = np.frombuffer((text + "\n").encode("utf-8"), dtype=np.uint8)
+    nl = np.flatnonzero(buf == 10)
+    starts = np.r_[0, nl[:-1] + 1]
+    is_sep = buf == ord(sep)
+    filler = is_sep | (buf == 32) | (buf == 9) | (buf == 10)
+    # each segment starts[i]..nl[i] is one line with its newline, so none is empty
+    keep = np.logical_or.reduceat(~filler, starts)
+    n_cells = np.add.reduceat(is_sep, starts, dtype=np.int64)[keep] + 1
+    line_no = (first_line + np.arange(nl.size))[keep]
+    char_keep = np.repeat(keep, nl - starts + 1)
+    kept = buf[char_keep].tobytes().decode("utf-8")[:-1] if keep.any() else ""
+    return kept, line_no, n_cells
+
+
+def _fast_values(body_text: str, sep: str, n_rows: int) -> np.ndarray | None:
+    """All data cells as floats with numpy's C text parser (rows of equal length only).
+
+    Empty cells become ``nan`` by plain string replacement first (two passes catch runs of
+    separators). Returns None if the parser refuses a cell; the careful path then names it.
+    """
+    text = "\n" + body_text + "\n"
+    dbl = sep + sep
+    text = text.replace(dbl, sep + "nan" + sep).replace(dbl, sep + "nan" + sep)
+    text = text.replace(sep + "\n", sep + "nan\n").replace("\n" + sep, "\nnan" + sep)
+    try:
+        values = np.loadtxt(io.StringIO(text), delimiter=sep, comments=None, ndmin=2, dtype=np.float64)
+    except ValueError:
+        return None
+    return values if values.shape[0] == n_rows else None
+
+
+def _careful_values(body, n_cells, sep, n_cols, n_markers, labels, line_no, path) -> np.ndarray:
+    """Split into a string array (handles ragged rows and whitespace cells) and convert."""
+    if len(body) == 0:
+        return np.empty((0, n_cols))
+    parts = [ln.split(sep, n_cols) for ln in body]
+    extra = np.array([p[n_cols] if len(p) > n_cols else "" for p in parts], dtype=str)
+    extra = np.strings.strip(np.strings.replace(extra, sep, ""))
+    bad_rows = np.flatnonzero((np.strings.str_len(extra) > 0) & (np.strings.lower(extra) != "nan"))
+    if bad_rows.size:
+        _raise_extra(n_cells, bad_rows[0], n_cols, n_markers, line_no, path)
+    cells = np.strings.strip(np.array([p[:n_cols] for p in parts], dtype=str).reshape(len(body), n_cols))
+    blank = np.strings.str_len(cells) == 0
+    try:
+        return np.where(blank, "nan", cells).astype(np.float64)
+    except ValueError:
+        _raise_bad_cell(cells, blank, labels, line_no, path)
+
+
+def _raise_extra(n_cells, i, n_cols, n_markers, line_no, path):
+    raise InputError(f"row has {n_cells[i]} cells with values beyond the {n_cols} expected "
+                     f"(Frame#, Time and 3 per marker for {n_markers} markers)",
+                     path=path, line=int(line_no[i]))
+
+
+def _raise_bad_cell(cells, blank, labels, line_no, path):
+    """Error path only: find the first cell that is not a number and name it."""
+    flat = np.where(blank, "nan", cells)
+    for r in range(flat.shape[0]):
+        for c in range(flat.shape[1]):
+            try:
+                float(flat[r, c])
+            except ValueError:
+                col = ("Frame#", "Time")[c] if c < 2 else f"{labels[(c - 2) // 3]} {'XYZ'[(c - 2) % 3]}"
+                raise InputError(f"cell {flat[r, c][:30]!r} in column {c + 1} ({col}) is not a number",
+                                 path=path, line=int(line_no[r]),
+                                 label=labels[(c - 2) // 3] if c >= 2 else None) from None
+    raise InputError("a cell is not a number", path=path)  # pragma: no cover
+
+
+def check_writable(path, overwrite: bool, units: str) -> tuple[Path, str]:
+    """Shared checks of the marker writers: no silent overwrite, a known unit.
+    Returns the path and the normalised unit."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
+    norm = normalise_units(units)
+    if norm is None:
+        raise InputError(f"cannot write units {units!r} (expected one of mm, cm, m)", path=path)
+    return path, norm
+
+
+def write_trc(path: str | Path, rec: MarkerRecording, units: str = "mm", overwrite: bool = False,
+              fmt: str = "%.5f") -> Path:
+    """Write ``rec`` as a tab-separated TRC file (the layout in the module docstring).
+
+    Coordinates are written in ``units`` (``mm``, ``cm`` or ``m``) with ``fmt``; missing markers
+    (NaN, or any non-finite coordinate) are three empty cells. Time is written with 12
+    significant digits. Frame numbers start at ``rec.meta["first_frame"]`` (default 1); the
+    ``CameraRate``, ``OrigDataRate``, ``OrigDataStartFrame`` and ``OrigNumFrames`` header fields
+    are kept from ``rec.meta`` when present. Refuses to replace an existing file unless
+    ``overwrite`` (raises :class:`FileExistsError`). Creates missing parent folders. Returns
+    the path written.
+    """
+    path, units = check_writable(path, overwrite, units)
+    for lb in rec.labels:
+        if any(ch in lb for ch in "\t\n\r") or not lb.strip():
+            raise InputError("a TRC label cannot be empty or contain tabs or newlines",
+                             path=path, label=lb)
+    T, M = rec.n_frames, rec.n_markers
+    time = np.asarray(rec.time, dtype=float)
+    if not np.all(np.isfinite(time)):
+        raise InputError("cannot write a recording with non-finite times", path=path)
+    first_frame = rec.meta.get("first_frame")
+    first_frame = 1 if first_frame is None else int(first_frame)
+
+    def meta_num(key, default):
+        v = rec.meta.get(key)
+        return v if isinstance(v, (int, float)) and not isinstance(v, bool) else default
+
+    rate = f"{float(rec.rate_hz):.10g}"
+    head = [
+        "\t".join(["PathFileType", "4", "(X/Y/Z)", path.name]),
+        "\t".join(HEADER_KEYS),
+        "\t".join([rate, f"{float(meta_num('CameraRate', rec.rate_hz)):.10g}", str(T), str(M), units,
+                   f"{float(meta_num('OrigDataRate', rec.rate_hz)):.10g}",
+                   str(int(meta_num("OrigDataStartFrame", first_frame))),
+                   str(int(meta_num("OrigNumFrames", T)))]),
+        "\t".join(["Frame#", "Time"] + [f"{lb}\t\t" for lb in rec.labels]),
+        "\t".join(["", ""] + [f"{a}{k}" for k in range(1, M + 1) for a in "XYZ"]),
+        "",
+    ]
+    xyz = np.array(rec.positions, dtype=float) / UNIT_SCALE[units]
+    xyz[~np.all(np.isfinite(xyz), axis=2)] = np.nan
+    table = np.empty((T, 2 + 3 * M))
+    table[:, 0] = first_frame + np.arange(T)
+    table[:, 1] = time
+    table[:, 2:] = xyz.reshape(T, 3 * M)
+    row_fmt = "%d\t%.12g" + ("\t" + fmt) * (3 * M) + "\n"
+    chunks = []
+    chunk = max(1, 200_000 // (2 + 3 * M))
+    for s in range(0, T, chunk):  # loop over blocks of rows; each block is one C-level format
+        block = table[s:s + chunk]
+        chunks.append((row_fmt * block.shape[0]) % tuple(block.ravel().tolist()))
+    body = "".join(chunks)
+    # fmt turns NaN into 'nan' (and only NaN into a word starting with 'nan'): make them empty cells
+    body = body.replace("\tnan", "\t")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", encoding="utf-8", newline="\n") as f:
+        f.write("\n".join(head) + "\n")
+        f.write(body)
+    return path

@@ -1,0 +1,346 @@
+"""URDF utilities without ROS: perturbed copies, visual geometry and link meshes.
+
+* :func:`perturb_urdf` writes a copy of a URDF with randomly perturbed joint origins, joint
+  axes and link masses/inertias (a "perturbed variant" for simulators and robustness tests).
+* :func:`urdf_visuals` lists each link's visual (or collision) geometry with its placement in
+  the link frame, parsed with :mod:`xml.etree.ElementTree`.
+* :func:`load_link_meshes` loads those geometries with trimesh and returns one triangle mesh
+  per link, in the link frame (the URDF link frame, which is also pinocchio's body frame, so
+  ``apply_transform(robot.frame_transform(link, q), vertices)`` places it in the base frame).
+
+Mesh file names resolve relative to the URDF; ``package://pkg/rest`` URIs resolve by looking
+for ``pkg/rest`` in the URDF's folder and each parent folder (and for ``rest`` in a parent
+folder named ``pkg``); ``file://`` URIs are plain paths. A mesh that cannot be found raises an
+:class:`~mocap.io.errors.InputError` naming the URDF and the URI.
+"""
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from mocap.io.errors import InputError
+from mocap.kinematics import make_transform, rotation_about_axis
+
+_MOVING = ("revolute", "continuous", "prismatic")
+
+
+# ---- small helpers ------------------------------------------------------------------------------
+def _parse(urdf: Path) -> ET.ElementTree:
+    urdf = Path(urdf)
+    if not urdf.is_file():
+        raise InputError("URDF not found", path=urdf)
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    try:
+        tree = ET.parse(urdf, parser=parser)
+    except ET.ParseError as exc:
+        raise InputError(f"not valid XML: {exc}", path=urdf, line=exc.position[0]) from None
+    if tree.getroot().tag != "robot":
+        raise InputError(f"root element is <{tree.getroot().tag}>, expected <robot>", path=urdf)
+    return tree
+
+
+def _floats(elem, attr: str, n: int, default: float, urdf: Path, what: str) -> np.ndarray:
+    if elem is None or elem.get(attr) is None:
+        return np.full(n, float(default))
+    text = elem.get(attr)
+    try:
+        vals = np.array([float(t) for t in text.split()], float)
+    except ValueError:
+        vals = np.array([])
+    if vals.shape != (n,) or not np.all(np.isfinite(vals)):
+        raise InputError(f"{what}: attribute {attr}={text!r} is not {n} finite numbers", path=urdf,
+                         label=what)
+    return vals
+
+
+def rpy_matrix(rpy) -> np.ndarray:
+    """URDF roll-pitch-yaw to a rotation matrix: ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``."""
+    r, p, y = (float(v) for v in rpy)
+    R = rotation_about_axis(np.array([0.0, 0.0, 1.0]), y)
+    R = R @ rotation_about_axis(np.array([0.0, 1.0, 0.0]), p)
+    return R @ rotation_about_axis(np.array([1.0, 0.0, 0.0]), r)
+
+
+def matrix_rpy(R) -> np.ndarray:
+    """Inverse of :func:`rpy_matrix` (pitch in [-pi/2, pi/2])."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(np.asarray(R, float)).as_euler("xyz")
+
+
+def _origin_transform(elem, urdf: Path, what: str) -> np.ndarray:
+    org = None if elem is None else elem.find("origin")
+    xyz = _floats(org, "xyz", 3, 0.0, urdf, what)
+    rpy = _floats(org, "rpy", 3, 0.0, urdf, what)
+    return make_transform(rpy_matrix(rpy), xyz)
+
+
+def _fmt(v) -> str:
+    return " ".join(repr(float(x)) for x in np.asarray(v, float).ravel())
+
+
+# ---- perturbed copies ---------------------------------------------------------------------------
+def perturb_urdf(src: str | Path, dst: str | Path, seed: int, length_std: float = 0.005,
+                 angle_std_deg: float = 0.5, mass_rel_std: float = 0.05,
+                 overwrite: bool = False) -> Path:
+    """Write a randomly perturbed copy of the URDF ``src`` to ``dst`` and return ``dst``.
+
+    For every moving joint (revolute, continuous, prismatic), in document order:
+
+    * the origin translation gets independent N(0, ``length_std``) offsets (m) per axis;
+    * the origin orientation is post-multiplied by a rotation ``exp([w])`` with
+      w ~ N(0, ``angle_std_deg``) per axis (deg), written back as URDF rpy;
+    * the joint axis is tilted by ``exp([w_perp])`` with w ~ N(0, ``angle_std_deg``) per axis and
+      its component along the axis removed (a tilt, not a spin), then renormalised.
+
+    Every link mass is multiplied by ``f = 1 + mass_rel_std * N(0, 1)`` (clipped at 0.2) and its
+    inertia tensor by the same ``f`` (the body is scaled in density; the centre of mass stays).
+    Fixed joints are left alone. Relative mesh file names are rewritten relative to ``dst`` so
+    the copy still finds its meshes; ``package://`` URIs are kept. Deterministic in ``seed``.
+    """
+    src, dst = Path(src), Path(dst)
+    for name, v in (("length_std", length_std), ("angle_std_deg", angle_std_deg),
+                    ("mass_rel_std", mass_rel_std)):
+        if not np.isfinite(v) or v < 0:
+            raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+    tree = _parse(src)
+    if dst.resolve() == src.resolve():
+        raise ValueError(f"refusing to overwrite the input URDF {src}")
+    if dst.exists() and not overwrite:
+        raise FileExistsError(f"{dst} exists; refusing to overwrite")
+    rng = np.random.default_rng(seed)
+    ang_std = np.deg2rad(angle_std_deg)
+    root = tree.getroot()
+
+    for joint in root.iter("joint"):
+        jtype = joint.get("type")
+        if jtype not in _MOVING:
+            continue
+        what = f"joint {joint.get('name')!r}"
+        d_xyz, w_org, w_axis = rng.standard_normal((3, 3))
+        org = joint.find("origin")
+        if org is None:
+            org = ET.SubElement(joint, "origin")
+        xyz = _floats(org, "xyz", 3, 0.0, src, what) + length_std * d_xyz
+        R = rpy_matrix(_floats(org, "rpy", 3, 0.0, src, what))
+        w = ang_std * w_org
+        angle = float(np.linalg.norm(w))
+        if angle > 0:
+            R = R @ rotation_about_axis(w / angle, angle)
+        org.set("xyz", _fmt(xyz))
+        org.set("rpy", _fmt(matrix_rpy(R)))
+        ax_el = joint.find("axis")
+        if ax_el is None:
+            ax_el = ET.SubElement(joint, "axis")
+        axis = _floats(ax_el, "xyz", 3, 0.0, src, what) if ax_el.get("xyz") else np.array([1.0, 0, 0])
+        norm = np.linalg.norm(axis)
+        if norm == 0:
+            raise InputError(f"{what} has a zero axis", path=src, label=joint.get("name"))
+        axis = axis / norm
+        w = ang_std * w_axis
+        w = w - axis * (w @ axis)
+        tilt = float(np.linalg.norm(w))
+        if tilt > 0:
+            axis = rotation_about_axis(w / tilt, tilt) @ axis
+        ax_el.set("xyz", _fmt(axis / np.linalg.norm(axis)))
+
+    for link in root.iter("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        f = max(0.2, 1.0 + mass_rel_std * float(rng.standard_normal()))
+        mass = inertial.find("mass")
+        if mass is not None and mass.get("value") is not None:
+            m = _floats(mass, "value", 1, 0.0, src, f"link {link.get('name')!r} mass")[0]
+            mass.set("value", repr(float(m * f)))
+        inertia = inertial.find("inertia")
+        if inertia is not None:
+            for key in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+                if inertia.get(key) is not None:
+                    val = _floats(inertia, key, 1, 0.0, src, f"link {link.get('name')!r} inertia")[0]
+                    inertia.set(key, repr(float(val * f)))
+
+    for mesh in root.iter("mesh"):
+        fn = mesh.get("filename")
+        if fn and "://" not in fn and not os.path.isabs(fn):
+            target = (src.parent / fn).resolve()
+            dst_dir = dst.resolve().parent
+            if os.path.commonpath([target, dst_dir]) == target.anchor:
+                mesh.set("filename", target.as_posix())  # nothing in common but the root
+            else:
+                mesh.set("filename", Path(os.path.relpath(target, dst_dir)).as_posix())
+
+    note = ET.Comment(f" perturbed copy of {src.name}: seed={seed}, length_std={length_std!r} m, "
+                      f"angle_std_deg={angle_std_deg!r}, mass_rel_std={mass_rel_std!r} "
+                      "(mocap.urdf.perturb_urdf) ")
+    note.tail = "\n  "
+    root.insert(0, note)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tree.write(dst, encoding="utf-8", xml_declaration=True)
+    return dst
+
+
+# ---- visual geometry ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Primitive:
+    """A URDF primitive shape centred at its origin: ``box`` (size = x, y, z extents),
+    ``cylinder`` (radius, length; axis z) or ``sphere`` (radius,)."""
+
+    kind: str
+    size: tuple[float, ...]
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "size": list(self.size)}
+
+
+class Visual(NamedTuple):
+    """One geometry of a link: a mesh file path or a :class:`Primitive`, its placement
+    ``T_link_visual`` (4x4, maps geometry points into the link frame) and a per-axis scale."""
+
+    geometry: Path | Primitive
+    T_link_visual: np.ndarray
+    scale: np.ndarray
+
+
+def resolve_mesh_uri(uri: str, urdf: str | Path) -> Path:
+    """File path of a mesh ``filename`` of ``urdf``: relative names resolve against the URDF's
+    folder, ``package://pkg/rest`` by searching the URDF's folder and its parents, ``file://``
+    as a path. Raises :class:`InputError` naming the URDF and URI when no file exists."""
+    urdf = Path(urdf).resolve()
+    tried = []
+    if uri.startswith("package://"):
+        rest = uri[len("package://"):]
+        pkg, _, sub = rest.partition("/")
+        for d in (urdf.parent, *urdf.parent.parents):
+            cands = [d / pkg / sub]
+            if d.name == pkg:
+                cands.append(d / sub)
+            for c in cands:
+                if c.is_file():
+                    return c
+        tried.append(f"{pkg}/{sub} in {urdf.parent} and its parent folders")
+    else:
+        p = Path(uri[len("file://"):]) if uri.startswith("file://") else Path(uri)
+        p = p if p.is_absolute() else urdf.parent / p
+        if p.is_file():
+            return p
+        tried.append(str(p))
+    raise InputError(f"mesh {uri!r} not found (looked for {'; '.join(tried)})", path=urdf,
+                     label=uri)
+
+
+def urdf_visuals(urdf: str | Path, *, kind: str = "visual", missing: str = "raise") -> dict:
+    """``{link: [Visual, ...]}`` for every link of ``urdf`` that has ``<visual>`` (or, with
+    ``kind="collision"``, ``<collision>``) geometry, in document order.
+
+    ``missing="raise"`` (default) raises :class:`InputError` for a mesh file that cannot be
+    found; ``missing="skip"`` leaves such geometries out.
+    """
+    if kind not in ("visual", "collision"):
+        raise ValueError(f"kind must be 'visual' or 'collision', got {kind!r}")
+    if missing not in ("raise", "skip"):
+        raise ValueError(f"missing must be 'raise' or 'skip', got {missing!r}")
+    urdf = Path(urdf)
+    root = _parse(urdf).getroot()
+    out: dict[str, list[Visual]] = {}
+    for link in root.findall("link"):
+        name = link.get("name")
+        items = []
+        for vis in link.findall(kind):
+            what = f"link {name!r} {kind}"
+            T = _origin_transform(vis, urdf, what)
+            geom = vis.find("geometry")
+            shape = None if geom is None else next(iter(geom), None)
+            if shape is None:
+                raise InputError(f"{what} has no geometry", path=urdf, label=name)
+            scale = np.ones(3)
+            if shape.tag == "mesh":
+                fn = shape.get("filename")
+                if not fn:
+                    raise InputError(f"{what}: <mesh> without filename", path=urdf, label=name)
+                try:
+                    g = resolve_mesh_uri(fn, urdf)
+                except InputError:
+                    if missing == "skip":
+                        continue
+                    raise
+                if shape.get("scale") is not None:
+                    scale = _floats(shape, "scale", 3, 1.0, urdf, what)
+            elif shape.tag == "box":
+                g = Primitive("box", tuple(_floats(shape, "size", 3, np.nan, urdf, what)))
+            elif shape.tag == "cylinder":
+                r = _floats(shape, "radius", 1, np.nan, urdf, what)[0]
+                h = _floats(shape, "length", 1, np.nan, urdf, what)[0]
+                g = Primitive("cylinder", (float(r), float(h)))
+            elif shape.tag == "sphere":
+                g = Primitive("sphere", (float(_floats(shape, "radius", 1, np.nan, urdf, what)[0]),))
+            else:
+                raise InputError(f"{what}: unsupported geometry <{shape.tag}>", path=urdf, label=name)
+            if isinstance(g, Primitive) and not (np.all(np.isfinite(g.size)) and min(g.size) > 0):
+                raise InputError(f"{what}: {g.kind} needs positive sizes, got {g.size}", path=urdf,
+                                 label=name)
+            items.append(Visual(g, T, scale))
+        if items:
+            out[name] = items
+    return out
+
+
+def _primitive_mesh(p: Primitive):
+    import trimesh
+
+    if p.kind == "box":
+        return trimesh.creation.box(extents=p.size)
+    if p.kind == "cylinder":
+        return trimesh.creation.cylinder(radius=p.size[0], height=p.size[1], sections=32)
+    return trimesh.creation.icosphere(subdivisions=2, radius=p.size[0])
+
+
+def _load_mesh_file(path: Path, urdf: Path):
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise InputError(f"trimesh could not read mesh {path}: {exc}", path=urdf,
+                         label=path.name) from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError(f"mesh {path} holds no triangles", path=urdf, label=path.name)
+    return mesh
+
+
+def load_link_meshes(urdf: str | Path, *, kind: str = "visual", fallback_collision: bool = True,
+                     missing: str = "raise") -> dict:
+    """``{link: (vertices (V, 3), faces (F, 3))}``: all geometry of each link merged into one
+    triangle mesh in the link frame (metres), links in URDF document order. Links without
+    ``kind`` geometry use their collision geometry when ``fallback_collision``; links with
+    neither are left out. ``missing`` as in :func:`urdf_visuals` (``"skip"`` drops mesh files
+    that cannot be found instead of raising :class:`InputError`)."""
+    urdf = Path(urdf)
+    visuals = urdf_visuals(urdf, kind=kind, missing=missing)
+    if fallback_collision and kind == "visual":
+        for link, items in urdf_visuals(urdf, kind="collision", missing=missing).items():
+            visuals.setdefault(link, items)
+    cache: dict[Path, tuple[np.ndarray, np.ndarray]] = {}
+    out = {}
+    for link, items in visuals.items():
+        verts, faces, offset = [], [], 0
+        for g, T, scale in items:
+            if isinstance(g, Primitive):
+                m = _primitive_mesh(g)
+                V, F = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+            else:
+                if g not in cache:
+                    m = _load_mesh_file(g, urdf)
+                    cache[g] = (np.asarray(m.vertices, float), np.asarray(m.faces, np.int64))
+                V, F = cache[g]
+            V = (V * scale) @ T[:3, :3].T + T[:3, 3]
+            verts.append(V)
+            faces.append(F + offset)
+            offset += V.shape[0]
+        out[link] = (np.concatenate(verts), np.concatenate(faces))
+    return out
