@@ -30,7 +30,7 @@ from ident.sim.effects import K_NOMINAL, Effect, truth_models
 from ident.sim.plant import (Controller, JointPlant, rest_state, simulate_coastdown, simulate_multi,
                   simulate_single)
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PA10_DIR = REPO / "fixtures" / "robots" / "pa10"
 
 #: thesis Coulomb + viscous per joint (c N m, v N m s/rad), no load, fastest speed range:

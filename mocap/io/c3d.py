@@ -250,7 +250,7 @@ def _child_main() -> None:  # pragma: no cover - runs in the subprocess
 
 
 def _extract_isolated(path: Path, timeout_s: float) -> tuple[dict, dict]:
-    pkg_root = str(Path(__file__).resolve().parents[1])
+    pkg_root = str(Path(__file__).resolve().parents[2])
     env = dict(os.environ)
     env["PYTHONPATH"] = pkg_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     with tempfile.TemporaryDirectory(prefix="jointlab-c3d-") as tmp:

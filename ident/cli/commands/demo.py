@@ -18,7 +18,7 @@ REGENERATE = ("jointlab synth fixtures/demo --effect stribeck --magnitude 1.0 --
 
 def demo_campaign() -> Path:
     """The bundled demo campaign folder (the repository's fixtures/demo)."""
-    return Path(__file__).resolve().parents[2] / "fixtures" / "demo"
+    return Path(__file__).resolve().parents[3] / "fixtures" / "demo"
 
 
 def register(sub):
