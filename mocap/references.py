@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, read_text
 from mocap.kinematics import apply_transform, invert_transform, make_transform
 
 MIN_MARKERS_PER_LINK = 3
@@ -359,7 +359,7 @@ def read_calib(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise InputError("calibration file not found", path=path)
     try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(path))
     except json.JSONDecodeError as exc:
         raise InputError(f"not valid JSON: {exc}", path=path, line=exc.lineno) from None
     T = np.asarray(doc.get("T_camera_base", None), dtype=float) if "T_camera_base" in doc else None

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, read_text
 from mocap.kinematics import Chain
 
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
@@ -44,7 +44,7 @@ def read_drives(path: str | Path) -> tuple[Drive, ...]:
     if not path.is_file():
         raise InputError("drives file not found", path=path)
     try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+        doc = tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {exc}", path=path) from None
     joints = doc.get("joint")

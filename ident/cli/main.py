@@ -40,6 +40,47 @@ def check_out_dir(out: Path, inputs=()) -> Path:
     return out
 
 
+_INPUT_ARGS = ("campaign", "path", "calib", "angles", "robot", "nominal")
+_OUTPUT_ARGS = ("out", "rrd", "export_c")
+
+
+def _campaign_root(path: Path) -> Path | None:
+    for folder in (path, *path.parents) if path.is_dir() else path.parents:
+        if (folder / "campaign.toml").is_file():
+            return folder
+    return None
+
+
+def _protected(path: Path) -> list[Path]:
+    """What an input protects: a folder its whole subtree, a file itself and, when it lies in a
+    campaign folder, that folder (nothing is ever written into a campaign)."""
+    path = path.resolve()
+    regions = [path]
+    root = _campaign_root(path)
+    if root is not None:
+        regions.append(root)
+    return regions
+
+
+def guard_outputs(args) -> None:
+    """Refuse any output path (``--out``, ``--rrd``, ``--export-c``, a command's own outputs)
+    that equals an input or lies inside an input folder or an input's campaign folder."""
+    inputs = [getattr(args, a, None) for a in getattr(args, "_inputs", _INPUT_ARGS)]
+    inputs = [Path(p) for p in inputs if isinstance(p, (str, Path)) and Path(p).exists()]
+    regions = [r for p in inputs for r in _protected(p)]
+    for attr in getattr(args, "_outputs", _OUTPUT_ARGS):
+        out = getattr(args, attr, None)
+        if not isinstance(out, (str, Path)):
+            continue
+        out = Path(out).resolve()
+        for region in regions:
+            if out == region or region in out.parents:
+                flag = "--" + attr.replace("_", "-")
+                what = "an input" if out == region else f"inside the input folder {region}"
+                raise InputError(f"{flag} {out} is {what}; nothing is written there, choose another path",
+                                 path=out)
+
+
 def _command_modules():
     from ident.cli import commands
 
@@ -57,24 +98,48 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for mod in _command_modules():
         p = mod.register(sub)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _inputs=getattr(mod, "INPUT_ARGS", _INPUT_ARGS),
+                       _outputs=getattr(mod, "OUTPUT_ARGS", _OUTPUT_ARGS))
     return parser
 
 
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    out = getattr(args, "out", None)
+    out_existed = out is None or Path(out).exists()
+    status = 1
     try:
-        return int(args._run(args) or 0)
+        guard_outputs(args)
+        status = int(args._run(args) or 0)
+        return status
     except InputError as exc:
         print(f"jointlab: error: {exc}", file=sys.stderr)
-        return 2
-    except FileExistsError as exc:
-        print(f"jointlab: error: {exc}", file=sys.stderr)
-        return 2
+        status = 2
+        return status
+    except (FileExistsError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
+        what = {PermissionError: "permission denied", IsADirectoryError: "is a folder",
+                NotADirectoryError: "not a folder", FileExistsError: "exists"}[type(exc)]
+        where = exc.filename if exc.filename else str(exc)
+        msg = f"{where}: {what}" if exc.filename else str(exc)
+        print(f"jointlab: error: {msg}", file=sys.stderr)
+        status = 2
+        return status
     except KeyboardInterrupt:
         print("jointlab: interrupted", file=sys.stderr)
-        return 130
+        status = 130
+        return status
+    finally:
+        if status != 0 and not out_existed:
+            _remove_if_empty(Path(out))
+
+
+def _remove_if_empty(folder: Path) -> None:
+    """A failed run leaves no empty output folder behind (never removes anything with content)."""
+    try:
+        folder.rmdir()
+    except OSError:
+        pass
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, read_text
 
 TRIAL_KINDS = ("excitation", "coastdown", "reversals", "constant_velocity")
 
@@ -120,7 +120,7 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
         raise InputError("no campaign.toml here", path=manifest)
     root = manifest.parent
     try:
-        doc = tomllib.loads(manifest.read_text(encoding="utf-8"))
+        doc = tomllib.loads(read_text(manifest))
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {exc}", path=manifest) from None
     fmt = doc.get("format")

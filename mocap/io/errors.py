@@ -27,3 +27,27 @@ class InputError(ValueError):
         if label is not None and label not in message:
             message = f"{message} (marker/key {label!r})"
         super().__init__(where + message)
+
+
+def read_text(path: str | Path, encoding: str = "utf-8") -> str:
+    """The text of a user file, or an :class:`InputError` naming the file and the line and
+    column of the first byte that is not ``encoding`` (a damaged header, a file saved in
+    another code page), or the reason it cannot be read (missing, a folder, no permission)."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError("file not found", path=path) from None
+    except IsADirectoryError:
+        raise InputError("is a folder, expected a file", path=path) from None
+    except PermissionError:
+        raise InputError("permission denied (cannot read)", path=path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", path=path) from None
+    try:
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise InputError(f"byte 0x{raw[exc.start]:02x} in column {col} is not {encoding} text",
+                         path=path, line=line) from None

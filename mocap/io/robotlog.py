@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, read_text
 
 _QM = re.compile(r"^qm_(\d+)$")
 _TAU = re.compile(r"^tau_(\d+)$")
@@ -76,7 +76,7 @@ def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
     path = Path(path)
     if not path.is_file():
         raise InputError("robot log not found", path=path)
-    text = path.read_text(encoding="utf-8-sig")
+    text = read_text(path, "utf-8-sig")
     lines = text.splitlines()
     if not lines:
         raise InputError("robot log is empty", path=path)

@@ -39,6 +39,10 @@ def _mpl(s: str) -> tuple[int, int]:
     return (v[0], v[-1])
 
 
+INPUT_ARGS = ()                     # OUT is created, not read
+OUTPUT_ARGS = ("campaign", "truth", "rrd")
+
+
 def register(sub):
     from ident.sim.effects import EFFECTS
 

@@ -1,0 +1,81 @@
+"""No command writes into its inputs: an output equal to an input, or inside an input's
+folder or campaign, is a one-line error (exit 2) and no input byte changes (issue 17)."""
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import pytest
+
+from ident.cli.main import main
+
+DEMO = Path(__file__).resolve().parents[1] / "fixtures" / "demo"
+
+
+def _digest(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture()
+def camp(tmp_path):
+    dst = tmp_path / "camp"
+    shutil.copytree(DEMO, dst)
+    return dst
+
+
+@pytest.mark.parametrize("argv", [
+    ["calib", "{c}", "--out", "{t}/o", "--rrd", "{c}/campaign.toml"],
+    ["calib", "{c}", "--out", "{c}/out"],
+    ["info", "{c}/trials/j5-load0-v100-r1.trc", "--rrd", "{c}/trials/j5-load0-v100-r1.trc"],
+    ["info", "{c}/trials/j5-load0-v100-r1.trc", "--rrd", "{c}/new.rrd"],
+    ["view", "{c}", "--rrd", "{c}/robot/arm.rrd"],
+    ["fit", "{c}", "--out", "{t}/f", "--models", "cv", "--rrd", "{c}/trials/x.rrd"],
+])
+def test_output_inside_an_input_is_refused(camp, tmp_path, capsys, argv):
+    before = _digest(camp)
+    argv = [a.format(c=camp, t=tmp_path) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "choose another path" in err[0]
+    assert _digest(camp) == before
+    assert not (tmp_path / "o").exists() and not (tmp_path / "f").exists()
+
+
+def test_failed_run_leaves_no_empty_output_folder(tmp_path, capsys):
+    out = tmp_path / "never"
+    assert main(["calib", str(tmp_path / "missing"), "--out", str(out)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_unwritable_output_is_one_line(camp, tmp_path, capsys, monkeypatch):
+    """An --out the user may not create (root ignores mode bits, so the refusal is simulated at
+    the mkdir the command makes) is one line naming the folder."""
+    real_mkdir = Path.mkdir
+    target = tmp_path / "locked" / "o"
+
+    def mkdir(self, *a, **k):
+        if self == target.resolve():
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_mkdir(self, *a, **k)
+
+    monkeypatch.setattr(Path, "mkdir", mkdir)
+    assert main(["calib", str(camp), "--out", str(target)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"jointlab: error: {target.resolve()}: permission denied"]
+
+
+@pytest.mark.parametrize("target, line", [("campaign.toml", 2), ("trials/j5-load0-v100-r1.csv", 1)])
+def test_non_utf8_byte_is_one_line_naming_file_and_line(camp, tmp_path, capsys, target, line):
+    path = camp / target
+    lines = path.read_bytes().split(b"\n")
+    lines[line - 1] = lines[line - 1][:3] + b"\xff" + lines[line - 1][3:]
+    path.write_bytes(b"\n".join(lines))
+    before = _digest(camp)
+    assert main(["fit", str(camp), "--out", str(tmp_path / "f"), "--models", "cv"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"jointlab: error: {path}, line {line}: byte 0xff in column 4 is not "
+                   f"{'utf-8-sig' if target.endswith('.csv') else 'utf-8'} text"]
+    assert _digest(camp) == before
