@@ -79,3 +79,17 @@ def test_non_utf8_byte_is_one_line_naming_file_and_line(camp, tmp_path, capsys, 
     assert err == [f"jointlab: error: {path}, line {line}: byte 0xff in column 4 is not "
                    f"{'utf-8-sig' if target.endswith('.csv') else 'utf-8'} text"]
     assert _digest(camp) == before
+
+
+@pytest.mark.parametrize("bad", ["../../../../etc/passwd", "/etc/passwd", "trials/../../x.csv"])
+def test_manifest_paths_stay_inside_the_campaign(camp, tmp_path, capsys, bad):
+    toml = camp / "campaign.toml"
+    text = toml.read_text()
+    first = text.index('log = "')
+    end = text.index('"', first + 7)
+    toml.write_text(text[:first] + f'log = "{bad}"' + text[end + 1:])
+    assert main(["info", str(camp)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and bad in err[0] and str(toml) in err[0]
+    assert ("leaves the campaign folder" in err[0]) or ("is absolute" in err[0])
+    assert "root:" not in err[0]          # nothing of the foreign file is echoed

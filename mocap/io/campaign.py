@@ -103,10 +103,22 @@ def _num(v, key: str, where: str, path: Path) -> float:
     return float(v)
 
 
-def _file(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
-    if not isinstance(rel, str):
+def _inside(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
+    """FORMAT.md: paths are relative to the manifest and stay inside the campaign folder."""
+    if not isinstance(rel, str) or not rel.strip():
         raise InputError(f"{where}: '{key}' must be a path string", path=manifest, label=key)
-    p = (root / rel)
+    if Path(rel).is_absolute() or rel.startswith(("/", "\\")) or ":" in rel.split("/")[0]:
+        raise InputError(f"{where}: {key} path {rel!r} is absolute; paths are relative to the "
+                         "campaign folder", path=manifest, label=key)
+    p = root / rel
+    if root.resolve() not in p.resolve().parents:
+        raise InputError(f"{where}: {key} path {rel!r} leaves the campaign folder", path=manifest,
+                         label=key)
+    return p
+
+
+def _file(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
+    p = _inside(root, rel, key, where, manifest)
     if not p.is_file():
         raise InputError(f"{where}: {key} file {rel!r} not found", path=manifest, label=key)
     return p
@@ -128,7 +140,7 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
         raise InputError(f"unsupported campaign format {fmt!r} (this workbench reads format = 1)",
                          path=manifest, label="format")
     chk = (lambda rel, key, where: _file(root, rel, key, where, manifest)) if check_files else \
-        (lambda rel, key, where: root / rel)
+        (lambda rel, key, where: _inside(root, rel, key, where, manifest))
     rob = _req(doc, "robot", "the manifest", manifest)
     urdf = chk(_req(rob, "urdf", "[robot]", manifest), "urdf", "[robot]")
     drives = chk(_req(rob, "drives", "[robot]", manifest), "drives", "[robot]")
