@@ -249,3 +249,32 @@ def test_scheduler_without_the_dask_extra_says_how_to_install(tiny, tmp_path, ca
     rc = main(["study", str(camp), "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9"])
     assert rc == 2
     assert "jointlab[dask]" in capsys.readouterr().err
+
+
+def test_two_concurrent_studies_on_one_out_both_complete(tiny, serial_run, tmp_path):
+    """Two studies on one --out (issue 17): the second waits for the first's lock, then resumes
+    from its records; neither crashes and the folder holds one complete study."""
+    import threading
+
+    camp, _, _ = tiny
+    out = tmp_path / "shared"
+    results, errors = [], []
+
+    def one():
+        try:
+            results.append(Study(FAST, SerialExecutor(progress=False), progress=False).run(camp, out))
+        except Exception as exc:          # a traceback in either run fails the test
+            errors.append(exc)
+
+    threads = [threading.Thread(target=one) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == [] and len(results) == 2
+    assert all(r.errors == {} for r in results)
+    first, second = sorted(results, key=lambda r: r.stages["fits"]["computed"], reverse=True)
+    assert first.stages["fits"]["computed"] == 4
+    assert second.stages["fits"]["reused"] == 4 and second.stages["fits"]["computed"] == 0
+    _assert_same_fits(_fits(out), _fits(serial_run[0]))
+    assert (out / "report.md").is_file()

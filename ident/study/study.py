@@ -261,7 +261,7 @@ def _run_mocap_job(job: _MocapJob) -> dict:
         if job.report is not None:
             summary["markers"] = _jsonable(job.report(res.solve))
         result = {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0}
-    except (InputError, ValueError, np.linalg.LinAlgError, FileNotFoundError) as exc:
+    except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir), [job.out_csv])
     return result
@@ -283,7 +283,7 @@ def _run_fit_job(job: _FitJob) -> dict:
     t0 = time.perf_counter()
     try:
         entries = [fit_trial_joint(t) for t in job.tasks]  # loop over the trial's joints
-    except (InputError, ValueError, np.linalg.LinAlgError, FileNotFoundError) as exc:
+    except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
     result = {"ok": True, "entries": entries, "seconds": time.perf_counter() - t0}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
@@ -320,7 +320,7 @@ def _run_diag_job(job: _DiagJob) -> dict:
                   "link_angles": bool(report.get("link_angles")),
                   "skipped_trials": report.get("skipped_trials", []),
                   "seconds": time.perf_counter() - t0}
-    except (InputError, ValueError, np.linalg.LinAlgError, FileNotFoundError) as exc:
+    except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
     return result
@@ -417,6 +417,11 @@ class Study:
                              path=out)
         out.mkdir(parents=True, exist_ok=True)
         state = out / STATE_DIR
+        state.mkdir(parents=True, exist_ok=True)
+        with _FolderLock(state / "lock", self._say):
+            return self._run_locked(camp, out, state, rrd, spawn)
+
+    def _run_locked(self, camp, out: Path, state: Path, rrd, spawn) -> StudyResult:
         tmp_dir = state / "tmp"
         shutil.rmtree(tmp_dir, ignore_errors=True)   # leftovers of an interrupted run
         tmp_dir.mkdir(parents=True, exist_ok=True)
@@ -703,6 +708,36 @@ class Study:
                       ctx.out, s.rrd_trials, ctx.tmp_dir)
         up["report"] = {"hash": h, "outputs": outputs + ([str(rrd_path)] if rrd_path else [])}
         ctx.stages["report"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
+
+
+class _FolderLock:
+    """An exclusive lock on a study folder: a second study on the same ``--out`` waits for the
+    first, then resumes from its records (nothing computed twice, nothing half-written read).
+    POSIX ``flock``; where it is not available the lock is a no-op."""
+
+    def __init__(self, path: Path, say):
+        self.path, self.say, self.fh = path, say, None
+
+    def __enter__(self):
+        try:
+            import fcntl
+        except ImportError:                                 # pragma: no cover (Windows)
+            return self
+        self.fh = open(self.path, "a+")
+        try:
+            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.say(f"another study is writing {self.path.parent.parent}; waiting for it")
+            fcntl.flock(self.fh, fcntl.LOCK_EX)
+        return self
+
+    def __exit__(self, *exc):
+        if self.fh is not None:
+            import fcntl
+
+            fcntl.flock(self.fh, fcntl.LOCK_UN)
+            self.fh.close()
+        return False
 
 
 @dataclass

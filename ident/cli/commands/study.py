@@ -4,6 +4,7 @@ resumable: a rerun skips every trial whose outputs exist and whose input hashes 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from mocap.io.errors import InputError
@@ -75,9 +76,10 @@ def run_from_args(args, campaign_path: Path) -> int:
                                                                       spawn=args.spawn)
     finally:
         executor.close()
+    status = 1 if res.errors else 0        # something failed: say so in the exit status
     if args.json:
         print(json.dumps(res.to_dict(), indent=1))
-        return 0
+        return status
     for name, st in res.stages.items():
         extra = f" ({st['note']})" if st["note"] else ""
         print(f"{name:<10} computed {st['computed']:>3}, reused {st['reused']:>3}, failed {st['failed']:>2}, "
@@ -87,7 +89,9 @@ def run_from_args(args, campaign_path: Path) -> int:
     for j, v in res.verdicts.items():
         print(f"joint {j}: gap verdict {v}")
     print(f"wrote {res.paths.get('report')}" + (f" and {res.paths['rrd']}" if "rrd" in res.paths else ""))
-    return 0
+    if res.errors:
+        print(f"jointlab: {len(res.errors)} item(s) failed (see above and the report)", file=sys.stderr)
+    return status
 
 
 def run(args) -> int:
