@@ -6,6 +6,7 @@ created where the work runs. Kinematics for many frames go through :class:`mocap
 """
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,6 +16,7 @@ import numpy as np
 from mocap.io.errors import InputError, read_text
 from mocap.kinematics import Chain
 
+_POSITIVE_KEYS = ("gear_ratio", "max_velocity", "max_torque")
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
                "encoder_resolution")
 
@@ -61,7 +63,16 @@ def read_drives(path: str | Path) -> tuple[Drive, ...]:
                 if not isinstance(v, (int, float)) or isinstance(v, bool):
                     raise InputError(f"joint {tab['name']!r}: {key} must be a number, got {v!r}",
                                      path=path, label=key)
+                if math.isnan(v) or v < 0 or (key in _POSITIVE_KEYS and v == 0):
+                    sign = "> 0" if key in _POSITIVE_KEYS else ">= 0"
+                    raise InputError(f"joint {tab['name']!r}: {key} must be {sign}, got {v!r}",
+                                     path=path, label=key)
                 vals[key] = float(v)
+        stiff = tab.get("stiffness")
+        if stiff is not None and (isinstance(stiff, bool) or not isinstance(stiff, (int, float))
+                                  or not math.isfinite(stiff) or stiff <= 0):
+            raise InputError(f"joint {tab['name']!r}: stiffness must be a number > 0 (N m/rad), "
+                             f"got {stiff!r}", path=path, label="stiffness")
         extra = {kk: vv for kk, vv in tab.items() if kk not in _DRIVE_KEYS and kk != "name"}
         drives.append(Drive(name=str(tab["name"]), extra=extra, **vals))
     return tuple(drives)
@@ -120,7 +131,11 @@ class Robot:
             if model.parents[i] != i - 1:
                 raise InputError(f"joint {model.names[i]!r} does not continue a serial chain",
                                  path=urdf, label=model.names[i])
-            axes.append(ax / np.linalg.norm(ax))
+            norm = float(np.linalg.norm(ax))
+            if not np.isfinite(norm) or norm < 1e-9:
+                raise InputError(f"joint {model.names[i]!r} has axis {ax.tolist()}: a revolute axis "
+                                 "needs a non-zero direction", path=urdf, label=model.names[i])
+            axes.append(ax / norm)
             placements.append(model.jointPlacements[i].homogeneous)
             names.append(model.names[i])
         frames = {}

@@ -3,6 +3,7 @@ folder or campaign, is a one-line error (exit 2) and no input byte changes (issu
 from __future__ import annotations
 
 import hashlib
+import re
 import shutil
 from pathlib import Path
 
@@ -93,3 +94,43 @@ def test_manifest_paths_stay_inside_the_campaign(camp, tmp_path, capsys, bad):
     assert len(err) == 1 and bad in err[0] and str(toml) in err[0]
     assert ("leaves the campaign folder" in err[0]) or ("is absolute" in err[0])
     assert "root:" not in err[0]          # nothing of the foreign file is echoed
+
+
+@pytest.mark.parametrize("key, value, says", [
+    ("load_kg", "-5", "load_kg must be >= 0"),
+    ("load_kg", "nan", "finite number"),
+    ("payload_com", "[0.1, 0.2]", "payload_com must be [x, y, z]"),
+    ("time_offset", '"0.1s"', "'time_offset' must be a number"),
+])
+def test_bad_trial_values_are_one_line(camp, capsys, key, value, says):
+    """The first trial gets the bad value (replaced when the key is there, added otherwise)."""
+    toml = camp / "campaign.toml"
+    text = toml.read_text()
+    start = text.index("[[trial]]")
+    end = text.index("[[trial]]", start + 1)
+    first = re.sub(rf"^{key} = .*$", "", text[start:end], flags=re.M)
+    first = first.replace("[[trial]]\n", f"[[trial]]\n{key} = {value}\n", 1)
+    toml.write_text(text[:start] + first + text[end:])
+    assert main(["info", str(camp)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0] and str(toml) in err[0]
+
+
+@pytest.mark.parametrize("key, value", [("max_velocity", "-3.0"), ("max_torque", "0.0"),
+                                         ("motor_inertia", "nan")])
+def test_bad_drive_values_are_one_line(camp, capsys, key, value):
+    drives = camp / "robot" / "drives.toml"
+    text = drives.read_text()
+    drives.write_text(re.sub(rf"^{key} = .*$", f"{key} = {value}", text, count=1, flags=re.M))
+    assert main(["info", str(camp)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and key in err[0] and str(drives) in err[0]
+
+
+def test_zero_urdf_axis_is_one_line(camp, capsys):
+    urdf = next((camp / "robot").glob("*.urdf"))
+    text = urdf.read_text()
+    urdf.write_text(re.sub(r'<axis xyz="[^"]*"', '<axis xyz="0 0 0"', text, count=1))
+    assert main(["info", str(camp)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "non-zero direction" in err[0] and str(urdf) in err[0]

@@ -1,6 +1,7 @@
 """The campaign manifest (FORMAT.md, ``campaign.toml``) and its validation."""
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,7 +101,34 @@ def _req(tab: dict, key: str, where: str, path: Path):
 def _num(v, key: str, where: str, path: Path) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise InputError(f"{where}: '{key}' must be a number, got {v!r}", path=path, label=key)
+    if not math.isfinite(v):
+        raise InputError(f"{where}: '{key}' must be a finite number, got {v!r}", path=path, label=key)
     return float(v)
+
+
+def _check_trial_values(tab: dict, where: str, path: Path) -> None:
+    """Physical plausibility of a trial's numbers (FORMAT.md keys, SI)."""
+    load = _num(tab.get("load_kg", 0.0), "load_kg", where, path)
+    if load < 0:
+        raise InputError(f"{where}: load_kg must be >= 0 kg, got {load!r}", path=path, label="load_kg")
+    vf = _num(tab.get("vmax_frac", 1.0), "vmax_frac", where, path)
+    if not 0 < vf <= 1.5:
+        raise InputError(f"{where}: vmax_frac is a fraction of the joint's max speed (0 < f <= 1.5), "
+                         f"got {vf!r}", path=path, label="vmax_frac")
+    if "time_offset" in tab:
+        off = _num(tab["time_offset"], "time_offset", where, path)
+        if abs(off) > 1e6:
+            raise InputError(f"{where}: time_offset {off!r} s is implausible", path=path,
+                             label="time_offset")
+    if "payload_com" in tab:
+        com = tab["payload_com"]
+        if not (isinstance(com, list) and len(com) == 3):
+            raise InputError(f"{where}: payload_com must be [x, y, z] in metres, got {com!r}",
+                             path=path, label="payload_com")
+        com = [_num(c, "payload_com", where, path) for c in com]
+        if max(abs(c) for c in com) > 5.0:
+            raise InputError(f"{where}: payload_com {com!r} is more than 5 m from the flange "
+                             "(millimetres written as metres?)", path=path, label="payload_com")
 
 
 def _inside(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
@@ -197,6 +225,7 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
         rep = tab.get("repetition", 1)
         if isinstance(rep, bool) or not isinstance(rep, int):
             raise InputError(f"{w}: 'repetition' must be an integer", path=manifest, label="repetition")
+        _check_trial_values(tab, w, manifest)
         trials.append(Trial(
             markers=chk(_req(tab, "markers", w, manifest), "markers", w),
             log=chk(_req(tab, "log", w, manifest), "log", w),
