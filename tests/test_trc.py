@@ -271,3 +271,27 @@ def test_large_file_parses_vectorised(tmp_path):
     back = read_trc(p)
     np.testing.assert_array_equal(back.missing, rec.missing)
     assert np.nanmax(np.abs(back.positions - rec.positions)) <= 0.5e-8 * (1 + 1e-9)
+
+
+def test_doubled_separator_in_a_row_is_an_error_not_a_shift(tmp_path):
+    """A doubled tab in a row whose last marker is occluded used to shift every later marker by
+    one coordinate silently (the extra cell was empty); now the row is refused, naming it."""
+    from mocap.io.errors import InputError
+    from mocap.io.trc import read_trc
+
+    rows = ["PathFileType\t4\t(X/Y/Z)\tx.trc",
+            "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+            "100\t100\t2\t3\tmm\t100\t1\t2",
+            "Frame#\tTime\tA\t\t\tB\t\t\tC\t\t",
+            "\t\tX1\tY1\tZ1\tX2\tY2\tZ2\tX3\tY3\tZ3",
+            "",
+            "1\t0.00\t1.0\t2.0\t3.0\t4.0\t5.0\t6.0\t7.0\t8.0\t9.0",
+            "2\t0.01\t1.0\t2.0\t\t3.0\t4.0\t5.0\t6.0\t\t\t"]       # doubled tab after A's Y; C occluded
+    path = tmp_path / "x.trc"
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(InputError, match=r"x.trc, line 8: marker A has an empty or non-numeric Z"):
+        read_trc(path)
+    rows[-1] = "2\t0.01\t1.0\t2.0\t3.0\t4.0\t5.0\t6.0\t\t\t"          # C occluded, nothing shifted
+    path.write_text("\n".join(rows) + "\n")
+    rec = read_trc(path)
+    assert np.isnan(rec.positions[1, 2]).all() and rec.positions[1, 1, 2] == pytest.approx(6e-3)

@@ -205,7 +205,21 @@ def read_trc(path: str | Path) -> MarkerRecording:
                          "(time must increase strictly)", path=path, line=int(line_no[i]))
 
     xyz = values[:, 2:].reshape(-1, n_markers, 3)
-    missing = ~np.all(np.isfinite(xyz), axis=2)   # any blank/NaN/inf cell: the whole marker is out
+    finite = np.isfinite(xyz)
+    partial = np.any(finite, axis=2) & ~np.all(finite, axis=2)
+    shifted = partial & (n_cells > n_cols)[:, None]
+    if shifted.any():
+        # an occluded marker is three empty cells (FORMAT.md); a row with more cells than the
+        # header names and a marker with one or two empty cells is a damaged row (a doubled
+        # separator shifts every later cell): never guess
+        r, m = (int(x[0]) for x in np.nonzero(shifted))
+        axes = "".join(a for a, ok in zip("XYZ", finite[r, m]) if not ok)
+        raise InputError(f"marker {labels[m]} has an empty or non-numeric {axes} cell but not all "
+                         f"three (columns {3 + 3 * m}-{5 + 3 * m}): a damaged row (doubled or "
+                         "missing separator?) would shift every later marker", path=path,
+                         line=int(line_no[r]), label=labels[m])
+    missing = ~np.all(finite, axis=2)   # a blank/NaN cell: the marker is out for that frame
+    meta["partial_markers"] = int(partial.sum())   # frames x markers with 1-2 blank cells
     xyz[missing] = np.nan
     positions = xyz * UNIT_SCALE[units]
 
