@@ -717,7 +717,9 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
         if lb in rec.labels:
             Y[:, k] = rec.positions[:, rec.labels.index(lb)]
     p_base = apply_transform(invert_transform(T_cb), Y)
-    q_guess = motor_guess(log, rec.time, joints0)
+    # FORMAT.md: t_robot = t_marker + time_offset (the trial's key, 0 by default)
+    offset = float(getattr(trial, "extra", {}).get("time_offset", 0.0))
+    q_guess = motor_guess(log, rec.time + offset, joints0)
     mj, pj = references.for_chain(chain, used)
     fixed = _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
     refinement = None
