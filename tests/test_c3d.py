@@ -198,3 +198,21 @@ def test_write_refuses_overwrite_and_off_grid_time(tmp_path):
         write_c3d(tmp_path / "off.c3d", off)
     with pytest.raises(InputError, match="units"):
         write_c3d(tmp_path / "u.c3d", rec, units="ft")
+
+
+def test_truncated_c3d_warns_through_every_reader_path(real_dir, capsys):
+    """The truncated real file (1149 frames declared, 29 present) is read with a warning from
+    the one marker dispatch every command uses, and the CLI prints it as one line."""
+    from ident.cli.main import main
+    from mocap.io.errors import InputWarning
+    from mocap.io.markers import read_markers
+
+    path = real_dir / "c3d" / "Optotrak.c3d"
+    if not path.is_file():
+        pytest.skip(f"{path} absent (../shared/data/real not beside the repository)")
+    with pytest.warns(InputWarning, match=r"Optotrak.c3d: .*1149.*29 frames present"):
+        rec = read_markers(path)
+    assert rec.n_frames == 29
+    assert main(["info", str(path)]) == 0
+    warn = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("jointlab: warning:")]
+    assert len(warn) == 1 and "Optotrak.c3d" in warn[0]

@@ -10,9 +10,10 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import warnings
 from pathlib import Path
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, InputWarning
 
 
 def add_common(p: argparse.ArgumentParser, out: bool = True, out_required: bool = False,
@@ -106,6 +107,20 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.simplefilter("default", InputWarning)       # each distinct warning once
+        warnings.showwarning = _show_input_warning
+        return _run(args)
+
+
+def _show_input_warning(message, category, filename, lineno, file=None, line=None):
+    if issubclass(category, InputWarning):
+        print(f"jointlab: warning: {message}", file=sys.stderr)
+    else:
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
+def _run(args) -> int:
     out = getattr(args, "out", None)
     out_existed = out is None or Path(out).exists()
     status = 1

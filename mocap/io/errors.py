@@ -29,6 +29,18 @@ class InputError(ValueError):
         super().__init__(where + message)
 
 
+class InputWarning(UserWarning):
+    """Something in a user file that the reader tolerated or repaired and the user should know
+    (a truncated C3D, a header count that disagrees with the rows). The CLI prints each one as
+    one ``jointlab: warning:`` line."""
+
+
+def warn_input(message: str, path: str | Path | None = None) -> None:
+    import warnings
+
+    warnings.warn(InputWarning(f"{path}: {message}" if path is not None else message), stacklevel=3)
+
+
 def read_text(path: str | Path, encoding: str = "utf-8") -> str:
     """The text of a user file, or an :class:`InputError` naming the file and the line and
     column of the first byte that is not ``encoding`` (a damaged header, a file saved in

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, warn_input
 from mocap.io.recording import MarkerRecording
 
 
@@ -18,12 +18,16 @@ def read_markers(path: str | Path, **kw) -> MarkerRecording:
     if ext == ".trc":
         from mocap.io.trc import read_trc
 
-        return read_trc(path)
-    if ext == ".c3d":
+        rec = read_trc(path)
+    elif ext == ".c3d":
         from mocap.io.c3d import read_c3d
 
-        return read_c3d(path, **kw)
-    raise InputError(f"unknown marker file extension {ext!r} (expected .trc or .c3d)", path=path)
+        rec = read_c3d(path, **kw)
+    else:
+        raise InputError(f"unknown marker file extension {ext!r} (expected .trc or .c3d)", path=path)
+    for msg in rec.meta.get("header_mismatch", []):   # e.g. a truncated C3D: every command says so
+        warn_input(f"{msg}; using the {rec.n_frames} frames present", path)
+    return rec
 
 
 def write_markers(path: str | Path, rec: MarkerRecording, overwrite: bool = False, **kw) -> Path:
