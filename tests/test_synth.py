@@ -294,7 +294,7 @@ def test_committed_demo_is_small_and_valid():
 
 
 @pytest.mark.slow
-def test_committed_demo_regenerates_byte_for_byte(tmp_path):
+def test_committed_demo_regenerates_within_rounding(tmp_path):
     """Fails when the demo is stale (code, bundled robot or writer changed): regenerate it with
     the command in fixtures/demo/REGENERATE.md."""
     import shlex
