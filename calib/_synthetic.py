@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap.kinematics import apply_transform, invert_transform, make_transform
+from mocap.synth import MarkerSet, add_noise, marker_positions, random_orientation
 from mocap.io.recording import MarkerRecording
 from mocap.io.robotlog import RobotLog
 
@@ -39,18 +40,9 @@ class SyntheticCalib:
     extra: dict = field(default_factory=dict)
 
 
-def random_rotation(rng) -> np.ndarray:
-    q = rng.standard_normal(4)
-    q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def random_camera_pose(rng) -> np.ndarray:
     """A camera 2.5-3.5 m from the robot base, random orientation."""
-    return make_transform(random_rotation(rng),
+    return make_transform(random_orientation(rng),
                           np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(2.5, 3.5)]))
 
 
@@ -109,7 +101,8 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
     links = {}
     for lb, (link, _) in layout.items():
         links.setdefault(link, []).append(lb)
-    sigma = noise_mm * 1e-3 / np.sqrt(3.0)
+    mset = MarkerSet(labels, tuple(layout[lb][0] for lb in labels),
+                     np.array([layout[lb][1] for lb in labels]).reshape(-1, 3))
     A = np.radians(amplitude_deg)
     sweeps = []
     for j in joints:
@@ -120,13 +113,7 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
         q[:, j - 1] += prof(t)
         if joint_stiffness is not None:
             q = q - robot.gravity_torque(q) / np.broadcast_to(np.asarray(joint_stiffness, float), (n,))
-        P = np.empty((t.size, len(labels), 3))
-        for link, lbs in links.items():
-            T_cl = T_cb @ chain.frame_transform(link, q)          # (T, 4, 4)
-            idx = [labels.index(lb) for lb in lbs]
-            p_l = np.array([layout[lb][1] for lb in lbs])
-            P[:, idx] = np.einsum("tij,mj->tmi", T_cl[:, :3, :3], p_l) + T_cl[:, None, :3, 3]
-        P += sigma * rng.standard_normal(P.shape)
+        P = add_noise(marker_positions(chain, mset, q, T_cb), noise_mm * 1e-3, rng)
         if outlier_fraction > 0:
             bad = rng.random(P.shape[:2]) < outlier_fraction
             P[bad] += rng.normal(0, 0.02, (int(bad.sum()), 3))

@@ -26,7 +26,7 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
-from calib.geometry import (angle_about, kabsch_batch, perp_basis, rotations_about, unit)
+from mocap.kinematics import angle_about, kabsch_batch, perp_basis, rotation_about_axis, unit
 
 #: the thesis's 3-D residual of the motion-capture system, 0.845 mm RMS (section 4.1)
 DEFAULT_NOISE_MM = 0.85
@@ -160,7 +160,7 @@ class _RigidSweep:
         """Model points and the Jacobians w.r.t. the global block (chart of the axis around
         ``(a, n)`` + marker positions) and the per-frame angles."""
         ti, ki = self.t_idx, self.k_idx
-        R = rotations_about(n, theta)[ti]                       # (K, 3, 3)
+        R = rotation_about_axis(n, theta)[ti]                       # (K, 3, 3)
         d = s[ki] - a                                          # (K, 3)
         Rd = np.einsum("kij,kj->ki", R, d)
         model = a + Rd

@@ -22,7 +22,8 @@ from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
 
-from calib.geometry import chart_coords, line_distance, rotation_angle, rotvec_to_matrix, unit
+from calib.geometry import chart_coords, line_distance
+from mocap.kinematics import rotation_angle, rotvec_to_matrix, unit
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,7 +17,7 @@ from mocap.io.errors import InputError
 
 from calib.axis import DEFAULT_NOISE_MM, AxisFit, CircleAxisEstimator, ClusterAxisEstimator
 from calib.base import BasePlacement, place_base
-from calib.geometry import angle_about, kabsch_batch
+from mocap.kinematics import angle_about, kabsch_batch
 
 ESTIMATORS = {"cluster": ClusterAxisEstimator, "circle": CircleAxisEstimator}
 
