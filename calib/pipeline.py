@@ -165,7 +165,6 @@ def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: flo
 def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> list:
     """Read and check the campaign's calibration sweeps of ``joints``."""
     from mocap.io.markers import read_markers
-    from mocap.io.robotlog import read_robot_log
 
     found = {c.joint: c for c in campaign.calib}
     missing = [j for j in joints if j not in found]
@@ -178,7 +177,7 @@ def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> 
     for j in joints:
         c = found[j]
         rec = read_markers(c.markers)
-        log = read_robot_log(c.log, n_joints=robot.n)
+        log = campaign.read_log(c, robot)
         out.append(prepare_sweep(j, rec, log, robot.chain, campaign.markers, min_sweep_deg))
     return out
 

@@ -649,7 +649,6 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     from mocap.io.errors import InputError
     from mocap.io.markers import read_markers
     from mocap.kinematics import apply_transform, invert_transform
-    from mocap.io.robotlog import read_robot_log
 
     if isinstance(trial, str):
         trial = campaign.trial(trial)
@@ -671,7 +670,7 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
         raise InputError(f"trial {trial.id!r}: marker {norefs[0]!r} has no static reference (it is "
                          "not in the static pose)", path=campaign.manifest, label=norefs[0])
     rec = read_markers(trial.markers)
-    log = read_robot_log(trial.log, n_joints=robot.n)
+    log = campaign.read_log(trial, robot)
     absent = tuple(lb for lb in used if lb not in rec.labels)
     if len(absent) == len(used):
         raise InputError(f"none of the markers on the moving links ({', '.join(used[:6])}) is in the "
