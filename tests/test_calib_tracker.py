@@ -42,8 +42,9 @@ def _write_log(path, t, q_log):
     path.write_text("\n".join(lines) + "\n")
 
 
-def make_tracker_campaign(root, pa10_dir, seed=0, degrees=False):
-    """Seven stop-and-go poses per sweep of joints 1 and 2, one reflector on the last link."""
+def make_tracker_campaign(root, pa10_dir, seed=0, degrees=False, j12_offset_m=0.0):
+    """Seven stop-and-go poses per sweep of joints 1 and 2, one reflector on the last link.
+    ``j12_offset_m`` shifts the real joint 2 sideways (x) against the URDF given (a J1-J2 offset)."""
     import pinocchio as pin
 
     rng = np.random.default_rng(seed)
@@ -52,6 +53,7 @@ def make_tracker_campaign(root, pa10_dir, seed=0, degrees=False):
     shutil.copy(pa10_dir / "pa10.urdf", root / "robot" / "arm.urdf")
     shutil.copy(pa10_dir / "drives.toml", root / "robot" / "drives.toml")
     model = pin.buildModelFromUrdf(str(root / "robot" / "arm.urdf"))
+    model.jointPlacements[2].translation = model.jointPlacements[2].translation + [j12_offset_m, 0, 0]
     data = model.createData()
     R_cb = _rot(rng.normal(size=3), rng.uniform(0.5, 2.5))
     p_cb = np.array([rng.uniform(-1, 1), rng.uniform(1.5, 3.0), rng.uniform(-0.5, 0.5)])
@@ -132,3 +134,21 @@ def test_without_the_coupling_two_joints_move(pa10_dir, tmp_path, capsys):
     assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "joint-2.csv" in err and "more than one joint moves" in err
+
+
+def test_a_j1_j2_offset_missing_from_the_urdf_is_flagged(pa10_dir, tmp_path, capsys):
+    """A 0.5 mm J1-J2 offset the URDF does not have: chi2 says the model does not fit, the warning
+    names the offset measured vs the URDF's, and the inflated uncertainty still covers the truth."""
+    from ident.cli.main import main
+
+    T_true = make_tracker_campaign(tmp_path / "camp", pa10_dir, seed=0, j12_offset_m=0.5e-3)
+    out = tmp_path / "out"
+    assert main(["calib", str(tmp_path / "camp"), "--out", str(out)]) == 0
+    cap = capsys.readouterr()
+    assert "warning: the measured axes do not fit the URDF" in cap.out
+    assert "J1-J2 offset measured 0.5" in cap.err and "URDF 0.000 mm" in cap.err
+    doc = json.loads((out / "calib.json").read_text())
+    assert doc["base_solve"]["std_inflation"] > 2
+    dp, dr = _errors(np.array(doc["T_camera_base"]), T_true)
+    assert dp <= 3 * doc["origin_std_mm"] and dr <= 3 * doc["rotation_std_deg"], \
+        (dp, doc["origin_std_mm"], dr, doc["rotation_std_deg"])
