@@ -141,7 +141,8 @@ def chain_reach(chain) -> float:
 
 def check_marker_units(positions, labels, chain, path=None, joint: int | None = None) -> None:
     """Refuse a sweep whose marker cloud cannot belong to the robot: larger than three times its
-    reach plus a metre, or smaller than a millimetre (units suspected: mm read as m or back)."""
+    reach plus a metre, or whose markers all move less than 2 mm (units suspected: mm read as m
+    or back; a marker that close to the axis could not place it anyway)."""
     P = np.asarray(positions, float)
     ext = np.nanmax(P, axis=0) - np.nanmin(P, axis=0)             # (M, 3) per-marker extent
     ext_m = np.nanmax(ext, axis=1)
@@ -153,7 +154,7 @@ def check_marker_units(positions, labels, chain, path=None, joint: int | None = 
         raise InputError(f"{what}: the markers span {allx:.3g} m, the robot reaches {reach:.2f} m: units "
                          f"suspected (marker {labels[k]!r} alone moves {ext_m[k]:.3g} m; check the Units "
                          "the marker file declares)", path=path, label=labels[k])
-    if np.nanmax(ext_m) < 1e-3:
+    if np.nanmax(ext_m) < 2e-3:
         k = int(np.nanargmax(ext_m))
         raise InputError(f"{what}: the markers move at most {1e3 * ext_m[k]:.3g} mm for a robot that reaches "
                          f"{reach:.2f} m: units suspected (marker {labels[k]!r}; check the Units the marker "

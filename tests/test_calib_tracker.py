@@ -26,10 +26,10 @@ def _rot(axis, a):
     return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
 
 
-def _write_trc(path, t, P_mm, label):
+def _write_trc(path, t, P_mm, label, units="mm"):
     head = ["PathFileType\t4\t(X/Y/Z)\t" + path.name,
             "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
-            f"1\t1\t{len(t)}\t1\tmm\t1\t1\t{len(t)}",
+            f"1\t1\t{len(t)}\t1\t{units}\t1\t1\t{len(t)}",
             f"Frame#\tTime\t{label}\t\t", "\t\tX1\tY1\tZ1", ""]
     rows = [f"{k + 1}\t{tt:.4f}\t{p[0]:.4f}\t{p[1]:.4f}\t{p[2]:.4f}" for k, (tt, p) in enumerate(zip(t, P_mm))]
     path.write_text("\n".join(head + rows) + "\n")
@@ -42,7 +42,8 @@ def _write_log(path, t, q_log):
     path.write_text("\n".join(lines) + "\n")
 
 
-def make_tracker_campaign(root, pa10_dir, seed=0, degrees=False, j12_offset_m=0.0):
+def make_tracker_campaign(root, pa10_dir, seed=0, degrees=False, j12_offset_m=0.0, units="mm",
+                          per_metre=1e3):
     """Seven stop-and-go poses per sweep of joints 1 and 2, one reflector on the last link.
     ``j12_offset_m`` shifts the real joint 2 sideways (x) against the URDF given (a J1-J2 offset)."""
     import pinocchio as pin
@@ -72,7 +73,7 @@ def make_tracker_campaign(root, pa10_dir, seed=0, degrees=False, j12_offset_m=0.
         q_log = Q @ np.linalg.inv(C).T                                    # q_urdf = C q_log
         if degrees:
             q_log = np.degrees(q_log)
-        _write_trc(root / "calib" / f"joint-{j}.trc", t, 1e3 * P, "SMR1")
+        _write_trc(root / "calib" / f"joint-{j}.trc", t, per_metre * P, "SMR1", units)
         _write_log(root / "calib" / f"joint-{j}.csv", t, q_log)
     rows = ", ".join("[" + ", ".join(str(x) for x in r) + "]" for r in COUPLING)
     (root / "campaign.toml").write_text(
@@ -152,3 +153,17 @@ def test_a_j1_j2_offset_missing_from_the_urdf_is_flagged(pa10_dir, tmp_path, cap
     dp, dr = _errors(np.array(doc["T_camera_base"]), T_true)
     assert dp <= 3 * doc["origin_std_mm"] and dr <= 3 * doc["rotation_std_deg"], \
         (dp, doc["origin_std_mm"], dr, doc["rotation_std_deg"])
+
+
+@pytest.mark.parametrize("units,per_metre,what", [("m", 1e3, "the markers span"), ("cm", 1e3, "the markers span"),
+                                                ("mm", 1.0, "the markers move at most")])
+def test_marker_units_that_do_not_fit_the_robot_are_refused(pa10_dir, tmp_path, capsys, units, per_metre, what):
+    """Values in mm declared as m or cm make a cloud far larger than the robot; values in m declared
+    as mm one smaller than a millimetre: one line naming the file and the marker column, exit 2."""
+    from ident.cli.main import main
+
+    make_tracker_campaign(tmp_path / "camp", pa10_dir, seed=0, units=units, per_metre=per_metre)
+    assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "joint-1.trc" in err and "SMR1" in err and what in err and "units suspected" in err
