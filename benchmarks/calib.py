@@ -14,14 +14,20 @@ link2 at 0.1-0.3 m from the axes). Scenarios:
 * ``compliant`` - nominal PA10 whose joints deflect under gravity by ``g(q) / K`` (K from
   drives.toml), with motor-side encoder angles in the log, as on the real arm (thesis 2-1..2-4).
 
+Then the honesty of the reported uncertainty (issue 16): Monte Carlo over >= 50 seeds of
+tracker-style sweeps (7 stop-and-go poses of ONE reflector on the last link, 0.05 mm noise, the
+circle-point method) and mocap-style sweeps (continuous, 4 markers per link, 0.85 mm), both with
+the default settings (noise estimated from the residuals): the fraction of runs whose true
+origin lies inside the reported 95 % ellipsoid (goal 90-99 %), and the same for the rotation.
+
 Rows: ``cluster`` and ``circle`` (this package), ``circle-bcls`` (per-marker Halvorsen circles
 combined without the common-axis refinement, the thesis-era method), ``cluster 1/4`` (every
 fourth frame only), and the baseline ``hand-eye`` (link2 cluster + forward kinematics of the
 encoder angles, all frames). Errors are RMS over seeds of the 3-D origin error and of the
 rotation angle error; the bound is the RMS of the per-seed CRB (3-D).
 
-    python benchmarks/calib.py            # 16 seeds per scenario
-    python benchmarks/calib.py --quick    # 4 seeds
+    python benchmarks/calib.py            # 16 seeds per scenario, 100 per coverage style
+    python benchmarks/calib.py --quick    # 4 seeds, 50 per coverage style
 """
 from __future__ import annotations
 
@@ -43,6 +49,7 @@ from calib._synthetic import simulate_sweeps  # noqa: E402
 from calib.base import pose_errors  # noqa: E402
 from calib.handeye import HandEyeEstimator  # noqa: E402
 from calib.pipeline import calibrate_sweeps, prepare_sweep  # noqa: E402
+from mocap.kinematics import matrix_to_rotvec  # noqa: E402
 from mocap.robot import Robot  # noqa: E402
 from mocap.urdf import perturb_urdf  # noqa: E402
 
@@ -58,7 +65,7 @@ def run_seed(truth, given, seed, rows, clock_offset_s=0.0, stiffness=None):
                      ("circle-bcls", dict(method="circle", refine=False)),
                      ("cluster 1/4", dict(method="cluster", frame_step=4))):
         t0 = time.perf_counter()
-        res = calibrate_sweeps(sweeps, given.chain, **kw)
+        res = calibrate_sweeps(sweeps, given.chain, noise_mm=0.85, **kw)
         dt = time.perf_counter() - t0
         dp, dr = pose_errors(res.T_camera_base, sim.T_camera_base)
         out[name] = (dp, dr, res.base.crb_origin_mm, res.base.crb_rotation_deg, res.origin_std_mm,
@@ -107,17 +114,66 @@ def report(scenario, rows, goals):
             print(f"  goal: {name:<50} {'PASS' if ok else 'FAIL'}  ({val})")
 
 
+def coverage_seed(robot, seed, style):
+    """Mahalanobis distances (origin, rotation; 3 dof each) of the truth under the reported
+    covariance, and the errors, for one seed of a tracker- or mocap-style campaign."""
+    if style == "tracker":
+        sim = simulate_sweeps(robot, seed=seed, poses=7, amplitude_deg=45.0, noise_mm=0.05,
+                              markers_per_link={"link6": 1}, radii=(0.05, 0.15), gap_fraction=0.0)
+    else:
+        sim = simulate_sweeps(robot, seed=seed, duration_s=6.0, rate_hz=100.0, noise_mm=0.85,
+                              gap_fraction=0.05)
+    sweeps = [prepare_sweep(sw.joint, sw.markers, sw.log, robot.chain, sim.markers) for sw in sim.sweeps]
+    res = calibrate_sweeps(sweeps, robot.chain)          # defaults: auto method, noise estimated
+    T, T_true = res.T_camera_base, sim.T_camera_base
+    C = res.base.cov
+    dp = T_true[:3, 3] - T[:3, 3]
+    w = matrix_to_rotvec(T_true[:3, :3] @ T[:3, :3].T)
+    d2p = float(dp @ np.linalg.solve(C[3:, 3:], dp))
+    d2r = float(w @ np.linalg.solve(C[:3, :3], w))
+    dpe, dre = pose_errors(T, T_true)
+    return d2p, d2r, dpe, dre, res.origin_std_mm, res.base.inflation > 1, res.axes[0].method
+
+
+def coverage(robot, n):
+    from scipy.stats import chi2
+
+    lim = chi2.ppf(0.95, 3)
+    ok = True
+    print(f"\n== reported 95 % intervals: {n} seeds per style (default settings, noise estimated) ==")
+    print(f"{'style':<9} {'method':<8} {'origin in 95%':>13} {'rotation in 95%':>15} {'origin rms mm':>13} "
+          f"{'std est mm':>10} {'rot rms deg':>11} {'inflated':>8} {'time s':>6}")
+    for style in ("tracker", "mocap"):
+        t0 = time.perf_counter()
+        r = [coverage_seed(robot, 5000 + seed, style) for seed in range(n)]
+        a = np.array([x[:6] for x in r], float)
+        cp, cr = np.mean(a[:, 0] <= lim), np.mean(a[:, 1] <= lim)
+        print(f"{style:<9} {r[0][6]:<8} {100 * cp:12.0f}% {100 * cr:14.0f}% {np.sqrt(np.mean(a[:, 2] ** 2)):13.4f} "
+              f"{np.sqrt(np.mean(a[:, 4] ** 2)):10.4f} {np.sqrt(np.mean(a[:, 3] ** 2)):11.5f} "
+              f"{int(a[:, 5].sum()):8d} {time.perf_counter() - t0:6.1f}")
+        good = 0.90 <= cp <= 0.99
+        ok &= good
+        print(f"  goal: {style}: true origin inside the reported 95 % interval in 90-99 % of runs "
+              f"{'PASS' if good else 'FAIL'}  ({100 * cp:.0f} %)")
+    return ok
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="4 seeds per scenario")
     ap.add_argument("--seeds", type=int, default=None)
+    ap.add_argument("--coverage-only", action="store_true", help="only the uncertainty Monte Carlo")
     args = ap.parse_args(argv)
     n = args.seeds or (4 if args.quick else 16)
+    n_cov = max(50, args.seeds or (50 if args.quick else 100))
     nominal = Robot.from_urdf(PA10 / "pa10.urdf", PA10 / "drives.toml")
     with tempfile.TemporaryDirectory() as tmp:
         purdf = perturb_urdf(PA10 / "pa10.urdf", Path(tmp) / "perturbed.urdf", seed=2026)
         perturbed = Robot.from_urdf(purdf, PA10 / "drives.toml")
     t0 = time.perf_counter()
+    coverage(nominal, n_cov)
+    if args.coverage_only:
+        return 0
     stiff = np.array([d.extra.get("stiffness", np.inf) for d in nominal.drives], float)
     for scenario, truth, given, goals, offset, k in (
             ("nominal PA10", nominal, nominal, True, 0.0, None),

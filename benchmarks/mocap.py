@@ -30,7 +30,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from mocap._synthetic import (default_camera_pose, excitation, pa10_like_robot,  # noqa: E402
+from mocap._synthetic import (default_camera_pose, excitation, pa10_robot,  # noqa: E402
                               place_markers, simulate_markers)
 from mocap.kinematics import apply_transform, invert_transform  # noqa: E402
 from mocap.quality import cramer_rao_bound, rms_bound  # noqa: E402
@@ -264,7 +264,7 @@ def main(argv=None) -> int:
     print(f"mocap solver benchmark ({'quick' if args.quick else 'full'}), marker noise "
           f"{1e3 * NOISE:.2f} mm 3-D RMS, motor guess off by ~2-3 mrad; one core")
     with tempfile.TemporaryDirectory() as tmp:
-        robot = pa10_like_robot(tmp)
+        robot = pa10_robot(tmp)
         for name, (joints, counts) in CASES.items():
             T = n_frames[name]
             S = len(joints)

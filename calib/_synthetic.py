@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap.kinematics import apply_transform, invert_transform, make_transform
+from mocap.synth import MarkerSet, add_noise, marker_positions, random_orientation
 from mocap.io.recording import MarkerRecording
 from mocap.io.robotlog import RobotLog
 
@@ -39,18 +40,9 @@ class SyntheticCalib:
     extra: dict = field(default_factory=dict)
 
 
-def random_rotation(rng) -> np.ndarray:
-    q = rng.standard_normal(4)
-    q /= np.linalg.norm(q)
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def random_camera_pose(rng) -> np.ndarray:
     """A camera 2.5-3.5 m from the robot base, random orientation."""
-    return make_transform(random_rotation(rng),
+    return make_transform(random_orientation(rng),
                           np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(2.5, 3.5)]))
 
 
@@ -83,7 +75,7 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
                     gap_fraction: float = 0.05, outlier_fraction: float = 0.0,
                     q_rest=None, T_camera_base=None, encoder_resolution: float = 1e-5,
                     marker_layout: dict | None = None, clock_offset_s: float = 0.0,
-                    joint_stiffness=None) -> SyntheticCalib:
+                    joint_stiffness=None, poses: int = 0) -> SyntheticCalib:
     """Simulate single-joint calibration sweeps of ``robot`` (anything with a ``.chain``).
 
     ``markers_per_link`` maps link name -> count (default 4 on the links of joints 1 and 2);
@@ -93,6 +85,9 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
     ``joint_stiffness`` (N m/rad, scalar or (n,), needs ``robot.gravity_torque``) makes the
     joints compliant: the log has the motor-side angle ``q_m`` and the links sit at
     ``q_m - g(q_m) / K`` (the static flexible joint, thesis eq. 2-1 to 2-4, first order).
+    ``poses`` > 0 makes stop-and-go sweeps instead (a laser tracker's): that many poses evenly
+    over +-A at irregular instants, one marker row per pose (no gaps) and log rows at the same
+    instants.
     """
     rng = np.random.default_rng(seed)
     chain = robot.chain
@@ -109,28 +104,28 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
     links = {}
     for lb, (link, _) in layout.items():
         links.setdefault(link, []).append(lb)
-    sigma = noise_mm * 1e-3 / np.sqrt(3.0)
+    mset = MarkerSet(labels, tuple(layout[lb][0] for lb in labels),
+                     np.array([layout[lb][1] for lb in labels]).reshape(-1, 3))
     A = np.radians(amplitude_deg)
     sweeps = []
     for j in joints:
-        t = np.arange(int(round(duration_s * rate_hz))) / rate_hz + rng.uniform(0, 5)
-        t0 = t[0]
-        prof = lambda tt: A * np.sin(2 * np.pi * np.clip(tt - t0, 0, duration_s) / duration_s)  # noqa: E731
+        if poses:
+            t = np.cumsum(rng.uniform(4.0, 8.0, poses)) + rng.uniform(0, 5)
+            t0 = t[0]
+            prof = lambda tt: np.interp(tt, t, np.linspace(-A, A, poses))  # noqa: E731
+        else:
+            t = np.arange(int(round(duration_s * rate_hz))) / rate_hz + rng.uniform(0, 5)
+            t0 = t[0]
+            prof = lambda tt: A * np.sin(2 * np.pi * np.clip(tt - t0, 0, duration_s) / duration_s)  # noqa: E731
         q = np.tile(q_rest, (t.size, 1))
         q[:, j - 1] += prof(t)
         if joint_stiffness is not None:
             q = q - robot.gravity_torque(q) / np.broadcast_to(np.asarray(joint_stiffness, float), (n,))
-        P = np.empty((t.size, len(labels), 3))
-        for link, lbs in links.items():
-            T_cl = T_cb @ chain.frame_transform(link, q)          # (T, 4, 4)
-            idx = [labels.index(lb) for lb in lbs]
-            p_l = np.array([layout[lb][1] for lb in lbs])
-            P[:, idx] = np.einsum("tij,mj->tmi", T_cl[:, :3, :3], p_l) + T_cl[:, None, :3, 3]
-        P += sigma * rng.standard_normal(P.shape)
+        P = add_noise(marker_positions(chain, mset, q, T_cb), noise_mm * 1e-3, rng)
         if outlier_fraction > 0:
             bad = rng.random(P.shape[:2]) < outlier_fraction
             P[bad] += rng.normal(0, 0.02, (int(bad.sum()), 3))
-        if gap_fraction > 0:
+        if gap_fraction > 0 and not poses:
             for k in range(len(labels)):
                 n_gaps = rng.integers(1, 4)
                 for _ in range(n_gaps):
@@ -138,7 +133,7 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
                     s0 = rng.integers(0, max(t.size - L, 1))
                     P[s0:s0 + L, k] = np.nan
         rec = MarkerRecording(t, P, labels, rate_hz, "mm", None, {})
-        tl = np.arange(t0 - 0.5, t[-1] + 0.5, 1.0 / log_rate_hz)
+        tl = t.copy() if poses else np.arange(t0 - 0.5, t[-1] + 0.5, 1.0 / log_rate_hz)
         ql = np.tile(q_rest, (tl.size, 1))
         ql[:, j - 1] += prof(tl)
         if encoder_resolution > 0:

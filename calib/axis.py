@@ -26,10 +26,14 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
-from calib.geometry import (angle_about, kabsch_batch, perp_basis, rotations_about, unit)
+from mocap.kinematics import angle_about, kabsch_batch, perp_basis, rotation_about_axis, unit
 
 #: the thesis's 3-D residual of the motion-capture system, 0.845 mm RMS (section 4.1)
 DEFAULT_NOISE_MM = 0.85
+#: fewest frames (stop-and-go poses) a marker must be seen in
+MIN_POSES = 3
+#: iteration cap of the refinements (a tracker's few poses can need ~60 Gauss-Newton steps)
+MAX_ITER = 500
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,7 +164,7 @@ class _RigidSweep:
         """Model points and the Jacobians w.r.t. the global block (chart of the axis around
         ``(a, n)`` + marker positions) and the per-frame angles."""
         ti, ki = self.t_idx, self.k_idx
-        R = rotations_about(n, theta)[ti]                       # (K, 3, 3)
+        R = rotation_about_axis(n, theta)[ti]                       # (K, 3, 3)
         d = s[ki] - a                                          # (K, 3)
         Rd = np.einsum("kij,kj->ki", R, d)
         model = a + Rd
@@ -285,6 +289,20 @@ class _RigidSweep:
         return info
 
 
+def marker_angles(positions: np.ndarray, point: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Angle (T, M) of each marker about the axis ``(point, unit direction)`` (right-hand rule),
+    unwrapped along the frames (consecutive frames or poses less than 180 deg apart); NaN where
+    a marker is not seen."""
+    u, v = perp_basis(direction)
+    d = np.asarray(positions, float) - point
+    th = np.arctan2(d @ v, d @ u)
+    out = np.full(th.shape, np.nan)
+    for k in range(th.shape[1]):  # loop over markers (few)
+        ok = np.isfinite(th[:, k])
+        out[ok, k] = np.unwrap(th[ok, k])
+    return out
+
+
 def _marker_stats(r, k_idx, M, labels, a, n, s, w_rob):
     rms = np.sqrt(np.bincount(k_idx, weights=np.sum(r ** 2, axis=1), minlength=M)
                   / np.maximum(np.bincount(k_idx, minlength=M), 1))
@@ -335,14 +353,16 @@ class ClusterAxisEstimator:
     robust : Huber IRLS on the per-observation 3-D residual (gross errors, swaps).
     huber_k : Huber threshold in units of the robust per-axis sigma.
     marker_weights : weight markers by their own residual variance (noisy markers count less).
-    noise_mm : 3-D RMS marker noise used for the Cramer-Rao bound.
-    min_frames : frames a marker must be seen in to be used.
+    noise_mm : 3-D RMS marker noise used for the Cramer-Rao bound (None: the noise estimated
+        from the residuals).
+    min_frames : frames (poses) a marker must be seen in to be used.
     """
 
     method = "cluster"
 
     def __init__(self, robust: bool = True, huber_k: float = 2.5, marker_weights: bool = True,
-                 noise_mm: float = DEFAULT_NOISE_MM, min_frames: int = 10, max_iter: int = 50):
+                 noise_mm: float | None = DEFAULT_NOISE_MM, min_frames: int = MIN_POSES,
+                 max_iter: int = MAX_ITER):
         self.robust = robust
         self.huber_k = huber_k
         self.marker_weights = marker_weights
@@ -365,7 +385,8 @@ class ClusterAxisEstimator:
         info = model.axis_information(Jg, Jt, w, ref)
         cov = sig2 * np.linalg.inv(info)
         info1 = model.axis_information(Jg, Jt, np.ones(K), ref)
-        crb = (self.noise_mm * 1e-3) ** 2 / 3.0 * np.linalg.inv(info1)
+        noise_m = np.sqrt(3 * sig2) if self.noise_mm is None else self.noise_mm * 1e-3
+        crb = noise_m ** 2 / 3.0 * np.linalg.inv(info1)
         rn = np.linalg.norm(r, axis=1)
         scale = _robust_scale(rn)
         outl = int(np.sum(rn > 4.0 * scale)) if np.isfinite(scale) else 0
@@ -397,8 +418,8 @@ def fit_circle_bcls(points: np.ndarray, sigma2: float | None = None):
     X = np.asarray(points, float)
     X = X[np.all(np.isfinite(X), axis=1)]
     N = X.shape[0]
-    if N < 5:
-        raise InputError(f"a circle needs at least 5 points, got {N}")
+    if N < 3:
+        raise InputError(f"a circle needs at least 3 points, got {N}")
     mu = X.mean(axis=0)
     Y = X - mu
     C = Y.T @ Y / N
@@ -426,14 +447,18 @@ class CircleAxisEstimator:
         orthogonal distance (radial and axial residual to each marker's circle), robust IRLS.
     sigma_mm : known 3-D RMS noise for the bias compensation (default: estimated per marker
         from the out-of-plane scatter).
-    noise_mm : 3-D RMS noise used for the Cramer-Rao bound (rigid sweep model).
+    noise_mm : 3-D RMS noise used for the Cramer-Rao bound (rigid sweep model; None: the noise
+        estimated from the residuals).
+
+    With a single marker this is the classic circle-point method (one point's circle: plane,
+    centre, radius), which needs at least 3 poses (4 for a residual, hence an uncertainty).
     """
 
     method = "circle"
 
     def __init__(self, refine: bool = True, robust: bool = True, huber_k: float = 2.5,
-                 sigma_mm: float | None = None, noise_mm: float = DEFAULT_NOISE_MM,
-                 min_frames: int = 10, max_iter: int = 50):
+                 sigma_mm: float | None = None, noise_mm: float | None = DEFAULT_NOISE_MM,
+                 min_frames: int = MIN_POSES, max_iter: int = MAX_ITER):
         self.refine = refine
         self.robust = robust
         self.huber_k = huber_k
@@ -462,7 +487,7 @@ class CircleAxisEstimator:
 
     def fit(self, positions, labels=None) -> AxisFit:
         """Fit the axis of a sweep: ``positions`` (T, M, 3) metres, NaN where occluded."""
-        P, labels, vis = _prepare(positions, labels, self.min_frames, 2)
+        P, labels, vis = _prepare(positions, labels, self.min_frames, 1)
         M = P.shape[1]
         a, n, rad, circles = self.combine(P, vis)
         t_idx, k_idx = np.nonzero(vis)
@@ -503,8 +528,14 @@ class CircleAxisEstimator:
         r, J = self._residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c)
         w = w_rob * w_mk[k_idx]
         H = np.einsum("k,kig,kih->gh", w, J, J)
-        dof = max(2 * len(k_idx) - (4 + 2 * M), 1)
-        sig2 = float(np.sum(w * np.sum(r ** 2, axis=1)) / dof)
+        dof = 2 * len(k_idx) - (4 + 2 * M)
+        if dof >= 1:
+            sig2 = float(np.sum(w * np.sum(r ** 2, axis=1)) / dof)
+        elif self.noise_mm is not None:
+            sig2 = (self.noise_mm * 1e-3) ** 2 / 3.0
+        else:
+            raise InputError(f"{len(k_idx)} observations of {M} marker(s) leave no residual to estimate "
+                             "the noise from: give the noise (--noise-mm) or add poses")
         Hinv = np.linalg.pinv(H)
         cov = sig2 * Hinv[:4, :4]
         fit0 = AxisFit(point=a, direction=n, basis=(u, v), cov=cov, crb=np.full((4, 4), np.nan),
@@ -515,8 +546,12 @@ class CircleAxisEstimator:
             rigid = ClusterAxisEstimator(robust=False, marker_weights=False, noise_mm=self.noise_mm,
                                          min_frames=self.min_frames).fit(P, labels)
             crb, sweep = _rebase_cov(rigid.crb, rigid, fit0), rigid.sweep_deg
-        except InputError:          # fewer than 3 markers: no rigid cluster, no bound
-            crb, sweep = np.full((4, 4), np.nan), float("nan")
+        except InputError:          # fewer than 3 markers: the bound of the circle model itself
+            H1 = np.einsum("kig,kih->gh", J, J)
+            noise_m = np.sqrt(3 * sig2) if self.noise_mm is None else self.noise_mm * 1e-3
+            crb = noise_m ** 2 / 3.0 * np.linalg.pinv(H1)[:4, :4]
+            th = marker_angles(P, a, n)
+            sweep = float(np.degrees(np.nanmax(np.nanmax(th, axis=0) - np.nanmin(th, axis=0))))
         # 3-D residual per observation: in-plane tangential component is not modelled
         rn = np.linalg.norm(r, axis=1)
         scale = _robust_scale(rn, 2)

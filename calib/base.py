@@ -22,7 +22,8 @@ from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
 
-from calib.geometry import chart_coords, line_distance, rotation_angle, rotvec_to_matrix, unit
+from calib.geometry import chart_coords, line_distance
+from mocap.kinematics import rotation_angle, rotvec_to_matrix, unit
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,6 +42,10 @@ class BasePlacement:
     iterations: int
     converged: bool
     cond: float
+    dof: int = 0                  # 4 per axis - 6
+    p_value: float = float("nan")  # of chi2 on dof
+    inflation: float = 1.0        # factor applied to cov's std when chi2 says the model does not fit
+    warnings: tuple = ()
 
     @staticmethod
     def _stds(C):
@@ -77,6 +82,11 @@ class BasePlacement:
             "axis_angle_deg": self.axis_angle_deg,
             "urdf_axis_angle_deg": self.urdf_axis_angle_deg,
             "chi2": self.chi2,
+            "dof": self.dof,
+            "chi2_per_dof": self.chi2 / self.dof if self.dof > 0 else None,
+            "p_value": self.p_value,
+            "std_inflation": self.inflation,
+            "warnings": list(self.warnings),
             "iterations": self.iterations,
             "converged": self.converged,
             "cond": self.cond,
@@ -109,7 +119,12 @@ def _initial_pose(meas, urdf):
     return R, np.linalg.solve(M, rhs)
 
 
-def place_base(axes, urdf_lines, use: str = "cov") -> BasePlacement:
+#: below this p-value of the base solve's chi2 the axes do not fit the URDF: the covariance is
+#: scaled by chi2/dof (the Birge ratio) and a warning names the mismatch
+MISFIT_P = 0.01
+
+
+def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P) -> BasePlacement:
     """Solve ``T_camera_base`` from measured axes and the URDF's axis lines.
 
     ``axes``: fitted :class:`calib.axis.AxisFit` (camera frame, with ``joint`` set, the
@@ -167,9 +182,26 @@ def place_base(axes, urdf_lines, use: str = "cov") -> BasePlacement:
         _, crb, _, _, _ = solve([f.crb for f in axes])
     else:
         crb = np.full((6, 6), np.nan)
+    from scipy.stats import chi2 as chi2_dist
+
+    chi2 = float(np.sum(r ** 2))
+    dof = 4 * len(axes) - 6
+    p_value = float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan")
+    inflation, warnings = 1.0, []
+    if dof > 0 and p_value < misfit_p:
+        inflation = float(np.sqrt(chi2 / dof))
+        cov = cov * inflation ** 2
+        j1, j2 = axes[0].joint, axes[1].joint
+        warnings.append(
+            f"the measured axes do not fit the URDF: chi2 = {chi2:.1f} on {dof} degrees of freedom "
+            f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
+            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; standard deviations inflated "
+            f"x{inflation:.2f}")
+    if not sol.success:
+        warnings.append(f"the base solve did not converge ({sol.message})")
     return BasePlacement(T_camera_base=T, cov=cov, crb=crb,
                          residual_chart={f.joint: rr for f, rr in zip(axes, r)},
                          axis_distance_mm=1e3 * dist_m, urdf_axis_distance_mm=1e3 * dist_u,
                          axis_angle_deg=ang_m, urdf_axis_angle_deg=ang_u_signed,
-                         chi2=float(np.sum(r ** 2)), iterations=int(sol.nfev), converged=bool(sol.success),
-                         cond=cond)
+                         chi2=chi2, iterations=int(sol.nfev), converged=bool(sol.success),
+                         cond=cond, dof=dof, p_value=p_value, inflation=inflation, warnings=tuple(warnings))

@@ -1,4 +1,5 @@
-"""Small geometry kernels shared by the calibration estimators (pure numpy, batched).
+"""Line geometry shared by the calibration estimators (pure numpy; rotations and Kabsch are in
+:mod:`mocap.kinematics`).
 
 Lines are ``(point, direction)`` pairs with a unit direction. A line near a reference line
 ``(p0, n0)`` is described by four *chart* coordinates ``(alpha, beta, gamma, delta)``:
@@ -10,92 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def unit(v: np.ndarray) -> np.ndarray:
-    v = np.asarray(v, float)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-
-def perp_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """An orthonormal pair ``(u, v)`` perpendicular to the unit vector ``n`` (right-handed u, v, n)."""
-    n = unit(n)
-    e = np.zeros(3)
-    e[int(np.argmin(np.abs(n)))] = 1.0
-    u = unit(np.cross(n, e))
-    v = np.cross(n, u)
-    return u, v
-
-
-def skew(w: np.ndarray) -> np.ndarray:
-    w = np.asarray(w, float)
-    K = np.zeros(w.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -w[..., 2], w[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = w[..., 2], -w[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -w[..., 1], w[..., 0]
-    return K
-
-
-def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula for rotation vectors (..., 3) -> (..., 3, 3)."""
-    w = np.asarray(w, float)
-    th = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = skew(w)
-    small = th < 1e-12
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def rotation_angle(R: np.ndarray) -> np.ndarray:
-    """Rotation angle(s) in radians of rotation matrices (..., 3, 3)."""
-    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    s = np.linalg.norm(np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
-                                 R[..., 1, 0] - R[..., 0, 1]], -1), axis=-1) / 2.0
-    return np.arctan2(s, np.clip(c, -1.0, 1.0))
-
-
-def angle_about(R: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Signed rotation angle of R (..., 3, 3) about the unit axis ``n`` (right-hand rule)."""
-    vee = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
-                    R[..., 1, 0] - R[..., 0, 1]], -1) / 2.0
-    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.arctan2(vee @ n, c)
-
-
-def rotations_about(n: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Rotation matrices (T, 3, 3) by angles ``theta`` (T,) about the unit axis ``n`` (3,)."""
-    K = skew(n)
-    s = np.sin(theta)[:, None, None]
-    c = np.cos(theta)[:, None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
-
-
-def kabsch_batch(ref: np.ndarray, obs: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least-squares rigid transforms, batched over frames.
-
-    ``ref`` (M, 3) reference marker positions, ``obs`` (T, M, 3) observed positions (NaN
-    allowed where ``w`` is 0), ``w`` (T, M) non-negative weights. Returns ``R`` (T, 3, 3) and
-    ``t`` (T, 3) minimising ``sum_k w_tk |obs_tk - (R_t ref_k + t_t)|^2`` (Kabsch/Umeyama,
-    with the reflection fix). Frames with less than 3 weighted markers give NaN.
-    """
-    w = np.asarray(w, float)
-    obs = np.where(w[..., None] > 0, obs, 0.0)
-    W = w.sum(axis=1)
-    ok = (w > 0).sum(axis=1) >= 3
-    Wsafe = np.where(W > 0, W, 1.0)
-    cr = np.einsum("tm,mi->ti", w, ref) / Wsafe[:, None]
-    co = np.einsum("tm,tmi->ti", w, obs) / Wsafe[:, None]
-    H = np.einsum("tm,tmi,tmj->tij", w, obs - co[:, None], ref[None] - cr[:, None])
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.ones((H.shape[0], 3))
-    D[:, 2] = d
-    R = np.einsum("tij,tj,tjk->tik", U, D, Vt)
-    t = co - np.einsum("tij,tj->ti", R, cr)
-    R[~ok] = np.nan
-    t[~ok] = np.nan
-    return R, t
+from mocap.kinematics import unit
 
 
 def chart_coords(q: np.ndarray, m: np.ndarray, p0: np.ndarray, n0: np.ndarray,

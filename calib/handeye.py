@@ -22,9 +22,8 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from mocap.io.errors import InputError
-from mocap.kinematics import invert_transform
+from mocap.kinematics import invert_transform, kabsch_batch, rotvec_to_matrix
 
-from calib.geometry import kabsch_batch, rotvec_to_matrix
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,11 +15,28 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
-from calib.axis import DEFAULT_NOISE_MM, AxisFit, CircleAxisEstimator, ClusterAxisEstimator
+from calib.axis import (MIN_POSES, AxisFit, CircleAxisEstimator, ClusterAxisEstimator,
+                        marker_angles)
 from calib.base import BasePlacement, place_base
-from calib.geometry import angle_about, kabsch_batch
 
-ESTIMATORS = {"cluster": ClusterAxisEstimator, "circle": CircleAxisEstimator}
+
+class AutoAxisEstimator:
+    """The cluster estimator where a sweep has 3 or more markers, the circle(-point) estimator
+    where it has one or two (settings passed to whichever runs)."""
+
+    method = "auto"
+
+    def __init__(self, min_frames: int = MIN_POSES, **settings):
+        self.min_frames = min_frames
+        self.settings = settings
+
+    def fit(self, positions, labels=None) -> AxisFit:
+        seen = np.all(np.isfinite(np.asarray(positions, float)), axis=2).sum(axis=0) >= self.min_frames
+        cls = ClusterAxisEstimator if int(seen.sum()) >= 3 else CircleAxisEstimator
+        return cls(min_frames=self.min_frames, **self.settings).fit(positions, labels)
+
+
+ESTIMATORS = {"auto": AutoAxisEstimator, "cluster": ClusterAxisEstimator, "circle": CircleAxisEstimator}
 
 #: a joint whose encoder range exceeds this (deg) during a sweep counts as moving
 MOVING_DEG = 0.5
@@ -50,9 +67,23 @@ class CalibResult:
     axes: tuple
     base: BasePlacement
     method: str
-    noise_mm: float
+    noise_mm: float | None        # given 3-D RMS noise, None when estimated from the residuals
     sweeps: tuple = ()
     extra: dict = field(default_factory=dict)
+
+    @property
+    def warnings(self) -> tuple:
+        """Non-convergence of an axis fit and the base solve's model-mismatch warning."""
+        out = [f"joint {f.joint}: the {f.method} axis fit stopped at its iteration cap "
+               f"({f.iterations}) without converging" for f in self.axes if not f.converged]
+        return tuple(out) + tuple(self.base.warnings)
+
+    @property
+    def noise_used_mm(self) -> float:
+        """The noise behind the Cramer-Rao bound: given, or the axis fits' estimate (RMS)."""
+        if self.noise_mm is not None:
+            return float(self.noise_mm)
+        return float(np.sqrt(np.mean([f.sigma_mm ** 2 for f in self.axes])))
 
     @property
     def origin_std_mm(self) -> float:
@@ -71,9 +102,12 @@ class CalibResult:
             "axes": [f.to_dict() for f in self.axes],
             "origin_std_mm": self.origin_std_mm,
             "rotation_std_deg": self.rotation_std_deg,
+            "origin_cov_mm2": (1e6 * self.base.cov[3:, 3:]).tolist(),
+            "warnings": list(self.warnings),
             "crb": {"origin_std_mm": b["crb_origin_std_mm"], "rotation_std_deg": b["crb_rotation_std_deg"],
-                    "noise_mm": self.noise_mm,
-                    "note": "numerical Cramer-Rao bound of the rigid sweep model at noise_mm "
+                    "noise_mm": self.noise_used_mm,
+                    "noise_source": "given" if self.noise_mm is not None else "estimated from the residuals",
+                    "note": "numerical Cramer-Rao bound of the sweep model at noise_mm "
                             "(3-D RMS), propagated through the base solve"},
             "method": self.method,
             "base_solve": {k: v for k, v in b.items() if k != "T_camera_base"},
@@ -100,12 +134,41 @@ def moving_links(chain, joint: int, marker_links) -> list:
     return [lk for lk in marker_links if lk in chain.frames and chain.frames[lk][0] >= joint - 1]
 
 
+def chain_reach(chain) -> float:
+    """Sum of the joint-to-joint distances of the chain (m): a bound on the robot's size."""
+    return float(np.linalg.norm(np.asarray(chain.T_parent_joint)[:, :3, 3], axis=1).sum())
+
+
+def check_marker_units(positions, labels, chain, path=None, joint: int | None = None) -> None:
+    """Refuse a sweep whose marker cloud cannot belong to the robot: larger than three times its
+    reach plus a metre, or whose markers all move less than 2 mm (units suspected: mm read as m
+    or back; a marker that close to the axis could not place it anyway)."""
+    P = np.asarray(positions, float)
+    ext = np.nanmax(P, axis=0) - np.nanmin(P, axis=0)             # (M, 3) per-marker extent
+    ext_m = np.nanmax(ext, axis=1)
+    allx = float(np.nanmax(np.nanmax(P.reshape(-1, 3), axis=0) - np.nanmin(P.reshape(-1, 3), axis=0)))
+    reach = chain_reach(chain)
+    what = f"sweep of joint {joint}" if joint is not None else "marker cloud"
+    if allx > 3.0 * reach + 1.0:
+        k = int(np.nanargmax(ext_m))
+        raise InputError(f"{what}: the markers span {allx:.3g} m, the robot reaches {reach:.2f} m: units "
+                         f"suspected (marker {labels[k]!r} alone moves {ext_m[k]:.3g} m; check the Units "
+                         "the marker file declares)", path=path, label=labels[k])
+    if np.nanmax(ext_m) < 2e-3:
+        k = int(np.nanargmax(ext_m))
+        raise InputError(f"{what}: the markers move at most {1e3 * ext_m[k]:.3g} mm for a robot that reaches "
+                         f"{reach:.2f} m: units suspected (marker {labels[k]!r}; check the Units the marker "
+                         "file declares)", path=path, label=labels[k])
+
+
 def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: float = 15.0,
-                  min_markers: int = 3, min_frames: int = 10) -> SweepData:
+                  min_markers: int = 1, min_frames: int = MIN_POSES) -> SweepData:
     """Check one sweep (one joint moving, far enough, enough markers) and select its markers.
 
     ``rec`` is a :class:`mocap.io.recording.MarkerRecording`, ``log`` a
-    :class:`mocap.io.robotlog.RobotLog`, ``markers`` the campaign's link -> labels map.
+    :class:`mocap.io.robotlog.RobotLog` (in URDF joints), ``markers`` the campaign's link ->
+    labels map. A sweep is continuous or stop-and-go (one marker row per pose, log rows at the
+    same instants): a marker is used when it is seen in at least ``min_frames`` frames (poses).
     """
     mpath, lpath = rec.source, log.source
     n = chain.n
@@ -152,6 +215,7 @@ def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: flo
                          f"moves ({', '.join(links) or 'none'}) are seen in at least {min_frames} frames; "
                          f"need {min_markers}. Markers: {detail}", path=mpath)
     sub = rec.select(usable)
+    check_marker_units(sub.positions, tuple(usable), chain, mpath, joint)
     inside = (rec.time >= log.time[0]) & (rec.time <= log.time[-1])
     q_frames = np.stack([np.interp(rec.time, log.time, np.where(np.isfinite(log.qm[:, j]), log.qm[:, j], 0.0))
                          for j in range(n)], axis=1)
@@ -165,7 +229,6 @@ def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: flo
 def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> list:
     """Read and check the campaign's calibration sweeps of ``joints``."""
     from mocap.io.markers import read_markers
-    from mocap.io.robotlog import read_robot_log
 
     found = {c.joint: c for c in campaign.calib}
     missing = [j for j in joints if j not in found]
@@ -178,27 +241,33 @@ def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> 
     for j in joints:
         c = found[j]
         rec = read_markers(c.markers)
-        log = read_robot_log(c.log, n_joints=robot.n)
+        log = campaign.read_log(c, robot)
         out.append(prepare_sweep(j, rec, log, robot.chain, campaign.markers, min_sweep_deg))
     return out
 
 
-def rotation_sense(sw: SweepData, direction: np.ndarray) -> float:
-    """+1 when the markers turn positively about ``direction`` as the encoder angle grows."""
-    P = sw.positions
-    vis = np.all(np.isfinite(P), axis=2)
-    ref = int(np.argmax(vis.sum(axis=1)))
-    R, _ = kabsch_batch(np.where(vis[ref][:, None], P[ref], 0.0), P, (vis & vis[ref][None]).astype(float))
-    th = angle_about(np.nan_to_num(R), direction)
-    ok = np.all(np.isfinite(R), axis=(1, 2)) & np.isfinite(sw.q_joint)
-    if ok.sum() < 3:
-        raise InputError(f"sweep of joint {sw.joint}: marker and log times do not overlap; cannot tell "
-                         "the direction of rotation", path=sw.markers_path)
-    a, b = th[ok] - th[ok].mean(), sw.q_joint[ok] - sw.q_joint[ok].mean()
-    return 1.0 if a @ b >= 0 else -1.0
+def rotation_sense(sw: SweepData, point: np.ndarray, direction: np.ndarray) -> float:
+    """+1 when the markers turn positively about ``direction`` as the logged angle grows: each
+    marker's angle about the axis against the log's angle at the same frames (any number of
+    markers; markers far from the axis count more)."""
+    th = marker_angles(sw.positions, point, direction)             # (T, M)
+    d = sw.positions - point
+    rad = np.nanmedian(np.linalg.norm(d - (d @ direction)[..., None] * direction, axis=2), axis=0)
+    score, n_used = 0.0, 0
+    for k in range(th.shape[1]):  # loop over markers (few)
+        ok = np.isfinite(th[:, k]) & np.isfinite(sw.q_joint)
+        if ok.sum() < 2:
+            continue
+        a, b = th[ok, k] - th[ok, k].mean(), sw.q_joint[ok] - sw.q_joint[ok].mean()
+        score += rad[k] ** 2 * float(a @ b)
+        n_used += 1
+    if n_used == 0:
+        raise InputError(f"sweep of joint {sw.joint}: no marker frame falls inside the log's time span; "
+                         "cannot tell the direction of rotation", path=sw.markers_path)
+    return 1.0 if score >= 0 else -1.0
 
 
-def fit_axes(sweeps, method: str = "cluster", noise_mm: float = DEFAULT_NOISE_MM, frame_step: int = 1,
+def fit_axes(sweeps, method: str = "auto", noise_mm: float | None = None, frame_step: int = 1,
              **options) -> list:
     """Fit each sweep's axis with ``method`` and orient it with the joint's positive rotation."""
     if method not in ESTIMATORS:
@@ -209,11 +278,11 @@ def fit_axes(sweeps, method: str = "cluster", noise_mm: float = DEFAULT_NOISE_MM
         f: AxisFit = est.fit(sw.positions[::frame_step], sw.labels)
         sub = SweepData(sw.joint, sw.time[::frame_step], sw.positions[::frame_step], sw.labels, sw.q_held,
                         sw.q_joint[::frame_step], sw.range_deg, sw.links, sw.markers_path, sw.log_path)
-        fits.append(f.with_joint(sw.joint, flip=rotation_sense(sub, f.direction) < 0))
+        fits.append(f.with_joint(sw.joint, flip=rotation_sense(sub, f.point, f.direction) < 0))
     return fits
 
 
-def calibrate_sweeps(sweeps, chain, method: str = "cluster", noise_mm: float = DEFAULT_NOISE_MM,
+def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None = None,
                      frame_step: int = 1, **options) -> CalibResult:
     """Axes from prepared sweeps, then the base from the URDF axis lines (no file I/O)."""
     fits = fit_axes(sweeps, method, noise_mm, frame_step, **options)
@@ -242,13 +311,15 @@ def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
     return HandEyeEstimator().fit(chain, link, P, Q, labels)
 
 
-def calibrate(campaign, robot=None, method: str = "cluster", sink=None,
-              noise_mm: float = DEFAULT_NOISE_MM, min_sweep_deg: float = 15.0, joints=(1, 2),
+def calibrate(campaign, robot=None, method: str = "auto", sink=None,
+              noise_mm: float | None = None, min_sweep_deg: float = 15.0, joints=(1, 2),
               cross_check: bool = False, **options) -> CalibResult:
     """Calibrate ``T_camera_base`` for a loaded campaign (:func:`mocap.io.campaign.load_campaign`).
 
-    ``method`` is ``"cluster"`` (rigid-cluster screw axis + ML refinement) or ``"circle"``
-    (per-marker Halvorsen circles + common-axis refinement); ``sink`` (a :class:`viz.Sink`)
+    ``method`` is ``"cluster"`` (rigid-cluster screw axis + ML refinement), ``"circle"``
+    (per-marker Halvorsen circles + common-axis refinement; one marker: the circle-point method)
+    or ``"auto"`` (cluster with 3 or more markers, circle with fewer); ``noise_mm`` (3-D RMS)
+    sets the Cramer-Rao bound's noise, None estimates it from the residuals; ``sink`` (a :class:`viz.Sink`)
     receives the marker arcs, the fitted axes and the base frame. ``cross_check`` adds the
     hand-eye peer's solve and its difference under ``extra["handeye"]``.
     """
@@ -293,15 +364,28 @@ def log_calibration(sink, result: CalibResult, prefix: str = "calib") -> None:
 
 def summary_markdown(result: CalibResult) -> str:
     b = result.base
+    T = result.T_camera_base
+    noise = (f"{result.noise_used_mm:.4f} mm (given)" if result.noise_mm is not None
+             else f"{result.noise_used_mm:.4f} mm (estimated from the residuals)")
+    chi = (f"chi2 = {b.chi2:.2f} on {b.dof} dof (chi2/dof {b.chi2 / b.dof:.2f}, p = {b.p_value:.2g})"
+           if b.dof > 0 else f"chi2 = {b.chi2:.2f} (no redundancy)")
     lines = [f"## Camera-to-base calibration ({result.method})", "",
-             "| | estimate std | Cramer-Rao bound |", "|---|---|---|",
-             f"| origin (mm, 3-D RMS) | {b.origin_std_mm:.4f} | {b.crb_origin_mm:.4f} |",
-             f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |", "",
-             "| joint | rms (mm) | sweep (deg) | markers | point std (mm) | dir std (deg) |",
-             "|---|---|---|---|---|---|"]
+             "T_camera_base (p_camera = T @ p_base, metres):", "```"]
+    lines += ["  ".join(f"{x:+.6f}" for x in row) for row in T]
+    lines += ["```", "",
+              "| | estimate std | Cramer-Rao bound |", "|---|---|---|",
+              f"| origin (mm, 3-D RMS) | {b.origin_std_mm:.4f} | {b.crb_origin_mm:.4f} |",
+              f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |", "",
+              f"marker noise {noise}; base solve {chi}, "
+              f"{'converged' if b.converged else 'NOT converged'} in {b.iterations} evaluations"
+              + (f"; std inflated x{b.inflation:.2f}" if b.inflation > 1 else ""), "",
+              "| joint | method | rms (mm) | sweep (deg) | markers | frames | point std (mm) | dir std (deg) | iterations |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for f in result.axes:
-        lines.append(f"| {f.joint} | {f.rms_mm:.3f} | {f.sweep_deg:.1f} | {len(f.marker_rms_mm)} | "
-                     f"{f.point_std_mm:.4f} | {f.direction_std_deg:.5f} |")
+        lines.append(f"| {f.joint} | {f.method} | {f.rms_mm:.3f} | {f.sweep_deg:.1f} | {len(f.marker_rms_mm)} | "
+                     f"{f.n_frames} | {f.point_std_mm:.4f} | {f.direction_std_deg:.5f} | "
+                     f"{f.iterations}{'' if f.converged else ' (NOT converged)'} |")
     lines += ["", f"measured axes {b.axis_distance_mm:.3f} mm apart at {b.axis_angle_deg:.3f} deg; "
               f"URDF {b.urdf_axis_distance_mm:.3f} mm at {b.urdf_axis_angle_deg:.3f} deg"]
+    lines += [f"\nwarning: {w}" for w in result.warnings]
     return "\n".join(lines)

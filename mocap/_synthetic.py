@@ -1,67 +1,42 @@
 """Seeded synthetic marker data for the mocap solver's tests and benchmark.
 
-A PA10-6C-like arm (shoulder height 0.317 m, upper arm 0.45 m, forearm 0.48 m, wrist-to-flange
-0.07 m), markers glued to its links, a camera pose, link angles = motor angles + a small
-elastic deflection, marker noise of a given 3-D RMS, random occlusions, gross outliers and
-label swaps. Everything random takes a ``seed``.
+The PA10-6C of ``fixtures/robots/pa10`` (the project's one PA10 model), markers glued to its
+links, a camera pose, link angles = motor angles + a small elastic deflection, marker noise of a
+given 3-D RMS, random occlusions, gross outliers and label swaps. Marker positions come from the
+one marker synthesis, :func:`mocap.synth.marker_positions`. Everything random takes a ``seed``.
 """
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from mocap.kinematics import apply_transform, make_transform, rotation_about_axis
+from mocap.kinematics import make_transform, rotation_about_axis
+from mocap.synth import MarkerSet, add_noise, marker_positions
 
-# (joint name, parent link, child link, origin xyz, axis, child mass)
-PA10_LIKE = (
-    ("joint1", "base_link", "link1", (0.0, 0.0, 0.0), (0, 0, 1), 9.0),
-    ("joint2", "link1", "link2", (0.0, 0.0, 0.317), (0, 1, 0), 8.0),
-    ("joint3", "link2", "link3", (0.0, 0.0, 0.45), (0, 1, 0), 4.0),
-    ("joint4", "link3", "link4", (0.0, 0.0, 0.20), (0, 0, 1), 3.0),
-    ("joint5", "link4", "link5", (0.0, 0.0, 0.28), (0, 1, 0), 1.5),
-    ("joint6", "link5", "link6", (0.0, 0.0, 0.07), (0, 0, 1), 0.5),
-)
-LINK_LENGTH = {"link1": 0.317, "link2": 0.45, "link3": 0.20, "link4": 0.28, "link5": 0.07,
-               "link6": 0.05}
+PA10_DIR = Path(__file__).resolve().parents[1] / "fixtures" / "robots" / "pa10"
 
 
-def pa10_like_urdf(path: str | Path) -> Path:
-    """Write the PA10-like URDF used by the synthetic data; returns its path."""
-    out = ['<?xml version="1.0"?>', '<robot name="pa10_like">',
-           '  <link name="base_link"><inertial><mass value="10"/><origin xyz="0 0 0.05"/>'
-           '<inertia ixx="0.1" iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial></link>']
-    for name, parent, child, xyz, axis, mass in PA10_LIKE:
-        L = LINK_LENGTH[child]
-        out.append(f'  <link name="{child}"><inertial><mass value="{mass}"/>'
-                   f'<origin xyz="0 0 {L / 2:.4f}"/><inertia ixx="{mass * L * L / 12 + 0.01:.5f}" '
-                   f'iyy="{mass * L * L / 12 + 0.01:.5f}" izz="0.01" ixy="0" ixz="0" iyz="0"/>'
-                   '</inertial></link>')
-        out.append(f'  <joint name="{name}" type="revolute"><parent link="{parent}"/>'
-                   f'<child link="{child}"/><origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}" rpy="0 0 0"/>'
-                   f'<axis xyz="{axis[0]} {axis[1]} {axis[2]}"/>'
-                   '<limit lower="-3.0" upper="3.0" effort="100" velocity="2.0"/></joint>')
-    out.append("</robot>")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(out) + "\n", encoding="utf-8")
-    return path
-
-
-def pa10_like_drives(path: str | Path) -> Path:
-    from mocap.robot import Drive, write_drives
-
-    drives = [Drive(name=j[0], gear_ratio=100.0, motor_inertia=0.2, motor_viscous=0.5,
-                    max_velocity=2.0, max_torque=100.0, encoder_resolution=1e-5) for j in PA10_LIKE]
-    return write_drives(path, drives, overwrite=True)
-
-
-def pa10_like_robot(tmpdir: str | Path):
+def pa10_robot(folder: str | Path):
+    """The fixture PA10 (URDF and drives copied into ``folder``, which a campaign may use as its
+    ``robot/`` folder), loaded as a :class:`mocap.robot.Robot`."""
     from mocap.robot import Robot
 
-    tmpdir = Path(tmpdir)
-    return Robot.from_urdf(pa10_like_urdf(tmpdir / "arm.urdf"), pa10_like_drives(tmpdir / "drives.toml"))
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copy(PA10_DIR / "pa10.urdf", folder / "arm.urdf")
+    shutil.copy(PA10_DIR / "drives.toml", folder / "drives.toml")
+    return Robot.from_urdf(folder / "arm.urdf", folder / "drives.toml")
+
+
+def _link_length(chain, link: str) -> float:
+    """Distance from a link's frame to the next joint's origin (0.1 m past the last joint)."""
+    j, _ = chain.frames[link]
+    if j < 0 or j + 1 >= chain.n:
+        return 0.1
+    return float(np.linalg.norm(chain.T_parent_joint[j + 1, :3, 3]))
 
 
 def place_markers(robot, counts: dict, seed: int = 0, radius=(0.07, 0.12)) -> dict:
@@ -71,7 +46,7 @@ def place_markers(robot, counts: dict, seed: int = 0, radius=(0.07, 0.12)) -> di
     rng = np.random.default_rng(seed)
     out = {}
     for link, k in counts.items():
-        L = LINK_LENGTH.get(link, 0.1)
+        L = _link_length(robot.chain, link)
         ang = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(k) / k + rng.normal(0, 0.3, k)
         rad = rng.uniform(*radius, k)
         z = rng.uniform(0.15 * L, 0.85 * L, k) if L > 0.1 else rng.uniform(0.0, 0.06, k)
@@ -125,15 +100,10 @@ def simulate_markers(robot, q_link: np.ndarray, markers: dict, T_camera_base: np
     q_link = np.atleast_2d(q_link)
     T = q_link.shape[0]
     labels = tuple(markers)
-    Tj = robot.chain.joint_transforms(q_link)
-    P = np.empty((T, len(labels), 3))
-    for m, lb in enumerate(labels):  # loop over markers, vectorised over frames
-        link, p = markers[lb]
-        j, T_jf = robot.chain.frames[link]
-        T_bl = Tj[:, j] @ T_jf if j >= 0 else np.broadcast_to(T_jf, (T, 4, 4))
-        P[:, m] = apply_transform(T_bl, p)
-    Pc = apply_transform(T_camera_base, P)
-    meas = Pc + rng.normal(0.0, noise_rms_m / np.sqrt(3.0), Pc.shape)
+    mset = MarkerSet(labels, tuple(markers[lb][0] for lb in labels),
+                     np.array([markers[lb][1] for lb in labels]).reshape(-1, 3))
+    Pc = marker_positions(robot.chain, mset, q_link, T_camera_base)
+    meas = add_noise(Pc, noise_rms_m, rng)
     M = len(labels)
     outl = rng.random((T, M)) < outlier_frac
     if outl.any():
@@ -157,7 +127,7 @@ def write_campaign(root: str | Path, *, seed: int = 0, trials=({"id": "j2-r1", "
                    log_rate_hz: float = 500.0, noise_rms_m: float = 0.85e-3,
                    missing_frac: float = 0.0, outlier_frac: float = 0.0, swap_frac: float = 0.0,
                    n_static: int = 2, deflection_rad: float = 2e-3, units: str = "mm") -> dict:
-    """Write a FORMAT v1 campaign with the PA10-like arm; returns the truth
+    """Write a FORMAT v1 campaign with the fixture PA10; returns the truth
     (``T_camera_base``, marker positions, per-trial link angles at the marker times)."""
     from mocap.io.campaign import write_manifest
     from mocap.io.markers import write_markers
@@ -166,7 +136,7 @@ def write_campaign(root: str | Path, *, seed: int = 0, trials=({"id": "j2-r1", "
 
     root = Path(root)
     rng = np.random.default_rng(seed)
-    robot = pa10_like_robot(root / "robot")
+    robot = pa10_robot(root / "robot")
     counts = counts or {"link2": 3, "link3": 4, "link5": 4}
     markers = place_markers(robot, counts, seed=seed)
     T_cb = default_camera_pose(seed)

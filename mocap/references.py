@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.errors import InputError, read_text
-from mocap.kinematics import apply_transform, invert_transform, make_transform
+from mocap.kinematics import (apply_transform, invert_transform, kabsch, make_transform,
+                              matrix_to_rotvec, rotvec_to_matrix)
 
 MIN_MARKERS_PER_LINK = 3
 INCONSISTENT_M = 1e-3  # a marker whose per-pose link-frame estimates spread more has moved or
@@ -103,15 +104,6 @@ class References:
 
 
 # ---- pure numerics ---------------------------------------------------------------------------
-def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The rigid transform (4, 4) mapping points ``a`` (K, 3) onto ``b`` (K, 3), least squares."""
-    ca, cb = a.mean(axis=0), b.mean(axis=0)
-    U, _, Vt = np.linalg.svd((a - ca).T @ (b - cb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return make_transform(R, cb - R @ ca)
-
-
 def reduce_static(positions: np.ndarray, reject_m: float = 0.003):
     """Mean marker positions over a still interval (T, M, 3) -> (M, 3), robustly: frames farther
     than ``reject_m`` from the per-axis median are dropped. Returns (mean, n_frames, scatter)."""
@@ -137,12 +129,6 @@ def _link_transforms(chain, links, q):
     return np.array(out)
 
 
-def _rotvec(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R).as_rotvec()
-
-
 def estimate_camera_pose(chain, links, poses, min_spread: float = 0.05) -> np.ndarray:
     """Closed-form ``T_camera_base`` from static poses (hand-eye ``A X = X B``, see module doc).
 
@@ -164,7 +150,7 @@ def estimate_camera_pose(chain, links, poses, min_spread: float = 0.05) -> np.nd
                 continue
             A = kabsch(base.p_camera[idx], pose.p_camera[idx])
             B = Tk[lk] @ invert_transform(T0[lk])
-            a, b = _rotvec(A[:3, :3]), _rotvec(B[:3, :3])
+            a, b = matrix_to_rotvec(A[:3, :3]), matrix_to_rotvec(B[:3, :3])
             if np.linalg.norm(b) < 1e-3:
                 continue
             alpha.append(a)
@@ -225,10 +211,9 @@ def refine_camera_pose(chain, links, poses, T_cb0):
     """Least-squares ``T_camera_base`` over all static markers (link positions eliminated);
     returns the transform and the std of (rotation vector, translation) from the Jacobian."""
     from scipy.optimize import least_squares
-    from scipy.spatial.transform import Rotation
 
     def T_of(x):
-        return make_transform(Rotation.from_rotvec(x[:3]).as_matrix() @ T_cb0[:3, :3],
+        return make_transform(rotvec_to_matrix(x[:3]) @ T_cb0[:3, :3],
                               T_cb0[:3, 3] + x[3:])
 
     sol = least_squares(lambda x: _static_residuals(chain, links, poses, T_of(x)), np.zeros(6),
@@ -328,7 +313,6 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
     ``T_camera_base`` (4, 4) from a calibration; ``None`` estimates it from the static poses
     (needs >= 2 poses differing in two non-parallel joints, see the module doc)."""
     from mocap.io.markers import read_markers
-    from mocap.io.robotlog import read_robot_log
 
     check_marker_links(campaign)
     link_of = campaign.link_of_label()
@@ -341,7 +325,7 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
     poses = []
     for st in campaign.static:
         rec = read_markers(st.markers)
-        log = read_robot_log(st.log, n_joints=robot.n)
+        log = campaign.read_log(st, robot)
         poses.append(read_static_pose(rec, log, labels, still_tol_rad,
                                       source=str(Path(st.markers).relative_to(campaign.root))))
     seen = np.array([p.n_frames for p in poses]).sum(axis=0)

@@ -48,42 +48,6 @@ INVALID_FLAGS = FLAG_TOO_FEW_MARKERS | FLAG_ILL_CONDITIONED | FLAG_NOT_CONVERGED
 _CHI3_MEDIAN = 1.5382  # median of the norm of a 3-D standard normal vector
 
 
-def _skew(a: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-
-
-def forward_kinematics(chain, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Joint frames in the base frame for q (T, n): rotations (T, n, 3, 3), origins (T, n, 3).
-
-    Same result as ``chain.joint_transforms`` (Rodrigues per joint, vectorised over frames), but
-    every product with a constant matrix is one (3T x 3) @ (3 x 9) GEMM, several times faster
-    than numpy's batched 3x3 matmul in the solver's inner loop."""
-    q = np.atleast_2d(np.asarray(q, float))
-    T, n = q.shape
-    R = np.empty((T, n, 3, 3))
-    o = np.empty((T, n, 3))
-    Rprev = None
-    oprev = np.zeros((T, 3))
-    for i in range(n):  # loop over joints, vectorised over frames
-        P = chain.T_parent_joint[i]
-        K = _skew(chain.axes[i])
-        Pr = P[:3, :3]
-        C = np.hstack([Pr, Pr @ K, Pr @ K @ K, P[:3, 3:4]])  # (3, 10)
-        if Rprev is None:
-            B = np.broadcast_to(C, (T, 3, 10))
-            ob = oprev + P[:3, 3]
-        else:
-            B = (Rprev.reshape(-1, 3) @ C).reshape(T, 3, 10)
-            ob = oprev + B[:, :, 9]
-        s = np.sin(q[:, i])[:, None, None]
-        c = np.cos(q[:, i])[:, None, None]
-        Rprev = B[:, :, 0:3] + s * B[:, :, 3:6] + (1.0 - c) * B[:, :, 6:9]
-        oprev = ob
-        R[:, i] = Rprev
-        o[:, i] = ob
-    return R, o
-
-
 @dataclass(frozen=True, eq=False)
 class SolveResult:
     """Angles and diagnostics of a batched per-frame solve.
@@ -359,7 +323,7 @@ class _SingleJoint:
         held = np.delete(qh, j, axis=1)
         const = held.shape[1] == 0 or bool(np.all(np.ptp(held, axis=0) == 0))
         qk = qh[:1] if const else qh
-        R, o = forward_kinematics(ch, qk)
+        R, o = ch.joint_frames(qk)
         mj = np.clip(solver.marker_joint, 0, None)
         Pm = o[:, mj] + np.einsum("tmij,mj->tmi", R[:, mj], solver.p_joint)  # (Tk, M, 3)
         self.Rj = R[:, j]      # (Tk, 3, 3): the joint-j frame at q_j = 0 in the base frame
@@ -453,7 +417,7 @@ class _Chain:
     def _eval(self, qs, idx, jac: bool):
         """Model markers P (T, M, 3) and the joint twists X (T, 6, S): for a marker distal to
         solved joint k, dP/dq_k = w_k x P + o_k x w_k = [-[P]x | I] X[:, :, k] (Plucker form)."""
-        R, o = forward_kinematics(self.s.chain, self._full(qs, idx))
+        R, o = self.s.chain.joint_frames(self._full(qs, idx))
         T = R.shape[0]
         M = self.s.p_joint.shape[0]
         P = np.zeros((T, M, 3))
@@ -685,7 +649,6 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     from mocap.io.errors import InputError
     from mocap.io.markers import read_markers
     from mocap.kinematics import apply_transform, invert_transform
-    from mocap.io.robotlog import read_robot_log
 
     if isinstance(trial, str):
         trial = campaign.trial(trial)
@@ -707,7 +670,7 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
         raise InputError(f"trial {trial.id!r}: marker {norefs[0]!r} has no static reference (it is "
                          "not in the static pose)", path=campaign.manifest, label=norefs[0])
     rec = read_markers(trial.markers)
-    log = read_robot_log(trial.log, n_joints=robot.n)
+    log = campaign.read_log(trial, robot)
     absent = tuple(lb for lb in used if lb not in rec.labels)
     if len(absent) == len(used):
         raise InputError(f"none of the markers on the moving links ({', '.join(used[:6])}) is in the "
@@ -757,7 +720,7 @@ def _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
     if not np.all(np.isfinite(q_held)):
         return None
     mj, pj = references.for_chain(chain, labels)
-    R, o = forward_kinematics(chain, q_held[None])
+    R, o = chain.joint_frames(q_held[None])
     jj = np.clip(mj, 0, None)
     pred = np.where((mj >= 0)[:, None], o[0, jj] + np.einsum("mij,mj->mi", R[0, jj], pj), pj)
     meas = apply_transform(invert_transform(T_cb),
@@ -825,23 +788,15 @@ class RefineResult:
         return d
 
 
-def _perp_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = np.asarray(a, float) / np.linalg.norm(a)
-    t = np.eye(3)[int(np.argmin(np.abs(a)))]
-    e1 = np.cross(a, t)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(a, e1)
-
-
 def offset_chain(chain, joints, offsets):
     """A copy of ``chain`` whose solved joints' placements are corrected by ``offsets`` (S, 4):
     the joint frame tilted about the two directions e1, e2 perpendicular to its axis and shifted
     along them (the 4 placement errors that markers on the link cannot absorb)."""
-    from mocap.kinematics import Chain, make_transform, rotation_about_axis
+    from mocap.kinematics import Chain, make_transform, perp_basis, rotation_about_axis
 
     Tp = np.array(chain.T_parent_joint, float)
     for k, j in enumerate(joints):  # loop over solved joints
-        e1, e2 = _perp_basis(chain.axes[j])
+        e1, e2 = perp_basis(chain.axes[j])
         d = np.asarray(offsets[k], float)
         R = rotation_about_axis(e1, d[0]) @ rotation_about_axis(e2, d[1])
         Tp[j] = Tp[j] @ make_transform(R, d[2] * e1 + d[3] * e2)
@@ -849,7 +804,7 @@ def offset_chain(chain, joints, offsets):
 
 
 def _static_model(chain, mj, p_joint, q_s):
-    R, o = forward_kinematics(chain, np.asarray(q_s, float)[None])
+    R, o = chain.joint_frames(np.asarray(q_s, float)[None])
     jj = np.clip(mj, 0, None)
     return o[0, jj] + np.einsum("mij,mj->mi", R[0, jj], p_joint)
 
@@ -884,14 +839,14 @@ def refine_markers(chain, joints, marker_joint, p_joint, p_base, q_guess, static
         res = MarkerSolver(ch, joints, mj, p_joint, labels=labels, **solver_settings).fit(Yb, q_guess)
         hist.append(float(np.sqrt(np.nanmean(res.rms_m ** 2))))
         ok = res.valid
-        R, o = forward_kinematics(ch, res.q[ok])
+        R, o = ch.joint_frames(res.q[ok])
         y = np.where(res.inlier[ok][..., None], Yb[ok], 0.0)
         loc = np.einsum("tmji,tmj->tmi", R[:, jj], y - o[:, jj])  # back-projected: R^T (y - o)
         w = res.inlier[ok].astype(float)
         num = (loc * w[..., None]).sum(axis=0)
         den = w.sum(axis=0)
         for q_s, p_s, w_s in static:  # loop over static poses
-            Rs, os_ = forward_kinematics(ch, np.asarray(q_s, float)[None])
+            Rs, os_ = ch.joint_frames(np.asarray(q_s, float)[None])
             ps = np.asarray(p_s, float)
             fin = np.all(np.isfinite(ps), axis=1)
             ls = np.einsum("mji,mj->mi", Rs[0, jj], np.where(fin[:, None], ps, 0.0) - os_[0, jj])

@@ -111,6 +111,21 @@ def marker_positions(chain, markers: MarkerSet, q: np.ndarray, T_camera_base: np
     return out
 
 
+def add_noise(positions: np.ndarray, noise_rms: float, rng: np.random.Generator) -> np.ndarray:
+    """``positions`` plus isotropic Gaussian noise of 3-D RMS ``noise_rms`` (per-axis sigma
+    ``noise_rms / sqrt(3)``), the marker noise model of every synthetic recording."""
+    return positions + rng.normal(0.0, noise_rms / np.sqrt(3.0), size=np.shape(positions))
+
+
+def random_orientation(rng: np.random.Generator) -> np.ndarray:
+    """A rotation matrix drawn uniformly over SO(3) (a normalised Gaussian quaternion)."""
+    q = rng.standard_normal(4)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
 @dataclass(frozen=True)
 class MarkerErrors:
     """Motion-capture error settings: per-marker Gaussian noise with ``noise_rms`` 3D RMS (m),
@@ -130,7 +145,7 @@ def corrupt(positions: np.ndarray, markers: MarkerSet, rng: np.random.Generator,
     """Noise, occlusions and label swaps applied to clean positions (T, M, 3). Returns the
     corrupted copy and a dict describing what was done (occluded runs, swaps)."""
     T, M, _ = positions.shape
-    out = positions + rng.normal(0.0, errors.noise_rms / np.sqrt(3.0), size=positions.shape)
+    out = add_noise(positions, errors.noise_rms, rng)
     runs = []
     lo, hi = errors.run_frames
     mean_run = 0.5 * (lo + hi)

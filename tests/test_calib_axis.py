@@ -6,7 +6,8 @@ import pytest
 
 from calib.axis import CircleAxisEstimator, ClusterAxisEstimator, fit_circle_bcls
 from calib.base import place_base, pose_errors
-from calib.geometry import chart_coords, chart_line, kabsch_batch, perp_basis, rotvec_to_matrix
+from calib.geometry import chart_coords, chart_line
+from mocap.kinematics import kabsch_batch, perp_basis, rotvec_to_matrix
 from calib.handeye import HandEyeEstimator
 from calib.pipeline import calibrate_sweeps, prepare_sweep
 from mocap.io.errors import InputError

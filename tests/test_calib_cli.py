@@ -92,14 +92,20 @@ def test_missing_calibration_entry(campaign, tmp_path):
         calibrate(camp)
 
 
-def test_too_few_markers_on_the_moving_link(campaign, tmp_path):
+def test_two_markers_calibrate_and_none_is_refused(campaign, tmp_path):
     from calib.pipeline import calibrate
     from mocap.io.campaign import load_campaign
 
     root, sim = campaign
     markers = {"link1": list(sim.markers["link1"]), "link2": list(sim.markers["link2"][:2])}
     camp = load_campaign(_manifest(tmp_path / "v", root, [(1, None), (2, None)], markers))
-    with pytest.raises(InputError, match=r"joint 2: only 2 markers on the links it moves \(link2\)") as exc:
+    res = calibrate(camp)                  # joint 2 from two markers: the circle method
+    assert [f.method for f in res.axes] == ["cluster", "circle"]
+    dp, dr = pose_errors(res.T_camera_base, sim.T_camera_base)
+    assert dp < 1.5 and dr < 0.1
+    camp = load_campaign(_manifest(tmp_path / "w", root, [(1, None), (2, None)],
+                                   {"link1": list(sim.markers["link1"])}))
+    with pytest.raises(InputError, match=r"joint 2: only 0 markers on the links it moves \(none\)") as exc:
         calibrate(camp)
     assert "joint-2.trc" in str(exc.value)
 

@@ -87,3 +87,15 @@ def test_info_bad_c3d_exit_2_one_line(real_dir, capsys):
     assert len(lines) == 1
     assert lines[0].startswith("jointlab: error: ") and BAD_NAME in lines[0]
     assert "not a valid C3D file" in lines[0]
+
+
+def test_info_urdf_prints_text_unless_json(pa10_dir, capsys):
+    """Issue 16: `info` on a URDF prints one line per joint (with its limits); --json gives JSON."""
+    assert main(["info", str(pa10_dir / "pa10.urdf")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("robot ") and "6 revolute joints" in out
+    lines = [ln for ln in out.splitlines() if ln.strip().startswith("joint ")]
+    assert len(lines) == 6 and "[-1.641, +1.641] rad" in lines[1]
+    assert main(["info", str(pa10_dir / "pa10.urdf"), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["n_joints"] == 6 and abs(d["joints"][1]["upper"] - 1.6406) < 1e-3

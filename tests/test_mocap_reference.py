@@ -4,10 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocap._synthetic import default_camera_pose, pa10_like_robot, place_markers, simulate_markers
+from mocap._synthetic import default_camera_pose, pa10_robot, place_markers, simulate_markers
 from mocap.io.errors import InputError
 from mocap.io.recording import MarkerRecording
-from mocap.references import fit_references, kabsch, read_static_pose, reduce_static
+from mocap.kinematics import kabsch
+from mocap.references import fit_references, read_static_pose, reduce_static
 from mocap.io.robotlog import RobotLog
 
 Q_REST = np.array([0.2, 0.4, 0.9, 0.1, 0.6, 0.0])
@@ -15,7 +16,7 @@ Q_REST = np.array([0.2, 0.4, 0.9, 0.1, 0.6, 0.0])
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    robot = pa10_like_robot(tmp_path_factory.mktemp("arm"))
+    robot = pa10_robot(tmp_path_factory.mktemp("arm"))
     mk = place_markers(robot, {"link2": 3, "link3": 4, "link5": 4}, seed=1)
     T_cb = default_camera_pose(0)
     rng = np.random.default_rng(5)

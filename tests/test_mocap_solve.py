@@ -4,12 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mocap._synthetic import (default_camera_pose, excitation, pa10_like_robot, place_markers,
+from mocap._synthetic import (default_camera_pose, excitation, pa10_robot, place_markers,
                               simulate_markers)
 from mocap.kinematics import apply_transform, invert_transform
 from mocap.quality import angle_errors, cramer_rao_bound, rms_bound
-from mocap.solve import (FLAG_NO_GUESS, FLAG_SWAP_REPAIRED, FLAG_TOO_FEW_MARKERS, MarkerSolver,
-                         forward_kinematics)
+from mocap.solve import FLAG_NO_GUESS, FLAG_SWAP_REPAIRED, FLAG_TOO_FEW_MARKERS, MarkerSolver
 
 NOISE = 0.85e-3  # 3-D RMS, m
 Q_REST = np.array([0.2, 0.4, 0.9, 0.1, 0.6, 0.0])
@@ -17,7 +16,7 @@ Q_REST = np.array([0.2, 0.4, 0.9, 0.1, 0.6, 0.0])
 
 @pytest.fixture(scope="module")
 def robot(tmp_path_factory):
-    return pa10_like_robot(tmp_path_factory.mktemp("arm"))
+    return pa10_robot(tmp_path_factory.mktemp("arm"))
 
 
 def _problem(robot, joints, counts, T=3000, seed=0, **noise):
@@ -38,12 +37,20 @@ def _problem(robot, joints, counts, T=3000, seed=0, **noise):
     return q, p_base, np.array(mj), np.array(pj), q_guess, sim
 
 
-def test_forward_kinematics_matches_chain(robot):
+def test_forward_kinematics_matches_pinocchio(robot):
+    """The one FK (numpy, batched) against pinocchio's own joint placements."""
+    import pinocchio as pin
+
     q = np.random.default_rng(0).uniform(-2, 2, (40, robot.n))
-    R, o = forward_kinematics(robot.chain, q)
+    R, o = robot.chain.joint_frames(q)
     Tj = robot.chain.joint_transforms(q)
-    assert np.allclose(R, Tj[..., :3, :3], atol=1e-14)
-    assert np.allclose(o, Tj[..., :3, 3], atol=1e-14)
+    data = robot.model.createData()
+    for t in range(0, 40, 7):  # a few frames: pinocchio is the independent reference
+        pin.forwardKinematics(robot.model, data, q[t])
+        for i in range(robot.n):
+            assert np.allclose(R[t, i], data.oMi[i + 1].rotation, atol=1e-12)
+            assert np.allclose(o[t, i], data.oMi[i + 1].translation, atol=1e-12)
+    assert np.allclose(Tj[..., :3, :3], R, atol=1e-14) and np.allclose(Tj[..., :3, 3], o, atol=1e-14)
 
 
 @pytest.mark.parametrize("joints,counts", [((1,), {"link2": 4}),
@@ -163,7 +170,7 @@ def test_refinement_recovers_marker_positions(robot):
     sig = NOISE / np.sqrt(3)
     # the static pose: 5 frames at a known pose -> reference error ~ sigma / sqrt(5) per axis
     q_s = Q_REST.copy()
-    Rs, os_ = forward_kinematics(robot.chain, q_s[None])
+    Rs, os_ = robot.chain.joint_frames(q_s[None])
     p_s_true = os_[0, mj] + np.einsum("mij,mj->mi", Rs[0, mj], pj)
     p_s = p_s_true + rng.normal(0, sig / np.sqrt(5), p_s_true.shape)
     pj_bad = np.einsum("mji,mj->mi", Rs[0, mj], p_s - os_[0, mj])
@@ -211,10 +218,10 @@ def test_refinement_recovers_joint_placement_offsets(robot):
     q = excitation(t, 6, joints, Q_REST, seed=2, amplitude=1.2)
     rng = np.random.default_rng(0)
     sig = NOISE / np.sqrt(3)
-    R, o = forward_kinematics(ch_true, q)
+    R, o = ch_true.joint_frames(q)
     Y = o[:, mj] + np.einsum("tmij,mj->tmi", R[:, mj], pj) + rng.normal(0, sig, (q.shape[0], len(mj), 3))
     p_s = _static_model(ch_true, mj, pj, Q_REST) + rng.normal(0, sig / np.sqrt(200), (len(mj), 3))
-    Rs, os_ = forward_kinematics(ch, Q_REST[None])
+    Rs, os_ = ch.joint_frames(Q_REST[None])
     pj_nominal = np.einsum("mji,mj->mi", Rs[0, mj], p_s - os_[0, mj])  # eq. 3-4, nominal URDF
     qg = q + rng.normal(0, 2e-3, q.shape) * np.isin(np.arange(6), joints)
     e_nom = angle_errors(MarkerSolver(ch, joints, mj, pj_nominal).fit(Y, qg).q[:, [1]], q[:, [1]])

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.errors import InputError
-from mocap.io.robotlog import read_robot_log
 
 from ident.gap.data import build_joint_data
 from ident.gap.diagnose import DiagnosisSettings, diagnose_joint
@@ -66,7 +65,7 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         if len(trials) < 2:
             report["joints"][str(j)] = {"verdict": "none", "note": "fewer than 2 trials: nothing held out"}
             continue
-        logs = [read_robot_log(t.log, robot.n) for t in trials]
+        logs = [campaign.read_log(t, robot) for t in trials]
         ang = None
         if angles:
             ang = {tid: (tq[0], tq[1][j]) for tid, tq in angles.items() if j in tq[1]}

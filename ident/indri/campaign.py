@@ -155,15 +155,13 @@ class JointDynamicData:
         return [tid for tid, k in self.kinds.items() if k in kinds]
 
 
-def _trial_data(tr, joint: int, robot, angles_dir,
+def _trial_data(campaign, tr, joint: int, robot, angles_dir,
                 reversal_window_s: float = REVERSAL_WINDOW_S) -> tuple[I.FrictionData, list[str]]:
-    from mocap.io.robotlog import read_robot_log
-
     j0 = joint - 1
     notes = []
     if not Path(tr.log).is_file():
         raise InputError(f"trial {tr.id!r}: log file {tr.log} not found", path=tr.log, label=tr.id)
-    log = read_robot_log(tr.log, n_joints=robot.n)
+    log = campaign.read_log(tr, robot)
     qm, tau = log.qm[:, j0], log.tau[:, j0]
     if not np.isfinite(qm).any() or not np.isfinite(tau).any():
         raise InputError(f"trial {tr.id!r}: the log has no qm_{joint}/tau_{joint} data",
@@ -216,7 +214,7 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
                          "of eq. 25-26 is built for one moving joint)")
             continue
         with one_blas_thread():
-            fd, n = _trial_data(tr, joint, robot, angles_dir, reversal_window_s)
+            fd, n = _trial_data(campaign, tr, joint, robot, angles_dir, reversal_window_s)
         trials[tr.id], kinds[tr.id] = fd, tr.kind
         notes += n
     by = {k: [trials[t] for t, kk in kinds.items() if kk == k] for k in need}

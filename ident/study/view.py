@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.markers import read_markers
-from mocap.io.robotlog import read_robot_log
 
 MAX_ROBOT_RATE_HZ = 60.0
 MARKER_RADIUS_M = 0.008
@@ -144,7 +143,7 @@ def log_campaign(campaign, sink, robot=None, T_camera_base=None, meshes: dict | 
                               labels=markers.labels,
                               colors=marker_colors(markers.labels, link_of_label),
                               radii=MARKER_RADIUS_M)
-        log = read_robot_log(rec.log, n_joints=robot.n)
+        log = campaign.read_log(rec, robot)
         # joint signals (full rate unless asked), only the columns the log has
         has_q = np.flatnonzero(np.any(np.isfinite(log.qm), axis=0))
         has_t = np.flatnonzero(np.any(np.isfinite(log.tau), axis=0))

@@ -59,6 +59,7 @@ class FitTask:
     seed: int = 0
     time_offset: float | str = 0.0
     max_harmonics: int = 20
+    coupling: tuple | None = None   # [robot] coupling (q_urdf = coupling @ q_log)
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,6 +98,8 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
     from mocap.io.robotlog import read_robot_log
 
     log = read_robot_log(task.log, n_joints=task.n_joints)
+    if task.coupling is not None:
+        log = log.coupled(task.coupling)
     j0 = task.joint - 1
     notes = []
     t_ang = q_link = None
@@ -246,7 +249,7 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
             tasks.append(FitTask(tr.id, int(j), str(tr.log), ang, float(d.motor_inertia),
                                  float(d.motor_viscous), robot.n, tr.load_kg, tr.vmax_frac,
                                  tr.repetition, tr.kind, tuple(models), n_starts,
-                                 int(seed) + 1000 * k + int(j), off))
+                                 int(seed) + 1000 * k + int(j), off, coupling=campaign.coupling))
     return tasks, skipped
 
 

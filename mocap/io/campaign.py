@@ -48,6 +48,7 @@ class Campaign:
     calib: tuple[CalibSweep, ...]
     trials: tuple[Trial, ...]
     extra: dict = field(default_factory=dict)
+    coupling: tuple | None = None  # [robot] coupling rows: q_urdf = coupling @ q_log
 
     @property
     def manifest(self) -> Path:
@@ -76,11 +77,30 @@ class Campaign:
             if bad:
                 raise InputError(f"trial {t.id!r} moves joint {bad[0]}, but the robot has {robot.n} joints",
                                  path=self.manifest, label=t.id)
+        if self.coupling is not None and len(self.coupling) != robot.n:
+            raise InputError(f"[robot] coupling has {len(self.coupling)} rows, the robot has {robot.n} joints",
+                             path=self.manifest, label="coupling")
         for c in self.calib:
             if not 1 <= c.joint <= robot.n:
                 raise InputError(f"calibration sweep of joint {c.joint}, but the robot has {robot.n} joints",
                                  path=self.manifest)
         return robot
+
+    def read_log(self, rec: Recording, robot=None):
+        """The robot log of ``rec`` in URDF joints: the one place where ``[robot] coupling`` is
+        applied (q, qd and tau), and, given the ``robot``, where angles far beyond the URDF's
+        limits are refused (degrees suspected). Every command reading angles goes through here."""
+        from mocap.io.robotlog import read_robot_log
+
+        n = None if robot is None else robot.n
+        if n is None and self.coupling is not None:
+            n = len(self.coupling)
+        log = read_robot_log(rec.log, n_joints=n)
+        if self.coupling is not None:
+            log = log.coupled(self.coupling)
+        if robot is not None:
+            log.check_limits(robot.lower, robot.upper, robot.joint_names)
+        return log
 
     def recordings(self):
         """Every (kind, name, Recording) in the manifest."""
@@ -176,6 +196,7 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
     if not (isinstance(grav, list) and len(grav) == 3):
         raise InputError("[robot] gravity must be a list of 3 numbers", path=manifest, label="gravity")
     grav = tuple(_num(g, "gravity", "[robot]", manifest) for g in grav)
+    coupling = _coupling(rob.get("coupling"), manifest)
 
     markers = {}
     seen = {}
@@ -237,7 +258,24 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
     top_known = {"format", "name", "robot", "markers", "static", "calib", "trial"}
     return Campaign(root=root, name=str(doc.get("name", root.name)), urdf=urdf, drives=drives,
                     gravity=grav, markers=markers, static=tuple(static), calib=tuple(calib),
-                    trials=tuple(trials), extra={k: v for k, v in doc.items() if k not in top_known})
+                    trials=tuple(trials), extra={k: v for k, v in doc.items() if k not in top_known},
+                    coupling=coupling)
+
+
+def _coupling(rows, manifest: Path):
+    """``[robot] coupling``: an invertible square matrix of numbers (None when absent)."""
+    import numpy as np
+
+    if rows is None:
+        return None
+    if not (isinstance(rows, list) and rows and all(isinstance(r, list) and len(r) == len(rows) for r in rows)):
+        raise InputError("[robot] coupling must be a square list of lists (n x n)", path=manifest,
+                         label="coupling")
+    C = tuple(tuple(_num(x, "coupling", "[robot]", manifest) for x in r) for r in rows)
+    if abs(np.linalg.det(np.array(C))) < 1e-9:
+        raise InputError("[robot] coupling is singular; it must be invertible", path=manifest,
+                         label="coupling")
+    return C
 
 
 def _toml_value(v) -> str:

@@ -38,6 +38,46 @@ class RobotLog:
     def rate_hz(self) -> float:
         return float(1.0 / np.median(np.diff(self.time))) if self.n_samples > 1 else float("nan")
 
+    def coupled(self, coupling) -> "RobotLog":
+        """The log in URDF joints for a controller with coupled joints (FORMAT.md ``[robot]
+        coupling``): ``q_urdf = coupling @ q_log`` (also ``qd_<j>``) and ``tau_urdf =
+        inverse(coupling)^T @ tau_log``. A URDF joint is NaN where a log joint it depends on is."""
+        C = np.asarray(coupling, float)
+        n = self.n_joints
+        if C.shape != (n, n):
+            raise InputError(f"[robot] coupling is {C.shape[0]}x{C.shape[1]}, the log has {n} joints",
+                             path=self.source, label="coupling")
+        Ct = np.linalg.inv(C).T
+
+        def apply(M, A):  # rows are samples: x_urdf = M @ x_log, NaN where an input used is NaN
+            bad = np.isnan(A).astype(float) @ (M != 0).T.astype(float) > 0
+            return np.where(bad, np.nan, np.nan_to_num(A) @ M.T)
+
+        extra = dict(self.extra)
+        qd = [f"qd_{j + 1}" for j in range(n)]
+        if any(k in extra for k in qd):
+            QD = np.column_stack([np.asarray(extra.get(k, np.full(self.n_samples, np.nan)), float)
+                                  for k in qd])
+            extra.update({k: v for k, v in zip(qd, apply(C, QD).T)})
+        return RobotLog(self.time, apply(C, self.qm), apply(Ct, self.tau), extra, self.source)
+
+    def check_limits(self, lower, upper, names=()) -> None:
+        """Refuse angles far beyond the URDF's joint limits (by more than 10 % of the range plus
+        0.05 rad): the log is then almost surely in degrees. ``lower``/``upper`` (n,) rad."""
+        lo, hi = np.asarray(lower, float), np.asarray(upper, float)
+        margin = 0.05 + 0.1 * np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        with np.errstate(invalid="ignore"):
+            q_hi = np.nanmax(np.where(np.isfinite(self.qm), self.qm, -np.inf), axis=0)
+            q_lo = np.nanmin(np.where(np.isfinite(self.qm), self.qm, np.inf), axis=0)
+        bad = np.flatnonzero((q_hi > hi + margin) | (q_lo < lo - margin))
+        if bad.size:
+            j = int(bad[0])
+            v = q_hi[j] if q_hi[j] > hi[j] + margin[j] else q_lo[j]
+            name = names[j] if j < len(names) else f"joint {j + 1}"
+            raise InputError(f"column qm_{j + 1} reaches {v:.4g} rad, beyond the URDF limits of {name} "
+                             f"[{lo[j]:.3f}, {hi[j]:.3f}] rad: degrees suspected (the format wants radians)",
+                             path=self.source, label=f"qm_{j + 1}")
+
     def columns(self) -> dict[str, np.ndarray]:
         cols = {"time": self.time}
         for j in range(self.n_joints):

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from ident.cli.main import add_common, check_out_dir
@@ -12,10 +13,12 @@ def register(sub):
                                      "(writes calib.json)")
     p.add_argument("campaign", type=Path, help="campaign folder (or its campaign.toml)")
     add_common(p, out_required=True)
-    p.add_argument("--method", choices=("cluster", "circle"), default="cluster",
-                   help="axis estimator: rigid-cluster screw axis (default) or per-marker circles")
-    p.add_argument("--noise-mm", type=float, default=0.85, metavar="MM",
-                   help="3-D RMS marker noise for the Cramer-Rao bound (default 0.85, the thesis's system)")
+    p.add_argument("--method", choices=("auto", "cluster", "circle"), default="auto",
+                   help="axis estimator: rigid-cluster screw axis, per-marker circles (one marker: the "
+                        "circle-point method), or auto (default: cluster with 3+ markers, else circle)")
+    p.add_argument("--noise-mm", type=float, default=None, metavar="MM",
+                   help="3-D RMS marker noise for the Cramer-Rao bound (default: estimated from the fit "
+                        "residuals; e.g. 0.85 for the thesis's mocap system, ~0.05 for a laser tracker)")
     p.add_argument("--min-sweep-deg", type=float, default=15.0, metavar="DEG",
                    help="refuse sweeps shorter than this (default 15)")
     p.add_argument("--cross-check", action="store_true",
@@ -30,12 +33,20 @@ def run(args) -> int:
     from viz import make_sink
 
     camp = load_campaign(args.campaign)
+    existed = Path(args.out).exists()
     out = check_out_dir(args.out, [camp.root])
-    robot = camp.load_robot()
-    with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-        result = calibrate(camp, robot, method=args.method, sink=sink, noise_mm=args.noise_mm,
-                           min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check)
-    path = write_calib_json(out / "calib.json", result)
+    try:
+        robot = camp.load_robot()
+        with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
+            result = calibrate(camp, robot, method=args.method, sink=sink, noise_mm=args.noise_mm,
+                               min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check)
+        path = write_calib_json(out / "calib.json", result)
+    except BaseException:
+        if not existed and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # no empty output folder left behind on failure
+        raise
+    for w in result.warnings:
+        print(f"jointlab: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_dict(), indent=1))
     else:

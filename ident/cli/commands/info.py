@@ -34,14 +34,13 @@ def log_info(path: Path) -> dict:
 def campaign_info(path: Path) -> dict:
     from mocap.io.campaign import load_campaign
     from mocap.io.markers import read_markers
-    from mocap.io.robotlog import read_robot_log
 
     camp = load_campaign(path)
     robot = camp.load_robot()
     entries = []
     for kind, name, rec in camp.recordings():
         m = read_markers(rec.markers)
-        log = read_robot_log(rec.log, n_joints=robot.n)
+        log = camp.read_log(rec, robot)
         wanted = [lb for lb in camp.link_of_label() if lb in m.labels]
         if kind == "trial":
             _check_trial_labels(camp, rec, m)
@@ -56,6 +55,7 @@ def campaign_info(path: Path) -> dict:
                       "repetition": rec.repetition, "trial_kind": rec.kind})
         entries.append(e)
     return {"campaign": camp.name, "root": str(camp.root), "robot": robot.describe(),
+            "coupling": None if camp.coupling is None else [list(r) for r in camp.coupling],
             "markers": {k: list(v) for k, v in camp.markers.items()}, "recordings": entries}
 
 
@@ -77,13 +77,24 @@ def _print_marker(d: dict) -> None:
         print(f"  {lb:<{width}}  missing {100 * d['missing_fraction'][lb]:6.2f} %")
 
 
-def _print_campaign(d: dict) -> None:
-    r = d["robot"]
-    print(f"campaign {d['campaign']!r} at {d['root']}")
+def _print_robot(r: dict) -> None:
     print(f"robot {r['urdf']}: {r['n_joints']} revolute joints, gravity {r['gravity']}")
     for k, j in enumerate(r["joints"], 1):
         print(f"  joint {k} {j['name']:<12} [{j['lower']:+.3f}, {j['upper']:+.3f}] rad, "
               f"max {j['max_velocity']:.3g} rad/s, {j['max_torque']:.3g} N m, link {j['link']}")
+
+
+def _print_log(d: dict) -> None:
+    print(f"{d['path']}: {d['n_samples']} samples of {d['n_joints']} joints at {d['rate_hz']:.4g} Hz, "
+          f"time {d['first_time']:.4f} .. {d['last_time']:.4f} s")
+    print(f"  columns: {', '.join(d['columns'])}")
+
+
+def _print_campaign(d: dict) -> None:
+    print(f"campaign {d['campaign']!r} at {d['root']}")
+    _print_robot(d["robot"])
+    if d.get("coupling"):
+        print(f"  coupling (q_urdf = coupling @ q_log): {d['coupling']}")
     print("markers:")
     for link, labels in d["markers"].items():
         print(f"  {link}: {', '.join(labels)}")
@@ -125,12 +136,12 @@ def run(args) -> int:
         printer = _print_marker
     elif ext == ".csv":
         d = log_info(path)
-        printer = lambda d: print(json.dumps(d, indent=1))  # noqa: E731
+        printer = _print_log
     elif ext == ".urdf":
         from mocap.robot import Robot
 
         d = Robot.from_urdf(path).describe()
-        printer = lambda d: print(json.dumps(d, indent=1))  # noqa: E731
+        printer = _print_robot
     else:
         raise InputError(f"cannot describe a {ext or 'extension-less'} file "
                          "(expected a campaign folder, .trc, .c3d, .csv or .urdf)", path=path)
