@@ -29,13 +29,17 @@ def campaign(pa10, pa10_dir, tmp_path_factory):
 
 
 def _manifest(path, camp_root, calib, markers):
+    """A variant manifest in its own folder, the campaign's data linked in (FORMAT.md: paths
+    are relative and stay inside the campaign folder)."""
     from mocap.io.campaign import write_manifest
 
-    rel = str(camp_root.resolve())  # an absolute path: root / rel is rel
+    path.mkdir(parents=True, exist_ok=True)
+    for sub in ("robot", "calib"):
+        (path / sub).symlink_to(camp_root.resolve() / sub, target_is_directory=True)
     doc = {"format": 1, "name": "variant",
-           "robot": {"urdf": f"{rel}/robot/arm.urdf", "drives": f"{rel}/robot/drives.toml"},
+           "robot": {"urdf": "robot/arm.urdf", "drives": "robot/drives.toml"},
            "markers": markers,
-           "calib": [{"joint": j, "markers": f"{rel}/calib/joint-{j}.trc", "log": log or f"{rel}/calib/joint-{j}.csv"}
+           "calib": [{"joint": j, "markers": f"calib/joint-{j}.trc", "log": log or f"calib/joint-{j}.csv"}
                      for j, log in calib]}
     write_manifest(path / "campaign.toml", doc)
     return path

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -159,7 +160,8 @@ def _inside(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
         raise InputError(f"{where}: {key} path {rel!r} is absolute; paths are relative to the "
                          "campaign folder", path=manifest, label=key)
     p = root / rel
-    if root.resolve() not in p.resolve().parents:
+    norm = os.path.normpath(rel.replace("\\", "/"))
+    if norm == ".." or norm.startswith("../"):   # lexical: a campaign may link its data in
         raise InputError(f"{where}: {key} path {rel!r} leaves the campaign folder", path=manifest,
                          label=key)
     return p
