@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
 
 LINEAR_MODELS = ("cv",)
@@ -58,11 +59,40 @@ class RigidBodyFit:
     def to_dict(self) -> dict:
         return {"model": self.model, "joints": self.joints, "method": self.method,
                 "base_parameters": dict(zip(self.base_names, map(float, self.beta))),
-                "offsets": self.offsets.tolist(), "armature": self.armature.tolist(),
+                "offsets": self.offsets.tolist(),
+                "armature": [float(a) if np.isfinite(a) else None for a in self.armature],
                 "coupled_motors": self.motors, "rms": self.rms.tolist(),
                 "heldout_rms": self.heldout_rms.tolist(), "sigma": self.sigma.tolist(),
                 "v_zero": self.v_zero.tolist(), "n_samples": self.n_samples,
                 "notes": list(self.notes), **self.diagnostics}
+
+
+def _drop_absorbed(A, names, nb, tol: float = 1e-6):
+    """Drop the extra columns (offsets, armatures, motor terms) that the base columns already
+    span on these data (e.g. the armature of a joint whose link inertia about its own axis is a
+    base parameter of its own: Ia_1 with ZZ_1, Ia_2 with ZZ_2 when axis 1 is perpendicular to
+    axis 2): they are merged into the base parameters and reported."""
+    T, n, p = A.shape
+    A2 = A.reshape(T * n, p)
+    step = max(1, T // 4000)                        # a subsample decides collinearity
+    S = A.reshape(T, n, p)[::step].reshape(-1, p)
+    B = S[:, :nb]
+    cn = np.linalg.norm(B, axis=0)
+    Bn = B / np.where(cn > 0, cn, 1.0)
+    Q, R = np.linalg.qr(Bn)
+    keep, dropped = list(range(nb)), []
+    for k in range(nb, p):
+        a = S[:, k]
+        na = float(np.linalg.norm(a))
+        if na == 0:
+            dropped.append(names[k])
+            continue
+        r = a - Q @ (Q.T @ a)
+        if np.linalg.norm(r) < tol * na:
+            dropped.append(names[k])
+        else:
+            keep.append(k)
+    return A2.reshape(T, n, p)[:, :, keep], tuple(names[k] for k in keep), tuple(dropped)
 
 
 class RigidBodyIdentifier:
@@ -118,6 +148,8 @@ class RigidBodyIdentifier:
                     blocks.append((sig[:, None] * CiT[None, :, k])[:, :, None])
                     names.append(f"{nm}m_{k + 1}")
         A = np.concatenate(blocks, axis=2)
+        A, names, dropped = _drop_absorbed(A, names, Yb.shape[2])
+        self._dropped = dropped
         F = np.zeros((T, n, 2 * n))
         for j in range(n):
             F[:, j, 2 * j] = np.sign(rec.qd[:, j])
@@ -164,7 +196,7 @@ class RigidBodyIdentifier:
             sse, cnt = np.zeros(n), np.zeros(n)
             for k in range(self.folds):
                 tr = seg != k
-                s_k = self._solve(rec, A, F, M, tr, sigma=sigma, quick=True)
+                s_k = self._solve(rec, A, F, M, tr, sigma=sigma, quick=True, init=sol)
                 pred = self._predict(rec, A, F, s_k)
                 r = np.where(M & ~tr[:, None], rec.tau - pred, 0.0)
                 sse += np.sum(r ** 2, axis=0)
@@ -183,15 +215,21 @@ class RigidBodyIdentifier:
         return pred
 
     def _wls(self, A2, y, w):
+        """Weighted least squares through the column-scaled normal equations (the design is
+        tall and thin: T n rows, about 10 n + 4 n columns); rank deficiency is handled by the
+        pseudo-inverse of the small Gram matrix."""
         keep = w > 0
         Aw = A2[keep] * w[keep, None]
         yw = y[keep] * w[keep]
         cn = np.linalg.norm(Aw, axis=0)
         cn = np.where(cn > 0, cn, 1.0)
-        b, *_ = np.linalg.lstsq(Aw / cn, yw, rcond=None)
-        return b / cn, Aw, yw, cn
+        An = Aw / cn
+        G = An.T @ An
+        Gi = np.linalg.pinv(G, rcond=1e-12, hermitian=True)
+        b = (Gi @ (An.T @ yw)) / cn
+        return b, Aw, yw, (cn, Gi)
 
-    def _solve(self, rec, A, F, M, train, sigma=None, quick=False) -> dict:
+    def _solve(self, rec, A, F, M, train, sigma=None, quick=False, init=None) -> dict:
         T, n, p = A.shape
         rows = M & train[:, None]
         sig = np.ones(n) if sigma is None else sigma
@@ -204,7 +242,7 @@ class RigidBodyIdentifier:
             if not quick:
                 out["cov"] = self._cov(Aw, yw, b, cn)
         else:
-            out = self._alternate(rec, A, F, rows, w, quick)
+            out = self._alternate(rec, A, F, rows, w, quick, init)
             res = rec.tau - self._predict(rec, A, F, out)
         r = np.where(rows, res, 0.0)
         cnt = np.maximum(rows.sum(axis=0), 1)
@@ -213,19 +251,15 @@ class RigidBodyIdentifier:
         return out
 
     @staticmethod
-    def _cov(Aw, yw, b, cn):
+    def _cov(Aw, yw, b, scale):
         """Covariance of the WLS solution with the weighted residual variance."""
-        An = Aw / cn
-        U, S, Vt = np.linalg.svd(An, full_matrices=False)
-        keep = S > S[0] * 1e-10
+        cn, Gi = scale
         r = yw - Aw @ b
-        dof = max(Aw.shape[0] - int(keep.sum()), 1)
-        s2 = float(r @ r) / dof
-        Vk = Vt[keep] / S[keep, None]
-        cov_n = Vk.T @ Vk * s2
-        return cov_n / np.outer(cn, cn)
+        rank = int(np.linalg.matrix_rank(Gi, hermitian=True))
+        s2 = float(r @ r) / max(Aw.shape[0] - rank, 1)
+        return Gi * s2 / np.outer(cn, cn)
 
-    def _alternate(self, rec, A, F, rows, w, quick) -> dict:
+    def _alternate(self, rec, A, F, rows, w, quick, init=None) -> dict:
         from ident.friction.fit import fit_friction
 
         T, n, p = A.shape
@@ -236,12 +270,19 @@ class RigidBodyIdentifier:
         fric = (np.einsum("tjp,p->tj", F, bc[p:]))
         b = bc[:p]
         ff = [None] * n
+        n_iter = max(self.n_iter, 1)
+        if init is not None and init.get("ff") is not None:   # a held-out fold: warm start
+            ff = list(init["ff"])
+            for j, f in enumerate(ff):
+                if f is not None:
+                    fric[:, j] = f.model.torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)
+            n_iter = 1
         names = self._names
         own = [[k for k, nm in enumerate(names) if nm in (f"offset_{j + 1}", f"Ia_{j + 1}")]
                for j in range(n)]
         notes = []
         dynamic = getattr(self.model_cls, "dynamic", False)
-        for it in range(max(self.n_iter, 1)):
+        for it in range(n_iter):
             b, *_ = self._wls(A2, (rec.tau - fric).reshape(-1), w)
             lin = (A2 @ b).reshape(T, n)
             for j in range(n):
@@ -278,7 +319,7 @@ class RigidBodyIdentifier:
         b = sol["b"]
         idx = {nm: k for k, nm in enumerate(names)}
         off = np.array([b[idx[f"offset_{j + 1}"]] if f"offset_{j + 1}" in idx else 0.0 for j in range(n)])
-        arm = np.array([b[idx[f"Ia_{j + 1}"]] if f"Ia_{j + 1}" in idx else 0.0 for j in range(n)])
+        arm = np.array([b[idx[f"Ia_{j + 1}"]] if f"Ia_{j + 1}" in idx else np.nan for j in range(n)])
         motors = {}
         for nm, k in idx.items():
             kind, _, mk = nm.partition("m_")
@@ -287,11 +328,15 @@ class RigidBodyIdentifier:
         cov = sol.get("cov")
         joints = {}
         notes = list(sol.get("notes", []))
+        if getattr(self, "_dropped", ()):
+            notes.append(f"not separable from the rigid-body base parameters on these data, merged into "
+                         f"them: {', '.join(self._dropped)}")
         for j in range(n):
             if not M[:, j].any():
                 continue
             e = {"rms": float(sol["rms"][j]), "heldout_rms": float(held[j]),
-                 "offset": float(off[j]), "armature": float(arm[j]),
+                 "offset": float(off[j]),
+                 "armature": float(arm[j]) if np.isfinite(arm[j]) else None,
                  "n_used": int(M[:, j].sum()), "v_zero": float(v0[j])}
             if self.model in LINEAR_MODELS:
                 fc, fv = float(sol["bf"][2 * j]), float(sol["bf"][2 * j + 1])
@@ -310,7 +355,9 @@ class RigidBodyIdentifier:
                 e["degenerate"] = f.degenerate
                 if f.model.to_dict().get("settings"):
                     e["settings"] = f.model.to_dict()["settings"]
-            implaus = _implausible(self.model, e["params"])
+            mdl = (CoulombViscous(**e["params"]) if self.model in LINEAR_MODELS
+                   else sol["ff"][j].model)
+            implaus = _implausible(mdl, rec.qd[M[:, j], j])
             if implaus:
                 e["implausible"] = implaus
                 notes.append(f"joint {j + 1} {self.model}: {implaus}")
@@ -335,11 +382,21 @@ class RigidBodyIdentifier:
                             tuple(notes))
 
 
-def _implausible(model: str, params: dict) -> str | None:
-    """Physically impossible friction (negative dissipation) or None."""
-    neg = [k for k in {"cv": ("c", "v"), "stribeck": ("Fk", "Fv", "Fs")}.get(model, ())
-           if params.get(k, 0.0) < 0]
-    return f"negative {', '.join(neg)} (friction cannot feed energy)" if neg else None
+def _implausible(model, qd) -> str | None:
+    """A static friction model that feeds energy (``f(v) v < 0``) somewhere within the record's
+    speed range is physically impossible; dynamic models are not checked."""
+    if getattr(model, "dynamic", False):
+        return None
+    vmax = float(np.max(np.abs(qd))) if qd.size else 0.0
+    if not vmax > 0:
+        return None
+    v = np.concatenate([-np.geomspace(vmax, 1e-4 * vmax, 200), np.geomspace(1e-4 * vmax, vmax, 200)])
+    p = model.torque(v) * v
+    if np.any(p < 0):
+        k = int(np.argmin(p))
+        return (f"friction feeds energy at qd = {v[k]:.3g} rad/s (f = {model.torque(v[k:k + 1])[0]:.3g} "
+                "N m against the motion): physically impossible")
+    return None
 
 
 def identify(chain: ChainDynamics, rec, models=("cv",), base: BaseParameters | None = None,
