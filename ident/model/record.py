@@ -8,10 +8,13 @@ and diagnosis reports):
 * **repeated rows** (every signal equal to the previous row's under a new time stamp) are stale
   samples: they are dropped, so that the state is not held while time runs on (that would put
   zero velocity and spikes of acceleration into the data);
-* **irregular time stamps**: the kept rows are interpolated linearly onto a uniform grid at
-  their median step (``resample``); a log already uniform within 1 % is left as it is;
+* **irregular time stamps**: the kept angles are interpolated linearly onto a uniform grid at
+  their median step (``resample``) for differentiation, and the smoothed states are
+  interpolated back to the logged time stamps; torques are used as logged (interpolating them
+  would average their noise and make residuals look smaller than they are). A log already
+  uniform within 1 % is left as it is;
 * **derivatives**: ``savgol`` differentiates the (resampled) angles with a cubic
-  Savitzky-Golay filter of ``window_s``; ``logged`` takes the controller's ``qd_<j>`` for the
+  Savitzky-Golay filter of ``window_s`` (``auto``: per joint, :func:`auto_windows`); ``logged`` takes the controller's ``qd_<j>`` for the
   velocity and differentiates it (same filter) for the acceleration. The RMS difference between
   the logged and the differentiated velocity is reported either way;
 * **coupling**: ``q_urdf = C q_log``, ``tau_urdf = C^-T tau_log`` (FORMAT.md); the log
@@ -38,7 +41,7 @@ class RecordSettings:
     ``never``; ``drop_repeated``; ``braked_tol``: rad, peak to peak."""
 
     derivatives: str = "savgol"
-    window_s: float = 0.03
+    window_s: float | str = "auto"
     resample: str = "auto"
     drop_repeated: bool = True
     braked_tol: float = BRAKED_TOL_RAD
@@ -48,8 +51,9 @@ class RecordSettings:
             raise InputError(f"derivatives must be one of {', '.join(DERIVATIVES)}, got {self.derivatives!r}")
         if self.resample not in ("auto", "never"):
             raise InputError(f"resample must be 'auto' or 'never', got {self.resample!r}")
-        if not self.window_s > 0:
-            raise InputError("the derivative window must be > 0 s")
+        if self.window_s != "auto" and not (isinstance(self.window_s, (int, float))
+                                            and self.window_s > 0):
+            raise InputError(f"the derivative window must be 'auto' or > 0 s, got {self.window_s!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +76,7 @@ class MultiJointRecord:
 
     @property
     def dt(self) -> float:
+        """Median sample step (the record keeps the logged time stamps, possibly irregular)."""
         return float(np.median(np.diff(self.t)))
 
     @property
@@ -137,6 +142,39 @@ def check_braked(trial, q: np.ndarray, tol: float = BRAKED_TOL_RAD, path=None) -
     return {str(j): float(p2p[j - 1]) for j in range(1, q.shape[1] + 1)}
 
 
+WINDOWS_S = (0.01, 0.015, 0.02, 0.03, 0.05, 0.07, 0.1, 0.15, 0.2)
+
+
+def auto_windows(x: np.ndarray, dt: float, ratio: float = 2.0) -> np.ndarray:
+    """Per column of ``x`` (uniform samples), the longest Savitzky-Golay window of
+    :data:`WINDOWS_S` whose smoothing residual ``rms(x - smooth(x))`` stays within ``ratio``
+    times the residual of the shortest window. The residual of a noise-only band saturates at
+    the noise level (quantisation, jitter), while a window that starts to bend the motion makes
+    it grow like the window's fourth power: longer windows give less noisy accelerations until
+    that knee. Columns that do not move get the shortest window."""
+    T = x.shape[0]
+    cand = [w for w in WINDOWS_S if 5 <= (int(round(w / dt)) | 1) < T]
+    if not cand:
+        return np.full(x.shape[1], WINDOWS_S[0])
+    r0 = np.sqrt(np.mean((x - _savgol(x, dt, cand[0], 0)) ** 2, axis=0))
+    out = np.full(x.shape[1], cand[0])
+    alive = r0 > 0
+    for w in cand[1:]:                        # a handful of candidate windows
+        r = np.sqrt(np.mean((x - _savgol(x, dt, w, 0)) ** 2, axis=0))
+        alive &= r <= ratio * r0
+        out = np.where(alive, w, out)
+    return out
+
+
+def _savgol_cols(x: np.ndarray, dt: float, windows: np.ndarray, deriv: int) -> np.ndarray:
+    """Savitzky-Golay per column with its own window (columns sharing a window go together)."""
+    out = np.empty_like(x)
+    for w in np.unique(windows):
+        cols = np.flatnonzero(windows == w)
+        out[:, cols] = _savgol(x[:, cols], dt, float(w), deriv)
+    return out
+
+
 def _savgol(x: np.ndarray, dt: float, window_s: float, deriv: int) -> np.ndarray:
     T = x.shape[0]
     w = int(round(window_s / dt)) | 1
@@ -173,51 +211,61 @@ def prepare_record(log, trial, n: int, coupling=None, settings: RecordSettings |
     dtk = np.diff(t)
     dt = float(np.median(dtk))
     irregular = bool(np.any(np.abs(dtk - dt) > 0.01 * dt))
+    t_keep = t
     sig = [qm, tau] + ([qd_log] if qd_log is not None else [])
+    sig = [_interp_cols(t, t, x) for x in sig]          # fills NaN gaps only
     if irregular and st.resample == "auto":
         tu = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
-        sig = [_interp_cols(tu, t, x) for x in sig]
-        steps.append(f"resampled {t.size} rows at irregular steps ({dtk.min() * 1e3:.3g} .. "
-                     f"{dtk.max() * 1e3:.3g} ms) linearly onto a uniform {dt * 1e3:.4g} ms grid "
-                     f"({tu.size} samples)")
-        t = tu
+        grid = [_interp_cols(tu, t, x) for x in sig]
+        steps.append(f"{t.size} rows at irregular steps ({dtk.min() * 1e3:.3g} .. "
+                     f"{dtk.max() * 1e3:.3g} ms): angles resampled linearly onto a uniform "
+                     f"{dt * 1e3:.4g} ms grid for differentiation, states interpolated back to the "
+                     "logged time stamps; torques used as logged")
     else:
-        sig = [_interp_cols(t, t, x) for x in sig]      # fills NaN gaps only
+        tu, grid = t, sig
         if irregular:
             steps.append("irregular steps kept as they are (resample = never): derivatives "
                          "assume the median step")
-    qm, tau = sig[0], sig[1]
-    qd_log = sig[2] if qd_log is not None else None
-    q = qm @ C.T
-    tau_u = tau @ np.linalg.inv(C)                      # tau_urdf = C^-T tau_log (rows)
-    qs = _savgol(q, dt, st.window_s, 0)
-    qd_sg = _savgol(q, dt, st.window_s, 1)
-    if qd_log is not None:
-        qd_logged = qd_log @ C.T
+    tau = sig[1]
+    q_grid = grid[0] @ C.T
+    has_qd = qd_log is not None
+    back = (lambda x: x) if tu is t else (lambda x: _interp_cols(t_keep, tu, x))
+    win = (auto_windows(q_grid, dt) if st.window_s == "auto"
+           else np.full(n, float(st.window_s)))
+    rep["window_s"] = {str(j + 1): float(win[j]) for j in range(n)}
+    wtxt = ("per joint " + ", ".join(f"{w * 1e3:.3g}" for w in win) + " ms" + (
+        " (auto: the longest window before the smoothing residual grows past twice the "
+        "shortest window's)"
+        if st.window_s == "auto" else ""))
+    qs = back(_savgol_cols(q_grid, dt, win, 0))
+    qd_sg = back(_savgol_cols(q_grid, dt, win, 1))
+    if has_qd:
+        qd_logged = sig[2] @ C.T
         ok = np.isfinite(qd_logged)
         diff = np.where(ok, qd_logged - qd_sg, 0.0)
         rep["logged_vs_savgol_velocity_rms"] = {
             str(j + 1): float(np.sqrt(np.mean(diff[ok[:, j], j] ** 2))) if ok[:, j].any() else None
             for j in range(n)}
     if st.derivatives == "logged":
-        if qd_log is None or not np.isfinite(qd_log).all():
+        if not has_qd or not np.isfinite(sig[2]).all():
             raise InputError("derivatives = logged needs a qd_<j> column for every joint",
                              path=log.source, label="qd_1")
-        qd = qd_log @ C.T
-        qdd = _savgol(qd, dt, st.window_s, 1)
+        qd = sig[2] @ C.T
+        qdd = back(_savgol_cols(grid[2] @ C.T, dt, win, 1))
         steps.append(f"velocity: the logged qd_<j>; acceleration: cubic Savitzky-Golay derivative "
-                     f"of it over {st.window_s * 1e3:.3g} ms")
+                     f"of it, windows {wtxt}")
     else:
-        qd, qdd = qd_sg, _savgol(q, dt, st.window_s, 2)
-        steps.append(f"velocity and acceleration: cubic Savitzky-Golay derivatives of the angles over "
-                     f"{st.window_s * 1e3:.3g} ms")
+        qd, qdd = qd_sg, back(_savgol_cols(q_grid, dt, win, 2))
+        steps.append(f"velocity and acceleration: cubic Savitzky-Golay derivatives of the angles, "
+                     f"windows {wtxt}")
     if not np.allclose(C, np.eye(n)):
         steps.append("coupled joints: q_urdf = C q_log, tau_urdf = C^-T tau_log ([robot] coupling)")
+    tau_u = tau @ np.linalg.inv(C)                      # tau_urdf = C^-T tau_log (rows)
     rep["steps"] = steps
     rep["warnings"] = stats.warnings
     if check:
-        rep["peak_to_peak_rad"] = check_braked(trial, q, st.braked_tol, path=log.source)
-    return MultiJointRecord(trial.id, t, qs, qd, qdd, tau_u, C,
+        rep["peak_to_peak_rad"] = check_braked(trial, qs, st.braked_tol, path=log.source)
+    return MultiJointRecord(trial.id, t_keep, qs, qd, qdd, tau_u, C,
                             tuple(trial.joints), rep)
 
 
@@ -237,3 +285,15 @@ def load_record(campaign, trial, robot, settings: RecordSettings | None = None,
 
     log = read_robot_log(trial.log, n_joints=robot.n)
     return prepare_record(log, trial, robot.n, coupling_matrix(campaign, robot.n), settings, check)
+
+
+def check_campaign_motion(campaign, n: int, tol: float = BRAKED_TOL_RAD) -> None:
+    """:func:`check_braked` on every trial's log (URDF coordinates through the coupling): a joint
+    the trial declares braked that moves is an :class:`InputError` naming the trial, the joint and
+    how far it moved."""
+    from mocap.io.robotlog import read_robot_log
+
+    C = coupling_matrix(campaign, n)
+    for tr in campaign.trials:
+        log = read_robot_log(tr.log, n_joints=n)
+        check_braked(tr, log.qm @ C.T, tol, path=log.source)

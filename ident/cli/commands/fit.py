@@ -42,8 +42,9 @@ def register(sub):
     p.add_argument("--derivatives", choices=("savgol", "logged"), default="savgol",
                    help="multi-joint records: velocities from the angles (Savitzky-Golay) or the "
                         "logged qd_<j>")
-    p.add_argument("--window", type=float, default=0.03, metavar="S",
-                   help="multi-joint records: Savitzky-Golay window, s")
+    p.add_argument("--window", default="auto", metavar="S",
+                   help="multi-joint records: Savitzky-Golay window, s, or 'auto' (per joint, the "
+                        "longest window whose residual stays at the angle noise level)")
     p.add_argument("--v-zero", type=float, default=0.02, metavar="FRAC",
                    help="multi-joint records: rows slower than FRAC x the joint's 99th-percentile "
                         "speed are left out of the friction fit")
@@ -77,7 +78,9 @@ def run(args) -> int:
         raise InputError("--export-dt must be a positive number of seconds")
     camp = load_campaign(args.campaign, check_files=False)  # marker files are not needed here
     from ident.model.multijoint import multijoint_trials
+    from ident.model.record import check_campaign_motion
 
+    check_campaign_motion(camp, camp.load_robot().n)    # braked joints must stay still
     multi = multijoint_trials(camp)
     if multi:
         import dataclasses
@@ -175,7 +178,11 @@ def _run_multijoint(args, camp, models) -> int:
     if args.export_c is not None:
         raise InputError("--export-c is not available for multi-joint records")
     out = check_out_dir(args.out, [camp.root])
-    rs = RecordSettings(derivatives=args.derivatives, window_s=args.window)
+    try:
+        window = args.window if args.window == "auto" else float(args.window)
+    except ValueError:
+        raise InputError(f"--window must be 'auto' or seconds, got {args.window!r}") from None
+    rs = RecordSettings(derivatives=args.derivatives, window_s=window)
     res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero_frac=args.v_zero,
                                   n_starts=args.starts)
     doc = res.merge_into({"format": 1, "trials": {}, "summary": []})
