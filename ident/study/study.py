@@ -439,6 +439,8 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         fits = self._fits(ctx, angles_dir)
         _write_manifest(manifest_path, man, tmp_dir)
+        self._rigidbody(ctx)
+        _write_manifest(manifest_path, man, tmp_dir)
         diag = self._diagnosis(ctx, angles_dir)
         _write_manifest(manifest_path, man, tmp_dir)
         rrd_path = None
@@ -499,6 +501,10 @@ class Study:
         if not s.mocap:
             ctx.stages["mocap"] = _stage_row(note="switched off: motor angles stand in for link angles")
             return None, None, None
+        if not camp.has_markers:
+            ctx.stages["mocap"] = _stage_row(note="no motion capture in this campaign: the logged "
+                                                  "angles are the link angles")
+            return None, None, None
         from ident.signals.smoothing import one_blas_thread
 
         try:
@@ -554,6 +560,8 @@ class Study:
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
         tasks, skipped = campaign_tasks(camp, None, s.models, s.n_starts, s.seed, s.sync, robot=ctx.robot)
+        multi = {t.id for t in camp.trials if len(t.joints) > 1}   # the rigid-body stage's
+        tasks = [t for t in tasks if t.trial not in multi]
         by_trial: dict = {}
         for t in tasks:  # loop over (trial, joint) tasks
             by_trial.setdefault(t.trial, []).append(t)
@@ -604,6 +612,47 @@ class Study:
                                         f"skipped (coast-down): {', '.join(skipped)}" if skipped else "",
                                         work=_work(jobs, done, "trial"))
         return result
+
+    # stage 3b: multi-joint records ------------------------------------------------------------
+    def _rigidbody(self, ctx):
+        """Multi-joint continuous records (``joints = [1, 2, ...]``): the rigid-body
+        identification (:mod:`ident.model.multijoint`) with the study's friction models, written
+        to ``rigidbody/`` (``fits.json``, ``rigidbody.json``, ``rigidbody.md``); resumed when the
+        logs and settings are unchanged."""
+        from ident.model.multijoint import fit_multijoint_campaign, multijoint_trials
+
+        t0 = time.perf_counter()
+        camp, s = ctx.camp, self.settings
+        trials = multijoint_trials(camp)
+        if not trials:
+            return None
+        h = ctx.hasher.combine("rigidbody", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
+                               list(s.models), s.seed)
+        out = ctx.out / "rigidbody"
+        prev = ctx.old.get("stages", {}).get("rigidbody", {})
+        if prev.get("hash") == h and (out / "fits.json").is_file():
+            ctx.man["stages"]["rigidbody"] = prev
+            ctx.paths["rigidbody"] = out / "rigidbody.json"
+            ctx.stages["rigidbody"] = _stage_row(reused=len(trials), seconds=time.perf_counter() - t0)
+            return None
+        try:
+            res = fit_multijoint_campaign(camp, tuple(s.models), seed=s.seed, n_starts=s.n_starts)
+        except (InputError, ValueError) as exc:
+            ctx.errors["rigidbody"] = _error_text(exc)
+            ctx.stages["rigidbody"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
+            return None
+        tmp = ctx.tmp_dir / "rigidbody-new"
+        tmp.mkdir(parents=True, exist_ok=True)
+        (tmp / "fits.json").write_text(json.dumps(res.merge_into({"format": 1, "trials": {}, "summary": []}),
+                                                  indent=1, allow_nan=False), encoding="utf-8")
+        res.write(tmp)
+        _replace_dir(tmp, out)
+        ctx.man["stages"]["rigidbody"] = {"hash": h, "outputs": ["rigidbody/"]}
+        ctx.paths["rigidbody"] = out / "rigidbody.json"
+        ctx.stages["rigidbody"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
+                                             note="multi-joint records: URDF rigid-body model + "
+                                                  "per-joint friction, offsets, armatures")
+        return res
 
     # stage 4: gap diagnosis ------------------------------------------------------------------
     def _diagnosis(self, ctx, angles_dir):

@@ -136,14 +136,19 @@ def log_campaign(campaign, sink, robot=None, T_camera_base=None, meshes: dict | 
         raise ValueError(f"T_camera_base must be (4, 4), got {T_cb.shape}")
     mesh_rgb = {lk: (V, F, MESH_COLOR) for lk, (V, F, *_) in meshes.items()}
     link_of_label = campaign.link_of_label()
+    from ident.model.record import coupling_matrix
+
+    coupling = coupling_matrix(campaign, robot.n)
     logged, rows, qm_paths, tau_paths = [], [], [], []
     for kind, name, rec in campaign.recordings():  # loop over recordings
         base = f"{root}/{kind}/{name}"
-        markers = read_markers(rec.markers)
-        sink.points_over_time(f"{base}/markers", markers.time, markers.positions,
-                              labels=markers.labels,
-                              colors=marker_colors(markers.labels, link_of_label),
-                              radii=MARKER_RADIUS_M)
+        markers = None
+        if rec.markers is not None:          # None: a campaign without motion capture
+            markers = read_markers(rec.markers)
+            sink.points_over_time(f"{base}/markers", markers.time, markers.positions,
+                                  labels=markers.labels,
+                                  colors=marker_colors(markers.labels, link_of_label),
+                                  radii=MARKER_RADIUS_M)
         log = read_robot_log(rec.log, n_joints=robot.n)
         # joint signals (full rate unless asked), only the columns the log has
         has_q = np.flatnonzero(np.any(np.isfinite(log.qm), axis=0))
@@ -161,12 +166,13 @@ def log_campaign(campaign, sink, robot=None, T_camera_base=None, meshes: dict | 
         # the robot, posed by the motor angles, decimated
         idx = decimate_indices(log.time, max_robot_rate_hz)
         t_pose = log.time[idx]
-        q = fill_joint_angles(log.time, log.qm)[idx]
+        q = fill_joint_angles(log.time, log.qm)[idx] @ coupling.T    # URDF angles
         sink.transform(f"{base}/robot", T_cb)
         link_T = {lk: robot.chain.frame_transform(lk, q) for lk in robot.chain.frames}
         sink.robot(f"{base}/robot", mesh_rgb, t_pose, link_T)
         logged.append(base)
-        rows.append((kind, name, markers.n_frames, markers.n_markers, log.n_samples, log.rate_hz))
+        rows.append((kind, name, 0 if markers is None else markers.n_frames,
+                     0 if markers is None else markers.n_markers, log.n_samples, log.rate_hz))
     sink.text(f"{root}/README", _summary_markdown(campaign, rows))
     series = {}
     if qm_paths:
