@@ -135,3 +135,31 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
                        for m in models}
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
+
+
+def diagnose_records(campaign, robot, settings, joints=None, record: RecordSettings | None = None,
+                     n_segments: int = 6, progress: bool = False) -> tuple[dict, dict]:
+    """The gap diagnosis of every moving joint of every multi-joint trial, from the CLI: each
+    trial is prepared like `fit` does (:func:`ident.model.record.load_record`: repeated rows,
+    irregular steps, derivatives, coupling, braked-joint check) and handed to
+    ``ident.gap.data.build_joint_data_record`` (torque channel, ``n_segments`` contiguous
+    held-out segments) and ``ident.gap.diagnose_joint``. Returns ``(joints, series)`` keyed
+    ``"<joint>"`` (one multi-joint trial) or ``"<trial>/<joint>"`` (several)."""
+    from ident.gap import diagnose_joint
+    from ident.gap.data import build_joint_data_record
+
+    trials = multijoint_trials(campaign)
+    reports, series = {}, {}
+    for tr in trials:
+        rec = load_record(campaign, tr, robot, record)
+        for j in tr.joints:
+            if joints and j not in joints:
+                continue
+            d = build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
+            rep = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
+            rep["record"] = {"trial": tr.id, "preprocessing": rec.preprocessing,
+                             "folds": f"leave-one-segment-out ({n_segments} contiguous segments)"}
+            key = str(j) if len(trials) == 1 else f"{tr.id}/{j}"
+            series[key] = rep.pop("_series", None)
+            reports[key] = rep
+    return reports, series

@@ -669,8 +669,7 @@ class Study:
             if len(t.joints) == 1:
                 by_joint.setdefault(int(t.joints[0]), []).append(t)
         if not by_joint:
-            ctx.stages["diagnosis"] = _stage_row(note="no single-joint trials to diagnose")
-            return None
+            return self._diagnosis_records(ctx, dset, t0)
         jobs, done, hashes = [], {}, {}
         for j, trials in sorted(by_joint.items()):  # loop over joints
             files = [[ctx.hasher.file(t.log),
@@ -715,6 +714,45 @@ class Study:
         ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
                                              len(done) - len(jobs), len(failed),
                                              time.perf_counter() - t0, work=_work(jobs, done, "joint"))
+        return report, series
+
+    def _diagnosis_records(self, ctx, dset, t0):
+        """Diagnosis of multi-joint records (:func:`ident.model.multijoint.diagnose_records`),
+        serial, recomputed when the logs or settings change."""
+        from ident.gap.report import write_report
+        from ident.model.multijoint import diagnose_records, multijoint_trials
+
+        camp = ctx.camp
+        trials = multijoint_trials(camp)
+        if not trials:
+            ctx.stages["diagnosis"] = _stage_row(note="no single-joint trials to diagnose")
+            return None
+        h = ctx.hasher.combine("diagnosis-records", ctx.base_hash,
+                               [ctx.hasher.file(t.log) for t in trials], dset.to_dict())
+        diag_dir = ctx.out / "diagnosis"
+        prev = ctx.old.get("stages", {}).get("diagnosis", {})
+        if prev.get("hash") == h and (diag_dir / "diagnosis.json").is_file():
+            ctx.man["stages"]["diagnosis"] = prev
+            ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
+            ctx.stages["diagnosis"] = _stage_row(reused=len(trials), seconds=time.perf_counter() - t0)
+            report = json.loads((diag_dir / "diagnosis.json").read_text(encoding="utf-8"))
+            return report, {}
+        try:
+            joints, series = diagnose_records(camp, ctx.robot, dset)
+        except (InputError, ValueError) as exc:
+            ctx.errors["diagnosis/records"] = _error_text(exc)
+            ctx.stages["diagnosis"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
+            return None
+        report = {"format": 1, "campaign": camp.name, "settings": dset.to_dict(), "joints": joints,
+                  "skipped_trials": [], "multi_joint_trials": [t.id for t in trials],
+                  "link_angles": False}
+        tmp = ctx.tmp_dir / "diagnosis-new"
+        write_report(report, series, tmp, None)
+        _replace_dir(tmp, diag_dir)
+        ctx.man["stages"]["diagnosis"] = {"hash": h, "outputs": ["diagnosis/"]}
+        ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
+        ctx.stages["diagnosis"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
+                                             note="multi-joint records, leave-one-segment-out")
         return report, series
 
     # stage 5: report and recording -------------------------------------------------------------
