@@ -252,3 +252,21 @@ def test_arm7_record_through_diagnose_and_study(tmp_path, capsys):
     assert set(fits["trials"]["rec"]) == {str(j) for j in range(1, 8)}
     srep = json.loads((tmp_path / "s" / "diagnosis" / "diagnosis.json").read_text())
     assert set(srep["joints"]) == {str(j) for j in range(1, 8)}
+
+
+def test_tiago_log_sampling_is_reported(capsys):
+    """The real TIAGo arm log (fixtures/real/tiago): irregular 100 Hz steps are measured from the
+    time stamps, the logged velocities are read as qd_<j>."""
+    from mocap.io.robotlog import read_robot_log
+
+    path = REPO / "fixtures" / "real" / "tiago" / "trials" / "arm.csv"
+    assert main(["info", str(path), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    t = np.loadtxt(path, delimiter=",", skiprows=1, usecols=0)
+    steps = np.diff(t)
+    sp = d["sampling"]
+    assert sp["irregular"] and d["n_joints"] == 7
+    assert sp["step_min_s"] == pytest.approx(steps.min()) and sp["step_max_s"] == pytest.approx(steps.max())
+    assert sp["step_median_s"] == pytest.approx(np.median(steps))
+    log = read_robot_log(path)
+    assert log.qd is not None and log.qd.shape == (t.size, 7) and np.isfinite(log.qd).all()

@@ -360,6 +360,17 @@ def _mocap_stage(campaign, robot, T_camera_base):
 # ---------------------------------------------------------------------------------------------
 # the study
 # ---------------------------------------------------------------------------------------------
+def _reuse_stage(ctx, stage: str, h: str, path: Path, n: int, t0: float) -> bool:
+    """A whole-stage result is up to date (same input hash, output present): keep it."""
+    prev = ctx.old.get("stages", {}).get(stage, {})
+    if not (prev.get("hash") == h and path.is_file()):
+        return False
+    ctx.man["stages"][stage] = prev
+    ctx.paths[stage] = path
+    ctx.stages[stage] = _stage_row(reused=n, seconds=time.perf_counter() - t0)
+    return True
+
+
 def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0):
     """One stage's bookkeeping; ``work_s``: the summed wall time of its computed items as the
     workers measured them (``work_s / (workers * seconds)`` is the parallel efficiency)."""
@@ -629,11 +640,7 @@ class Study:
         h = ctx.hasher.combine("rigidbody", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
                                list(s.models), s.seed)
         out = ctx.out / "rigidbody"
-        prev = ctx.old.get("stages", {}).get("rigidbody", {})
-        if prev.get("hash") == h and (out / "fits.json").is_file():
-            ctx.man["stages"]["rigidbody"] = prev
-            ctx.paths["rigidbody"] = out / "rigidbody.json"
-            ctx.stages["rigidbody"] = _stage_row(reused=len(trials), seconds=time.perf_counter() - t0)
+        if _reuse_stage(ctx, "rigidbody", h, out / "rigidbody.json", len(trials), t0):
             return None
         try:
             res = fit_multijoint_campaign(camp, tuple(s.models), seed=s.seed, n_starts=s.n_starts)
@@ -730,11 +737,7 @@ class Study:
         h = ctx.hasher.combine("diagnosis-records", ctx.base_hash,
                                [ctx.hasher.file(t.log) for t in trials], dset.to_dict())
         diag_dir = ctx.out / "diagnosis"
-        prev = ctx.old.get("stages", {}).get("diagnosis", {})
-        if prev.get("hash") == h and (diag_dir / "diagnosis.json").is_file():
-            ctx.man["stages"]["diagnosis"] = prev
-            ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
-            ctx.stages["diagnosis"] = _stage_row(reused=len(trials), seconds=time.perf_counter() - t0)
+        if _reuse_stage(ctx, "diagnosis", h, diag_dir / "diagnosis.json", len(trials), t0):
             report = json.loads((diag_dir / "diagnosis.json").read_text(encoding="utf-8"))
             return report, {}
         try:
