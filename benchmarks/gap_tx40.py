@@ -16,8 +16,37 @@ import time
 from pathlib import Path
 
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "tx40"
+FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "real" / "tx40"
+
+
+def fit_tx40_campaign(folder: Path = FIXTURE) -> str:
+    """The multi-joint identification of the TX40 campaign fixture (what `jointlab fit` does)
+    against the published friction of ``TX40_config.yaml``: a table."""
+    import numpy as np
+
+    from mocap.io.campaign import load_campaign
+    from ident.model.multijoint import fit_multijoint_campaign
+    from ident.thesis.campaign import read_tx40_config
+
+    camp = load_campaign(folder)
+    cfg = read_tx40_config(folder / "TX40_config.yaml")
+    res = fit_multijoint_campaign(camp, ("cv",))
+    fit = res.fits[camp.trials[0].id]["cv"]
+    m6 = fit.motors.get("6", {})
+    lines = [fit.method, "joint  fv_fit   fv_pub  ratio |  fs_fit   fs_pub  ratio",
+             ]
+    for j in range(6):
+        p = fit.joints[str(j + 1)]["params"]
+        fv = p["v"] + (m6.get("fv", 0.0) if j >= 4 else 0.0)   # figaroh: fv_5, fv_6 include fvm6
+        lines.append(f"{j + 1:5d} {fv:7.3f} {cfg['fv'][j]:7.3f} {fv / cfg['fv'][j]:6.2f} | "
+                     f"{p['c']:7.3f} {cfg['fs'][j]:7.3f} {p['c'] / cfg['fs'][j]:6.2f}")
+    if m6:
+        lines.append(f"motor 6: fsm6 {m6['fs']:.3f} ({cfg.get('fsm6', np.nan):.3f}), fvm6 {m6['fv']:.3f} "
+                     f"({cfg.get('fvm6', np.nan):.3f}), Iam6 {m6['Ia']:.4g} ({cfg.get('Iam6', np.nan):.4g})")
+    return "\n".join(lines)
 
 
 def diagnose_tx40(folder: Path, decimate: int = 5, n_segments: int = 20, seed: int = 0) -> dict:
@@ -46,6 +75,10 @@ def main(argv=None):
     if not (a.folder / "pos_read_data.csv").is_file():
         print(f"TX40 data not found in {a.folder}")
         return 1
+    if FIXTURE.is_dir():
+        t0 = time.perf_counter()
+        print(fit_tx40_campaign())
+        print(f"TX40 multi-joint fit in {time.perf_counter() - t0:.1f} s")
     t0 = time.perf_counter()
     rep = diagnose_tx40(a.folder)
     print(f"TX40 diagnosis in {time.perf_counter() - t0:.1f} s")

@@ -360,6 +360,17 @@ def _mocap_stage(campaign, robot, T_camera_base):
 # ---------------------------------------------------------------------------------------------
 # the study
 # ---------------------------------------------------------------------------------------------
+def _reuse_stage(ctx, stage: str, h: str, path: Path, n: int, t0: float) -> bool:
+    """A whole-stage result is up to date (same input hash, output present): keep it."""
+    prev = ctx.old.get("stages", {}).get(stage, {})
+    if not (prev.get("hash") == h and path.is_file()):
+        return False
+    ctx.man["stages"][stage] = prev
+    ctx.paths[stage] = path
+    ctx.stages[stage] = _stage_row(reused=n, seconds=time.perf_counter() - t0)
+    return True
+
+
 def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0):
     """One stage's bookkeeping; ``work_s``: the summed wall time of its computed items as the
     workers measured them (``work_s / (workers * seconds)`` is the parallel efficiency)."""
@@ -444,6 +455,8 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         fits = self._fits(ctx, angles_dir)
         _write_manifest(manifest_path, man, tmp_dir)
+        self._rigidbody(ctx)
+        _write_manifest(manifest_path, man, tmp_dir)
         diag = self._diagnosis(ctx, angles_dir)
         _write_manifest(manifest_path, man, tmp_dir)
         rrd_path = None
@@ -504,6 +517,10 @@ class Study:
         if not s.mocap:
             ctx.stages["mocap"] = _stage_row(note="switched off: motor angles stand in for link angles")
             return None, None, None
+        if not camp.has_markers:
+            ctx.stages["mocap"] = _stage_row(note="no motion capture in this campaign: the logged "
+                                                  "angles are the link angles")
+            return None, None, None
         from ident.signals.smoothing import one_blas_thread
 
         try:
@@ -559,6 +576,8 @@ class Study:
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
         tasks, skipped = campaign_tasks(camp, None, s.models, s.n_starts, s.seed, s.sync, robot=ctx.robot)
+        multi = {t.id for t in camp.trials if len(t.joints) > 1}   # the rigid-body stage's
+        tasks = [t for t in tasks if t.trial not in multi]
         by_trial: dict = {}
         for t in tasks:  # loop over (trial, joint) tasks
             by_trial.setdefault(t.trial, []).append(t)
@@ -610,6 +629,43 @@ class Study:
                                         work=_work(jobs, done, "trial"))
         return result
 
+    # stage 3b: multi-joint records ------------------------------------------------------------
+    def _rigidbody(self, ctx):
+        """Multi-joint continuous records (``joints = [1, 2, ...]``): the rigid-body
+        identification (:mod:`ident.model.multijoint`) with the study's friction models, written
+        to ``rigidbody/`` (``fits.json``, ``rigidbody.json``, ``rigidbody.md``); resumed when the
+        logs and settings are unchanged."""
+        from ident.model.multijoint import fit_multijoint_campaign, multijoint_trials
+
+        t0 = time.perf_counter()
+        camp, s = ctx.camp, self.settings
+        trials = multijoint_trials(camp)
+        if not trials:
+            return None
+        h = ctx.hasher.combine("rigidbody", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
+                               list(s.models), s.seed)
+        out = ctx.out / "rigidbody"
+        if _reuse_stage(ctx, "rigidbody", h, out / "rigidbody.json", len(trials), t0):
+            return None
+        try:
+            res = fit_multijoint_campaign(camp, tuple(s.models), seed=s.seed, n_starts=s.n_starts)
+        except (InputError, ValueError) as exc:
+            ctx.errors["rigidbody"] = _error_text(exc)
+            ctx.stages["rigidbody"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
+            return None
+        tmp = ctx.tmp_dir / "rigidbody-new"
+        tmp.mkdir(parents=True, exist_ok=True)
+        (tmp / "fits.json").write_text(json.dumps(res.merge_into({"format": 1, "trials": {}, "summary": []}),
+                                                  indent=1, allow_nan=False), encoding="utf-8")
+        res.write(tmp)
+        _replace_dir(tmp, out)
+        ctx.man["stages"]["rigidbody"] = {"hash": h, "outputs": ["rigidbody/"]}
+        ctx.paths["rigidbody"] = out / "rigidbody.json"
+        ctx.stages["rigidbody"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
+                                             note="multi-joint records: URDF rigid-body model + "
+                                                  "per-joint friction, offsets, armatures")
+        return res
+
     # stage 4: gap diagnosis ------------------------------------------------------------------
     def _diagnosis(self, ctx, angles_dir):
         from ident.gap import DiagnosisSettings
@@ -625,8 +681,7 @@ class Study:
             if len(t.joints) == 1:
                 by_joint.setdefault(int(t.joints[0]), []).append(t)
         if not by_joint:
-            ctx.stages["diagnosis"] = _stage_row(note="no single-joint trials to diagnose")
-            return None
+            return self._diagnosis_records(ctx, dset, t0)
         jobs, done, hashes = [], {}, {}
         for j, trials in sorted(by_joint.items()):  # loop over joints
             files = [[ctx.hasher.file(t.log),
@@ -671,6 +726,41 @@ class Study:
         ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
                                              len(done) - len(jobs), len(failed),
                                              time.perf_counter() - t0, work=_work(jobs, done, "joint"))
+        return report, series
+
+    def _diagnosis_records(self, ctx, dset, t0):
+        """Diagnosis of multi-joint records (:func:`ident.model.multijoint.diagnose_records`),
+        serial, recomputed when the logs or settings change."""
+        from ident.gap.report import write_report
+        from ident.model.multijoint import diagnose_records, multijoint_trials
+
+        camp = ctx.camp
+        trials = multijoint_trials(camp)
+        if not trials:
+            ctx.stages["diagnosis"] = _stage_row(note="no single-joint trials to diagnose")
+            return None
+        h = ctx.hasher.combine("diagnosis-records", ctx.base_hash,
+                               [ctx.hasher.file(t.log) for t in trials], dset.to_dict())
+        diag_dir = ctx.out / "diagnosis"
+        if _reuse_stage(ctx, "diagnosis", h, diag_dir / "diagnosis.json", len(trials), t0):
+            report = json.loads((diag_dir / "diagnosis.json").read_text(encoding="utf-8"))
+            return report, {}
+        try:
+            joints, series = diagnose_records(camp, ctx.robot, dset)
+        except (InputError, ValueError) as exc:
+            ctx.errors["diagnosis/records"] = _error_text(exc)
+            ctx.stages["diagnosis"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
+            return None
+        report = {"format": 1, "campaign": camp.name, "settings": dset.to_dict(), "joints": joints,
+                  "skipped_trials": [], "multi_joint_trials": [t.id for t in trials],
+                  "link_angles": False}
+        tmp = ctx.tmp_dir / "diagnosis-new"
+        write_report(report, series, tmp, None)
+        _replace_dir(tmp, diag_dir)
+        ctx.man["stages"]["diagnosis"] = {"hash": h, "outputs": ["diagnosis/"]}
+        ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
+        ctx.stages["diagnosis"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
+                                             note="multi-joint records, leave-one-segment-out")
         return report, series
 
     # stage 5: report and recording -------------------------------------------------------------

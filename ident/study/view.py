@@ -138,12 +138,14 @@ def log_campaign(campaign, sink, robot=None, T_camera_base=None, meshes: dict | 
     logged, rows, qm_paths, tau_paths = [], [], [], []
     for kind, name, rec in campaign.recordings():  # loop over recordings
         base = f"{root}/{kind}/{name}"
-        markers = read_markers(rec.markers)
-        sink.points_over_time(f"{base}/markers", markers.time, markers.positions,
-                              labels=markers.labels,
-                              colors=marker_colors(markers.labels, link_of_label),
-                              radii=MARKER_RADIUS_M)
-        log = campaign.read_log(rec, robot)
+        markers = None
+        if rec.markers is not None:          # None: a campaign without motion capture
+            markers = read_markers(rec.markers)
+            sink.points_over_time(f"{base}/markers", markers.time, markers.positions,
+                                  labels=markers.labels,
+                                  colors=marker_colors(markers.labels, link_of_label),
+                                  radii=MARKER_RADIUS_M)
+        log = campaign.read_log(rec, robot)     # URDF joints ([robot] coupling applied)
         # joint signals (full rate unless asked), only the columns the log has
         has_q = np.flatnonzero(np.any(np.isfinite(log.qm), axis=0))
         has_t = np.flatnonzero(np.any(np.isfinite(log.tau), axis=0))
@@ -165,7 +167,8 @@ def log_campaign(campaign, sink, robot=None, T_camera_base=None, meshes: dict | 
         link_T = {lk: robot.chain.frame_transform(lk, q) for lk in robot.chain.frames}
         sink.robot(f"{base}/robot", mesh_rgb, t_pose, link_T)
         logged.append(base)
-        rows.append((kind, name, markers.n_frames, markers.n_markers, log.n_samples, log.rate_hz))
+        rows.append((kind, name, 0 if markers is None else markers.n_frames,
+                     0 if markers is None else markers.n_markers, log.n_samples, log.rate_hz))
     sink.text(f"{root}/README", _summary_markdown(campaign, rows))
     series = {}
     if qm_paths:

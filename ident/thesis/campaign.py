@@ -416,7 +416,6 @@ def fit_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02,
     Without it, residual = tau - rnea(URDF) - Ia qdd is fitted per joint with
     ``[sign qd, qd, 1]`` (a simplification: URDF inertial values taken as exact).
     """
-    import pinocchio as pin
 
     t, qs, qd, qdd, tau, robot, cfg = load_tx40(folder, decimate, window_s)
     model = robot.model
@@ -425,10 +424,9 @@ def fit_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02,
     fv, fs, off, se_fv, se_fs, rms = (np.zeros(6) for _ in range(6))
     coupling = {}
     if with_inertia:
-        data = model.createData()
-        W = np.empty((T, 6, 10 * model.njoints - 10))
-        for k in range(T):
-            W[k] = pin.computeJointTorqueRegressor(model, data, qs[k], qd[k], qdd[k])
+        from ident.model.regressor import ChainDynamics
+
+        W = ChainDynamics.from_model(model).regressor(qs, qd, qdd)   # all samples at once
         nW = W.shape[2]
         A = np.zeros((T, 6, nW + 24))
         A[:, :, :nW] = W

@@ -14,9 +14,10 @@ TRIAL_KINDS = ("excitation", "coastdown", "reversals", "constant_velocity")
 
 @dataclass(frozen=True)
 class Recording:
-    """A marker file plus the robot log of the same interval."""
+    """A marker file plus the robot log of the same interval (``markers`` is None for a trial
+    of a campaign without motion capture)."""
 
-    markers: Path
+    markers: Path | None
     log: Path
 
 
@@ -50,6 +51,11 @@ class Campaign:
     trials: tuple[Trial, ...]
     extra: dict = field(default_factory=dict)
     coupling: tuple | None = None  # [robot] coupling rows: q_urdf = coupling @ q_log
+
+    @property
+    def has_markers(self) -> bool:
+        """False for a campaign without motion capture (no ``[markers]`` table)."""
+        return bool(self.markers)
 
     @property
     def manifest(self) -> Path:
@@ -211,8 +217,8 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
                                  path=manifest, label=lb)
             seen[lb] = link
         markers[link] = tuple(labels)
-    if not markers:
-        raise InputError("no [markers] table: which link is each marker glued to?", path=manifest)
+    # no [markers] table: a campaign without motion capture (FORMAT.md); the logged angle is
+    # the link angle and trials carry no marker files
 
     static = []
     for k, tab in enumerate(doc.get("static", []), 1):
@@ -249,8 +255,14 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
         if isinstance(rep, bool) or not isinstance(rep, int):
             raise InputError(f"{w}: 'repetition' must be an integer", path=manifest, label="repetition")
         _check_trial_values(tab, w, manifest)
+        if "markers" in tab and not markers:
+            raise InputError(f"{w} has a marker file but the manifest has no [markers] table "
+                             "(which link is each marker glued to?)", path=manifest, label="markers")
+        if "markers" not in tab and markers:
+            raise InputError(f"{w} has no 'markers' file although the campaign declares [markers]",
+                             path=manifest, label="markers")
         trials.append(Trial(
-            markers=chk(_req(tab, "markers", w, manifest), "markers", w),
+            markers=chk(tab["markers"], "markers", w) if "markers" in tab else None,
             log=chk(_req(tab, "log", w, manifest), "log", w),
             id=str(tid), joints=tuple(joints),
             load_kg=_num(tab.get("load_kg", 0.0), "load_kg", w, manifest),

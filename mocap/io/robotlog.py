@@ -11,6 +11,39 @@ from mocap.io.errors import InputError, read_text
 
 _QM = re.compile(r"^qm_(\d+)$")
 _TAU = re.compile(r"^tau_(\d+)$")
+_QD = re.compile(r"^qd_(\d+)$")
+
+
+@dataclass(frozen=True)
+class SamplingStats:
+    """How a log was sampled: time steps and repeated rows (a controller that logs the same
+    state again under a new time stamp). ``warnings`` says what a fit has to take care of."""
+
+    n_samples: int
+    step_min: float
+    step_median: float
+    step_max: float
+    n_repeated: int              # rows whose every signal equals the previous row's
+    irregular: bool              # steps vary by more than 1 % around the median
+
+    @property
+    def warnings(self) -> list[str]:
+        out = []
+        if self.irregular:
+            out.append(f"irregular sampling: steps {self.step_min * 1e3:.3g} .. "
+                       f"{self.step_max * 1e3:.3g} ms (median {self.step_median * 1e3:.3g} ms); "
+                       "fits resample to a uniform grid")
+        if self.n_repeated:
+            out.append(f"{self.n_repeated} repeated rows ({100.0 * self.n_repeated / self.n_samples:.2g} %) "
+                       "repeat the previous state under a new time stamp; fits drop them")
+        return out
+
+    def to_dict(self) -> dict:
+        return {"n_samples": self.n_samples, "step_min_s": self.step_min,
+                "step_median_s": self.step_median, "step_max_s": self.step_max,
+                "rate_hz": 1.0 / self.step_median if self.step_median > 0 else float("nan"),
+                "n_repeated": self.n_repeated, "irregular": self.irregular,
+                "warnings": self.warnings}
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,6 +110,36 @@ class RobotLog:
             raise InputError(f"column qm_{j + 1} reaches {v:.4g} rad, beyond the URDF limits of {name} "
                              f"[{lo[j]:.3f}, {hi[j]:.3f}] rad: degrees suspected (the format wants radians)",
                              path=self.source, label=f"qm_{j + 1}")
+
+    @property
+    def qd(self) -> np.ndarray | None:
+        """(T, n) logged joint velocities ``qd_<j>`` (NaN for joints without one), or None when
+        the log has none."""
+        cols = {int(m.group(1)): v for k, v in self.extra.items() for m in [_QD.match(k)] if m}
+        if not cols:
+            return None
+        out = np.full(self.qm.shape, np.nan)
+        for j, v in cols.items():
+            if 1 <= j <= self.n_joints:
+                out[:, j - 1] = v
+        return out
+
+    def repeated_rows(self) -> np.ndarray:
+        """(T,) True where a row repeats the previous row's values (all but ``time``; NaN equal
+        to NaN): a stale sample logged again."""
+        sig = [self.qm, self.tau] + ([self.qd] if self.qd is not None else [])
+        X = np.column_stack(sig)
+        same = (X[1:] == X[:-1]) | (np.isnan(X[1:]) & np.isnan(X[:-1]))
+        return np.concatenate([[False], same.all(axis=1)])
+
+    def sampling(self) -> SamplingStats:
+        dt = np.diff(self.time)
+        if dt.size == 0:
+            return SamplingStats(self.n_samples, float("nan"), float("nan"), float("nan"), 0, False)
+        med = float(np.median(dt))
+        irregular = bool(np.any(np.abs(dt - med) > 0.01 * med))
+        return SamplingStats(self.n_samples, float(dt.min()), med, float(dt.max()),
+                             int(self.repeated_rows().sum()), irregular)
 
     def columns(self) -> dict[str, np.ndarray]:
         cols = {"time": self.time}

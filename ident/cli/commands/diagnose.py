@@ -32,21 +32,46 @@ def link_angles(campaign, robot, angles_dir=None, sink=None, progress=True):
     return solve_campaign_angles(campaign, robot, sink=sink, progress=progress)
 
 
+def _diagnose(camp, robot, angles, settings, joints):
+    """Single-joint trials through ``diagnose_campaign``; multi-joint records (one continuous
+    record of several joints) through :func:`ident.model.multijoint.diagnose_records`."""
+    from ident.gap.campaign import diagnose_campaign
+    from ident.model.multijoint import diagnose_records, multijoint_trials
+
+    from ident.model.record import check_campaign_motion
+
+    check_campaign_motion(camp, robot.n)
+    multi = multijoint_trials(camp)
+    if not multi:
+        return diagnose_campaign(camp, robot, angles, settings, joints=joints, progress=True)
+    if len(multi) < len(camp.trials):
+        report, series = diagnose_campaign(camp, robot, angles, settings, joints=joints, progress=True)
+    else:
+        report = {"format": 1, "campaign": camp.name, "settings": settings.to_dict(), "joints": {},
+                  "skipped_trials": [], "link_angles": False}
+        series = {}
+    rj, rs = diagnose_records(camp, robot, settings, joints=joints)
+    report["joints"].update(rj)
+    series.update(rs)
+    report["multi_joint_trials"] = [t.id for t in multi]
+    report["skipped_trials"] = [t for t in report.get("skipped_trials", []) if t not in set(report["multi_joint_trials"])]
+    return report, series
+
+
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from viz import make_sink
 
     from ident.gap import DiagnosisSettings
-    from ident.gap.campaign import diagnose_campaign
     from ident.gap.report import write_report
 
     camp = load_campaign(args.campaign)
     out = check_out_dir(args.out, [camp.root])
     robot = camp.load_robot()
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
-        angles = None if args.no_markers else link_angles(camp, robot, args.angles, sink)
-        report, series = diagnose_campaign(camp, robot, angles, DiagnosisSettings(seed=args.seed),
-                                           joints=args.joints, progress=True)
+        no_markers = args.no_markers or not camp.has_markers   # marker-less campaigns
+        angles = None if no_markers else link_angles(camp, robot, args.angles, sink)
+        report, series = _diagnose(camp, robot, angles, DiagnosisSettings(seed=args.seed), args.joints)
         paths = write_report(report, series, out, sink)
     summary = {j: {"verdict": r["verdict"], "heldout_rms_nominal": r.get("heldout_rms_nominal")}
                for j, r in report["joints"].items()}

@@ -39,6 +39,15 @@ def register(sub):
                    help="marker-to-robot clock: as recorded (+ the trial's time_offset) or estimated")
     p.add_argument("--workers", type=int, default=1, help="processes (1: serial)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--derivatives", choices=("savgol", "logged"), default="savgol",
+                   help="multi-joint records: velocities from the angles (Savitzky-Golay) or the "
+                        "logged qd_<j>")
+    p.add_argument("--window", default="auto", metavar="S",
+                   help="multi-joint records: Savitzky-Golay window, s, or 'auto' (per joint, the "
+                        "longest window whose residual stays at the angle noise level)")
+    p.add_argument("--v-zero", type=float, default=0.02, metavar="FRAC",
+                   help="multi-joint records: rows slower than FRAC x the joint's 99th-percentile "
+                        "speed are left out of the friction fit")
     p.add_argument("--export-c", type=Path, default=None, metavar="DIR",
                    help="write the fitted models as C99 (jl_friction.h/.c) into DIR")
     p.add_argument("--export-dt", type=float, default=None, metavar="S",
@@ -68,6 +77,20 @@ def run(args) -> int:
     if args.export_dt is not None and not args.export_dt > 0:
         raise InputError("--export-dt must be a positive number of seconds")
     camp = load_campaign(args.campaign, check_files=False)  # marker files are not needed here
+    from ident.model.multijoint import multijoint_trials
+    from ident.model.record import check_campaign_motion
+
+    check_campaign_motion(camp, camp.load_robot().n)    # braked joints must stay still
+    multi = multijoint_trials(camp)
+    if multi:
+        import dataclasses
+
+        camp_multi = camp
+        camp = dataclasses.replace(camp, trials=tuple(t for t in camp.trials if t not in multi))
+        if not camp.trials:
+            return _run_multijoint(args, camp_multi, models)
+        raise InputError(f"the campaign mixes multi-joint trials ({multi[0].id!r}, ...) with "
+                         "single-joint ones; fit them from two manifests", path=camp.manifest)
     inputs = [camp.root] + ([args.angles] if args.angles else [])
     if args.angles is not None and not args.angles.is_dir():
         raise InputError("--angles must be a folder", path=args.angles)
@@ -138,6 +161,54 @@ def run(args) -> int:
         print(f"C export -> {', '.join(str(p) for p in exported)}")
     if export_note:
         print(f"note: {export_note}")
+    return 0
+
+
+def _run_multijoint(args, camp, models) -> int:
+    """Multi-joint continuous records: the URDF rigid-body model jointly with per-joint friction
+    of every asked model, torque offsets, actuator inertias and coupled motors
+    (:mod:`ident.model.rigidbody`)."""
+    from ident.friction import MODELS
+    from ident.model.multijoint import fit_multijoint_campaign
+    from ident.model.record import RecordSettings
+
+    bad = [m for m in models if m not in MODELS]
+    if bad:
+        raise InputError(f"unknown friction model {bad[0]!r} (known: {', '.join(MODELS)})", label=bad[0])
+    if args.export_c is not None:
+        raise InputError("--export-c is not available for multi-joint records")
+    out = check_out_dir(args.out, [camp.root])
+    try:
+        window = args.window if args.window == "auto" else float(args.window)
+    except ValueError:
+        raise InputError(f"--window must be 'auto' or seconds, got {args.window!r}") from None
+    rs = RecordSettings(derivatives=args.derivatives, window_s=window)
+    res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero_frac=args.v_zero,
+                                  n_starts=args.starts)
+    doc = res.merge_into({"format": 1, "trials": {}, "summary": []})
+    (out / "fits.json").write_text(json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8")
+    paths = res.write(out)
+    if args.json:
+        print(json.dumps(doc, indent=1, allow_nan=False))
+        return 0
+    print(f"{len(res.fits)} multi-joint record(s), models {', '.join(models)} -> {out / 'fits.json'}, "
+          f"{paths['rigidbody']}, {paths['rigidbody_report']}")
+    for tid, by_model in res.fits.items():
+        pre = res.preprocessing[tid]
+        print(f"  {tid}: {res.seconds[tid]:.1f} s; " + "; ".join(pre.get("steps", [])))
+        for w in pre.get("warnings", []):
+            print(f"  warning: {w}")
+        for m, fit in by_model.items():
+            for j, e in fit.joints.items():
+                pv = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
+                arm = "merged" if e["armature"] is None else f"{e['armature']:.4g}"
+                print(f"    joint {j} {m}: {pv}; offset {e['offset']:.4g}, armature "
+                      f"{arm}; rms {e['rms']:.4g}, held-out {e['heldout_rms']:.4g} N m"
+                      + (f" [{e['implausible']}]" if e.get("implausible") else ""))
+            for k, v in fit.motors.items():
+                print(f"    coupled motor {k} ({m} fit): " + ", ".join(f"{kk} {vv:.4g}" for kk, vv in v.items()))
+            for n in fit.notes:
+                print(f"note: {n}")
     return 0
 
 

@@ -26,9 +26,25 @@ def log_info(path: Path) -> dict:
     from mocap.io.robotlog import read_robot_log
 
     log = read_robot_log(path)
+    samp = log.sampling().to_dict()
     return {"path": str(path), "n_samples": log.n_samples, "n_joints": log.n_joints,
             "rate_hz": log.rate_hz, "first_time": float(log.time[0]), "last_time": float(log.time[-1]),
-            "columns": list(log.columns())}
+            "sampling": samp, "warnings": samp["warnings"], "columns": list(log.columns())}
+
+
+def _trial_motion(camp, trial, log, n: int) -> tuple[dict, list]:
+    """Peak-to-peak motion per URDF joint and a warning when a joint the trial declares braked
+    moves (``fit`` and ``diagnose`` refuse such a trial)."""
+    import numpy as np
+
+    from ident.model.record import check_braked
+
+    q = log.qm                                  # URDF joints (Campaign.read_log)
+    try:
+        return check_braked(trial, q, path=log.source), []
+    except InputError as exc:
+        lo, hi = np.nanpercentile(q, [0.1, 99.9], axis=0)
+        return {str(j + 1): float(hi[j] - lo[j]) for j in range(n)}, [str(exc)]
 
 
 def campaign_info(path: Path) -> dict:
@@ -39,20 +55,27 @@ def campaign_info(path: Path) -> dict:
     robot = camp.load_robot()
     entries = []
     for kind, name, rec in camp.recordings():
-        m = read_markers(rec.markers)
         log = camp.read_log(rec, robot)
-        wanted = [lb for lb in camp.link_of_label() if lb in m.labels]
-        if kind == "trial":
-            _check_trial_labels(camp, rec, m)
-        e = {"kind": kind, "id": name, "markers": str(rec.markers.relative_to(camp.root)),
+        samp = log.sampling()
+        e = {"kind": kind, "id": name,
+             "markers": str(rec.markers.relative_to(camp.root)) if rec.markers else None,
              "log": str(rec.log.relative_to(camp.root)),
              "duration_s": float(log.time[-1] - log.time[0]),
-             "marker_frames": m.n_frames, "marker_rate_hz": m.rate_hz,
+             "marker_frames": 0, "marker_rate_hz": None,
              "log_samples": log.n_samples, "log_rate_hz": log.rate_hz,
-             "markers_used": len(wanted)}
+             "sampling": samp.to_dict(), "warnings": list(samp.warnings), "markers_used": 0}
+        if rec.markers is not None:
+            m = read_markers(rec.markers)
+            if kind == "trial":
+                _check_trial_labels(camp, rec, m)
+            e.update({"marker_frames": m.n_frames, "marker_rate_hz": m.rate_hz,
+                      "markers_used": len([lb for lb in camp.link_of_label() if lb in m.labels])})
         if kind == "trial":
             e.update({"joints": list(rec.joints), "load_kg": rec.load_kg, "vmax_frac": rec.vmax_frac,
                       "repetition": rec.repetition, "trial_kind": rec.kind})
+            p2p, warn = _trial_motion(camp, rec, log, robot.n)
+            e["peak_to_peak_rad"] = p2p
+            e["warnings"] += warn
         entries.append(e)
     return {"campaign": camp.name, "root": str(camp.root), "robot": robot.describe(),
             "coupling": None if camp.coupling is None else [list(r) for r in camp.coupling],
@@ -85,8 +108,14 @@ def _print_robot(r: dict) -> None:
 
 
 def _print_log(d: dict) -> None:
-    print(f"{d['path']}: {d['n_samples']} samples of {d['n_joints']} joints at {d['rate_hz']:.4g} Hz, "
-          f"time {d['first_time']:.4f} .. {d['last_time']:.4f} s")
+    sp = d["sampling"]
+    print(f"{d['path']}: {d['n_samples']} samples of {d['n_joints']} joints, time {d['first_time']:.4f} .. "
+          f"{d['last_time']:.4f} s")
+    print(f"  step min/median/max {sp['step_min_s'] * 1e3:.4g}/{sp['step_median_s'] * 1e3:.4g}/"
+          f"{sp['step_max_s'] * 1e3:.4g} ms (median rate {sp['rate_hz']:.4g} Hz), "
+          f"{sp['n_repeated']} repeated rows")
+    for w in d["warnings"]:
+        print(f"  warning: {w}")
     print(f"  columns: {', '.join(d['columns'])}")
 
 
@@ -95,17 +124,25 @@ def _print_campaign(d: dict) -> None:
     _print_robot(d["robot"])
     if d.get("coupling"):
         print(f"  coupling (q_urdf = coupling @ q_log): {d['coupling']}")
-    print("markers:")
-    for link, labels in d["markers"].items():
-        print(f"  {link}: {', '.join(labels)}")
+    if d["markers"]:
+        print("markers:")
+        for link, labels in d["markers"].items():
+            print(f"  {link}: {', '.join(labels)}")
+    else:
+        print("markers: none (a campaign without motion capture: the logged angles are the link angles)")
     print("recordings:")
     for e in d["recordings"]:
         extra = ""
         if e["kind"] == "trial":
             extra = (f" joints {e['joints']} load {e['load_kg']:g} kg vmax {e['vmax_frac']:g} "
                      f"rep {e['repetition']} {e['trial_kind']}")
-        print(f"  {e['kind']:<6} {e['id']:<28} {e['duration_s']:8.2f} s  {e['marker_frames']} frames "
-              f"@ {e['marker_rate_hz']:g} Hz, {e['log_samples']} log samples @ {e['log_rate_hz']:.4g} Hz{extra}")
+        mk = (f"{e['marker_frames']} frames @ {e['marker_rate_hz']:g} Hz, " if e["markers"] else "")
+        sp = e["sampling"]
+        print(f"  {e['kind']:<6} {e['id']:<28} {e['duration_s']:8.2f} s  {mk}{e['log_samples']} log "
+              f"samples, step min/median/max {sp['step_min_s'] * 1e3:.3g}/{sp['step_median_s'] * 1e3:.3g}/"
+              f"{sp['step_max_s'] * 1e3:.3g} ms, {sp['n_repeated']} repeated rows{extra}")
+        for w in e["warnings"]:
+            print(f"    warning: {w}")
 
 
 def run(args) -> int:

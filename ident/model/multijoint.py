@@ -1,0 +1,165 @@
+"""Multi-joint trials of a campaign (``joints = [1, 2, ...]``, one continuous record) through the
+rigid-body identification (:mod:`ident.model.rigidbody`): ``fits.json`` entries (FORMAT.md),
+``rigidbody.json`` with every diagnostic, and a Markdown report that says what was done."""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ident.common import to_jsonable
+from ident.model.record import RecordSettings, load_record
+
+
+def _g(x) -> str:
+    return "merged" if x is None else f"{x:.4g}"
+
+
+def multijoint_trials(campaign) -> tuple:
+    """Trials that move several joints at once."""
+    return tuple(t for t in campaign.trials if len(t.joints) > 1)
+
+
+@dataclass(frozen=True, eq=False)
+class MultiJointFits:
+    """``fits[trial id][model]`` -> :class:`ident.model.rigidbody.RigidBodyFit`, with each trial's
+    preprocessing report."""
+
+    fits: dict
+    preprocessing: dict
+    seconds: dict = field(default_factory=dict)
+
+    def trials_entry(self) -> dict:
+        """The ``trials`` part of fits.json: trial -> joint -> model -> params/stderr/rms/..."""
+        out = {}
+        for tid, by_model in self.fits.items():
+            for m, fit in by_model.items():
+                for j, e in fit.joints.items():
+                    out.setdefault(tid, {}).setdefault(j, {})[m] = {
+                        "params": e["params"], "stderr": e.get("stderr", {}), "rms": e["rms"],
+                        "heldout_rms": e["heldout_rms"], "offset": e["offset"],
+                        "armature": e["armature"], "model": m, "method": "multi-joint rigid-body",
+                        **({"implausible": e["implausible"]} if e.get("implausible") else {})}
+        return out
+
+    def summary(self) -> list:
+        """fits.json summary rows (mean and coefficient of variation over the multi-joint
+        trials; implausible estimates left out)."""
+        vals = {}
+        for by_model in self.fits.values():
+            for m, fit in by_model.items():
+                for j, e in fit.joints.items():
+                    if e.get("implausible"):
+                        continue
+                    for k, v in e["params"].items():
+                        vals.setdefault((int(j), m, k), []).append(float(v))
+        rows = []
+        for (j, m, k), v in sorted(vals.items()):
+            a = np.asarray(v)
+            cv = float(100 * a.std(ddof=1) / abs(a.mean())) if a.size > 1 and a.mean() else None
+            rows.append({"joint": j, "load_kg": 0.0, "vmax_frac": 1.0, "model": m, "param": k,
+                         "mean": float(a.mean()), "cv_percent": cv, "n_trials": int(a.size),
+                         "source": "multi-joint rigid-body"})
+        return rows
+
+    def to_dict(self) -> dict:
+        return {"format": 1, "trials": {tid: {m: f.to_dict() for m, f in bm.items()}
+                                        for tid, bm in self.fits.items()},
+                "preprocessing": self.preprocessing, "seconds": self.seconds}
+
+    def merge_into(self, doc: dict) -> dict:
+        """fits.json ``doc`` with these trials and summary rows added."""
+        doc = dict(doc)
+        doc.setdefault("format", 1)
+        trials = dict(doc.get("trials", {}))
+        trials.update(self.trials_entry())
+        doc["trials"] = trials
+        doc["summary"] = list(doc.get("summary", [])) + self.summary()
+        return doc
+
+    def report(self) -> str:
+        lines = ["# Multi-joint identification", ""]
+        for tid, by_model in self.fits.items():
+            pre = self.preprocessing[tid]
+            lines += [f"## Trial `{tid}`", "", "Preprocessing:", ""]
+            lines += [f"- {s}" for s in pre.get("steps", [])]
+            lines += [f"- warning: {w}" for w in pre.get("warnings", [])]
+            for m, fit in by_model.items():
+                lines += ["", f"### {m}", "", f"Method: {fit.method}.", ""]
+                pn = None
+                for j, e in fit.joints.items():
+                    if pn is None:
+                        pn = list(e["params"])
+                        lines += ["| joint | " + " | ".join(pn) + " | offset | armature | rms | held-out rms |",
+                                  "|---" * (len(pn) + 5) + "|"]
+                    lines.append(f"| {j} | " + " | ".join(f"{e['params'][k]:.4g}" for k in pn)
+                                 + f" | {e['offset']:.4g} | {_g(e['armature'])} | {e['rms']:.4g} | "
+                                 f"{e['heldout_rms']:.4g} |")
+                if fit.motors:
+                    lines += ["", "Coupled motors (log coordinates, link side): " + "; ".join(
+                        f"motor {k}: " + ", ".join(f"{kk} {vv:.4g}" for kk, vv in v.items())
+                        for k, v in fit.motors.items())]
+                lines += [f"- note: {n}" for n in fit.notes]
+        return "\n".join(lines) + "\n"
+
+    def write(self, out: Path) -> dict:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        p_json = out / "rigidbody.json"
+        p_json.write_text(json.dumps(to_jsonable(self.to_dict()), indent=1, allow_nan=False),
+                          encoding="utf-8")
+        p_md = out / "rigidbody.md"
+        p_md.write_text(self.report(), encoding="utf-8")
+        return {"rigidbody": p_json, "rigidbody_report": p_md}
+
+
+def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | None = None,
+                            seed: int = 0, **settings) -> MultiJointFits:
+    """Identify every multi-joint trial of ``campaign`` with every friction model."""
+    import time
+
+    from ident.model.regressor import ChainDynamics, base_parameters
+    from ident.model.rigidbody import RigidBodyIdentifier
+
+    robot = campaign.load_robot()
+    chain = ChainDynamics.from_model(robot.model)
+    base = base_parameters(chain, robot.lower, robot.upper, seed=seed)
+    fits, pre, secs = {}, {}, {}
+    for tr in multijoint_trials(campaign):
+        t0 = time.perf_counter()
+        rec = load_record(campaign, tr, robot, record)
+        pre[tr.id] = rec.preprocessing
+        fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **settings).fit(rec)
+                       for m in models}
+        secs[tr.id] = time.perf_counter() - t0
+    return MultiJointFits(fits, pre, secs)
+
+
+def diagnose_records(campaign, robot, settings, joints=None, record: RecordSettings | None = None,
+                     n_segments: int = 6, progress: bool = False) -> tuple[dict, dict]:
+    """The gap diagnosis of every moving joint of every multi-joint trial, from the CLI: each
+    trial is prepared like `fit` does (:func:`ident.model.record.load_record`: repeated rows,
+    irregular steps, derivatives, coupling, braked-joint check) and handed to
+    ``ident.gap.data.build_joint_data_record`` (torque channel, ``n_segments`` contiguous
+    held-out segments) and ``ident.gap.diagnose_joint``. Returns ``(joints, series)`` keyed
+    ``"<joint>"`` (one multi-joint trial) or ``"<trial>/<joint>"`` (several)."""
+    from ident.gap import diagnose_joint
+    from ident.gap.data import build_joint_data_record
+
+    trials = multijoint_trials(campaign)
+    reports, series = {}, {}
+    for tr in trials:
+        rec = load_record(campaign, tr, robot, record)
+        for j in tr.joints:
+            if joints and j not in joints:
+                continue
+            d = build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
+            rep = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
+            rep["record"] = {"trial": tr.id, "preprocessing": rec.preprocessing,
+                             "folds": f"leave-one-segment-out ({n_segments} contiguous segments)"}
+            key = str(j) if len(trials) == 1 else f"{tr.id}/{j}"
+            series[key] = rep.pop("_series", None)
+            reports[key] = rep
+    return reports, series
