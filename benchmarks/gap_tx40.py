@@ -32,9 +32,7 @@ def diagnose_tx40(folder: Path, decimate: int = 5, n_segments: int = 20, seed: i
     out = {}
     for j in range(1, 7):
         d = build_joint_data_record(j, t, q, qd, qdd, tau, robot, armature=arm, n_segments=n_segments)
-        rep = diagnose_joint(d, DiagnosisSettings(seed=seed))
-        rep.pop("_series", None)
-        out[str(j)] = rep
+        out[str(j)] = diagnose_joint(d, DiagnosisSettings(seed=seed)).to_dict()
     return out
 
 

@@ -19,7 +19,7 @@ def worlds(tmp_path_factory):
         key = (effect, magnitude, seed)
         if key not in cache:
             rb, trials, logs, angles, _ = make_world(tmp_path_factory.mktemp(effect), effect, magnitude, seed)
-            cache[key] = diagnose_joint(build_joint_data(2, trials, logs, rb, angles), SETTINGS)
+            cache[key] = diagnose_joint(build_joint_data(2, trials, logs, rb, angles), SETTINGS).to_dict()
         return cache[key]
     return get
 
@@ -63,7 +63,7 @@ def test_stribeck_gap_is_localised_at_low_speed(worlds):
 
 def test_torque_scale_needs_a_payload_change(tmp_path):
     rb, trials, logs, angles, _ = make_world(tmp_path, "torque_scale", 1.0, seed=2, loads=(2.0,))
-    rep = diagnose_joint(build_joint_data(2, trials, logs, rb, angles), SETTINGS)
+    rep = diagnose_joint(build_joint_data(2, trials, logs, rb, angles), SETTINGS).to_dict()
     row = next(e for e in rep["effects"] if e["effect"] == "torque_scale")
     assert row["identifiable"] is False and "not identifiable" in row["note"]
     assert rep["verdict"] != "torque_scale"
@@ -103,7 +103,7 @@ def test_continuous_multi_joint_record(tmp_path, effect):
         tau[:, 1] += 1.5 * np.sign(qd[:, 1]) * np.exp(-(np.abs(qd[:, 1]) / 0.08) ** 2)
     tau += rng.normal(0, 0.05, tau.shape)
     d = build_joint_data_record(2, t, q, qd, qdd, tau, rb, n_segments=20)
-    rep = diagnose_joint(d, SETTINGS)
+    rep = diagnose_joint(d, SETTINGS).to_dict()
     assert rep["verdict"] == effect
     assert rep["n_trials"] == 20 and rep["folds"] == "leave-one-trial-out"
 

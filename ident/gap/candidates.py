@@ -16,6 +16,8 @@ from typing import Callable
 
 import numpy as np
 
+from ident.effects import REGISTRY
+
 V_EPS = 2e-3  # rad/s: width of the smoothed sign used for Coulomb-type terms
 
 
@@ -54,6 +56,7 @@ class Candidate:
     grid: tuple
     columns: Callable  # (JointData, hp) -> (N, k)
     describe: Callable = lambda hp: ""  # noqa: E731
+    family: str = ""
 
 
 def _stribeck(d, hp):
@@ -120,52 +123,56 @@ def _time_offset(d, hp):
     return d.qd_m[:, None]
 
 
-def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
-    ripple_k = list(range(1, 49))
+def _ripple_grid(gear_ratio):
+    ks = list(range(1, 49))
     if gear_ratio and gear_ratio > 48:
-        ripple_k += [gear_ratio, 2 * gear_ratio]
-    return [
-        Candidate("stribeck", "torque",
-                  tuple((vs, sh) for vs in np.geomspace(0.005, 0.4, 12) for sh in (0.5, 1.0, 2.0)),
-                  _stribeck, lambda hp: f"Stribeck velocity {hp[0]:.3g} rad/s, shape exponent {hp[1]:g}"),
-        Candidate("presliding", "torque", tuple(np.geomspace(1e-4, 3e-2, 12)), _presliding,
-                  lambda hp: f"presliding length {hp:.2e} rad"),
-        Candidate("position_ripple", "torque", tuple(float(k) for k in ripple_k), _ripple,
-                  lambda hp: f"{hp:g} cycles per joint revolution"),
-        Candidate("load_dependent", "torque", ("gravity", "rigid"), _load,
-                  lambda hp: f"Coulomb level growing with |{'gravity' if hp == 'gravity' else 'rigid-body'} torque|"),
-        Candidate("thermal_drift", "torque", tuple(np.geomspace(20, 5000, 10)) + (np.inf,), _thermal,
-                  lambda hp: "linear drift over the campaign" if not np.isfinite(hp)
-                  else f"warm-up time constant {hp:.0f} s"),
-        Candidate("torque_scale", "torque", (None,), _scale, lambda hp: "torque proportional to rigid-body torque"),
-        Candidate("asymmetry", "torque", (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous"),
-        Candidate("nonlinear_viscous", "torque", (0.5, 1.5, 2.0, 3.0), _nlv,
-                  lambda hp: f"viscous term |qd|^{hp:g}"),
-        Candidate("compliance", "transmission", (None,), _compliance,
-                  lambda hp: "deflection proportional to transmitted torque"),
-        Candidate("backlash", "transmission",
-                  tuple(("torque", w) for w in (0.005, 0.02, 0.05)) + tuple(("motion", w) for w in (0.002, 0.01)),
-                  _backlash, lambda hp: f"dead band switching with {hp[0]} sign"),
-        Candidate("time_offset", "transmission", (None,), _time_offset,
-                  lambda hp: "marker clock shifted: q_link(t) = q(t + dt)"),
-    ]
+        ks += [gear_ratio, 2 * gear_ratio]
+    return tuple(float(k) for k in ks)
 
 
-# Which effects look alike in a campaign, and the experiment that separates them.
-CONFOUNDERS = {
-    "stribeck": (["presliding", "nonlinear_viscous"],
-                 "constant-velocity sweeps at several low speeds (Stribeck curve) against reversals at several accelerations (presliding)"),
-    "presliding": (["stribeck", "backlash"],
-                   "reversals at several accelerations with small amplitude (presliding hysteresis) and a marker-based link angle (backlash)"),
-    "position_ripple": (["thermal_drift"], "constant-velocity sweeps over the full joint range in both directions"),
-    "load_dependent": (["torque_scale", "asymmetry"],
-                       "the same trajectory at two or more payloads with both gravity signs"),
-    "thermal_drift": (["load_dependent", "position_ripple"],
-                      "repeat one reference trajectory at the start and the end of the campaign, and after a rest"),
-    "torque_scale": (["load_dependent"], "trials at two or more payloads (a torque scale is invisible with one payload)"),
-    "asymmetry": (["position_ripple"], "constant-velocity sweeps in both directions over the same range"),
-    "nonlinear_viscous": (["stribeck"], "constant-velocity sweeps up to the maximum speed"),
-    "compliance": (["backlash", "time_offset"], "quasi-static trials at several payloads (deflection vs torque)"),
-    "backlash": (["compliance", "presliding"], "slow reversals under low load with markers on the link"),
-    "time_offset": (["compliance"], "a fast sinusoid at low load: a clock shift grows with speed, a deflection with torque"),
+# Candidate families by name; ident.effects declares which effect each one stands for.
+# name -> (channel, grid(gear_ratio), columns, describe)
+FAMILIES = {
+    "stribeck": ("torque",
+                 lambda g: tuple((vs, sh) for vs in np.geomspace(0.005, 0.4, 12) for sh in (0.5, 1.0, 2.0)),
+                 _stribeck, lambda hp: f"Stribeck velocity {hp[0]:.3g} rad/s, shape exponent {hp[1]:g}"),
+    "presliding": ("torque", lambda g: tuple(np.geomspace(1e-4, 3e-2, 12)), _presliding,
+                   lambda hp: f"presliding length {hp:.2e} rad"),
+    "position_ripple": ("torque", _ripple_grid, _ripple, lambda hp: f"{hp:g} cycles per joint revolution"),
+    "load_dependent": ("torque", lambda g: ("gravity", "rigid"), _load,
+                       lambda hp: f"Coulomb level growing with |{'gravity' if hp == 'gravity' else 'rigid-body'} torque|"),
+    "thermal_drift": ("torque", lambda g: tuple(np.geomspace(20, 5000, 10)) + (np.inf,), _thermal,
+                      lambda hp: "linear drift over the campaign" if not np.isfinite(hp)
+                      else f"warm-up time constant {hp:.0f} s"),
+    "torque_scale": ("torque", lambda g: (None,), _scale, lambda hp: "torque proportional to rigid-body torque"),
+    "asymmetry": ("torque", lambda g: (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous"),
+    "nonlinear_viscous": ("torque", lambda g: (0.5, 1.5, 2.0, 3.0), _nlv, lambda hp: f"viscous term |qd|^{hp:g}"),
+    "compliance": ("transmission", lambda g: (None,), _compliance,
+                   lambda hp: "deflection proportional to transmitted torque"),
+    "backlash": ("transmission",
+                 lambda g: tuple(("torque", w) for w in (0.005, 0.02, 0.05)) + tuple(("motion", w) for w in (0.002, 0.01)),
+                 _backlash, lambda hp: f"dead band switching with {hp[0]} sign"),
+    "time_offset": ("transmission", lambda g: (None,), _time_offset,
+                    lambda hp: "marker clock shifted: q_link(t) = q(t + dt)"),
 }
+
+
+def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
+    """One candidate per (effect, family) of the registry (:mod:`ident.effects`); a candidate's
+    ``name`` is the effect it stands for, ``family`` the form tested."""
+    out = []
+    for spec in REGISTRY.values():
+        for fam in spec.families:
+            channel, grid, columns, describe = FAMILIES[fam]
+            out.append(Candidate(spec.name, channel, grid(gear_ratio), columns, describe, fam))
+    return out
+
+
+def confounders(name: str) -> tuple[list, str]:
+    """(effects confused with ``name``, the experiment that separates them), from the registry."""
+    sp = REGISTRY.get(name)
+    return (list(sp.confounders), sp.separating_experiment) if sp else ([], "")
+
+
+#: name -> (confounders, separating experiment), read from the registry
+CONFOUNDERS = {n: confounders(n) for n, sp in REGISTRY.items() if sp.families}

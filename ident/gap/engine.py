@@ -77,9 +77,7 @@ class CVResult:
     theta_all: np.ndarray      # fit on all trials with the hp chosen on all trials
     hp_all: object
     train_sse_all: float
-    identifiable: bool = True
-    note: str = ""
-    extra: dict = field(default_factory=dict)
+    theta_per_fold: dict = field(default_factory=dict)  # fold -> theta fitted without it
 
 
 def _best_fit(grams_by_hp: dict, mask: np.ndarray):
@@ -100,14 +98,15 @@ def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_trials: np.ndarray |
     nt = fold.shape[0]
     fit_mask = np.ones(nt, bool) if fit_trials is None else fit_trials
     sse = np.zeros(nt)
-    chosen = {}
+    chosen, thetas = {}, {}
     for f in np.unique(fold):
         test = fold == f
         _, hp, th = _best_fit(grams_by_hp, ~test & fit_mask)
         chosen[f] = hp
+        thetas[f] = th
         sse[test] = sse_with(th, grams_by_hp[hp], test)
     tr, hp, th = _best_fit(grams_by_hp, fit_mask)
-    return CVResult(sse, chosen, th, hp, tr)
+    return CVResult(sse, chosen, th, hp, tr, thetas)
 
 
 def unexplained_fraction(gr: Grams, p: int) -> float:
