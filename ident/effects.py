@@ -78,7 +78,7 @@ _SPECS = (
         ("presliding", "nonlinear_viscous"),
         "constant-velocity sweeps at several low speeds (Stribeck curve) against reversals at several "
         "accelerations (presliding)",
-        ("stribeck",),
+        ("stribeck_exponential", "stribeck_rational"),
         lambda M, s, ctx: {"S": M * s["static_ratio"] * ctx.c, "Vc": s["Vc"]}),
     EffectSpec(
         "presliding", "torque",
@@ -89,14 +89,14 @@ _SPECS = (
         ("stribeck", "backlash"),
         "reversals at several accelerations with small amplitude (presliding hysteresis) and a "
         "marker-based link angle (backlash)",
-        ("presliding",), _presliding),
+        ("presliding_bristle", "presliding_maxwell"), _presliding),
     EffectSpec(
         "position_ripple", "torque",
         "torque periodic in the joint angle: an additive ripple (cogging, harmonic-drive orders and "
         "their aliases) or a modulation of the friction level along the angle",
         "tau_r = A sin(n q + phi) on the link", {"ratio": 0.10, "harmonic": 36, "phase": 0.7},
-        ("thermal_drift",), "constant-velocity sweeps over the full joint range in both directions",
-        ("position_ripple",),
+        ("thermal",), "constant-velocity sweeps over the full joint range in both directions",
+        ("ripple_additive", "ripple_modulation"),
         lambda M, s, ctx: {"ripple_A": M * s["ratio"] * ctx.c, "ripple_n": int(s["harmonic"]),
                            "ripple_phi": float(s["phase"])}),
     EffectSpec(
@@ -104,7 +104,7 @@ _SPECS = (
         "Coulomb level growing with the torque the transmission carries (gravity, inertial, payload)",
         "c_eff = c + mu |tau_g(q)|, tau_g the gravity + payload torque", {"mu": 0.08},
         ("torque_scale", "asymmetry"), "the same trajectory at two or more payloads with both gravity signs",
-        ("load_dependent",),
+        ("load_transmitted",),
         lambda M, s, ctx: {"mu": M * s["mu"]}),
     EffectSpec(
         "thermal_drift", "torque",
@@ -113,7 +113,7 @@ _SPECS = (
         {"cold_excess": 0.30, "tau_fraction": 1.0 / 3.0},
         ("load_dependent", "position_ripple"),
         "repeat one reference trajectory at the start and the end of the campaign, and after a rest",
-        ("thermal_drift",),
+        ("thermal",),
         lambda M, s, ctx: {"thermal_h": M * s["cold_excess"],
                            "thermal_tau": max(ctx.campaign_length_s * s["tau_fraction"], 1.0)}),
     EffectSpec(
@@ -135,18 +135,18 @@ _SPECS = (
         "logged torque a constant (or direction-dependent) multiple of the applied torque: torque "
         "constant or gear efficiency error",
         "logged torque = (1 + s) u", {"scale_error": 0.15},
-        ("load_dependent",), "trials at two or more payloads (a torque scale is invisible with one payload)",
-        ("torque_scale",),
+        ("load_transmitted",), "trials at two or more payloads (a torque scale is invisible with one payload)",
+        ("torque_gain",),
         lambda M, s, ctx: {"torque_gain": 1.0 + M * s["scale_error"]}),
     EffectSpec(
         "asymmetry", "torque", "Coulomb and/or viscous friction different in the two directions",
         "c+- = c (1 +- a/2), v+- = v (1 +- a/2)", {"a": 0.25},
-        ("position_ripple",), "constant-velocity sweeps in both directions over the same range",
+        ("ripple_additive", "ripple_modulation"), "constant-velocity sweeps in both directions over the same range",
         ("asymmetry",), _asymmetry),
     EffectSpec(
         "nonlinear_viscous", "torque", "viscous friction not proportional to speed",
         "f += w qd |qd|", {"ratio": 0.3},
-        ("stribeck",), "constant-velocity sweeps up to the maximum speed",
+        ("stribeck_exponential", "stribeck_rational"), "constant-velocity sweeps up to the maximum speed",
         ("nonlinear_viscous",),
         lambda M, s, ctx: {"w": M * s["ratio"] * ctx.v / ctx.vmax}),
     EffectSpec(

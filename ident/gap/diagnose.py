@@ -23,7 +23,7 @@ import numpy as np
 from ident.gap.candidates import Candidate, candidate_effects, confounders, ssign
 from ident.gap.data import JointData
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
-                              repetition_noise_floor, sign_flip_pvalue, trial_bounds, unexplained_fraction,
+                              repetition_noise_floor, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
 
@@ -103,7 +103,7 @@ class _Transmission:
     """View of JointData whose arrays are the marker-clock ones (for candidate columns)."""
 
     def __init__(self, d: JointData):
-        self.y_m, self.qd_m, self.trial = d.y_m, d.qd_m, d.trial_m
+        self.y_m, self.qd_m, self.trial, self.tau_m, self.t_m = d.y_m, d.qd_m, d.trial_m, d.tau_m, d.t_m
 
 
 def _cv(channel: Channel, X: np.ndarray, fold: np.ndarray, gb: dict | None = None, base=None):
@@ -122,19 +122,36 @@ def _columns(cand: Candidate, d: JointData, hp):
     return np.asarray(cand.columns(src, hp), float)
 
 
-def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base) -> dict:
-    """(family, hp) -> Grams of ``[X | C]`` over every family and shape parameter of one effect,
-    built once; shapes whose columns lie in the span of ``X`` are left out."""
+def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base) -> tuple[dict, dict]:
+    """(candidate, hp) -> Grams of ``[X | C]`` over every family and shape parameter of one
+    effect, built once. Columns that lie in the span of ``X`` (e.g. a direction-independent
+    Coulomb excess when the nominal model has a torque offset) are dropped; a shape with no
+    column left is left out. ``cols`` keeps the columns used and which of the family's columns
+    they are (for the sign check)."""
     out, cols = {}, {}
+    p = X.shape[1]
     for cand in cands:
         for hp in cand.grid:
             C = ch.prep(_columns(cand, d, hp))
-            g = grams_augmented(base, X, C, ch.target, ch.bounds)
-            if unexplained_fraction(g, X.shape[1]) < 1e-3:
+            if C.shape[0] == 0 or not np.all(np.isfinite(C)):
                 continue
+            g = grams_augmented(base, X, C, ch.target, ch.bounds)
+            keep = unexplained_fractions(g, p) >= 1e-3
+            if not keep.any():
+                continue
+            if not keep.all():
+                C = C[:, keep]
+                g = grams_augmented(base, X, C, ch.target, ch.bounds)
             out[(cand, hp)] = g
-            cols[(cand, hp)] = C
+            cols[(cand, hp)] = (C, keep)
     return out, cols
+
+
+def _amplitudes(theta: np.ndarray, p: int, keep: np.ndarray) -> np.ndarray:
+    """The family's amplitudes from a fit of ``[X | C]`` (zeros for dropped columns)."""
+    a = np.zeros(keep.shape[0])
+    a[keep] = theta[p:]
+    return a
 
 
 def _rms(sse, n):
@@ -194,13 +211,16 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 rows[name] = _Row(name, EffectTest(name, ch.name, False, note=NOT_IDENTIFIABLE))
                 continue
             cvr, _ = _cv(ch, X, fold, gb)
+            cand, hp = cvr.hp_all
+            physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all][1])))
             p = sign_flip_pvalue(current_sse - cvr.sse, settings.n_perm, settings.seed)
             pvals[name] = p
             mse_e = float(cvr.sse.sum() / n_tot)
             mse_cur = float(current_sse.sum() / n_tot)
-            cand, hp = cvr.hp_all
             rows[name] = _Row(name, EffectTest(
-                name, ch.name, True, family=cand.family, heldout_rms=float(np.sqrt(mse_e)),
+                name, ch.name, True, family=cand.family, physical=physical,
+                note="" if physical else f"best fit has the unphysical sign for {name}: not this effect",
+                heldout_rms=float(np.sqrt(mse_e)),
                 reduction=float(1 - np.sqrt(mse_e / mse_nom)) if mse_nom > 0 else 0.0,
                 reduction_step=float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
                 explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
@@ -211,7 +231,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 continue
             t = r.test
             r.test = replace(t, p_adjusted=adj[name], significant=bool(
-                adj[name] < settings.alpha and t.explained_share >= settings.min_explained
+                t.physical and adj[name] < settings.alpha and t.explained_share >= settings.min_explained
                 and t.reduction_step >= settings.min_reduction))
         if tested_first is None:
             tested_first = rows
@@ -222,7 +242,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         t = best.test
         steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
                                     t.explained_share, t.shape, t.family), best.cv.sse))
-        C = best.cols[best.cv.hp_all]
+        C = best.cols[best.cv.hp_all][0]
         base = grams_augmented(base, X, C, ch.target, ch.bounds)
         X = np.column_stack([X, C])
         current_sse = best.cv.sse
@@ -322,6 +342,13 @@ def _channel_result(ch: Channel, res: _ChannelRun, settings: DiagnosisSettings) 
 
 def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings(),
                    gear_ratio: float | None = None) -> DiagnosisResult:
+    from ident.signals.smoothing import one_blas_thread
+
+    with one_blas_thread():
+        return _diagnose_joint(d, settings, gear_ratio)
+
+
+def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None) -> DiagnosisResult:
     nominal = NOMINAL_MODELS[settings.nominal]
     cands = candidate_effects(gear_ratio)
     channels = [_torque_channel(d, nominal)]

@@ -109,6 +109,19 @@ def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_trials: np.ndarray |
     return CVResult(sse, chosen, th, hp, tr, thetas)
 
 
+def unexplained_fractions(gr: Grams, p: int) -> np.ndarray:
+    """Per column after the first ``p``: the share of its norm outside the span of the first
+    ``p`` columns (0..1), from the pooled Gram matrix (Schur complement)."""
+    G = gr.G.sum(axis=0)
+    Gcc = G[p:, p:]
+    if p:
+        Gxx, Gxc = G[:p, :p], G[:p, p:]
+        S = Gcc - Gxc.T @ np.linalg.lstsq(Gxx, Gxc, rcond=None)[0]
+    else:
+        S = Gcc
+    return np.sqrt(np.clip(np.diag(S), 0, None) / np.maximum(np.diag(Gcc), 1e-300))
+
+
 def unexplained_fraction(gr: Grams, p: int) -> float:
     """How much of the columns after the first ``p`` lies outside the span of the first ``p``
     (0..1), from the pooled Gram matrix (Schur complement): 0 means not identifiable."""
