@@ -23,7 +23,7 @@ import numpy as np
 from ident.gap.candidates import Candidate, candidate_effects, confounders, ssign
 from ident.gap.data import JointData
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
-                              repetition_noise_floor, sign_flip_pvalue, trial_bounds, unexplained_fractions,
+                              repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
 
@@ -154,6 +154,13 @@ def _amplitudes(theta: np.ndarray, p: int, keep: np.ndarray) -> np.ndarray:
     return a
 
 
+def nominal_heldout_rms(d: JointData, nominal: str = "cv") -> float:
+    """Held-out torque RMS of the nominal model (leave-one-fold-out), for data-preparation choices."""
+    ch = _torque_channel(d, NOMINAL_MODELS[nominal])
+    cv, _ = _cv(ch, ch.X0, d.fold)
+    return _rms(cv.sse, ch.bounds[:, 1] - ch.bounds[:, 0])
+
+
 def _rms(sse, n):
     return float(np.sqrt(np.sum(sse) / max(np.sum(n), 1)))
 
@@ -178,10 +185,59 @@ class _ChannelRun:
     first: dict
     steps: list
     final_sse: np.ndarray
+    n_blocks: int = 0
+    p_min: float = 1.0            # smallest p the block sign-flip test can give
+    n_tested: int = 0             # identifiable candidates (Holm's multiplier at the first step)
+
+    def powerless(self, alpha: float) -> bool:
+        """True when even the most extreme outcome cannot pass Holm's first threshold."""
+        return self.n_tested > 0 and self.p_min * self.n_tested >= alpha
 
 
 NOT_IDENTIFIABLE = ("not identifiable from this campaign: its signature is indistinguishable from the "
                     "nominal model's parameters")
+
+
+def _sse(X: np.ndarray, y: np.ndarray) -> float:
+    th = np.linalg.lstsq(X, y, rcond=None)[0]
+    r = y - X @ th
+    return float(r @ r)
+
+
+def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray) -> "_Row":
+    """Choose among significant candidates by their signatures, not only by fit quality.
+
+    For the best-fitting candidate and each of its registered confounders that was tested
+    (significant or not), fit both together: each one's *unique* share is the part of its own
+    SSE reduction that survives when the other is in the model (an encompassing test: backlash
+    keeps a jump at torque reversals that a compliance slope cannot make; load-dependent friction
+    keeps a velocity-signed term that a torque gain cannot make; ...). The evidence is recorded on
+    both rows; when the leader's signature is explained by a significant confounder while the
+    confounder's is not explained by the leader, the confounder is chosen."""
+    best = max(sig, key=lambda r: r.test.explained_share)
+    y = ch.target
+    s0 = _sse(X, y) if X.shape[1] else float(y @ y)
+
+    def cols(r):
+        return r.cols[r.cv.hp_all][0]
+
+    choice = best
+    conf, _ = confounders(best.effect)
+    for name in conf:
+        other = rows.get(name)
+        if other is None or not other.test.identifiable or other.cv is None:
+            continue
+        Ca, Cb = cols(best), cols(other)
+        sa, sb = _sse(np.column_stack([X, Ca]), y), _sse(np.column_stack([X, Cb]), y)
+        sab = _sse(np.column_stack([X, Ca, Cb]), y)
+        ua = (sb - sab) / max(s0 - sa, 1e-300)   # leader's reduction left given the confounder
+        ub = (sa - sab) / max(s0 - sb, 1e-300)
+        best.test = replace(best.test, evidence={**best.test.evidence, f"unique_share_given_{name}": float(ua)})
+        other.test = replace(other.test, evidence={**other.test.evidence,
+                                                   f"unique_share_given_{best.effect}": float(ub)})
+        if other.test.significant and ua < 0.2 and ub > 0.5 and choice is best:
+            choice = other
+    return choice
 
 
 def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSettings) -> _ChannelRun:
@@ -203,6 +259,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     for c in cands:
         if c.channel == ch.name:
             by_effect.setdefault(c.name, []).append(c)
+    n_blocks = int(np.sum(n_per_trial > 0))
+    p_min = sign_flip_min_p(n_blocks, settings.n_perm)
     for step in range(settings.max_effects):
         rows, pvals = {}, {}
         for name, group in by_effect.items():
@@ -224,7 +282,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 reduction=float(1 - np.sqrt(mse_e / mse_nom)) if mse_nom > 0 else 0.0,
                 reduction_step=float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
                 explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
-                p_value=p, shape=cand.describe(hp)), cvr, cols)
+                p_value=p, p_min_attainable=p_min, shape=cand.describe(hp)), cvr, cols)
         adj = holm(pvals)
         for name, r in rows.items():
             if not r.test.identifiable:
@@ -238,7 +296,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         sig = [r for r in rows.values() if r.test.significant]
         if not sig:
             break
-        best = max(sig, key=lambda r: r.test.explained_share)
+        best = _discriminate(sig, rows, ch, X)
         t = best.test
         steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
                                     t.explained_share, t.shape, t.family), best.cv.sse))
@@ -247,8 +305,9 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         X = np.column_stack([X, C])
         current_sse = best.cv.sse
         by_effect.pop(best.effect)
+    n_tested = sum(1 for r in (tested_first or {}).values() if r.test.identifiable)
     return _ChannelRun(nominal_sse, base_cv, n_per_trial, noise, mse_nom, tested_first or {}, steps,
-                       current_sse)
+                       current_sse, n_blocks, p_min, n_tested)
 
 
 def _stability(res: _ChannelRun, settings: DiagnosisSettings) -> dict:
@@ -280,46 +339,34 @@ def _regime_masks(d: JointData) -> dict:
         np.add.at(marks, np.clip(flips + w + 1, None, aqd.shape[0]), -1)
         rev = np.cumsum(marks)[:-1] > 0
     masks["reversal"] = rev
-    tt = d.t - d.t.min()
-    masks["time"] = tt < 0.25 * tt.max()
-    if np.unique(d.load).size > 1:
-        masks["load"] = d.load == d.load.max()
     return masks
 
 
-def _localise(d: JointData, ch: Channel, noise: float, nominal_sse_resid: np.ndarray) -> list:
-    """Share of the held-out torque gap in each regime, from local refits: the nominal model is
-    refitted without the regime's samples, and the regime's excess residual over the noise floor
-    is what the rest of the data cannot explain there."""
-    fold = d.fold
+#: motion regimes in priority order: each held-out sample belongs to the first that holds
+PARTITION = ("reversal", "low_speed", "high_acceleration", "high_speed")
+
+
+def _localise(d: JointData, noise: float, resid: np.ndarray) -> tuple[list, float]:
+    """Decomposition of the held-out excess (nominal residual power above the noise floor) over
+    non-overlapping motion regimes: every sample is assigned to the first of :data:`PARTITION`
+    that holds, the rest (moderate speed, moderate acceleration) to ``rest``. A regime's share is
+    its excess ``sum r^2 - n sigma^2`` (clipped at 0) over the total; shares and ``rest`` add
+    up to 1. Returns (regime rows sorted by share, rest share)."""
+    masks = _regime_masks(d)
+    taken = np.zeros(resid.shape[0], bool)
     excess = {}
-    for name, m in _regime_masks(d).items():
-        if m.sum() < 20 or (~m).sum() < 50:
-            continue
-        keep = ~m
-        r2 = np.zeros_like(ch.target)
-        for f in np.unique(fold):
-            test_tr = np.flatnonzero(fold == f)
-            train = ~np.isin(ch.trial, test_tr) & keep
-            if train.sum() < ch.X0.shape[1] + 5:
-                continue
-            th = np.linalg.lstsq(ch.X0[train], ch.target[train], rcond=None)[0]
-            te = np.isin(ch.trial, test_tr)
-            r2[te] = (ch.target[te] - ch.X0[te] @ th) ** 2
-        excess[name] = max(float(r2[m].sum() - noise * m.sum()), 0.0)
-    # position: structure of the held-out residual along q that the nominal model leaves
-    nb = 100
-    edges = np.quantile(d.q, np.linspace(0, 1, nb + 1))
-    b = np.clip(np.searchsorted(edges, d.q, side="right") - 1, 0, nb - 1)
-    cnt = np.bincount(b, minlength=nb)
-    sm = np.bincount(b, weights=nominal_sse_resid, minlength=nb)
-    between = float(np.sum(sm ** 2 / np.maximum(cnt, 1)) - nb * noise)
-    excess["position"] = max(between, 0.0)
-    tot = sum(excess.values())
+    r2 = resid ** 2
+    for name in PARTITION:
+        m = masks[name] & ~taken
+        taken |= m
+        if m.any():
+            excess[name] = max(float(r2[m].sum() - noise * m.sum()), 0.0)
+    rest = max(float(r2[~taken].sum() - noise * (~taken).sum()), 0.0)
+    tot = sum(excess.values()) + rest
     if tot <= 0:
-        return [{"regime": k, "share": 0.0} for k in excess]
-    return sorted(({"regime": k, "share": v / tot} for k, v in excess.items()),
-                  key=lambda r: -r["share"])
+        return [{"regime": k, "share": 0.0} for k in excess], 0.0
+    rows = sorted(({"regime": k, "share": v / tot} for k, v in excess.items()), key=lambda r: -r["share"])
+    return rows, rest / tot
 
 
 def _heldout_residual(d: JointData, ch: Channel, cv: CVResult) -> np.ndarray:
@@ -337,7 +384,8 @@ def _channel_result(ch: Channel, res: _ChannelRun, settings: DiagnosisSettings) 
     return ChannelResult(
         ch.name, ch.unit, float(np.sqrt(res.mse_nominal)), bootstrap_ci(res.nominal_sse, n, seed=settings.seed),
         _rms(res.final_sse, n), bootstrap_ci(res.final_sse, n, seed=settings.seed),
-        float(np.sqrt(res.noise_floor_mse)), tuple(s for s, _ in res.steps))
+        float(np.sqrt(res.noise_floor_mse)), tuple(s for s, _ in res.steps), n_blocks=res.n_blocks,
+        p_min_attainable=res.p_min)
 
 
 def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings(),
@@ -375,9 +423,20 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         if c in chres and chres[c].selected:
             verdict = chres[c].selected[0].effect
             break
+    insufficient = ""
+    if verdict == "none":
+        weak = [(c, r) for c, r in runs.items() if r.powerless(settings.alpha)]
+        if weak:
+            c, r = weak[0]
+            need = int(np.ceil(np.log2(2 * r.n_tested / settings.alpha)))
+            insufficient = (f"insufficient data: the {c} channel has {r.n_blocks} independent blocks (trials or "
+                            f"motion cycles); the block sign-flip test's smallest p is {r.p_min:.3g}, times "
+                            f"{r.n_tested} candidates (Holm) >= alpha {settings.alpha:g}, so no effect could be "
+                            f"declared. Record at least {need} blocks (repeat the trajectories, or a longer record "
+                            f"with more motion cycles) to settle it.")
     tch, tres = channels[0], runs["torque"]
     resid = _heldout_residual(d, tch, tres.nominal_cv)
-    localisation = _localise(d, tch, tres.noise_floor_mse, resid)
+    localisation, rest = _localise(d, tres.noise_floor_mse, resid)
     dt = float(np.median(np.diff(d.t_rel[:1000]))) if d.t_rel.size > 2 else 0.005
     rep_var = repetition_noise_floor(resid, d.trial, d.t_rel, d.group[:d.n_trials], 1.0 / dt)
     chres["torque"] = replace(chres["torque"], noise_floor_rms_repetitions=(
@@ -386,7 +445,9 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
     return DiagnosisResult(
         verdict=verdict, nominal_model=nominal.label, n_trials=d.n_trials,
         folds="leave-one-repetition-out" if len(set(d.fold.tolist())) < d.n_trials else "leave-one-trial-out",
-        channels=chres, effects=tuple(effects),
+        channels=chres, effects=tuple(effects), insufficient=insufficient,
         selected=tuple(s.effect for s in sorted(selected, key=lambda s: -s.explained_share)),
-        localisation=tuple(localisation), localisation_method="local refits without each regime",
+        localisation=tuple(localisation), localisation_rest=rest,
+        localisation_method="decomposition of the held-out excess over non-overlapping motion regimes "
+                            "(priority " + " > ".join(PARTITION) + "; the remainder is 'rest')",
         series={"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial})

@@ -163,6 +163,15 @@ def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float
     return float((1 + np.sum(null >= obs - 1e-12)) / (1 + null.shape[0]))
 
 
+def sign_flip_min_p(n: int, n_perm: int = 20000) -> float:
+    """Smallest p-value :func:`sign_flip_pvalue` can return with ``n`` blocks: all ``2^n``
+    sign patterns when that is at most ``n_perm`` (the observed pattern and its mirror image
+    tie), else ``1 / (1 + n_perm)``."""
+    if n < 2:
+        return 1.0
+    return 2.0 / (1 + 2 ** n) if 2 ** n <= n_perm else 1.0 / (1 + n_perm)
+
+
 def holm(pvals: dict) -> dict:
     """Holm-Bonferroni adjusted p-values."""
     items = sorted(pvals.items(), key=lambda kv: kv[1])

@@ -124,6 +124,7 @@ class DiagnosisResult:
     selected: tuple                 # effect names, by explained share
     localisation: tuple             # ({"regime", "share"}, ...)
     localisation_method: str = ""
+    localisation_rest: float = 0.0  # share of the excess outside every listed regime
     notes: tuple = ()
     insufficient: str = ""          # why the data cannot settle it, and the experiment that would
     series: dict = field(default_factory=dict, repr=False, compare=False)   # plots, not in JSON
@@ -141,7 +142,9 @@ class DiagnosisResult:
              "selected": list(self.selected), "heldout_rms_nominal": float(self.heldout_rms_nominal),
              "localisation": [dict(r) for r in self.localisation],
              "localisation_method": self.localisation_method,
+             "localisation_rest": float(self.localisation_rest),
              "effects": [e.to_dict() for e in self.effects]}
+        d["verdict_status"] = "insufficient_data" if self.insufficient else "conclusive"
         if self.insufficient:
             d["insufficient_data"] = self.insufficient
         if self.notes:
