@@ -95,7 +95,7 @@ _SPECS = (
         "torque periodic in the joint angle: an additive ripple (cogging, harmonic-drive orders and "
         "their aliases) or a modulation of the friction level along the angle",
         "tau_r = A sin(n q + phi) on the link", {"ratio": 0.10, "harmonic": 36, "phase": 0.7},
-        ("thermal",), "constant-velocity sweeps over the full joint range in both directions",
+        ("thermal_drift",), "constant-velocity sweeps over the full joint range in both directions",
         ("ripple_additive", "ripple_modulation"),
         lambda M, s, ctx: {"ripple_A": M * s["ratio"] * ctx.c, "ripple_n": int(s["harmonic"]),
                            "ripple_phi": float(s["phase"])}),
@@ -135,18 +135,18 @@ _SPECS = (
         "logged torque a constant (or direction-dependent) multiple of the applied torque: torque "
         "constant or gear efficiency error",
         "logged torque = (1 + s) u", {"scale_error": 0.15},
-        ("load_transmitted",), "trials at two or more payloads (a torque scale is invisible with one payload)",
+        ("load_dependent",), "trials at two or more payloads (a torque scale is invisible with one payload)",
         ("torque_gain",),
         lambda M, s, ctx: {"torque_gain": 1.0 + M * s["scale_error"]}),
     EffectSpec(
         "asymmetry", "torque", "Coulomb and/or viscous friction different in the two directions",
         "c+- = c (1 +- a/2), v+- = v (1 +- a/2)", {"a": 0.25},
-        ("ripple_additive", "ripple_modulation"), "constant-velocity sweeps in both directions over the same range",
+        ("position_ripple",), "constant-velocity sweeps in both directions over the same range",
         ("asymmetry",), _asymmetry),
     EffectSpec(
         "nonlinear_viscous", "torque", "viscous friction not proportional to speed",
         "f += w qd |qd|", {"ratio": 0.3},
-        ("stribeck_exponential", "stribeck_rational"), "constant-velocity sweeps up to the maximum speed",
+        ("stribeck",), "constant-velocity sweeps up to the maximum speed",
         ("nonlinear_viscous",),
         lambda M, s, ctx: {"w": M * s["ratio"] * ctx.v / ctx.vmax}),
     EffectSpec(

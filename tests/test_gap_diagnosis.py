@@ -125,3 +125,19 @@ def test_noise_floors_match_the_true_torque_noise(worlds):
     assert tq["noise_floor_rms"] == pytest.approx(0.05, rel=0.1)
     assert tq["noise_floor_rms_repetitions"] == pytest.approx(0.05, rel=0.1)
     assert tq["heldout_rms_nominal"] < 1.3 * 0.05
+
+
+def test_effect_registry_is_consistent():
+    """Every effect of FORMAT.md's vocabulary is declared once; its confounders are effects and
+    its families exist, each with a channel the diagnosis has."""
+    from ident.effects import EFFECTS, REGISTRY
+    from ident.gap.candidates import FAMILIES, candidate_effects
+    from ident.sim.effects import EFFECTS as SIM_EFFECTS
+
+    assert set(EFFECTS) == set(SIM_EFFECTS) and len(EFFECTS) == 12
+    for name, sp in REGISTRY.items():
+        assert set(sp.confounders) <= set(EFFECTS) - {"none", name}, name
+        assert set(sp.families) <= set(FAMILIES), name
+        assert (name == "none") == (not sp.families)
+    assert {c.channel for c in candidate_effects(100.0)} == {"torque", "transmission"}
+    assert {c.name for c in candidate_effects(100.0)} == set(EFFECTS) - {"none"}

@@ -123,44 +123,10 @@ def unexplained_fractions(gr: Grams, p: int) -> np.ndarray:
 
 
 def unexplained_fraction(gr: Grams, p: int) -> float:
-    """How much of the columns after the first ``p`` lies outside the span of the first ``p``
-    (0..1), from the pooled Gram matrix (Schur complement): 0 means not identifiable."""
-    G = gr.G.sum(axis=0)
-    if G.shape[0] == p:
+    """The least of :func:`unexplained_fractions`: 0 means not identifiable."""
+    if gr.G.shape[1] == p:
         return 0.0
-    Gcc = G[p:, p:]
-    if p:
-        Gxx, Gxc = G[:p, :p], G[:p, p:]
-        S = Gcc - Gxc.T @ np.linalg.lstsq(Gxx, Gxc, rcond=None)[0]
-    else:
-        S = Gcc
-    d = np.clip(np.diag(S), 0, None)
-    return float(np.min(np.sqrt(d / np.maximum(np.diag(Gcc), 1e-300))))
-
-
-def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float:
-    """One-sided paired test that ``d`` (per-trial held-out SSE reduction) is positive.
-
-    Trials are the exchangeable blocks, so autocorrelation inside a trial does not inflate
-    the significance. Randomisation over sign flips of the studentised mean."""
-    d = np.asarray(d, float)
-    n = d.shape[0]
-    if n < 2 or np.all(d == 0):
-        return 1.0
-    rng = np.random.default_rng(seed)
-
-    def tstat(x):
-        m = x.mean(axis=-1)
-        s = x.std(axis=-1, ddof=1)
-        return m / np.maximum(s, 1e-300) * np.sqrt(n)
-
-    obs = tstat(d)
-    if 2 ** n <= n_perm:
-        signs = 1 - 2 * ((np.arange(2 ** n)[:, None] >> np.arange(n)) & 1)
-    else:
-        signs = rng.choice([-1.0, 1.0], size=(n_perm, n))
-    null = tstat(signs * d)
-    return float((1 + np.sum(null >= obs - 1e-12)) / (1 + null.shape[0]))
+    return float(np.min(unexplained_fractions(gr, p)))
 
 
 def sign_flip_min_p(n: int, n_perm: int = 20000) -> float:
