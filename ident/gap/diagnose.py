@@ -122,7 +122,26 @@ def _columns(cand: Candidate, d: JointData, hp):
     return np.asarray(cand.columns(src, hp), float)
 
 
-def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base) -> tuple[dict, dict]:
+class _ColumnCache:
+    """Candidate columns kept across selection steps (they do not change when the model grows),
+    up to a memory budget."""
+
+    def __init__(self, budget_bytes: float = 3e8):
+        self.store, self.left = {}, budget_bytes
+
+    def get(self, cand: Candidate, d: JointData, ch: Channel, hp) -> np.ndarray:
+        key = (cand.family, repr(hp))
+        C = self.store.get(key)
+        if C is None:
+            C = ch.prep(_columns(cand, d, hp))
+            if C.nbytes <= self.left:
+                self.store[key] = C
+                self.left -= C.nbytes
+        return C
+
+
+def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
+                  cache: _ColumnCache | None = None) -> tuple[dict, dict]:
     """(candidate, hp) -> Grams of ``[X | C]`` over every family and shape parameter of one
     effect, built once. Columns that lie in the span of ``X`` (e.g. a direction-independent
     Coulomb excess when the nominal model has a torque offset) are dropped; a shape with no
@@ -132,7 +151,7 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base) -> tupl
     p = X.shape[1]
     for cand in cands:
         for hp in cand.grid:
-            C = ch.prep(_columns(cand, d, hp))
+            C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
             if C.shape[0] == 0 or not np.all(np.isfinite(C)):
                 continue
             g = grams_augmented(base, X, C, ch.target, ch.bounds)
@@ -259,12 +278,13 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     for c in cands:
         if c.channel == ch.name:
             by_effect.setdefault(c.name, []).append(c)
+    cache = _ColumnCache()
     n_blocks = int(np.sum(n_per_trial > 0))
     p_min = sign_flip_min_p(n_blocks, settings.n_perm)
     for step in range(settings.max_effects):
         rows, pvals = {}, {}
         for name, group in by_effect.items():
-            gb, cols = _effect_grams(group, d, ch, X, base)
+            gb, cols = _effect_grams(group, d, ch, X, base, cache)
             if not gb:
                 rows[name] = _Row(name, EffectTest(name, ch.name, False, note=NOT_IDENTIFIABLE))
                 continue
