@@ -141,3 +141,17 @@ def test_effect_registry_is_consistent():
         assert (name == "none") == (not sp.families)
     assert {c.channel for c in candidate_effects(100.0)} == {"torque", "transmission"}
     assert {c.name for c in candidate_effects(100.0)} == set(EFFECTS) - {"none"}
+
+
+def test_nominal_model_choice_changes_what_counts_as_gap(tmp_path):
+    """`diagnose --nominal cv_asym`: a simulator that already has a direction-dependent Coulomb
+    level leaves less of an asymmetric world's gap to the asymmetry candidate."""
+    rb, trials, logs, angles, _ = make_world(tmp_path, "asymmetry", 1.0, seed=3)
+    d = build_joint_data(2, trials, logs, rb, None)
+    cv = diagnose_joint(d, SETTINGS).to_dict()
+    asym = diagnose_joint(d, DiagnosisSettings(n_perm=4000, n_boot=100, nominal="cv_asym")).to_dict()
+    assert cv["nominal_model"] == "coulomb_viscous" and asym["nominal_model"] == "coulomb_viscous_asymmetric"
+    assert asym["heldout_rms_nominal"] < cv["heldout_rms_nominal"]
+    red = {r["nominal_model"]: next(e for e in r["effects"] if e["effect"] == "asymmetry").get("reduction") or 0.0
+           for r in (cv, asym)}
+    assert red["coulomb_viscous_asymmetric"] < red["coulomb_viscous"]
