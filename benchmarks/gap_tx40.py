@@ -49,7 +49,7 @@ def fit_tx40_campaign(folder: Path = FIXTURE) -> str:
     return "\n".join(lines)
 
 
-def diagnose_tx40(folder: Path, decimate: int = 5, n_segments: int = 20, seed: int = 0) -> dict:
+def diagnose_tx40(folder: Path, decimate: int = 5, n_segments: int | None = None, seed: int = 0) -> dict:
     import numpy as np
 
     from ident.thesis.campaign import load_tx40
@@ -61,9 +61,7 @@ def diagnose_tx40(folder: Path, decimate: int = 5, n_segments: int = 20, seed: i
     out = {}
     for j in range(1, 7):
         d = build_joint_data_record(j, t, q, qd, qdd, tau, robot, armature=arm, n_segments=n_segments)
-        rep = diagnose_joint(d, DiagnosisSettings(seed=seed))
-        rep.pop("_series", None)
-        out[str(j)] = rep
+        out[str(j)] = diagnose_joint(d, DiagnosisSettings(seed=seed)).to_dict()
     return out
 
 

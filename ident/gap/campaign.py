@@ -1,7 +1,6 @@
 """Campaign-level gap diagnosis: group single-joint trials by joint and diagnose each joint."""
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import numpy as np
@@ -13,16 +12,12 @@ from ident.gap.diagnose import DiagnosisSettings, diagnose_joint
 
 
 def read_angles_csv(path: str | Path) -> tuple[np.ndarray, dict]:
-    """An ``angles/<trial id>.csv`` (FORMAT.md): time and ``q_<j>`` columns -> (t, {j: q})."""
-    path = Path(path)
-    with open(path, newline="", encoding="utf-8") as fh:
-        header = next(csv.reader(fh))
-    data = np.genfromtxt(path, delimiter=",", skip_header=1, dtype=float, ndmin=2)
-    if "time" not in header:
-        raise InputError("no 'time' column", path=path, line=1)
-    cols = {h: data[:, k] for k, h in enumerate(header)}
-    q = {int(h[2:]): cols[h] for h in header if h.startswith("q_") and h[2:].isdigit()}
-    return cols["time"], q
+    """An ``angles/<trial id>.csv`` (FORMAT.md) -> (t, {j: q}), read by the one angles reader
+    :func:`ident.signals.smoothing.read_angles`."""
+    from ident.signals.smoothing import read_angles
+
+    tr = read_angles(path)
+    return tr.time, tr.q
 
 
 def load_angles_dir(angles_dir: str | Path, trials) -> dict:
@@ -38,7 +33,7 @@ def load_angles_dir(angles_dir: str | Path, trials) -> dict:
 
 def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
                       settings: DiagnosisSettings = DiagnosisSettings(), joints=None,
-                      progress: bool = False) -> dict:
+                      progress: bool = False) -> tuple[dict, dict]:
     """Diagnose every joint that has single-joint trials.
 
     ``angles`` maps trial id -> (t_marker, {joint: q_link}) (from ``jointlab mocap`` or the
@@ -70,9 +65,10 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         if angles:
             ang = {tid: (tq[0], tq[1][j]) for tid, tq in angles.items() if j in tq[1]}
         d = build_joint_data(j, trials, logs, robot, ang)
-        rep = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
+        res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
+        rep = res.to_dict()
         if not d.has_transmission:
             rep["note_transmission"] = "no link angles: transmission channel (compliance, backlash, time_offset) not diagnosed"
-        series[str(j)] = rep.pop("_series", None)
+        series[str(j)] = res.series
         report["joints"][str(j)] = rep
     return report, series

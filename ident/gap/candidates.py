@@ -1,10 +1,18 @@
-"""Candidate effects: parametric augmentations of the nominal model, one per vocabulary name.
+"""Candidate effects: parametric augmentations of the nominal model, several families per
+vocabulary name (the registry :mod:`ident.effects` says which family stands for which effect).
 
 Each candidate adds regressor columns to one channel's nominal model. Nonlinear shape
-parameters (a Stribeck velocity, a ripple harmonic, a warm-up time constant, a bristle length)
-are searched over a grid; the amplitudes are linear. The shapes are deliberately generic
-families (several exponents, harmonics, time constants), not the simulator's exact forms, so the
-diagnosis recognises an effect from its physics rather than from one formula.
+parameters (a Stribeck velocity and exponent, a ripple order, a warm-up time constant, a
+presliding length, a dead-band width) are searched over wide grids, scaled to the joint's
+speed and torque ranges; the amplitudes are linear. The families span the forms of the
+literature (Stribeck: exponential / Gaussian / power-exponential (Tustin, Bo-Pavelescu) and
+rational (Lorentzian) drops; presliding: Dahl/LuGre bristles and elasto-plastic Maxwell-slip
+elements; position: additive ripple and friction-level modulation incl. harmonic-drive orders;
+load: linear and saturating in the transmitted torque; thermal: time-, motion- and
+power-driven; compliance: linear and hardening; backlash: dead band and smooth contact;
+torque scale: gain and direction-dependent efficiency; time offset: with and without clock
+skew), none of them one simulator's equation. Each family states the physically meaningful sign
+of its amplitude (``physical``): a best fit with the other sign is not that effect.
 
 Channels: ``torque`` (motor torque against the rigid Coulomb+viscous model) and
 ``transmission`` (link angle from markers minus motor angle).
@@ -16,12 +24,19 @@ from typing import Callable
 
 import numpy as np
 
+from ident.effects import REGISTRY
+
 V_EPS = 2e-3  # rad/s: width of the smoothed sign used for Coulomb-type terms
 
 
 def ssign(qd: np.ndarray) -> np.ndarray:
     """Smoothed sign of velocity (Coulomb direction)."""
     return np.tanh(qd / V_EPS)
+
+
+def _sg(d) -> np.ndarray:
+    """``ssign(d.qd)``, cached on the data where it can be."""
+    return d.sgn if hasattr(d, "sgn") else ssign(d.qd)
 
 
 def bristle_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) -> np.ndarray:
@@ -49,18 +64,48 @@ def bristle_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) ->
 
 @dataclass(frozen=True)
 class Candidate:
-    name: str
+    name: str                          # the effect it stands for
     channel: str
     grid: tuple
-    columns: Callable  # (JointData, hp) -> (N, k)
+    columns: Callable                  # (data view, hp) -> (N, k)
     describe: Callable = lambda hp: ""  # noqa: E731
+    family: str = ""
+    physical: Callable = lambda hp, theta: True  # noqa: E731  (hp, amplitudes) -> sign is physical
 
 
-def _stribeck(d, hp):
-    vs, shape = hp
-    return (ssign(d.qd) * np.exp(-(np.abs(d.qd) / vs) ** shape))[:, None]
+def _pos(k=0):
+    """Physical when amplitude ``k`` is positive."""
+    return lambda hp, th: th.shape[0] > k and th[k] > 0
 
 
+def _neg(k=0):
+    return lambda hp, th: th.shape[0] > k and th[k] < 0
+
+
+def _vref(d):
+    v = d.vmax if np.isfinite(d.vmax) else np.percentile(np.abs(d.qd), 99)
+    return max(float(v), 1e-6)
+
+
+def _tref(x):
+    return max(float(np.percentile(np.abs(x), 95)), 1e-12) if x.size else 1.0
+
+
+# --- Stribeck: friction above the Coulomb level at low speed, same direction as motion --------
+def _stribeck_exp(d, hp):
+    fv, delta = hp
+    return (_sg(d) * np.exp(-(np.abs(d.qd) / (fv * _vref(d))) ** delta))[:, None]
+
+
+def _stribeck_rational(d, hp):
+    fv, delta = hp
+    return (_sg(d) / (1.0 + (np.abs(d.qd) / (fv * _vref(d))) ** delta))[:, None]
+
+
+_STRIBECK_GRID = tuple((fv, de) for fv in np.geomspace(0.002, 0.3, 11) for de in (0.5, 1.0, 2.0, 3.0))
+
+
+# --- presliding: friction builds up over a displacement after each reversal --------------------
 def _presliding(d, hp):
     """Bristle deflection minus the Coulomb direction, and its rate (the bristle damping
     ``sigma1 dz/dt`` of LuGre-type models)."""
@@ -73,99 +118,239 @@ def _presliding(d, hp):
         ds[edge] = 0.0
         gap = np.r_[False, np.diff(t) > 3 * np.median(np.diff(t))]
         ds[gap | np.r_[gap[1:], False]] = 0.0
-    return np.column_stack([s - ssign(d.qd), ds * hp])
+    return np.column_stack([s - _sg(d), ds * hp])
+
+
+def elastoplastic_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) -> np.ndarray:
+    """Normalised deflection of one elasto-plastic (Maxwell-slip) element of break-away
+    displacement ``x0``: linear in the displacement since the last reversal, saturated at +-1
+    (the element is assumed saturated at each reversal and at each trial's start).
+    Vectorised over monotone stretches (cumulative sums per stretch)."""
+    n = q.shape[0]
+    if n == 0:
+        return np.zeros(0)
+    dirn = np.where(qd >= 0, 1.0, -1.0)
+    start = np.r_[True, (dirn[1:] != dirn[:-1]) | (trial[1:] != trial[:-1])]
+    seg = np.cumsum(start) - 1
+    q0 = q[start][seg]
+    return np.clip(-dirn + (q - q0) / x0, -1.0, 1.0)
+
+
+def _elastoplastic(d, hp):
+    """Two elasto-plastic elements (lengths ``x0`` and ``4 x0``): a two-element Maxwell-slip model."""
+    return np.column_stack([elastoplastic_sign(d.q, d.qd, d.trial, hp) - _sg(d),
+                            elastoplastic_sign(d.q, d.qd, d.trial, 4 * hp) - _sg(d)])
+
+
+def _presliding_sum_pos(hp, th):
+    return th.shape[0] > 0 and th[0] > 0
+
+
+def _maxwell_pos(hp, th):
+    return th.shape[0] > 1 and th[0] + th[1] > 0 and min(th[0], th[1]) > -0.25 * (abs(th[0]) + abs(th[1]))
+
+
+_PRESLIDING_GRID = tuple(float(x) for x in np.geomspace(5e-5, 3e-2, 11))
+
+
+# --- position dependence -------------------------------------------------------------------
+def _ripple_grid(gear_ratio):
+    ks = list(range(1, 49))
+    if gear_ratio and gear_ratio > 48:
+        ks += [gear_ratio, 2 * gear_ratio]
+    return tuple(float(k) for k in ks)
 
 
 def _ripple(d, hp):
     return np.column_stack([np.sin(hp * d.q), np.cos(hp * d.q)])
 
 
+def _modulation(d, hp):
+    """Friction level modulated along the angle: ``c (1 + m sin(n q + p))`` -> ``sgn(qd) sin, cos``."""
+    sg = _sg(d)
+    return np.column_stack([sg * np.sin(hp * d.q), sg * np.cos(hp * d.q)])
+
+
+# --- load dependence: Coulomb level growing with the transmitted torque ---------------------
 def _load(d, hp):
-    tau = d.tau_grav if hp == "gravity" else d.tau_urdf
-    return (ssign(d.qd) * np.abs(tau))[:, None]
+    src, sat = hp
+    tau = d.tau_grav if src == "gravity" else d.tau_urdf
+    x = np.abs(tau)
+    if sat:
+        T = sat * _tref(tau)
+        x = T * np.tanh(x / T)
+    return (_sg(d) * x)[:, None]
+
+
+# --- thermal drift ------------------------------------------------------------------------
+def _heat(d, hp):
+    """First-order thermal state driven by a power proxy (``src``: ``motion`` = |qd|, ``power`` =
+    |y qd|) with time constant ``tau`` on the campaign clock (cooling between samples)."""
+    from ident.friction.dynamic import linear_scan
+
+    src, tau = hp
+    order = np.argsort(d.t, kind="stable")
+    t = d.t[order]
+    P = np.abs(d.qd[order]) if src == "motion" else np.abs(d.y[order] * d.qd[order])
+    dt = np.diff(t)
+    dts = np.minimum(dt, 5 * np.median(dt)) if dt.size else dt
+    decay = dt / tau
+    drive = -np.expm1(-decay) * P[1:] * (dts / np.maximum(dt, 1e-12))
+    h = linear_scan(decay, drive, 0.0)[:t.shape[0]] if t.size else np.zeros(0)
+    h = h / max(np.max(np.abs(h)), 1e-300)
+    out = np.empty_like(h)
+    out[order] = h
+    return out
 
 
 def _thermal(d, hp):
-    tt = d.t - d.t.min()
-    w = np.exp(-tt / hp) if np.isfinite(hp) else 1.0 - tt / max(tt.max(), 1e-9)
-    return np.column_stack([ssign(d.qd) * w, d.qd * w])
+    kind = hp[0]
+    if kind == "time":
+        tt = d.t - d.t.min()
+        w = np.exp(-tt / hp[1]) if np.isfinite(hp[1]) else 1.0 - tt / max(tt.max(), 1e-9)
+    else:
+        w = -_heat(d, hp)   # warmer -> less friction: w = -h has the sign of a cold excess
+    return np.column_stack([_sg(d) * w, d.qd * w])
 
 
+def _thermal_physical(hp, th):
+    """Friction falls as the joint warms: the cold excess of the Coulomb (or, if that is nil,
+    the viscous) level is positive."""
+    return th.shape[0] > 1 and (th[0] > 0 or (abs(th[0]) < 0.1 * abs(th[1]) and th[1] > 0))
+
+
+_THERMAL_GRID = (tuple(("time", float(x)) for x in np.geomspace(20, 5000, 10)) + (("time", np.inf),)
+                 + tuple((src, float(x)) for src in ("motion", "power") for x in np.geomspace(30, 3000, 7)))
+
+
+# --- torque scale ----------------------------------------------------------------------------
 def _scale(d, hp):
-    return d.tau_urdf[:, None]
+    if hp == "gain":
+        return d.tau_urdf[:, None]
+    motoring = (d.tau_urdf * d.qd) > 0
+    return np.column_stack([d.tau_urdf * motoring, d.tau_urdf * ~motoring])
 
 
+# --- asymmetry, nonlinear viscous ------------------------------------------------------------
 def _asym(d, hp):
     pos = d.qd > 0
-    return np.column_stack([np.abs(ssign(d.qd)), d.qd * pos])
+    return np.column_stack([np.abs(_sg(d)), d.qd * pos])
 
 
 def _nlv(d, hp):
-    return (np.sign(d.qd) * np.abs(d.qd) ** hp)[:, None]
+    kind, x = hp
+    if kind == "power":
+        v = _vref(d)
+        return (np.sign(d.qd) * v * np.abs(d.qd / v) ** x)[:, None]
+    vr = x * _vref(d)
+    return (d.qd / (1.0 + np.abs(d.qd) / vr))[:, None]
+
+
+_NLV_GRID = (tuple(("power", float(p)) for p in (0.3, 0.45, 0.6, 0.75, 1.3, 1.6, 2.0, 2.5, 3.0))
+             + tuple(("saturating", float(x)) for x in (0.1, 0.3, 1.0)))
+
+
+# --- transmission channel: q_link - q_motor beyond the declared stiffness ---------------------
+def _torque_m(d, src):
+    return d.tau_m if src == "rigid" else d.y_m
 
 
 def _compliance(d, hp):
-    return d.y_m[:, None]
+    src, kind = hp
+    tau = _torque_m(d, src)
+    if kind == "linear":
+        return tau[:, None]
+    T = _tref(tau)
+    return np.column_stack([tau, tau * np.abs(tau / T) ** (-1.0 / 3.0)])  # hardening: ~ tau^(2/3) near 0
+
+
+def _compliance_physical(hp, th):
+    """A softer joint lags more: q_link - q_motor = -tau / K, the extra coefficient is negative."""
+    return th.shape[0] > 0 and (th[0] + (th[1] if th.shape[0] > 1 else 0.0)) < 0
 
 
 def _backlash(d, hp):
-    kind, width = hp
-    if kind == "torque":
-        scale = width * max(np.percentile(np.abs(d.y_m), 95), 1e-9)
-        return np.tanh(d.y_m / scale)[:, None]
-    return np.tanh(d.qd_m / width)[:, None]
+    kind, src, width = hp
+    if kind == "motion":
+        return np.tanh(d.qd_m / (width * max(_tref(d.qd_m), 1e-9)))[:, None]
+    tau = _torque_m(d, src)
+    return np.tanh(tau / (width * _tref(tau)))[:, None]
+
+
+_BACKLASH_GRID = (tuple(("torque", src, w) for src in ("rigid", "motor") for w in (0.002, 0.005, 0.02, 0.05))
+                  + tuple(("motion", "", w) for w in (0.002, 0.01)))
 
 
 def _time_offset(d, hp):
-    return d.qd_m[:, None]
+    if hp == "offset":
+        return d.qd_m[:, None]
+    tt = d.t_m - (d.t_m.min() if d.t_m.size else 0.0)
+    return np.column_stack([d.qd_m, d.qd_m * tt])
+
+
+# Candidate families by name; ident.effects declares which effect each one stands for.
+# name -> (channel, grid(gear_ratio), columns, describe, physical)
+FAMILIES = {
+    "stribeck_exponential": (
+        "torque", lambda g: _STRIBECK_GRID, _stribeck_exp,
+        lambda hp: f"exp(-(|qd|/vs)^{hp[1]:g}) drop, vs = {hp[0]:.3g} vmax", _pos()),
+    "stribeck_rational": (
+        "torque", lambda g: _STRIBECK_GRID, _stribeck_rational,
+        lambda hp: f"1/(1 + (|qd|/vs)^{hp[1]:g}) drop, vs = {hp[0]:.3g} vmax", _pos()),
+    "presliding_bristle": ("torque", lambda g: _PRESLIDING_GRID, _presliding,
+                           lambda hp: f"Dahl/LuGre bristle, presliding length {hp:.2e} rad", _presliding_sum_pos),
+    "presliding_maxwell": ("torque", lambda g: _PRESLIDING_GRID, _elastoplastic,
+                           lambda hp: f"elasto-plastic (Maxwell-slip) elements, break-away {hp:.2e} and "
+                                      f"{4 * hp:.2e} rad", _maxwell_pos),
+    "ripple_additive": ("torque", _ripple_grid, _ripple, lambda hp: f"additive ripple, {hp:g} cycles per joint revolution",
+                        lambda hp, th: True),
+    "ripple_modulation": ("torque", _ripple_grid, _modulation,
+                          lambda hp: f"friction level modulated {hp:g} times per joint revolution",
+                          lambda hp, th: True),
+    "load_transmitted": ("torque", lambda g: tuple((src, sat) for src in ("rigid", "gravity") for sat in (0, 0.5, 1.5)),
+                         _load, lambda hp: f"Coulomb level growing with |{'gravity' if hp[0] == 'gravity' else 'transmitted'}"
+                                           f" torque|" + (f", saturating at {hp[1]:g} x its 95th percentile" if hp[1] else ""),
+                         _pos()),
+    "thermal": ("torque", lambda g: _THERMAL_GRID, _thermal,
+                lambda hp: ("linear drift over the campaign" if hp[0] == "time" and not np.isfinite(hp[1])
+                            else f"warm-up time constant {hp[1]:.0f} s" if hp[0] == "time"
+                            else f"heating by {hp[0]}, time constant {hp[1]:.0f} s"), _thermal_physical),
+    "torque_gain": ("torque", lambda g: ("gain", "efficiency"), _scale,
+                    lambda hp: "torque proportional to rigid-body torque" if hp == "gain"
+                    else "direction-dependent efficiency (motoring / back-driven)", lambda hp, th: True),
+    "asymmetry": ("torque", lambda g: (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous",
+                  lambda hp, th: True),
+    "nonlinear_viscous": ("torque", lambda g: _NLV_GRID, _nlv,
+                          lambda hp: f"viscous term |qd|^{hp[1]:g}" if hp[0] == "power"
+                          else f"saturating viscous, knee {hp[1]:g} vmax", lambda hp, th: True),
+    "compliance": ("transmission", lambda g: tuple((src, k) for src in ("rigid", "motor") for k in ("linear", "hardening")),
+                   _compliance, lambda hp: f"{hp[1]} deflection with the {'transmitted' if hp[0] == 'rigid' else 'motor'} torque",
+                   _compliance_physical),
+    "backlash": ("transmission", lambda g: _BACKLASH_GRID, _backlash,
+                 lambda hp: f"lost motion switching with the {hp[0] if hp[0] == 'motion' else hp[1] + ' torque'} sign",
+                 _neg()),
+    "time_offset": ("transmission", lambda g: ("offset", "skew"), _time_offset,
+                    lambda hp: "marker clock shifted: q_link(t) = q(t + dt)" if hp == "offset"
+                    else "marker clock shifted and running at another rate", lambda hp, th: True),
+}
 
 
 def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
-    ripple_k = list(range(1, 49))
-    if gear_ratio and gear_ratio > 48:
-        ripple_k += [gear_ratio, 2 * gear_ratio]
-    return [
-        Candidate("stribeck", "torque",
-                  tuple((vs, sh) for vs in np.geomspace(0.005, 0.4, 12) for sh in (0.5, 1.0, 2.0)),
-                  _stribeck, lambda hp: f"Stribeck velocity {hp[0]:.3g} rad/s, shape exponent {hp[1]:g}"),
-        Candidate("presliding", "torque", tuple(np.geomspace(1e-4, 3e-2, 12)), _presliding,
-                  lambda hp: f"presliding length {hp:.2e} rad"),
-        Candidate("position_ripple", "torque", tuple(float(k) for k in ripple_k), _ripple,
-                  lambda hp: f"{hp:g} cycles per joint revolution"),
-        Candidate("load_dependent", "torque", ("gravity", "rigid"), _load,
-                  lambda hp: f"Coulomb level growing with |{'gravity' if hp == 'gravity' else 'rigid-body'} torque|"),
-        Candidate("thermal_drift", "torque", tuple(np.geomspace(20, 5000, 10)) + (np.inf,), _thermal,
-                  lambda hp: "linear drift over the campaign" if not np.isfinite(hp)
-                  else f"warm-up time constant {hp:.0f} s"),
-        Candidate("torque_scale", "torque", (None,), _scale, lambda hp: "torque proportional to rigid-body torque"),
-        Candidate("asymmetry", "torque", (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous"),
-        Candidate("nonlinear_viscous", "torque", (0.5, 1.5, 2.0, 3.0), _nlv,
-                  lambda hp: f"viscous term |qd|^{hp:g}"),
-        Candidate("compliance", "transmission", (None,), _compliance,
-                  lambda hp: "deflection proportional to transmitted torque"),
-        Candidate("backlash", "transmission",
-                  tuple(("torque", w) for w in (0.005, 0.02, 0.05)) + tuple(("motion", w) for w in (0.002, 0.01)),
-                  _backlash, lambda hp: f"dead band switching with {hp[0]} sign"),
-        Candidate("time_offset", "transmission", (None,), _time_offset,
-                  lambda hp: "marker clock shifted: q_link(t) = q(t + dt)"),
-    ]
+    """One candidate per (effect, family) of the registry (:mod:`ident.effects`); a candidate's
+    ``name`` is the effect it stands for, ``family`` the form tested."""
+    out = []
+    for spec in REGISTRY.values():
+        for fam in spec.families:
+            channel, grid, columns, describe, physical = FAMILIES[fam]
+            out.append(Candidate(spec.name, channel, grid(gear_ratio), columns, describe, fam, physical))
+    return out
 
 
-# Which effects look alike in a campaign, and the experiment that separates them.
-CONFOUNDERS = {
-    "stribeck": (["presliding", "nonlinear_viscous"],
-                 "constant-velocity sweeps at several low speeds (Stribeck curve) against reversals at several accelerations (presliding)"),
-    "presliding": (["stribeck", "backlash"],
-                   "reversals at several accelerations with small amplitude (presliding hysteresis) and a marker-based link angle (backlash)"),
-    "position_ripple": (["thermal_drift"], "constant-velocity sweeps over the full joint range in both directions"),
-    "load_dependent": (["torque_scale", "asymmetry"],
-                       "the same trajectory at two or more payloads with both gravity signs"),
-    "thermal_drift": (["load_dependent", "position_ripple"],
-                      "repeat one reference trajectory at the start and the end of the campaign, and after a rest"),
-    "torque_scale": (["load_dependent"], "trials at two or more payloads (a torque scale is invisible with one payload)"),
-    "asymmetry": (["position_ripple"], "constant-velocity sweeps in both directions over the same range"),
-    "nonlinear_viscous": (["stribeck"], "constant-velocity sweeps up to the maximum speed"),
-    "compliance": (["backlash", "time_offset"], "quasi-static trials at several payloads (deflection vs torque)"),
-    "backlash": (["compliance", "presliding"], "slow reversals under low load with markers on the link"),
-    "time_offset": (["compliance"], "a fast sinusoid at low load: a clock shift grows with speed, a deflection with torque"),
-}
+def confounders(name: str) -> tuple[list, str]:
+    """(effects confused with ``name``, the experiment that separates them), from the registry."""
+    sp = REGISTRY.get(name)
+    return (list(sp.confounders), sp.separating_experiment) if sp else ([], "")
+
+
+#: name -> (confounders, separating experiment), read from the registry
+CONFOUNDERS = {n: confounders(n) for n, sp in REGISTRY.items() if sp.families}

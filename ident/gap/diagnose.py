@@ -15,15 +15,17 @@ Protocol (per joint, per channel):
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
+from typing import Callable
 
 import numpy as np
 
-from ident.gap.candidates import CONFOUNDERS, Candidate, candidate_effects, ssign
+from ident.gap.candidates import Candidate, candidate_effects, confounders, ssign
 from ident.gap.data import JointData
-from ident.gap.engine import (bootstrap_ci, cross_validate, grams, grams_augmented, holm, repetition_noise_floor,
-                     sign_flip_pvalue,
-                     trial_bounds, unexplained_fraction, white_noise_floor)
+from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
+                              repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
+                              white_noise_floor)
+from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
 
 REGIMES = ("low_speed", "high_speed", "reversal", "high_acceleration", "position", "time", "load")
 
@@ -37,6 +39,7 @@ class DiagnosisSettings:
     n_perm: int = 20000
     n_boot: int = 300
     seed: int = 0
+    nominal: str = "cv"              # key of NOMINAL_MODELS
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -61,8 +64,29 @@ class Channel:
         return out
 
 
-def _torque_channel(d: JointData) -> Channel:
-    X0 = np.column_stack([d.urdf_regs, ssign(d.qd), d.qd])
+@dataclass(frozen=True)
+class NominalModel:
+    """The simulator's friction model the gap is measured against (``diagnose --nominal``)."""
+
+    label: str
+    doc: str
+    friction: Callable  # JointData -> (N, k) friction regressors
+
+    def columns(self, d: JointData) -> np.ndarray:
+        return np.column_stack([d.urdf_regs, self.friction(d)])
+
+
+NOMINAL_MODELS = {
+    "cv": NominalModel("coulomb_viscous", "Coulomb + viscous (thesis eq. 2-5)",
+                       lambda d: np.column_stack([ssign(d.qd), d.qd])),
+    "cv_asym": NominalModel("coulomb_viscous_asymmetric",
+                            "Coulomb + viscous with a direction-dependent Coulomb level",
+                            lambda d: np.column_stack([ssign(d.qd), d.qd, d.qd > 0])),
+}
+
+
+def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
+    X0 = (nominal or NOMINAL_MODELS["cv"]).columns(d)
     nt = d.n_trials
     return Channel("torque", "N m", d.y - d.tau_urdf, X0, d.trial, trial_bounds(d.trial, nt), False)
 
@@ -79,22 +103,17 @@ class _Transmission:
     """View of JointData whose arrays are the marker-clock ones (for candidate columns)."""
 
     def __init__(self, d: JointData):
-        self.y_m, self.qd_m, self.trial = d.y_m, d.qd_m, d.trial_m
+        self.y_m, self.qd_m, self.trial, self.tau_m, self.t_m = d.y_m, d.qd_m, d.trial_m, d.tau_m, d.t_m
 
 
-def _cv(channel: Channel, X: np.ndarray, fold: np.ndarray, hp_cols: dict | None = None,
-        base=None):
-    """CV of [X | candidate columns(hp)] for each hp (or X alone); ``base`` = Grams of X."""
-    if hp_cols is None:
-        hp_cols = {None: np.zeros((X.shape[0], 0))}
-    if base is None:
-        base = grams(X, channel.target, channel.bounds)
-    gb = {hp: grams_augmented(base, X, channel.prep(C), channel.target, channel.bounds)
-          for hp, C in hp_cols.items()}
-    if X.shape[1] == 0 and all(C.shape[1] == 0 for C in hp_cols.values()):
-        g = next(iter(gb.values()))
-        from ident.gap.engine import CVResult
-        return CVResult(g.yy.copy(), {}, np.zeros(0), None, float(g.yy.sum())), gb
+def _cv(channel: Channel, X: np.ndarray, fold: np.ndarray, gb: dict | None = None, base=None):
+    """Leave-one-fold-out CV of ``X`` augmented by each entry of ``gb`` (hp -> Grams of
+    ``[X | C(hp)]``); without ``gb``, of ``X`` alone (``base`` = its Grams, built if None)."""
+    if gb is None:
+        base = base if base is not None else grams(X, channel.target, channel.bounds)
+        if X.shape[1] == 0:
+            return CVResult(base.yy.copy(), {}, np.zeros(0), None, float(base.yy.sum())), {None: base}
+        gb = {None: base}
     return cross_validate(gb, fold), gb
 
 
@@ -103,92 +122,221 @@ def _columns(cand: Candidate, d: JointData, hp):
     return np.asarray(cand.columns(src, hp), float)
 
 
+class _ColumnCache:
+    """Candidate columns kept across selection steps (they do not change when the model grows),
+    up to a memory budget."""
+
+    def __init__(self, budget_bytes: float = 3e8):
+        self.store, self.left = {}, budget_bytes
+
+    def get(self, cand: Candidate, d: JointData, ch: Channel, hp) -> np.ndarray:
+        key = (cand.family, repr(hp))
+        C = self.store.get(key)
+        if C is None:
+            C = ch.prep(_columns(cand, d, hp))
+            if C.nbytes <= self.left:
+                self.store[key] = C
+                self.left -= C.nbytes
+        return C
+
+
+def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
+                  cache: _ColumnCache | None = None) -> tuple[dict, dict]:
+    """(candidate, hp) -> Grams of ``[X | C]`` over every family and shape parameter of one
+    effect, built once. Columns that lie in the span of ``X`` (e.g. a direction-independent
+    Coulomb excess when the nominal model has a torque offset) are dropped; a shape with no
+    column left is left out. ``cols`` keeps the columns used and which of the family's columns
+    they are (for the sign check)."""
+    out, cols = {}, {}
+    p = X.shape[1]
+    for cand in cands:
+        for hp in cand.grid:
+            C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
+            if C.shape[0] == 0 or not np.all(np.isfinite(C)):
+                continue
+            g = grams_augmented(base, X, C, ch.target, ch.bounds)
+            keep = unexplained_fractions(g, p) >= 1e-3
+            if not keep.any():
+                continue
+            if not keep.all():
+                C = C[:, keep]
+                g = grams_augmented(base, X, C, ch.target, ch.bounds)
+            out[(cand, hp)] = g
+            cols[(cand, hp)] = (C, keep)
+    return out, cols
+
+
+def _amplitudes(theta: np.ndarray, p: int, keep: np.ndarray) -> np.ndarray:
+    """The family's amplitudes from a fit of ``[X | C]`` (zeros for dropped columns)."""
+    a = np.zeros(keep.shape[0])
+    a[keep] = theta[p:]
+    return a
+
+
+def nominal_heldout_rms(d: JointData, nominal: str = "cv") -> float:
+    """Held-out torque RMS of the nominal model (leave-one-fold-out), for data-preparation choices."""
+    ch = _torque_channel(d, NOMINAL_MODELS[nominal])
+    cv, _ = _cv(ch, ch.X0, d.fold)
+    return _rms(cv.sse, ch.bounds[:, 1] - ch.bounds[:, 0])
+
+
 def _rms(sse, n):
     return float(np.sqrt(np.sum(sse) / max(np.sum(n), 1)))
 
 
-def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSettings):
+@dataclass
+class _Row:
+    """Working state of one effect's test in one selection step."""
+
+    effect: str
+    test: EffectTest
+    cv: CVResult | None = None
+    cols: dict | None = None
+
+
+@dataclass
+class _ChannelRun:
+    nominal_sse: np.ndarray
+    nominal_cv: CVResult
+    n: np.ndarray
+    noise_floor_mse: float
+    mse_nominal: float
+    first: dict
+    steps: list
+    final_sse: np.ndarray
+    n_blocks: int = 0
+    p_min: float = 1.0            # smallest p the block sign-flip test can give
+    n_tested: int = 0             # identifiable candidates (Holm's multiplier at the first step)
+
+    def powerless(self, alpha: float) -> bool:
+        """True when even the most extreme outcome cannot pass Holm's first threshold."""
+        return self.n_tested > 0 and self.p_min * self.n_tested >= alpha
+
+
+NOT_IDENTIFIABLE = ("not identifiable from this campaign: its signature is indistinguishable from the "
+                    "nominal model's parameters")
+
+
+def _sse(X: np.ndarray, y: np.ndarray) -> float:
+    th = np.linalg.lstsq(X, y, rcond=None)[0]
+    r = y - X @ th
+    return float(r @ r)
+
+
+def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray) -> "_Row":
+    """Choose among significant candidates by their signatures, not only by fit quality.
+
+    For the best-fitting candidate and each of its registered confounders that was tested
+    (significant or not), fit both together: each one's *unique* share is the part of its own
+    SSE reduction that survives when the other is in the model (an encompassing test: backlash
+    keeps a jump at torque reversals that a compliance slope cannot make; load-dependent friction
+    keeps a velocity-signed term that a torque gain cannot make; ...). The evidence is recorded on
+    both rows; when the leader's signature is explained by a significant confounder while the
+    confounder's is not explained by the leader, the confounder is chosen."""
+    best = max(sig, key=lambda r: r.test.explained_share)
+    y = ch.target
+    s0 = _sse(X, y) if X.shape[1] else float(y @ y)
+
+    def cols(r):
+        return r.cols[r.cv.hp_all][0]
+
+    choice = best
+    conf, _ = confounders(best.effect)
+    for name in conf:
+        other = rows.get(name)
+        if other is None or not other.test.identifiable or other.cv is None:
+            continue
+        Ca, Cb = cols(best), cols(other)
+        sa, sb = _sse(np.column_stack([X, Ca]), y), _sse(np.column_stack([X, Cb]), y)
+        sab = _sse(np.column_stack([X, Ca, Cb]), y)
+        ua = (sb - sab) / max(s0 - sa, 1e-300)   # leader's reduction left given the confounder
+        ub = (sa - sab) / max(s0 - sb, 1e-300)
+        best.test = replace(best.test, evidence={**best.test.evidence, f"unique_share_given_{name}": float(ua)})
+        other.test = replace(other.test, evidence={**other.test.evidence,
+                                                   f"unique_share_given_{best.effect}": float(ub)})
+        if other.test.significant and ua < 0.2 and ub > 0.5 and choice is best:
+            choice = other
+    return choice
+
+
+def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSettings) -> _ChannelRun:
     fold = d.fold
     n_per_trial = ch.bounds[:, 1] - ch.bounds[:, 0]
     X = ch.prep(ch.X0)
-    base_cv, _ = _cv(ch, X, fold)
+    base = grams(X, ch.target, ch.bounds)
+    base_cv, _ = _cv(ch, X, fold, base=base)
     nominal_sse = base_cv.sse.copy()
     # residual of the nominal fit on all data -> white-noise floor
-    if X.shape[1]:
-        th = np.linalg.lstsq(X, ch.target, rcond=None)[0]
-        resid_all = ch.target - X @ th
-    else:
-        resid_all = ch.target
+    resid_all = ch.target - X @ base_cv.theta_all if X.shape[1] else ch.target
     noise = white_noise_floor(resid_all, ch.trial)
-    mse_nom = float(nominal_sse.sum() / max(n_per_trial.sum(), 1))
+    n_tot = max(n_per_trial.sum(), 1)
+    mse_nom = float(nominal_sse.sum() / n_tot)
     excess_nom = max(mse_nom - noise, 0.0)
     steps, tested_first = [], None
     current_sse = nominal_sse
-    remaining = [c for c in cands if c.channel == ch.name]
+    by_effect: dict = {}
+    for c in cands:
+        if c.channel == ch.name:
+            by_effect.setdefault(c.name, []).append(c)
+    cache = _ColumnCache()
+    n_blocks = int(np.sum(n_per_trial > 0))
+    p_min = sign_flip_min_p(n_blocks, settings.n_perm)
     for step in range(settings.max_effects):
         rows, pvals = {}, {}
-        base = grams(X, ch.target, ch.bounds)
-        for cand in remaining:
-            hp_cols = {}
-            for hp in cand.grid:
-                C = _columns(cand, d, hp)
-                if unexplained_fraction(grams_augmented(base, X, ch.prep(C), ch.target, ch.bounds),
-                                        X.shape[1]) < 1e-3:
-                    continue
-                hp_cols[hp] = C
-            if not hp_cols:
-                rows[cand.name] = {"effect": cand.name, "channel": ch.name, "identifiable": False,
-                                   "note": "not identifiable from this campaign: its signature is "
-                                           "indistinguishable from the nominal model's parameters"}
+        for name, group in by_effect.items():
+            gb, cols = _effect_grams(group, d, ch, X, base, cache)
+            if not gb:
+                rows[name] = _Row(name, EffectTest(name, ch.name, False, note=NOT_IDENTIFIABLE))
                 continue
-            cvr, _ = _cv(ch, X, fold, hp_cols, base)
-            dsse = current_sse - cvr.sse
-            p = sign_flip_pvalue(dsse, settings.n_perm, settings.seed)
-            pvals[cand.name] = p
-            mse_e = float(cvr.sse.sum() / max(n_per_trial.sum(), 1))
-            mse_cur = float(current_sse.sum() / max(n_per_trial.sum(), 1))
-            rows[cand.name] = {
-                "effect": cand.name, "channel": ch.name, "identifiable": True,
-                "heldout_rms": float(np.sqrt(mse_e)),
-                "reduction": float(1 - np.sqrt(mse_e / mse_nom)) if mse_nom > 0 else 0.0,
-                "reduction_step": float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
-                "explained_share": float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
-                "p_value": p, "shape": cand.describe(cvr.hp_all), "_cv": cvr, "_hp_cols": hp_cols,
-                "_cand": cand}
+            cvr, _ = _cv(ch, X, fold, gb)
+            cand, hp = cvr.hp_all
+            physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all][1])))
+            p = sign_flip_pvalue(current_sse - cvr.sse, settings.n_perm, settings.seed)
+            pvals[name] = p
+            mse_e = float(cvr.sse.sum() / n_tot)
+            mse_cur = float(current_sse.sum() / n_tot)
+            rows[name] = _Row(name, EffectTest(
+                name, ch.name, True, family=cand.family, physical=physical,
+                note="" if physical else f"best fit has the unphysical sign for {name}: not this effect",
+                heldout_rms=float(np.sqrt(mse_e)),
+                reduction=float(1 - np.sqrt(mse_e / mse_nom)) if mse_nom > 0 else 0.0,
+                reduction_step=float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
+                explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
+                p_value=p, p_min_attainable=p_min, shape=cand.describe(hp)), cvr, cols)
         adj = holm(pvals)
         for name, r in rows.items():
-            if not r["identifiable"]:
-                r.update(significant=False, p_adjusted=None)
+            if not r.test.identifiable:
                 continue
-            r["p_adjusted"] = adj[name]
-            r["significant"] = bool(adj[name] < settings.alpha
-                                    and r["explained_share"] >= settings.min_explained
-                                    and r["reduction_step"] >= settings.min_reduction)
+            t = r.test
+            r.test = replace(t, p_adjusted=adj[name], significant=bool(
+                t.physical and adj[name] < settings.alpha and t.explained_share >= settings.min_explained
+                and t.reduction_step >= settings.min_reduction))
         if tested_first is None:
             tested_first = rows
-        sig = [r for r in rows.values() if r.get("significant")]
+        sig = [r for r in rows.values() if r.test.significant]
         if not sig:
             break
-        best = max(sig, key=lambda r: r["explained_share"])
-        cvr = best["_cv"]
-        steps.append({"effect": best["effect"], "channel": ch.name, "heldout_rms": best["heldout_rms"],
-                      "reduction": best["reduction"], "p_adjusted": best["p_adjusted"],
-                      "explained_share": best["explained_share"], "shape": best["shape"],
-                      "_sse": cvr.sse})
-        X = np.column_stack([X, ch.prep(best["_hp_cols"][cvr.hp_all])])
-        current_sse = cvr.sse
-        remaining = [c for c in remaining if c.name != best["effect"]]
-    return {"nominal_sse": nominal_sse, "n": n_per_trial, "noise_floor_mse": noise, "mse_nominal": mse_nom,
-            "first": tested_first or {}, "steps": steps, "final_sse": current_sse}
+        best = _discriminate(sig, rows, ch, X)
+        t = best.test
+        steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
+                                    t.explained_share, t.shape, t.family), best.cv.sse))
+        C = best.cols[best.cv.hp_all][0]
+        base = grams_augmented(base, X, C, ch.target, ch.bounds)
+        X = np.column_stack([X, C])
+        current_sse = best.cv.sse
+        by_effect.pop(best.effect)
+    n_tested = sum(1 for r in (tested_first or {}).values() if r.test.identifiable)
+    return _ChannelRun(nominal_sse, base_cv, n_per_trial, noise, mse_nom, tested_first or {}, steps,
+                       current_sse, n_blocks, p_min, n_tested)
 
 
-def _stability(res: dict, settings: DiagnosisSettings) -> dict:
+def _stability(res: _ChannelRun, settings: DiagnosisSettings) -> dict:
     """Bootstrap over trials: how often each first-step candidate gives the largest reduction."""
-    first = {k: v for k, v in res["first"].items() if v.get("identifiable")}
+    first = {k: r for k, r in res.first.items() if r.test.identifiable}
     if not first:
         return {}
     names = list(first)
-    D = np.array([res["nominal_sse"] - first[k]["_cv"].sse for k in names])  # (k, trials)
+    D = np.array([res.nominal_sse - first[k].cv.sse for k in names])  # (k, trials)
     rng = np.random.default_rng(settings.seed + 1)
     idx = rng.integers(0, D.shape[1], size=(settings.n_boot, D.shape[1]))
     wins = np.argmax(D[:, idx].sum(axis=2), axis=0)
@@ -211,118 +359,115 @@ def _regime_masks(d: JointData) -> dict:
         np.add.at(marks, np.clip(flips + w + 1, None, aqd.shape[0]), -1)
         rev = np.cumsum(marks)[:-1] > 0
     masks["reversal"] = rev
-    tt = d.t - d.t.min()
-    masks["time"] = tt < 0.25 * tt.max()
-    if np.unique(d.load).size > 1:
-        masks["load"] = d.load == d.load.max()
     return masks
 
 
-def _localise(d: JointData, ch: Channel, noise: float, nominal_sse_resid: np.ndarray) -> list:
-    """Share of the held-out torque gap in each regime, from local refits: the nominal model is
-    refitted without the regime's samples, and the regime's excess residual over the noise floor
-    is what the rest of the data cannot explain there."""
-    fold = d.fold
+#: motion regimes in priority order: each held-out sample belongs to the first that holds
+PARTITION = ("reversal", "low_speed", "high_acceleration", "high_speed")
+
+
+def _localise(d: JointData, noise: float, resid: np.ndarray) -> tuple[list, float]:
+    """Decomposition of the held-out excess (nominal residual power above the noise floor) over
+    non-overlapping motion regimes: every sample is assigned to the first of :data:`PARTITION`
+    that holds, the rest (moderate speed, moderate acceleration) to ``rest``. A regime's share is
+    its excess ``sum r^2 - n sigma^2`` (clipped at 0) over the total; shares and ``rest`` add
+    up to 1. Returns (regime rows sorted by share, rest share)."""
+    masks = _regime_masks(d)
+    taken = np.zeros(resid.shape[0], bool)
     excess = {}
-    for name, m in _regime_masks(d).items():
-        if m.sum() < 20 or (~m).sum() < 50:
-            continue
-        keep = ~m
-        r2 = np.zeros_like(ch.target)
-        for f in np.unique(fold):
-            test_tr = np.flatnonzero(fold == f)
-            train = ~np.isin(ch.trial, test_tr) & keep
-            if train.sum() < ch.X0.shape[1] + 5:
-                continue
-            th = np.linalg.lstsq(ch.X0[train], ch.target[train], rcond=None)[0]
-            te = np.isin(ch.trial, test_tr)
-            r2[te] = (ch.target[te] - ch.X0[te] @ th) ** 2
-        excess[name] = max(float(r2[m].sum() - noise * m.sum()), 0.0)
-    # position: structure of the held-out residual along q that the nominal model leaves
-    nb = 100
-    edges = np.quantile(d.q, np.linspace(0, 1, nb + 1))
-    b = np.clip(np.searchsorted(edges, d.q, side="right") - 1, 0, nb - 1)
-    cnt = np.bincount(b, minlength=nb)
-    sm = np.bincount(b, weights=nominal_sse_resid, minlength=nb)
-    between = float(np.sum(sm ** 2 / np.maximum(cnt, 1)) - nb * noise)
-    excess["position"] = max(between, 0.0)
-    tot = sum(excess.values())
+    r2 = resid ** 2
+    for name in PARTITION:
+        m = masks[name] & ~taken
+        taken |= m
+        if m.any():
+            excess[name] = max(float(r2[m].sum() - noise * m.sum()), 0.0)
+    rest = max(float(r2[~taken].sum() - noise * (~taken).sum()), 0.0)
+    tot = sum(excess.values()) + rest
     if tot <= 0:
-        return [{"regime": k, "share": 0.0} for k in excess]
-    return sorted(({"regime": k, "share": v / tot} for k, v in excess.items()),
-                  key=lambda r: -r["share"])
+        return [{"regime": k, "share": 0.0} for k in excess], 0.0
+    rows = sorted(({"regime": k, "share": v / tot} for k, v in excess.items()), key=lambda r: -r["share"])
+    return rows, rest / tot
 
 
-def _heldout_residual(d: JointData, ch: Channel) -> np.ndarray:
+def _heldout_residual(d: JointData, ch: Channel, cv: CVResult) -> np.ndarray:
+    """Held-out residual of the nominal model: each fold's samples against the fit without it
+    (the thetas of the nominal cross-validation, not refitted)."""
     r = np.zeros_like(ch.target)
-    for f in np.unique(d.fold):
-        test_tr = np.flatnonzero(d.fold == f)
-        te = np.isin(ch.trial, test_tr)
-        th = np.linalg.lstsq(ch.X0[~te], ch.target[~te], rcond=None)[0]
+    for f, th in cv.theta_per_fold.items():
+        te = np.isin(ch.trial, np.flatnonzero(d.fold == f))
         r[te] = ch.target[te] - ch.X0[te] @ th
     return r
 
 
-def _clean(row: dict) -> dict:
-    return {k: v for k, v in row.items() if not k.startswith("_")}
+def _channel_result(ch: Channel, res: _ChannelRun, settings: DiagnosisSettings) -> ChannelResult:
+    n = res.n
+    return ChannelResult(
+        ch.name, ch.unit, float(np.sqrt(res.mse_nominal)), bootstrap_ci(res.nominal_sse, n, seed=settings.seed),
+        _rms(res.final_sse, n), bootstrap_ci(res.final_sse, n, seed=settings.seed),
+        float(np.sqrt(res.noise_floor_mse)), tuple(s for s, _ in res.steps), n_blocks=res.n_blocks,
+        p_min_attainable=res.p_min)
 
 
 def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings(),
-                   gear_ratio: float | None = None) -> dict:
+                   gear_ratio: float | None = None) -> DiagnosisResult:
+    from ident.signals.smoothing import one_blas_thread
+
+    with one_blas_thread():
+        return _diagnose_joint(d, settings, gear_ratio)
+
+
+def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None) -> DiagnosisResult:
+    nominal = NOMINAL_MODELS[settings.nominal]
     cands = candidate_effects(gear_ratio)
-    channels = [_torque_channel(d)]
+    channels = [_torque_channel(d, nominal)]
     if d.has_transmission:
         channels.append(_transmission_channel(d))
-    out = {"nominal_model": "coulomb_viscous", "n_trials": d.n_trials,
-           "folds": "leave-one-repetition-out" if len(set(d.fold.tolist())) < d.n_trials
-           else "leave-one-trial-out", "channels": {}}
-    effects, selected = [], []
-    torque_res = None
+    effects, selected, chres = [], [], {}
+    runs = {}
     for ch in channels:
         res = _channel_stepwise(d, ch, cands, settings)
-        if ch.name == "torque":
-            torque_res = res
+        runs[ch.name] = res
         stab = _stability(res, settings)
-        n = res["n"]
-        lo, hi = bootstrap_ci(res["nominal_sse"], n, seed=settings.seed)
-        lo2, hi2 = bootstrap_ci(res["final_sse"], n, seed=settings.seed)
-        out["channels"][ch.name] = {
-            "unit": ch.unit, "heldout_rms_nominal": float(np.sqrt(res["mse_nominal"])),
-            "heldout_rms_nominal_ci95": [lo, hi],
-            "heldout_rms_final": _rms(res["final_sse"], n), "heldout_rms_final_ci95": [lo2, hi2],
-            "noise_floor_rms": float(np.sqrt(res["noise_floor_mse"])),
-            "remaining_gap_over_noise": float(_rms(res["final_sse"], n) / max(np.sqrt(res["noise_floor_mse"]), 1e-300)),
-            "selected": [_clean(s) for s in res["steps"]],
-        }
-        for name, row in res["first"].items():
-            conf, exp = CONFOUNDERS.get(name, ([], ""))
-            r = _clean(row)
-            r.update(confounded_with=conf, separating_experiment=exp, bootstrap_top_share=stab.get(name, 0.0))
-            effects.append(r)
-        for s in res["steps"]:
-            selected.append({**_clean(s), "explained_share": s["explained_share"]})
+        chres[ch.name] = _channel_result(ch, res, settings)
+        for name, row in res.first.items():
+            conf, exp = confounders(name)
+            effects.append(replace(row.test, confounded_with=tuple(conf), separating_experiment=exp,
+                                   bootstrap_top_share=stab.get(name, 0.0)))
+        selected += [s for s, _ in res.steps]
     # verdict: a significant transmission effect first. Friction-type effects cannot open a gap
     # between link and motor angles of a stiff joint, whereas compliance and backlash also disturb
     # the torque around reversals (a presliding-like torque signature): the transmission
     # channel's finding is the root cause. Otherwise the torque channel's first selection.
     verdict = "none"
     for c in ("transmission", "torque"):
-        if c in out["channels"] and out["channels"][c]["selected"]:
-            verdict = out["channels"][c]["selected"][0]["effect"]
+        if c in chres and chres[c].selected:
+            verdict = chres[c].selected[0].effect
             break
-    out["verdict"] = verdict
-    out["selected"] = [s["effect"] for s in sorted(selected, key=lambda s: -s["explained_share"])]
-    out["heldout_rms_nominal"] = out["channels"]["torque"]["heldout_rms_nominal"]
-    tch = channels[0]
-    resid = _heldout_residual(d, tch)
-    out["localisation"] = _localise(d, tch, torque_res["noise_floor_mse"], resid)
+    insufficient = ""
+    if verdict == "none":
+        weak = [(c, r) for c, r in runs.items() if r.powerless(settings.alpha)]
+        if weak:
+            c, r = weak[0]
+            need = int(np.ceil(np.log2(2 * r.n_tested / settings.alpha)))
+            insufficient = (f"insufficient data: the {c} channel has {r.n_blocks} independent blocks (trials or "
+                            f"motion cycles); the block sign-flip test's smallest p is {r.p_min:.3g}, times "
+                            f"{r.n_tested} candidates (Holm) >= alpha {settings.alpha:g}, so no effect could be "
+                            f"declared. Record at least {need} blocks (repeat the trajectories, or a longer record "
+                            f"with more motion cycles) to settle it.")
+    tch, tres = channels[0], runs["torque"]
+    resid = _heldout_residual(d, tch, tres.nominal_cv)
+    localisation, rest = _localise(d, tres.noise_floor_mse, resid)
     dt = float(np.median(np.diff(d.t_rel[:1000]))) if d.t_rel.size > 2 else 0.005
     rep_var = repetition_noise_floor(resid, d.trial, d.t_rel, d.group[:d.n_trials], 1.0 / dt)
-    tq = out["channels"]["torque"]
-    tq["noise_floor_rms_repetitions"] = float(np.sqrt(rep_var)) if np.isfinite(rep_var) else None
-    if np.isfinite(rep_var) and rep_var > 0:
-        tq["remaining_gap_over_repetition_noise"] = float(tq["heldout_rms_final"] / np.sqrt(rep_var))
-    out["_series"] = {"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial}
-    effects.sort(key=lambda r: (not r.get("significant", False), -(r.get("reduction") or 0.0)))
-    out["effects"] = effects
-    return out
+    chres["torque"] = replace(chres["torque"], noise_floor_rms_repetitions=(
+        float(np.sqrt(rep_var)) if np.isfinite(rep_var) else None))
+    effects.sort(key=lambda r: (not r.significant, -(r.reduction or 0.0)))
+    return DiagnosisResult(
+        verdict=verdict, nominal_model=nominal.label, n_trials=d.n_trials,
+        folds="leave-one-repetition-out" if len(set(d.fold.tolist())) < d.n_trials else "leave-one-trial-out",
+        channels=chres, effects=tuple(effects), insufficient=insufficient,
+        selected=tuple(s.effect for s in sorted(selected, key=lambda s: -s.explained_share)),
+        localisation=tuple(localisation), localisation_rest=rest,
+        localisation_method="decomposition of the held-out excess over non-overlapping motion regimes "
+                            "(priority " + " > ".join(PARTITION) + "; the remainder is 'rest')",
+        series={"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial})

@@ -77,9 +77,7 @@ class CVResult:
     theta_all: np.ndarray      # fit on all trials with the hp chosen on all trials
     hp_all: object
     train_sse_all: float
-    identifiable: bool = True
-    note: str = ""
-    extra: dict = field(default_factory=dict)
+    theta_per_fold: dict = field(default_factory=dict)  # fold -> theta fitted without it
 
 
 def _best_fit(grams_by_hp: dict, mask: np.ndarray):
@@ -100,30 +98,35 @@ def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_trials: np.ndarray |
     nt = fold.shape[0]
     fit_mask = np.ones(nt, bool) if fit_trials is None else fit_trials
     sse = np.zeros(nt)
-    chosen = {}
+    chosen, thetas = {}, {}
     for f in np.unique(fold):
         test = fold == f
         _, hp, th = _best_fit(grams_by_hp, ~test & fit_mask)
         chosen[f] = hp
+        thetas[f] = th
         sse[test] = sse_with(th, grams_by_hp[hp], test)
     tr, hp, th = _best_fit(grams_by_hp, fit_mask)
-    return CVResult(sse, chosen, th, hp, tr)
+    return CVResult(sse, chosen, th, hp, tr, thetas)
 
 
-def unexplained_fraction(gr: Grams, p: int) -> float:
-    """How much of the columns after the first ``p`` lies outside the span of the first ``p``
-    (0..1), from the pooled Gram matrix (Schur complement): 0 means not identifiable."""
+def unexplained_fractions(gr: Grams, p: int) -> np.ndarray:
+    """Per column after the first ``p``: the share of its norm outside the span of the first
+    ``p`` columns (0..1), from the pooled Gram matrix (Schur complement)."""
     G = gr.G.sum(axis=0)
-    if G.shape[0] == p:
-        return 0.0
     Gcc = G[p:, p:]
     if p:
         Gxx, Gxc = G[:p, :p], G[:p, p:]
         S = Gcc - Gxc.T @ np.linalg.lstsq(Gxx, Gxc, rcond=None)[0]
     else:
         S = Gcc
-    d = np.clip(np.diag(S), 0, None)
-    return float(np.min(np.sqrt(d / np.maximum(np.diag(Gcc), 1e-300))))
+    return np.sqrt(np.clip(np.diag(S), 0, None) / np.maximum(np.diag(Gcc), 1e-300))
+
+
+def unexplained_fraction(gr: Grams, p: int) -> float:
+    """The least of :func:`unexplained_fractions`: 0 means not identifiable."""
+    if gr.G.shape[1] == p:
+        return 0.0
+    return float(np.min(unexplained_fractions(gr, p)))
 
 
 def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float:
@@ -149,6 +152,15 @@ def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float
         signs = rng.choice([-1.0, 1.0], size=(n_perm, n))
     null = tstat(signs * d)
     return float((1 + np.sum(null >= obs - 1e-12)) / (1 + null.shape[0]))
+
+
+def sign_flip_min_p(n: int, n_perm: int = 20000) -> float:
+    """Smallest p-value :func:`sign_flip_pvalue` can return with ``n`` blocks: all ``2^n``
+    sign patterns when that is at most ``n_perm`` (the observed pattern and its mirror image
+    tie), else ``1 / (1 + n_perm)``."""
+    if n < 2:
+        return 1.0
+    return 2.0 / (1 + 2 ** n) if 2 ** n <= n_perm else 1.0 / (1 + n_perm)
 
 
 def holm(pvals: dict) -> dict:

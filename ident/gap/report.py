@@ -35,6 +35,8 @@ def markdown(report: dict, plots: dict) -> str:
         if "note" in rep:
             L += [rep["note"], ""]
             continue
+        if rep.get("insufficient_data"):
+            L += [f"**Insufficient data**: {rep['insufficient_data']}", ""]
         for name, ch in rep["channels"].items():
             lo, hi = ch["heldout_rms_nominal_ci95"]
             lo2, hi2 = ch["heldout_rms_final_ci95"]
@@ -45,10 +47,14 @@ def markdown(report: dict, plots: dict) -> str:
                      f"(remaining gap {ch['remaining_gap_over_noise']:.2f}x the floor)"
                      + (f"; noise from repetitions {ch['noise_floor_rms_repetitions']:.3g} (remaining gap "
                         f"{ch['remaining_gap_over_repetition_noise']:.2f}x)" if ch.get("remaining_gap_over_repetition_noise")
-                        else "") + ".")
+                        else "") + f"; {ch.get('n_blocks', '?')} blocks, smallest attainable p "
+                     f"{_fmt(ch.get('p_min_attainable'))}.")
         L.append("")
-        L += ["Where the torque gap lies (local refits):", "", "| regime | share |", "|---|---|"]
+        L += [f"Where the torque gap lies ({rep.get('localisation_method', 'local refits')}):", "",
+              "| regime | share |", "|---|---|"]
         L += [f"| {r['regime']} | {r['share']:.2f} |" for r in rep["localisation"]]
+        if "localisation_rest" in rep:
+            L.append(f"| rest | {rep['localisation_rest']:.2f} |")
         L += ["", "Candidate effects (first selection step):", "",
               "| effect | channel | held-out RMS | reduction | p (Holm) | significant | shape | confounded with |",
               "|---|---|---|---|---|---|---|---|"]
@@ -60,6 +66,11 @@ def markdown(report: dict, plots: dict) -> str:
             L.append(f"| {e['effect']} | {e['channel']} | {e['heldout_rms']:.4g} | {e['reduction']:.3f} | "
                      f"{e['p_adjusted']:.2g} | {'yes' if e['significant'] else 'no'} | {_cell(e['shape'])} | "
                      f"{', '.join(e.get('confounded_with', []))} |")
+        ev = [(e["effect"], k, x) for e in rep["effects"] for k, x in e.get("evidence", {}).items()]
+        if ev:
+            L += ["", "Signatures (share of an effect's own reduction that survives with its confounder in "
+                      "the model; near 0 = explained by the confounder):", ""]
+            L += [f"- {name}: {k.replace('_', ' ')} = {x:.2f}" for name, k, x in ev]
         v = next((e for e in rep["effects"] if e["effect"] == rep["verdict"]), None)
         if v:
             L += ["", f"To separate **{v['effect']}** from {', '.join(v['confounded_with']) or 'its neighbours'}: "

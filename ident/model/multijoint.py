@@ -138,7 +138,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
 
 
 def diagnose_records(campaign, robot, settings, joints=None, record: RecordSettings | None = None,
-                     n_segments: int = 6, progress: bool = False) -> tuple[dict, dict]:
+                     n_segments: int | None = None, progress: bool = False) -> tuple[dict, dict]:
     """The gap diagnosis of every moving joint of every multi-joint trial, from the CLI: each
     trial is prepared like `fit` does (:func:`ident.model.record.load_record`: repeated rows,
     irregular steps, derivatives, coupling, braked-joint check) and handed to
@@ -156,10 +156,13 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
             if joints and j not in joints:
                 continue
             d = build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
-            rep = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
-            rep["record"] = {"trial": tr.id, "preprocessing": rec.preprocessing,
-                             "folds": f"leave-one-segment-out ({n_segments} contiguous segments)"}
+            res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
+            rep = res.to_dict()
+            folds = ("leave-one-block-out over the joint's motion cycles (blocks chosen from the data)"
+                     if n_segments is None else
+                     f"leave-one-segment-out ({n_segments} contiguous segments)")
+            rep["record"] = {"trial": tr.id, "preprocessing": rec.preprocessing, "folds": folds}
             key = str(j) if len(trials) == 1 else f"{tr.id}/{j}"
-            series[key] = rep.pop("_series", None)
+            series[key] = res.series
             reports[key] = rep
     return reports, series

@@ -40,32 +40,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-EFFECTS = ("none", "stribeck", "presliding", "position_ripple", "load_dependent", "thermal_drift",
-           "compliance", "backlash", "torque_scale", "asymmetry", "nonlinear_viscous", "time_offset")
+from ident.effects import EFFECTS as _EFFECTS
+from ident.effects import K_NOMINAL, REGISTRY, SimContext
 
-#: which measurement channel each effect lives in
-CHANNEL = {"stribeck": "torque", "presliding": "torque", "position_ripple": "torque",
-           "load_dependent": "torque", "thermal_drift": "torque", "torque_scale": "torque",
-           "asymmetry": "torque", "nonlinear_viscous": "torque", "compliance": "transmission",
-           "backlash": "transmission", "time_offset": "clock", "none": "none"}
+#: the vocabulary, the channel each effect lives in and its sizes at magnitude 1 (ident.effects)
+EFFECTS = _EFFECTS
+CHANNEL = {name: sp.channel for name, sp in REGISTRY.items()}
+SIZE = {name: dict(sp.size) for name, sp in REGISTRY.items() if sp.size}
 
-#: sizes at magnitude 1 (see the module docstring)
-SIZE = {
-    "stribeck": {"static_ratio": 0.45, "Vc": 0.05},
-    "presliding": {"z_ss": 2e-3, "zeta": 1.0},
-    "position_ripple": {"ratio": 0.10, "harmonic": 36, "phase": 0.7},
-    "load_dependent": {"mu": 0.08},
-    "thermal_drift": {"cold_excess": 0.30, "tau_fraction": 1.0 / 3.0},
-    "compliance": {"deflection_deg": 0.4},
-    "backlash": {"band_deg": 0.2},
-    "torque_scale": {"scale_error": 0.15},
-    "asymmetry": {"a": 0.25},
-    "nonlinear_viscous": {"ratio": 0.3},
-    "time_offset": {"offset_s": 0.020},
-}
-
-#: baseline (nominal) transmission: stiff enough that deflection < encoder resolution
-K_NOMINAL = 3.0e5   # N m / rad
 #: joint damping ``d = 2 ZETA_JOINT sqrt(k (I + J))``: harmonic drives are well damped, and a
 #: lightly damped joint mode rings at every friction reversal (~1 kHz), which the PD feeds into
 #: the torque: that ringing would itself be an unmodelled effect of the nominal plant
@@ -140,38 +122,11 @@ class Effect:
         ``inertia`` (link + motor, kg m^2) sets the joint damping and the LuGre damping.
         """
         M = float(self.magnitude) if self.name != "none" else 0.0
-        s = self.size()
-        k = K_NOMINAL
-        beta = 0.0
-        if self.name == "compliance" and M > 0:
-            k = 1.0 / (1.0 / K_NOMINAL + M * math.radians(s["deflection_deg"]) / tau_max)
-        if self.name == "backlash":
-            beta = 0.5 * M * math.radians(s["band_deg"])
-        d = 2.0 * ZETA_JOINT * math.sqrt(k * inertia)
-        p = dict(c_pos=c, c_neg=c, v=v, k=k, d=d, beta=beta)
-        n = self.name
-        if n == "stribeck":
-            p.update(S=M * s["static_ratio"] * c, Vc=s["Vc"])
-        elif n == "presliding" and M > 0:
-            sigma0 = c / (M * s["z_ss"])
-            p.update(sigma0=sigma0, sigma1=2.0 * s["zeta"] * math.sqrt(sigma0 * inertia))
-        elif n == "position_ripple":
-            p.update(ripple_A=M * s["ratio"] * c, ripple_n=int(s["harmonic"]),
-                     ripple_phi=float(s["phase"]))
-        elif n == "load_dependent":
-            p.update(mu=M * s["mu"])
-        elif n == "thermal_drift":
-            p.update(thermal_h=M * s["cold_excess"],
-                     thermal_tau=max(campaign_length_s * s["tau_fraction"], 1.0))
-        elif n == "torque_scale":
-            p.update(torque_gain=1.0 + M * s["scale_error"])
-        elif n == "asymmetry":
-            p.update(c_pos=c * (1.0 + 0.5 * M * s["a"]), c_neg=c * (1.0 - 0.5 * M * s["a"]),
-                     va=M * s["a"])
-        elif n == "nonlinear_viscous":
-            p.update(w=M * s["ratio"] * v / vmax)
-        elif n == "time_offset":
-            p.update(time_offset=M * s["offset_s"])
+        ctx = SimContext(c=c, v=v, tau_max=tau_max, vmax=vmax, inertia=inertia,
+                         campaign_length_s=campaign_length_s)
+        p = dict(c_pos=c, c_neg=c, v=v, k=K_NOMINAL, beta=0.0)
+        p.update(REGISTRY[self.name].sim_params(M, self.size(), ctx))
+        p["d"] = 2.0 * ZETA_JOINT * math.sqrt(p["k"] * inertia)
         return JointEffects(**p)
 
     def to_dict(self) -> dict:

@@ -411,8 +411,7 @@ def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: 
     wc = 2 * np.pi * bandwidth_hz
     Mdiag = np.diag(Mn)[joints] + Jv
     kp, kdg = Mdiag * wc * wc, 2 * 0.9 * Mdiag * wc
-    tau_link_ff = np.array([pin.rnea(cm, cd, QR[i].copy(), QDR[i].copy(), QDDR[i].copy())[joints]
-                            for i in range(N)]) if N else np.zeros((0, m))
+    tau_link_ff = np.atleast_2d(ctrl_robot.rnea(QR, QDR, QDDR))[:, joints] if N else np.zeros((0, m))
     qd_sel = QDR[:, joints]
     link_ff = tau_link_ff + c_nom * np.sign(qd_sel) + v_nom * qd_sel
     u_ff = link_ff + Jv * QDDR[:, joints] + Bv * qd_sel

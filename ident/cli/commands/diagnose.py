@@ -11,8 +11,11 @@ def register(sub):
     p = sub.add_parser("diagnose", help="diagnose the sim-to-real gap of a campaign (diagnosis.json, .md, plots)")
     p.add_argument("campaign", type=Path)
     add_common(p, out_required=True)
-    p.add_argument("--nominal", default="cv", choices=["cv"],
-                   help="nominal friction model of the simulator (Coulomb + viscous)")
+    from ident.gap.diagnose import NOMINAL_MODELS
+
+    p.add_argument("--nominal", default="cv", choices=sorted(NOMINAL_MODELS),
+                   help="nominal friction model of the simulator: "
+                        + "; ".join(f"{k}: {m.doc}" for k, m in NOMINAL_MODELS.items()))
     p.add_argument("--angles", type=Path, metavar="DIR",
                    help="link angles from `jointlab mocap` (angles/<trial>.csv); default: solve them here")
     p.add_argument("--no-markers", action="store_true", help="torque channel only (ignore marker files)")
@@ -71,7 +74,7 @@ def run(args) -> int:
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
         no_markers = args.no_markers or not camp.has_markers   # marker-less campaigns
         angles = None if no_markers else link_angles(camp, robot, args.angles, sink)
-        report, series = _diagnose(camp, robot, angles, DiagnosisSettings(seed=args.seed), args.joints)
+        report, series = _diagnose(camp, robot, angles, DiagnosisSettings(seed=args.seed, nominal=args.nominal), args.joints)
         paths = write_report(report, series, out, sink)
     summary = {j: {"verdict": r["verdict"], "heldout_rms_nominal": r.get("heldout_rms_nominal")}
                for j, r in report["joints"].items()}

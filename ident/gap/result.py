@@ -1,0 +1,152 @@
+"""Typed results of the gap diagnosis; ``to_dict()`` gives diagnosis.json's per-joint entries
+(FORMAT.md keys: verdict, effects[].effect/reduction/p_value/significant,
+localisation[].regime/share, heldout_rms_nominal, nominal_model)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+def _f(x):
+    return None if x is None else float(x)
+
+
+@dataclass(frozen=True)
+class EffectTest:
+    """One candidate effect tested against the nominal model (first selection step)."""
+
+    effect: str
+    channel: str
+    identifiable: bool
+    family: str = ""
+    note: str = ""
+    heldout_rms: float | None = None
+    reduction: float | None = None          # 1 - RMS_effect / RMS_nominal, held out
+    reduction_step: float | None = None     # same against the model of the current step
+    explained_share: float | None = None    # share of the excess over the noise floor removed
+    p_value: float | None = None
+    p_adjusted: float | None = None         # Holm over the candidates of the step
+    p_min_attainable: float | None = None   # smallest p the test can give with these blocks
+    significant: bool = False
+    physical: bool = True                   # best fit has the physically meaningful sign
+    shape: str = ""
+    evidence: dict = field(default_factory=dict)   # signature checks (name -> value/verdict)
+    confounded_with: tuple = ()
+    separating_experiment: str = ""
+    bootstrap_top_share: float = 0.0
+
+    def to_dict(self) -> dict:
+        d = {"effect": self.effect, "channel": self.channel, "identifiable": self.identifiable,
+             "family": self.family}
+        if not self.identifiable:
+            d.update(note=self.note, significant=False, p_adjusted=None)
+        else:
+            d.update(heldout_rms=_f(self.heldout_rms), reduction=_f(self.reduction),
+                     reduction_step=_f(self.reduction_step), explained_share=_f(self.explained_share),
+                     p_value=_f(self.p_value), p_adjusted=_f(self.p_adjusted),
+                     p_min_attainable=_f(self.p_min_attainable), significant=bool(self.significant),
+                     physical=bool(self.physical), shape=self.shape)
+            if self.note:
+                d["note"] = self.note
+            if self.evidence:
+                d["evidence"] = dict(self.evidence)
+        d.update(confounded_with=list(self.confounded_with), separating_experiment=self.separating_experiment,
+                 bootstrap_top_share=float(self.bootstrap_top_share))
+        return d
+
+
+@dataclass(frozen=True)
+class SelectionStep:
+    """An effect that joined the model in forward stepwise selection."""
+
+    effect: str
+    channel: str
+    heldout_rms: float
+    reduction: float
+    p_adjusted: float
+    explained_share: float
+    shape: str
+    family: str = ""
+
+    def to_dict(self) -> dict:
+        return {"effect": self.effect, "channel": self.channel, "heldout_rms": float(self.heldout_rms),
+                "reduction": float(self.reduction), "p_adjusted": float(self.p_adjusted),
+                "explained_share": float(self.explained_share), "shape": self.shape, "family": self.family}
+
+
+@dataclass(frozen=True)
+class ChannelResult:
+    """Held-out fit of one channel before and after the selected effects."""
+
+    name: str
+    unit: str
+    heldout_rms_nominal: float
+    heldout_rms_nominal_ci95: tuple
+    heldout_rms_final: float
+    heldout_rms_final_ci95: tuple
+    noise_floor_rms: float
+    selected: tuple = ()                                # SelectionStep
+    noise_floor_rms_repetitions: float | None = None
+    noise_floor_method: str = "white (second differences)"
+    n_blocks: int = 0
+    p_min_attainable: float | None = None
+
+    @property
+    def remaining_gap_over_noise(self) -> float:
+        return float(self.heldout_rms_final / max(self.noise_floor_rms, 1e-300))
+
+    def to_dict(self) -> dict:
+        d = {"unit": self.unit, "heldout_rms_nominal": float(self.heldout_rms_nominal),
+             "heldout_rms_nominal_ci95": [float(x) for x in self.heldout_rms_nominal_ci95],
+             "heldout_rms_final": float(self.heldout_rms_final),
+             "heldout_rms_final_ci95": [float(x) for x in self.heldout_rms_final_ci95],
+             "noise_floor_rms": float(self.noise_floor_rms), "noise_floor_method": self.noise_floor_method,
+             "remaining_gap_over_noise": self.remaining_gap_over_noise,
+             "selected": [s.to_dict() for s in self.selected], "n_blocks": int(self.n_blocks),
+             "p_min_attainable": _f(self.p_min_attainable)}
+        if self.name == "torque":
+            r = self.noise_floor_rms_repetitions
+            d["noise_floor_rms_repetitions"] = _f(r)
+            if r is not None and r > 0:
+                d["remaining_gap_over_repetition_noise"] = float(self.heldout_rms_final / r)
+        return d
+
+
+@dataclass(frozen=True)
+class DiagnosisResult:
+    """The diagnosis of one joint."""
+
+    verdict: str
+    nominal_model: str
+    n_trials: int
+    folds: str
+    channels: dict                  # name -> ChannelResult
+    effects: tuple                  # EffectTest, significant first, then by reduction
+    selected: tuple                 # effect names, by explained share
+    localisation: tuple             # ({"regime", "share"}, ...)
+    localisation_method: str = ""
+    localisation_rest: float = 0.0  # share of the excess outside every listed regime
+    notes: tuple = ()
+    insufficient: str = ""          # why the data cannot settle it, and the experiment that would
+    series: dict = field(default_factory=dict, repr=False, compare=False)   # plots, not in JSON
+
+    @property
+    def heldout_rms_nominal(self) -> float:
+        return self.channels["torque"].heldout_rms_nominal
+
+    def effect(self, name: str) -> EffectTest:
+        return next(e for e in self.effects if e.effect == name)
+
+    def to_dict(self) -> dict:
+        d = {"verdict": self.verdict, "nominal_model": self.nominal_model, "n_trials": int(self.n_trials),
+             "folds": self.folds, "channels": {k: c.to_dict() for k, c in self.channels.items()},
+             "selected": list(self.selected), "heldout_rms_nominal": float(self.heldout_rms_nominal),
+             "localisation": [dict(r) for r in self.localisation],
+             "localisation_method": self.localisation_method,
+             "localisation_rest": float(self.localisation_rest),
+             "effects": [e.to_dict() for e in self.effects]}
+        d["verdict_status"] = "insufficient_data" if self.insufficient else "conclusive"
+        if self.insufficient:
+            d["insufficient_data"] = self.insufficient
+        if self.notes:
+            d["notes"] = list(self.notes)
+        return d
