@@ -74,16 +74,16 @@ def foreign_jobs(a) -> list[tuple[str, object]]:
         jobs += [("control", W("none", 11 + s, 1.0, robot, **base)) for s in range(a.controls)]
         if "urdf" in a.conditions:
             jobs += [("urdf10", W("none", 31 + s, 1.0, robot, urdf_error=10.0, **base)) for s in range(a.cond_seeds)]
-            jobs += [("urdf10", W(e, 31, 1.0, robot, urdf_error=10.0, **base)) for e in a.effects]
+            jobs += [("urdf10", W(e, 31, 1.0, robot, urdf_error=10.0, **base)) for e in a.cond_effects]
         if "payload" in a.conditions:
             jobs += [("payload", W("none", 41 + s, 1.0, robot, payload_com_known=False, **base))
                      for s in range(a.cond_seeds)]
-            jobs += [("payload", W(e, 41, 1.0, robot, payload_com_known=False, **base)) for e in a.effects]
+            jobs += [("payload", W(e, 41, 1.0, robot, payload_com_known=False, **base)) for e in a.cond_effects]
         if "coloured" in a.conditions:
             jobs += [("coloured", W("none", 51 + s, 1.0, robot, noise="coloured", **base)) for s in range(a.cond_seeds)]
-            jobs += [("coloured", W(e, 51, 1.0, robot, noise="coloured", **base)) for e in a.effects]
+            jobs += [("coloured", W(e, 51, 1.0, robot, noise="coloured", **base)) for e in a.cond_effects]
         if "two" in a.conditions:
-            jobs += [("two", W(p, 61 + k, 1.0, robot, second_effect=q, **base)) for k, (p, q) in enumerate(PAIRS)]
+            jobs += [("two", W(p, 61 + k, 1.0, robot, second_effect=q, **base)) for k, (p, q) in enumerate(PAIRS[:a.pairs])]
     return jobs
 
 
@@ -103,6 +103,16 @@ def run_foreign(job) -> dict:
         t0 = time.perf_counter()
         res["reference"] = F.truth_reference(camp, wa.moving_joint).to_dict()
         res["reference_s"] = time.perf_counter() - t0
+    return res
+
+
+def generate_foreign(job) -> dict:
+    group, wa, cache, _ = job
+    res = {"world": "foreign", "group": group, "name": wa.name}
+    try:
+        res["generate_s"] = F.ensure_campaign(wa, cache)[1]
+    except RuntimeError as exc:
+        res["error"] = str(exc)
     return res
 
 
@@ -283,16 +293,21 @@ def main(argv=None):
                     help="comma list of extra groups: urdf (10 %% URDF error), payload (COM undeclared), "
                          "coloured (noise), two (two effects at once); '' for none")
     ap.add_argument("--cond-seeds", type=int, default=3, help="effect-free campaigns per condition and robot")
+    ap.add_argument("--cond-effects", default=None,
+                    help="effects (magnitude 1, one seed) also run under each condition (default: --effects; '' for none)")
+    ap.add_argument("--pairs", type=int, default=len(PAIRS), help=f"two-effect pairs per robot (at most {len(PAIRS)})")
     ap.add_argument("--reps", type=int, default=4, help="foreign world: repetitions per load and speed")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=None, help="campaign cache (default $JOINTLAB_CORPUS or /work/corpus/foreign)")
     ap.add_argument("--only-cached", action="store_true", help="skip foreign campaigns that are not cached yet")
     ap.add_argument("--no-reference", action="store_true", help="skip the true-structure reference")
+    ap.add_argument("--generate-only", action="store_true", help="fill the foreign-world cache, diagnose nothing")
     ap.add_argument("--json", type=Path, help="write the per-campaign results here")
     a = ap.parse_args(argv)
     split = lambda s: [x for x in s.split(",") if x]  # noqa: E731
     a.robots, a.effects, a.conditions = split(a.robots), split(a.effects), split(a.conditions)
     a.magnitudes = [float(m) for m in split(a.magnitudes)]
+    a.cond_effects = a.effects if a.cond_effects is None else split(a.cond_effects)
     small = False
     if a.quick:
         a.robots, a.effects, a.magnitudes, a.seeds, a.controls, a.conditions, a.reps = (
@@ -309,6 +324,8 @@ def main(argv=None):
     if a.world in ("jointlab", "both"):
         jl = jointlab_jobs(a) if not a.quick else [(g, j) for g, j in jointlab_jobs(a)][:4]
         jobs += [(run_jointlab, (g, j, small)) for g, j in jl]
+    if a.generate_only:
+        jobs = [(generate_foreign, j) for fn, j in jobs if fn is run_foreign]
     print(f"{len(jobs)} campaigns, {a.workers} worker(s), cache {cache}", flush=True)
     t0 = time.perf_counter()
     results = []
@@ -323,6 +340,8 @@ def main(argv=None):
             results.append(fn(j))
             _progress(results[-1], len(results), len(jobs), a.json, results)
     print(f"\n{len(results)} campaigns in {time.perf_counter() - t0:.0f} s wall")
+    if a.generate_only:
+        return 0
     summary = summarize(results, a)
     if a.json:
         a.json.write_text(json.dumps({"summary": summary, "campaigns": results}, indent=1, default=str))
@@ -330,8 +349,8 @@ def main(argv=None):
 
 
 def _progress(r, i, n, path, results):
-    v = r.get("verdict", r.get("error", "?"))
-    mark = "" if "verdict" not in r else ("ok  " if r["correct"] else "MISS")
+    v = r.get("verdict", r.get("error", "generated" if "generate_s" in r else "?"))
+    mark = "    " if "verdict" not in r else ("ok  " if r["correct"] else "MISS")
     print(f"[{i}/{n}] {mark} {r['name']}: {v} (gen {r.get('generate_s', 0):.0f} s, diagnose "
           f"{r.get('diagnose_s', 0):.0f} s)", flush=True)
     if path:  # partial results survive an interrupted run
