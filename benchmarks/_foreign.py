@@ -310,8 +310,10 @@ def score_diagnosis(args: WorldArgs, report: dict) -> dict:
     verdict = jr["verdict"]
     ranked = ranked_effects(jr)
     red = {x["effect"]: x.get("reduction") for x in jr.get("effects", [])}
+    rms = {x["effect"]: x.get("heldout_rms") for x in jr.get("effects", [])}
     out = {"verdict": verdict, "ranked": ranked, "heldout_rms_nominal": jr.get("heldout_rms_nominal"),
-           "reduction_true_effect": red.get(args.effect), "reduction_verdict": red.get(verdict)}
+           "reduction_true_effect": red.get(args.effect), "reduction_verdict": red.get(verdict),
+           "heldout_rms_true_effect": rms.get(args.effect)}
     if args.effect == "none":
         out["correct"] = verdict == "none"
         out["false_attribution"] = verdict not in NOT_AN_ATTRIBUTION

@@ -271,6 +271,12 @@ def summarize(results, a) -> dict:
                       f"reference (truth files, exact signals; {len(flat)} torque-effect campaigns with a reference "
                       f"reduction > 2 %): median {np.median(flat):.2f}, min {np.min(flat):.2f}")
                 print("   per effect (median): " + ", ".join(f"{k} {np.median(v):.2f}" for k, v in sorted(rel.items())))
+            left = [r["heldout_rms_true_effect"] / r["reference"]["rms_true"] for r in ref
+                    if r.get("heldout_rms_true_effect")]
+            if left:
+                s["rms_true_effect_over_reference_median"] = float(np.median(left))
+                print(f"   held-out RMS with the true effect's candidate / the reference's (= torque noise): median "
+                      f"{np.median(left):.2f}, max {np.max(left):.2f} (1 = as good as the true structure)")
             if nom:
                 print(f"   diagnosis nominal held-out RMS / reference nominal RMS: median {np.median(nom):.2f} "
                       f"(> 1: velocity/acceleration estimation and the URDF cost the diagnosis this much)")
