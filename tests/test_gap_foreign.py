@@ -54,7 +54,7 @@ def foreign_cache(tmp_path_factory):
 @pytest.fixture(scope="session")
 def diagnosed(foreign_cache, tmp_path_factory):
     """effect -> (campaign folder, diagnosis.json), generated and diagnosed once per session."""
-    out, cache = {}, {}
+    cache = {}
 
     def get(effect):
         if effect not in cache:
@@ -64,7 +64,6 @@ def diagnosed(foreign_cache, tmp_path_factory):
             cache[effect] = camp, json.loads((dest / "out" / "diagnosis.json").read_text())
         return cache[effect]
 
-    out["get"] = get
     return get
 
 
