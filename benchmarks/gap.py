@@ -32,7 +32,7 @@ import tempfile
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 
 # this folder holds scripts named like the packages (mocap.py, calib.py): keep it off the path
