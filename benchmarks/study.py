@@ -44,7 +44,10 @@ class PeakRSS:
     """Largest summed RSS of this process and its descendants, sampled in a thread."""
 
     def __init__(self, period: float = 0.1):
-        import psutil
+        try:
+            import psutil
+        except ImportError:
+            raise SystemExit("benchmarks/study.py needs psutil: pip install -e \".[bench]\"") from None
 
         self._p = psutil.Process()
         self._psutil = psutil
