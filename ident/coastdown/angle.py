@@ -44,7 +44,7 @@ from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
 
-__all__ = ["CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle",
+__all__ = ["CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
            "interval_velocity"]
 
 
@@ -70,6 +70,15 @@ def _log1p_over(y):
     return np.where(small, 1.0 - y / 2.0 + y * y / 3.0, np.log1p(ys) / ys)
 
 
+def coast_stop(J, Kv, Kc_eff, w):
+    """Stop time ``tau_s = (J/Kv) ln(1 + Kv w / Kc_eff)`` (inf where ``Kc_eff <= 0``)."""
+    Kc_eff = np.asarray(Kc_eff, float)
+    w = np.maximum(np.asarray(w, float), 0.0)
+    pos = Kc_eff > 0
+    y = Kv * w / np.where(pos, Kc_eff, 1.0)
+    return np.where(pos, J * w / np.where(pos, Kc_eff, 1.0) * _log1p_over(y), np.inf)
+
+
 def coast_angle(tau, J, Kv, Kc_eff, w):
     """Displacement ``x(tau)`` (rad) after a release at speed ``w > 0``: eq. 4 integrated,
     held at its value at the stop ``tau_s`` (no stop where ``Kc_eff <= 0``). Broadcasts.
@@ -77,13 +86,20 @@ def coast_angle(tau, J, Kv, Kc_eff, w):
     tau = np.asarray(tau, float)
     Kc_eff = np.asarray(Kc_eff, float)
     w = np.maximum(np.asarray(w, float), 0.0)
-    pos = Kc_eff > 0
-    y = Kv * w / np.where(pos, Kc_eff, 1.0)
-    tau_s = np.where(pos, J * w / np.where(pos, Kc_eff, 1.0) * _log1p_over(y), np.inf)
+    tau_s = coast_stop(J, Kv, Kc_eff, w)
     tt = np.clip(tau, 0.0, tau_s)
     z = Kv * tt / J
     x = w * tt * _phi(z) - Kc_eff / J * tt * tt * _psi(z)
     return x, tau_s
+
+
+def coast_speed(tau, J, Kv, Kc_eff, w):
+    """Speed ``x'(tau)`` of :func:`coast_angle` (paper eq. 4, 0 after the stop)."""
+    x, tau_s = coast_angle(tau, J, Kv, Kc_eff, w)
+    tt = np.clip(np.asarray(tau, float), 0.0, tau_s)
+    z = Kv * tt / J
+    v = np.maximum(w, 0.0) * np.exp(-z) - Kc_eff / J * tt * _phi(z)
+    return np.where(np.asarray(tau, float) < tau_s, v, 0.0)
 
 
 def interval_velocity(t, q):
@@ -231,6 +247,7 @@ class AngleCoastResult:
     coasts: tuple
     cov: np.ndarray = field(repr=False, default=None)
     notes: tuple = ()
+    x: np.ndarray = field(repr=False, default=None)     # all fitted parameters (restarts)
 
     def to_dict(self) -> dict:
         return {"Kc": self.Kc, "Kv": self.Kv, "J": self.J, "stderr": dict(self.stderr),
@@ -260,9 +277,11 @@ class AngleCoastFit:
         with total inertia ``J``."""
         return self.fit_records([(t, qm, windows, J)])
 
-    def fit_records(self, records) -> AngleCoastResult:
+    def fit_records(self, records, starts=None) -> AngleCoastResult:
         """Fit shared ``Kc``, ``Kv`` to the coasts of several records ``[(t, qm, windows, J),
-        ...]`` (e.g. every coast-down trial of one joint; ``J`` may differ per record)."""
+        ...]`` (e.g. every coast-down trial of one joint; ``J`` may differ per record).
+        ``starts``: optional fits of the same records one by one (:class:`AngleCoastResult`
+        each, in order): the pooled fit starts from them (one start, sparse Jacobian)."""
         parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J))
                  for t, q, ws, J in records for w in ws]
         if not parts:
@@ -334,9 +353,25 @@ class AngleCoastFit:
         sig_q = max(sig_floor, 1e-9)
         opts = dict(bounds=(lb, ub), x_scale=scale, method="trf", max_nfev=self.max_nfev,
                     xtol=1e-9, ftol=1e-9)
+        if K > 12:   # many coasts: each coast's parameters touch only its own rows
+            from scipy.sparse import lil_matrix
+
+            sp = lil_matrix((ys.size + K, 2 + 5 * K), dtype=np.int8)
+            sp[: ys.size, :2] = 1
+            for k in range(K):  # loop over coasts
+                rows = np.flatnonzero(kk == k)
+                sp[rows[0]: rows[-1] + 1, 2 + 5 * k: 7 + 5 * k] = 1
+                sp[ys.size + k, 6 + 5 * k] = 1
+            opts.update(jac_sparsity=sp.tocsr(), tr_solver="lsmr")
+        if starts is not None:
+            xs = [np.asarray(r.x, float) for r in starts]
+            x0s = [np.concatenate([[np.median([x[0] for x in xs]), np.median([x[1] for x in xs])]]
+                                  + [x[2:] for x in xs])]
+        else:
+            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base]) for ks in self.kv_starts]
         best = None
-        for ks in self.kv_starts:  # a few starts
-            x0 = np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base])
+        for x0 in x0s:  # a few starts
+            x0 = np.clip(x0, lb, ub)
             sol = least_squares(resid, x0, args=(sig_q,), **opts)
             if best is None or sol.cost < best.cost:
                 best = sol
@@ -348,7 +383,7 @@ class AngleCoastFit:
         best = least_squares(resid, best.x, args=(sig_q,), **opts)
         x = best.x
         r_ang = ys - model(x)[0]
-        G = best.jac.toarray() if hasattr(best.jac, "toarray") else best.jac
+        G = best.jac.toarray() if hasattr(best.jac, "toarray") else np.asarray(best.jac)
         try:
             cov = np.linalg.pinv(G.T @ G)
         except np.linalg.LinAlgError:
@@ -367,11 +402,11 @@ class AngleCoastFit:
         if Kv <= 1e-12:
             notes.append("Kv at its bound 0")
         _, (qc, vc, kce, w) = model(x)
-        _, tau_s = coast_angle(np.inf, Jk, Kv, kce, w)
+        tau_s = coast_stop(Jk, Kv, kce, w)
         coasts = []
         for k, (tk, _, wd, _) in enumerate(parts):  # loop over coasts (report only)
             rk = r_ang[kk == k]
-            x_s, _ = coast_angle(tau_s[k], Jk[k], Kv, kce[k], w[k])
+            x_s = coast_angle(tau_s[k], Jk[k], Kv, kce[k], w[k])[0] if np.isfinite(tau_s[k]) else np.inf
             coasts.append({"t_cut": float(t_r[k] + P[k, 3] * h[k]), "v_cut": float(vc[k]),
                            "direction": int(wd.direction), "t_stop": float(tau_s[k]),
                            "distance": float(x_s), "u": float(P[k, 4]), "u_measured": float(u_bar[k]),
@@ -384,4 +419,4 @@ class AngleCoastFit:
                                 separable=separable, sigma_q=sig_q,
                                 rms=float(np.sqrt(np.mean(r_ang ** 2))), n_samples=int(n_ang),
                                 converged=bool(best.success), coasts=tuple(coasts),
-                                cov=cov[:2, :2].copy(), notes=tuple(notes))
+                                cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy())
