@@ -345,7 +345,9 @@ class AngleCoastFit:
             return np.concatenate([r_q, r_u])
 
         lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, 0.0, -np.inf], K)])
-        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.0, np.inf], K)])
+        # the cut lies after the last drive-on sample; an amplifier's current lag can carry the
+        # torque a little past the first sample that logs the cut
+        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K)])
         base = np.column_stack([p_init, np.full(K, 0.5), u_bar]).ravel()
         scale = np.concatenate([[kc0, kc0 / max(vbar, 1e-6)],
                                 np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K)])
