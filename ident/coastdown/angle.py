@@ -147,8 +147,9 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
     (``resolution``) for ``rest_s`` seconds (at least 3 samples). For each such start of rest,
     the torque level ``L`` of the coast is the median of the logged torque over the first rest
     samples, its noise the scaled MAD; walking back from ``s``, the last sample whose torque
-    differs from ``L`` by more than ``jump_sigmas`` noise levels is the drive's last sample
-    ``on``. It is a coast when the drive-on torque differs from ``L`` by at least that much and
+    differs from ``L`` by more than half the drive's level before it (and by ``jump_sigmas``
+    noise levels) is the drive's last sample ``on``; the coasting samples after it must stay
+    within 5 noise levels (or a quarter of the drive's level) of ``L``. It is a coast when the drive-on torque differs from ``L`` by at least that much and
     the speed over the last interval before the cut is at least ``v_min``, and is a coast's
     (not a controlled stop's): the drive torque pushes along the motion, the joint is not
     already slowing down (speed at the cut >= 0.7 x the largest speed of the pre-cut window),
@@ -192,6 +193,9 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
         D = float(np.median(dev[max(0, on1 - lo - int(round(pre_s / dt))): on1 - lo + 1]))
         on = lo + int(np.flatnonzero(dev > max(0.5 * D, jump_sigmas * sig))[-1])
         if on + 1 > s or on < 1:
+            continue
+        # while it coasts the torque keeps the level (a gravity compensation may drift a little)
+        if s > on + 1 and float(np.max(dev[on + 1 - lo:])) > max(5.0 * sig, 0.25 * D):
             continue
         speed = (qm[on] - qm[on - 1]) / (t[on] - t[on - 1])
         if abs(speed) < v_min:
@@ -282,6 +286,12 @@ class AngleCoastFit:
         ...]`` (e.g. every coast-down trial of one joint; ``J`` may differ per record).
         ``starts``: optional fits of the same records one by one (:class:`AngleCoastResult`
         each, in order): the pooled fit starts from them (one start, sparse Jacobian)."""
+        from ident.signals.smoothing import one_blas_thread
+
+        with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
+            return self._fit_records(records, starts)
+
+    def _fit_records(self, records, starts) -> AngleCoastResult:
         parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J))
                  for t, q, ws, J in records for w in ws]
         if not parts:
