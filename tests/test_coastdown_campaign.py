@@ -125,3 +125,18 @@ def test_synth_coastdown_trial(tmp_path):
         assert abs(ml.Kv - kv) < max(3 * ml.stderr["Kv"], 0.2 * kv), ml.to_dict()
     pooled = rep.joints[5]
     assert pooled.separable and abs(pooled.Kc / kc - 1) < 0.03 and abs(pooled.Kv / kv - 1) < 0.2
+
+
+def test_study_runs_the_coastdown_stage_and_resumes(tmp_path):
+    from ident.study.study import Study, StudySettings
+
+    root = tmp_path / "camp"
+    truth = write_campaign(root, 5, f_log=500.0, stiffness_scale=100.0)
+    s = StudySettings(mocap=False, diagnose=False, rrd=False, plots=False)
+    r = Study(s, progress=False).run(root, tmp_path / "study")
+    assert r.stages["coastdown"]["computed"] == 1 and not r.errors
+    d = json.loads((tmp_path / "study" / "coastdown" / "coastdown.json").read_text())
+    assert abs(d["trials"]["cd-1"]["1"]["Kc"] / truth["Kc"] - 1) < 0.02
+    assert "## Coast-down friction (source 000)" in (tmp_path / "study" / "report.md").read_text()
+    r = Study(s, progress=False).run(root, tmp_path / "study")
+    assert r.stages["coastdown"]["reused"] == 1
