@@ -679,8 +679,7 @@ class Study:
 
         t0 = time.perf_counter()
         trials = coastdown_trials(ctx.camp)
-        if not trials:
-            ctx.stages["coastdown"] = _stage_row(note="no coast-down trials")
+        if not trials:      # no stage row: campaigns without coast-downs keep their report
             return ""
         h = ctx.hasher.combine("coastdown", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
                                self.settings.plots)
