@@ -246,6 +246,8 @@ def analyse_campaign(campaign, robot=None, settings: CoastdownSettings | None = 
 def _fmt(x, se=None, digits=4):
     if x is None or not np.isfinite(x):
         return "-"
+    if abs(x) < 1e-9:          # at the bound 0
+        x = 0.0
     return f"{x:.{digits}g}" + ("" if se is None or not np.isfinite(se) else f" ± {se:.2g}")
 
 
