@@ -459,6 +459,8 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         diag = self._diagnosis(ctx, angles_dir)
         _write_manifest(manifest_path, man, tmp_dir)
+        self._coast_md = self._coastdown(ctx)
+        _write_manifest(manifest_path, man, tmp_dir)
         rrd_path = None
         if s.rrd or rrd is not None or spawn:
             rrd_path = Path(rrd).resolve() if rrd is not None else (out / "study.rrd" if s.rrd else None)
@@ -760,8 +762,48 @@ class Study:
         ctx.man["stages"]["diagnosis"] = {"hash": h, "outputs": ["diagnosis/"]}
         ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
-                                             note="multi-joint records, leave-one-segment-out")
+                                             note="multi-joint records, blocks = motion cycles")
         return report, series
+
+    # stage: coast-down friction (source 000) on kind = "coastdown" trials ------------------------
+    def _coastdown(self, ctx) -> str:
+        """Run :mod:`ident.coastdown.campaign` on the coast-down trials into ``coastdown/``;
+        returns the report's section (empty without coast-down trials)."""
+        from ident.coastdown.campaign import (analyse_campaign, coastdown_table, coastdown_trials,
+                                              write_coastdown)
+
+        t0 = time.perf_counter()
+        trials = coastdown_trials(ctx.camp)
+        if not trials:      # no stage row: campaigns without coast-downs keep their report
+            return ""
+        h = ctx.hasher.combine("coastdown", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
+                               self.settings.plots)
+        folder, section = ctx.out / "coastdown", ctx.out / "coastdown" / "section.md"
+        prev = ctx.old.get("stages", {}).get("coastdown", {})
+        if prev.get("hash") == h and section.is_file():
+            ctx.man["stages"]["coastdown"] = prev
+            ctx.stages["coastdown"] = _stage_row(reused=len(trials), seconds=time.perf_counter() - t0)
+            return section.read_text(encoding="utf-8")
+        self._say(f"coast-down: {len(trials)} trial(s)")
+        try:
+            report = analyse_campaign(ctx.camp, ctx.robot)
+        except Exception as exc:  # noqa: BLE001 - a failed stage is reported, the study goes on
+            ctx.errors["coastdown"] = _error_text(exc)
+            ctx.stages["coastdown"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
+            return ""
+        tmp = ctx.tmp_dir / "coastdown-new"
+        write_coastdown(report, tmp, plots=self.settings.plots)
+        text = ("## Coast-down friction (source 000)\n\nML fit on the encoder angle (± standard errors); "
+                "per joint all coasts together, then per trial beside the paper's TDM and FDM. Details, "
+                "notes and decay curves: `coastdown/coastdown.md`; values: `coastdown/coastdown.json`.\n\n"
+                + coastdown_table(report) + "\n")
+        (tmp / "section.md").write_text(text, encoding="utf-8")
+        _replace_dir(tmp, folder)
+        ctx.paths["coastdown"] = folder / "coastdown.json"
+        ctx.man["stages"]["coastdown"] = {"hash": h, "outputs": ["coastdown/"]}
+        ctx.stages["coastdown"] = _stage_row(computed=len(report.trials), failed=len(report.skipped),
+                                             seconds=time.perf_counter() - t0)
+        return text
 
     # stage 5: report and recording -------------------------------------------------------------
     def _report(self, ctx, calib_res, refs, mocap_summary, fits, diag, angles_dir, rrd_path, spawn):
@@ -792,6 +834,8 @@ class Study:
         _replace_dir(tmp, ctx.out / "csv")
         md = report_markdown(ctx.camp, ctx.stages, calib_res, mocap_summary, fits,
                              diag[0] if diag else None, plots, ctx.out, ctx.errors)
+        if getattr(self, "_coast_md", ""):
+            md = md.rstrip("\n") + "\n\n" + self._coast_md
         _write_atomic(ctx.out / "report.md", md, ctx.tmp_dir)
         if rrd_path is not None or spawn:
             log_study(ctx.camp, ctx.robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, md,

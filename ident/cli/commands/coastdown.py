@@ -1,0 +1,45 @@
+"""``jointlab coastdown CAMPAIGN --out DIR``: Coulomb and viscous friction from coast-down trials."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ident.cli.main import add_common, check_out_dir
+
+
+def register(sub):
+    p = sub.add_parser("coastdown", help="Coulomb + viscous friction from the kind = \"coastdown\" trials "
+                                         "(coastdown.json, coastdown.md, plots)")
+    p.add_argument("campaign", type=Path, help="campaign folder (or its campaign.toml)")
+    add_common(p, out_required=True)
+    p.add_argument("--joints", type=lambda s: tuple(int(x) for x in s.split(",")),
+                   default=(), help="joints to identify, e.g. 5 or 1,5 (default: all)")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG decay curves")
+    return p
+
+
+def run(args) -> int:
+    from mocap.io.campaign import load_campaign
+    from viz import make_sink
+
+    from ident.coastdown.campaign import CoastdownSettings, analyse_campaign, write_coastdown
+
+    camp = load_campaign(args.campaign)
+    out = check_out_dir(args.out, [camp.root])
+    report = analyse_campaign(camp, settings=CoastdownSettings(joints=tuple(args.joints)),
+                              progress=not args.json)
+    with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-coastdown") as sink:
+        paths = write_coastdown(report, out, sink, plots=not args.no_plots)
+    if args.json:
+        d = report.to_dict()
+        print(json.dumps({"out": str(out), "joints": d["joints"] and {
+            j: {k: v[k] for k in ("Kc", "Kv", "stderr", "separable")} for j, v in d["joints"].items()},
+            "trials": {tid: {j: {k: e[k] for k in ("Kc", "Kv", "J", "stderr")} for j, e in js.items()}
+                       for tid, js in d["trials"].items()}}, indent=1))
+    else:
+        for j, r in sorted(report.joints.items()):
+            print(f"joint {j}: Kc = {r.Kc:.4g} ± {r.stderr['Kc']:.2g} N m, Kv = {r.Kv:.4g} ± "
+                  f"{r.stderr['Kv']:.2g} N m s/rad from {len(r.coasts)} coasts"
+                  + ("" if r.separable else " (Kc and Kv not separable)"))
+        print(f"wrote {paths['json']} and {paths['md']}")
+    return 0

@@ -1,0 +1,434 @@
+"""Coast-down identification from a quantised encoder angle (source 000, eq. 3-4, fitted on
+the angle instead of a differentiated velocity).
+
+A controller log gives the motor angle ``qm`` (link side, quantised by the encoder) and the
+drive torque at a controller rate (200 Hz-1 kHz). A coast of a joint with strong friction
+lasts a few samples, so the velocity of paper eq. 4 cannot be measured sample by sample
+without a derivative that biases the fit. Here the ANGLE is the measurement, and the model is
+the integral of eq. 4 with the stop, joined continuously to the motion before the cut:
+
+- before the cut (``t <= t_c``), a quadratic in time over a short window (the drive moves the
+  joint smoothly: a constant-acceleration ramp or a cruise);
+- at the cut the angle ``q_c`` and the velocity ``v_c`` carry over; the cut instant ``t_c``
+  lies between the last sample with the drive on and the first with it off (a bounded
+  parameter, found by the fit);
+- after the cut, in the direction ``s = sign(v_c)`` and ``x = s (q - q_c)``, ``w = |v_c|``::
+
+      J x'' = -Kv x' - Kc' ,  Kc' = Kc - s u      (paper eq. 3, plus a constant external torque u)
+      x(tau) = w tau phi(z) - (Kc'/J) tau^2 psi(z),  z = Kv tau / J     (eq. 4 integrated)
+      phi(z) = (1 - exp(-z)) / z,  psi(z) = (z - 1 + exp(-z)) / z^2
+      tau_s  = (J / Kv) ln(1 + Kv w / Kc')                              (paper eq. 3's stop)
+
+  and the joint rests at ``x(tau_s)`` afterwards (stiction holds it).
+
+``u`` is the torque acting on the joint during the coast other than friction: the logged
+drive torque after the cut (about 0 for a drive that is switched off, a gravity compensation
+for a controller that keeps one) minus the URDF gravity torque. It is measured (mean over the
+coast and the first rest samples, standard error from their scatter) and enters the fit as a
+parameter with that prior, so its uncertainty reaches the standard error of ``Kc``.
+
+All coasts of a record share ``Kc`` and ``Kv`` (the total viscous coefficient, link and motor
+side); each has its own ``(q, v, a)`` before the cut, its cut instant and its ``u``. The fit
+is maximum likelihood under white angle noise (nonlinear least squares, numerical Jacobian,
+bounds ``Kc, Kv >= 0``); the noise level is estimated from the angle residuals (floored at
+the quantisation level ``res / sqrt(12)``) and the covariance is ``(G^T G)^-1`` of the
+whitened problem. Coasts at one speed barely separate ``Kc`` from ``Kv``: the result says so
+(``separable``) and carries the standard errors and the correlation that show it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from mocap.io.errors import InputError
+
+__all__ = ["CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
+           "interval_velocity"]
+
+
+# -- the model ----------------------------------------------------------------------------
+def _phi(z):
+    z = np.asarray(z, float)
+    small = np.abs(z) < 1e-4
+    zs = np.where(small, 1.0, z)
+    return np.where(small, 1.0 - z / 2.0 + z * z / 6.0, -np.expm1(-zs) / zs)
+
+
+def _psi(z):
+    z = np.asarray(z, float)
+    small = np.abs(z) < 1e-3
+    zs = np.where(small, 1.0, z)
+    return np.where(small, 0.5 - z / 6.0 + z * z / 24.0, (zs + np.expm1(-zs)) / (zs * zs))
+
+
+def _log1p_over(y):
+    y = np.asarray(y, float)
+    small = np.abs(y) < 1e-6
+    ys = np.where(small, 1.0, y)
+    return np.where(small, 1.0 - y / 2.0 + y * y / 3.0, np.log1p(ys) / ys)
+
+
+def coast_stop(J, Kv, Kc_eff, w):
+    """Stop time ``tau_s = (J/Kv) ln(1 + Kv w / Kc_eff)`` (inf where ``Kc_eff <= 0``)."""
+    Kc_eff = np.asarray(Kc_eff, float)
+    w = np.maximum(np.asarray(w, float), 0.0)
+    pos = Kc_eff > 0
+    y = Kv * w / np.where(pos, Kc_eff, 1.0)
+    return np.where(pos, J * w / np.where(pos, Kc_eff, 1.0) * _log1p_over(y), np.inf)
+
+
+def coast_angle(tau, J, Kv, Kc_eff, w):
+    """Displacement ``x(tau)`` (rad) after a release at speed ``w > 0``: eq. 4 integrated,
+    held at its value at the stop ``tau_s`` (no stop where ``Kc_eff <= 0``). Broadcasts.
+    Returns ``(x, tau_s)``."""
+    tau = np.asarray(tau, float)
+    Kc_eff = np.asarray(Kc_eff, float)
+    w = np.maximum(np.asarray(w, float), 0.0)
+    tau_s = coast_stop(J, Kv, Kc_eff, w)
+    tt = np.clip(tau, 0.0, tau_s)
+    z = Kv * tt / J
+    x = w * tt * _phi(z) - Kc_eff / J * tt * tt * _psi(z)
+    return x, tau_s
+
+
+def coast_speed(tau, J, Kv, Kc_eff, w):
+    """Speed ``x'(tau)`` of :func:`coast_angle` (paper eq. 4, 0 after the stop)."""
+    x, tau_s = coast_angle(tau, J, Kv, Kc_eff, w)
+    tt = np.clip(np.asarray(tau, float), 0.0, tau_s)
+    z = Kv * tt / J
+    v = np.maximum(w, 0.0) * np.exp(-z) - Kc_eff / J * tt * _phi(z)
+    return np.where(np.asarray(tau, float) < tau_s, v, 0.0)
+
+
+def interval_velocity(t, q):
+    """First differences ``(q[i+1] - q[i]) / (t[i+1] - t[i])`` at the interval midpoints: the
+    exact mean velocity over each interval (no derivative filter, so no bias beyond the
+    midpoint rule, ``(dt/T)^2 / 24`` relative for eq. 4 with time constant ``T = J/Kv``).
+    Returns ``(t_mid, v)``."""
+    t = np.asarray(t, float)
+    q = np.asarray(q, float)
+    return 0.5 * (t[1:] + t[:-1]), np.diff(q) / np.diff(t)
+
+
+# -- segmentation --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CoastWindow:
+    """One coast found in a log (sample indices into the joint's valid samples).
+
+    ``pre`` = first sample of the pre-cut window, ``on`` = last sample with the drive on (the
+    cut lies in ``(t[on], t[on + 1]]``), ``rest`` = first sample at rest (the last one fitted;
+    equal to the last coast sample where the joint did not come to rest), ``direction`` the
+    sign of the velocity at the cut, ``u``/``u_se`` the external torque during the coast and
+    its standard error, ``tau_drive`` the logged torque at ``on`` minus the coast level."""
+
+    pre: int
+    on: int
+    rest: int
+    stopped: bool
+    direction: int
+    u: float
+    u_se: float
+    tau_drive: float
+    speed: float
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravity=None,
+                pre_s: float = 0.15, rest_s: float = 0.05, min_pre: int = 5,
+                jump_sigmas: float = 8.0) -> list[CoastWindow]:
+    """Coast phases of a one-joint record: the drive torque drops to a level it keeps while
+    the joint, moving at ``|v| >= v_min`` at the cut, comes to rest.
+
+    The joint is at rest from sample ``s`` when the angle stays within one encoder step
+    (``resolution``) for ``rest_s`` seconds (at least 3 samples). For each such start of rest,
+    the torque level ``L`` of the coast is the median of the logged torque over the first rest
+    samples, its noise the scaled MAD; walking back from ``s``, the last sample whose torque
+    differs from ``L`` by more than half the drive's level before it (and by ``jump_sigmas``
+    noise levels) is the drive's last sample ``on``; the coasting samples after it must stay
+    within 5 noise levels (or a quarter of the drive's level) of ``L``. It is a coast when the drive-on torque differs from ``L`` by at least that much and
+    the speed over the last interval before the cut is at least ``v_min``, and is a coast's
+    (not a controlled stop's): the drive torque pushes along the motion, the joint is not
+    already slowing down (speed at the cut >= 0.7 x the largest speed of the pre-cut window),
+    and it comes to rest within 3 times the distance ``J v^2 / (2 |drive torque|)`` that the
+    friction the drive was overcoming would stop it in (a friction that falls with speed
+    gives at most twice that), which must be at least one encoder step. ``gravity`` (a
+    callable q -> torque) is subtracted from the logged torque to give the external torque
+    ``u`` of the coast. Vectorised over samples; one small loop over rest starts."""
+    t = np.asarray(t, float)
+    qm = np.asarray(qm, float)
+    tau = np.asarray(tau, float)
+    n = t.size
+    if n < 8:
+        return []
+    dt = float(np.median(np.diff(t)))
+    m = max(3, int(round(rest_s / dt)))
+    step = np.abs(np.diff(qm))
+    # still[i]: the angle stays within one encoder step over samples i .. i + m
+    lim = 1.01 * max(resolution, 1e-12)
+    qs = np.lib.stride_tricks.sliding_window_view(qm, m + 1)
+    still = np.zeros(n, bool)
+    still[: n - m] = (qs.max(axis=1) - qs.min(axis=1)) <= lim
+    starts = np.flatnonzero(still[1:] & ~still[:-1]) + 1
+    out, last_rest = [], -1
+    for s in starts:  # loop over stops (a handful per record)
+        lvl_idx = np.arange(s, min(n, s + m + 1))
+        L = float(np.median(tau[lvl_idx]))
+        # torque noise from the rest that follows (up to 0.3 s, differences: robust to drift)
+        still_run = np.flatnonzero(~still[s: min(n, s + int(round(0.3 / dt)) + 1)])
+        n_rest = int(still_run[0]) if still_run.size else min(n - s, int(round(0.3 / dt)) + 1)
+        tr_ = tau[s: s + max(n_rest, m) + 1]
+        sig = max(1.4826 * float(np.median(np.abs(np.diff(tr_) - np.median(np.diff(tr_))))) / np.sqrt(2.0),
+                  1e-9)
+        lo = max(last_rest + 1, 0)
+        dev = np.abs(tau[lo:s] - L)
+        back = np.flatnonzero(dev > jump_sigmas * sig)
+        if back.size == 0:
+            continue
+        # the drive's level before the cut; the cut is where the torque leaves half of it
+        on1 = lo + int(back[-1])
+        D = float(np.median(dev[max(0, on1 - lo - int(round(pre_s / dt))): on1 - lo + 1]))
+        on = lo + int(np.flatnonzero(dev > max(0.5 * D, jump_sigmas * sig))[-1])
+        if on + 1 > s or on < 1:
+            continue
+        # while it coasts the torque keeps the level (a gravity compensation may drift a little)
+        if s > on + 1 and float(np.max(dev[on + 1 - lo:])) > max(5.0 * sig, 0.25 * D):
+            continue
+        speed = (qm[on] - qm[on - 1]) / (t[on] - t[on - 1])
+        if abs(speed) < v_min:
+            continue
+        direction = 1 if speed > 0 else -1
+        tau_drive = float(tau[on] - L)
+        if direction * tau_drive <= 0:
+            continue
+        d_exp = J * speed * speed / (2.0 * abs(tau_drive))
+        d_act = abs(qm[s] - qm[on])
+        if d_exp < resolution or d_act > 3.0 * d_exp + 2.0 * resolution:
+            continue
+        # pre-cut window: the drive on and the joint moving the same way
+        k0 = max(0, on - max(min_pre, int(round(pre_s / dt))))
+        mv = direction * np.diff(qm[k0: on + 1]) > 0
+        bad = np.flatnonzero(~mv)
+        pre = k0 + (int(bad[-1]) + 1 if bad.size else 0)
+        if on - pre + 1 < min_pre:
+            continue
+        v_pre = np.abs(np.diff(qm[pre: on + 1]) / np.diff(t[pre: on + 1]))
+        if abs(speed) < 0.7 * float(v_pre.max()):
+            continue
+        idx = np.arange(on + 1, min(n, s + m + 1))
+        g = gravity(qm[idx]) if gravity is not None else 0.0
+        u_all = tau[idx] - g
+        u = float(np.mean(u_all))
+        u_se = float(np.std(u_all, ddof=1) / np.sqrt(idx.size)) if idx.size > 1 else sig
+        out.append(CoastWindow(pre=int(pre), on=int(on), rest=int(s), stopped=True,
+                               direction=direction, u=u, u_se=max(u_se, 1e-12),
+                               tau_drive=tau_drive, speed=float(abs(speed))))
+        last_rest = s
+    return out
+
+
+# -- the estimator -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AngleCoastResult:
+    """``Kc`` (N m) and ``Kv`` (N m s/rad, total) shared by the coasts of a record, with
+    standard errors, their correlation and whether the record separates them; per coast the
+    cut instant, the speed at the cut, the stop time and distance, the external torque and the
+    angle residual RMS. ``sigma_q`` is the estimated angle noise (rad)."""
+
+    Kc: float
+    Kv: float
+    J: float
+    stderr: dict
+    corr: float
+    separable: bool
+    sigma_q: float
+    rms: float
+    n_samples: int
+    converged: bool
+    coasts: tuple
+    cov: np.ndarray = field(repr=False, default=None)
+    notes: tuple = ()
+    x: np.ndarray = field(repr=False, default=None)     # all fitted parameters (restarts)
+
+    def to_dict(self) -> dict:
+        return {"Kc": self.Kc, "Kv": self.Kv, "J": self.J, "stderr": dict(self.stderr),
+                "corr_Kc_Kv": self.corr, "separable": self.separable, "sigma_q": self.sigma_q,
+                "rms": self.rms, "n_samples": self.n_samples, "converged": self.converged,
+                "coasts": [dict(c) for c in self.coasts], "notes": list(self.notes)}
+
+
+class AngleCoastFit:
+    """Maximum-likelihood coast-down fit on the encoder angle (module docstring).
+
+    ``resolution``: encoder step (rad, link side; 0 if unknown); ``kv_starts``: starting
+    values of ``Kv`` as multiples of ``Kc / mean speed`` (multi-start, least cost kept);
+    ``sep_rel``: the record separates ``Kc`` from ``Kv`` when the standard error of ``Kc``
+    and that of the viscous torque ``Kv v`` at the fastest cut are both within ``sep_rel``
+    times ``Kc``."""
+
+    def __init__(self, resolution: float = 0.0, kv_starts=(0.05, 0.5, 2.0), sep_rel: float = 0.2,
+                 max_nfev: int = 400):
+        self.resolution = float(resolution)
+        self.kv_starts = tuple(kv_starts)
+        self.sep_rel = float(sep_rel)
+        self.max_nfev = int(max_nfev)
+
+    def fit(self, t, qm, windows, J: float) -> AngleCoastResult:
+        """Fit the coasts ``windows`` (from :func:`find_coasts`) of one record ``t``, ``qm``
+        with total inertia ``J``."""
+        return self.fit_records([(t, qm, windows, J)])
+
+    def fit_records(self, records, starts=None) -> AngleCoastResult:
+        """Fit shared ``Kc``, ``Kv`` to the coasts of several records ``[(t, qm, windows, J),
+        ...]`` (e.g. every coast-down trial of one joint; ``J`` may differ per record).
+        ``starts``: optional fits of the same records one by one (:class:`AngleCoastResult`
+        each, in order): the pooled fit starts from them (one start, sparse Jacobian)."""
+        from ident.signals.smoothing import one_blas_thread
+
+        with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
+            return self._fit_records(records, starts)
+
+    def _fit_records(self, records, starts) -> AngleCoastResult:
+        parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J))
+                 for t, q, ws, J in records for w in ws]
+        if not parts:
+            raise InputError("coastdown: no coast to fit")
+        K = len(parts)
+        windows = [p[2] for p in parts]
+        idx = [np.arange(w.pre, w.rest + 1) for w in windows]
+        kk = np.concatenate([np.full(i.size, k) for k, i in enumerate(idx)])
+        ts = np.concatenate([p[0][i] for p, i in zip(parts, idx)])
+        ys = np.concatenate([p[1][i] for p, i in zip(parts, idx)])
+        Jk = np.array([p[3] for p in parts])
+        Jkk = Jk[kk]
+        t_r = np.array([p[0][w.on] for p, w in zip(parts, windows)])
+        h = np.array([p[0][w.on + 1] - p[0][w.on] for p, w in zip(parts, windows)])
+        sgn = np.array([w.direction for w in windows], float)
+        u_bar = np.array([w.u for w in windows])
+        u_se = np.array([w.u_se for w in windows])
+        q_on = np.array([p[1][w.on] for p, w in zip(parts, windows)])
+        tau_pre = ts - t_r[kk]
+        # starting values per coast: quadratic through the pre window, cut mid-interval
+        p_init = np.zeros((K, 3))
+        for k, (tk, qk, w, _) in enumerate(parts):  # loop over coasts
+            sel = np.arange(w.pre, w.on + 1)
+            deg = 2 if sel.size >= 4 else 1
+            c = np.polyfit(tk[sel] - t_r[k], qk[sel] - q_on[k], deg)[::-1]
+            p_init[k, : deg + 1] = c
+        p_init[:, 2] *= 2.0                        # a = 2 c2
+        sig_floor = (self.resolution / np.sqrt(12.0)) if self.resolution > 0 else 1e-9
+        # Coulomb guess from the stop distances with Kv = 0
+        v_c0 = np.abs(p_init[:, 1] + p_init[:, 2] * 0.5 * h)
+        d0 = np.array([abs(p[1][w.rest] - q_on[k]) for k, (p, w) in enumerate(zip(parts, windows))])
+        d0 = np.maximum(d0 - 0.5 * v_c0 * h, 0.5 * max(self.resolution, 1e-9))
+        kc0 = float(np.median(Jk * v_c0 ** 2 / (2.0 * d0) + sgn * u_bar))
+        kc0 = max(kc0, 1e-6)
+        vbar = float(np.mean(v_c0))
+
+        def unpack(x):
+            Kc, Kv = x[0], x[1]
+            P = x[2:].reshape(K, 5)
+            return Kc, Kv, P
+
+        def model(x):
+            Kc, Kv, P = unpack(x)
+            p0, p1, p2, th, u = (P[:, i] for i in range(5))
+            tc_rel = th * h                                     # cut after t_r, per coast
+            qc = p0 + p1 * tc_rel + 0.5 * p2 * tc_rel ** 2
+            vc = p1 + p2 * tc_rel
+            w = sgn * vc
+            kce = Kc - sgn * u
+            tp = tau_pre
+            pre = p0[kk] + p1[kk] * tp + 0.5 * p2[kk] * tp * tp
+            after = tp > tc_rel[kk]
+            x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
+            post = qc[kk] + sgn[kk] * x_c
+            return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
+
+        def resid(x, sig_q):
+            qhat, _ = model(x)
+            r_q = (ys - qhat) / sig_q
+            r_u = (x[2:].reshape(K, 5)[:, 4] - u_bar) / u_se
+            return np.concatenate([r_q, r_u])
+
+        lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, 0.0, -np.inf], K)])
+        # the cut lies after the last drive-on sample; an amplifier's current lag can carry the
+        # torque a little past the first sample that logs the cut
+        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K)])
+        base = np.column_stack([p_init, np.full(K, 0.5), u_bar]).ravel()
+        scale = np.concatenate([[kc0, kc0 / max(vbar, 1e-6)],
+                                np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K)])
+        scale[6::5] = np.maximum(u_se * 3, 1e-6)
+        sig_q = max(sig_floor, 1e-9)
+        opts = dict(bounds=(lb, ub), x_scale=scale, method="trf", max_nfev=self.max_nfev,
+                    xtol=1e-9, ftol=1e-9)
+        if K > 12:   # many coasts: each coast's parameters touch only its own rows
+            from scipy.sparse import lil_matrix
+
+            sp = lil_matrix((ys.size + K, 2 + 5 * K), dtype=np.int8)
+            sp[: ys.size, :2] = 1
+            for k in range(K):  # loop over coasts
+                rows = np.flatnonzero(kk == k)
+                sp[rows[0]: rows[-1] + 1, 2 + 5 * k: 7 + 5 * k] = 1
+                sp[ys.size + k, 6 + 5 * k] = 1
+            opts.update(jac_sparsity=sp.tocsr(), tr_solver="lsmr")
+        if starts is not None:
+            xs = [np.asarray(r.x, float) for r in starts]
+            x0s = [np.concatenate([[np.median([x[0] for x in xs]), np.median([x[1] for x in xs])]]
+                                  + [x[2:] for x in xs])]
+        else:
+            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base]) for ks in self.kv_starts]
+        best = None
+        for x0 in x0s:  # a few starts
+            x0 = np.clip(x0, lb, ub)
+            sol = least_squares(resid, x0, args=(sig_q,), **opts)
+            if best is None or sol.cost < best.cost:
+                best = sol
+        n_ang = ys.size
+        p_ang = 2 + 4 * K
+        r_ang = (ys - model(best.x)[0])
+        s_hat = float(np.sqrt(np.sum(r_ang ** 2) / max(n_ang - p_ang, 1)))
+        sig_q = max(s_hat, sig_floor)
+        best = least_squares(resid, best.x, args=(sig_q,), **opts)
+        x = best.x
+        r_ang = ys - model(x)[0]
+        G = best.jac.toarray() if hasattr(best.jac, "toarray") else np.asarray(best.jac)
+        try:
+            cov = np.linalg.pinv(G.T @ G)
+        except np.linalg.LinAlgError:
+            cov = np.full((x.size, x.size), np.nan)
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        Kc, Kv, P = unpack(x)
+        corr = float(cov[0, 1] / (se[0] * se[1])) if se[0] > 0 and se[1] > 0 else float("nan")
+        v_top = float(np.max(np.abs(vc_all := model(x)[1][1])))
+        separable = bool(np.isfinite(se[1]) and se[1] * v_top <= self.sep_rel * Kc
+                         and se[0] <= self.sep_rel * Kc)
+        notes = []
+        if not separable:
+            notes.append(f"the record cannot separate Kc from Kv: stderr(Kv) = {se[1]:.3g} N m s/rad "
+                         f"against Kv = {Kv:.3g} (corr(Kc, Kv) = {corr:+.2f}); coasts from several "
+                         "speeds, or longer coasts, separate them")
+        if Kv <= 1e-12:
+            notes.append("Kv at its bound 0")
+        _, (qc, vc, kce, w) = model(x)
+        tau_s = coast_stop(Jk, Kv, kce, w)
+        coasts = []
+        for k, (tk, _, wd, _) in enumerate(parts):  # loop over coasts (report only)
+            rk = r_ang[kk == k]
+            x_s = coast_angle(tau_s[k], Jk[k], Kv, kce[k], w[k])[0] if np.isfinite(tau_s[k]) else np.inf
+            coasts.append({"t_cut": float(t_r[k] + P[k, 3] * h[k]), "v_cut": float(vc[k]),
+                           "direction": int(wd.direction), "t_stop": float(tau_s[k]),
+                           "distance": float(x_s), "u": float(P[k, 4]), "u_measured": float(u_bar[k]),
+                           "u_se": float(u_se[k]), "rms": float(np.sqrt(np.mean(rk ** 2))),
+                           "samples_coasting": int(wd.rest - wd.on), "samples_pre": int(wd.on - wd.pre + 1),
+                           "cut_bounds": [float(tk[wd.on]), float(tk[wd.on + 1])], "J": float(Jk[k]),
+                           "q_cut": float(q_on[k] + qc[k]), "window": [int(wd.pre), int(wd.rest)]})
+        return AngleCoastResult(Kc=float(Kc), Kv=float(Kv), J=float(np.mean(Jk)),
+                                stderr={"Kc": float(se[0]), "Kv": float(se[1])}, corr=corr,
+                                separable=separable, sigma_q=sig_q,
+                                rms=float(np.sqrt(np.mean(r_ang ** 2))), n_samples=int(n_ang),
+                                converged=bool(best.success), coasts=tuple(coasts),
+                                cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy())
