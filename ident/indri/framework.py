@@ -27,12 +27,12 @@ the damping coefficients, so the search is one-dimensional in ``log sigma0`` (a 
 then :func:`ident.friction.fit_friction` refines from the best grid point and supplies the
 standard errors); ``gamma`` does not change the states at all, so its search reuses one scan.
 
-Measured property of eq. 29 (tests/test_indri.py): the velocity is held over each sample, so on
-a joint whose velocity ramps within the sample the discrete state lags the continuous one by
-about Ts/2 and the identified damping absorbs it: a constant-sigma1 fit returns
-``sigma1 + sigma0 Ts/2`` (and phase 2-B's beta grows by the same amount). This is the right
-value for the discretised model run at the same Ts (controller, C export); re-identify when Ts
-changes.
+Discretisation (tests/test_indri.py): with the paper's eq. 29 the velocity is held over each
+sample, so on a joint whose velocity ramps within the sample the discrete state lags the
+continuous one by about Ts/2 and a constant-sigma1 fit returned ``sigma1 + sigma0 Ts/2``; with a
+stiff bristle the lag became one sample and the damping term a spike at every velocity change.
+The models use the first-order hold of :mod:`ident.friction.dynamic` by default (``hold``),
+which has neither defect; the C export implements the same step.
 """
 from __future__ import annotations
 
