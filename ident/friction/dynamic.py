@@ -26,6 +26,17 @@ Models:
     paper defines it from the acquisition). ``accel_floor`` (rad/s^2, default 1e-6) keeps the
     root positive when v = a = 0.
 
+Standstill (setting ``rest_speed``, rad/s, default 0 = the paper's model): with eq. 5 the state
+freezes when the joint stops (``S0(0) = S1(0) = 0``), so the model keeps its last friction
+``sigma0 z = +-g`` through a standstill, while the static model gives ``tau_s S0(0) = 0``: at
+v = 0, a steady state too, the two then differ by up to g. Which is right is a property of the
+joint (a bristle that holds its deflection, or friction that relaxes as the joint creeps),
+so jointlab makes it identifiable: ``a = sigma0 (S1(v) + rest_speed)/g(v)`` relaxes the
+bristle at standstill with the time constant ``g/(sigma0 rest_speed)`` and changes the
+moving steady state by the factor ``S1/(S1 + rest_speed)`` (1 for |v| >> rest_speed).
+Measured on an independent simulator without presliding (tanh-regularised Coulomb, 1.5 s
+rests): the frozen state alone made DM2's RMS 2-4 times the static model's over the rests.
+
 Sampled signals (setting ``hold``): eq. 5 is ``dz/dt = a(v) (z_ss(v) - z)`` with
 ``a = sigma0 S1(v)/g(v)`` (eq. 30) and the steady deflection ``z_ss = S0(v) g(v)/sigma0``.
 
@@ -133,7 +144,7 @@ class _LuGre(FrictionModel):
     HOLDS = ("first", "zero")
 
     def __init__(self, *, static: Arctan, z0: float | None = None, hold: str = "first",
-                 **params):
+                 rest_speed: float = 0.0, **params):
         super().__init__(**params)
         if not isinstance(static, Arctan):
             raise TypeError(f"{type(self).__name__}: static must be an Arctan model, got {static!r}")
@@ -141,9 +152,12 @@ class _LuGre(FrictionModel):
             raise ValueError(f"{type(self).__name__}: sigma0 must be positive, got {self._p['sigma0']}")
         if hold not in self.HOLDS:
             raise ValueError(f"{type(self).__name__}: hold must be one of {self.HOLDS}, got {hold!r}")
+        if not (np.isfinite(rest_speed) and rest_speed >= 0):
+            raise ValueError(f"{type(self).__name__}: rest_speed must be >= 0, got {rest_speed}")
         self.static = static
         self.z0 = None if z0 is None else float(z0)
         self.hold = hold
+        self.rest_speed = float(rest_speed)
 
     @property
     def nonlinear_names(self) -> tuple[str, ...]:
@@ -151,7 +165,8 @@ class _LuGre(FrictionModel):
 
     @property
     def settings(self) -> dict:
-        return {"static": self.static, "z0": self.z0, "hold": self.hold}
+        return {"static": self.static, "z0": self.z0, "hold": self.hold,
+                "rest_speed": self.rest_speed}
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -168,14 +183,25 @@ class _LuGre(FrictionModel):
         return g
 
     def _ab(self, v):
-        """Eq. 30: ``a = sigma0 S1(v)/g(v)`` (1/s) and ``b = S0(v)^2 v``; dz/dt = b - a z."""
+        """Eq. 30: ``a = sigma0 (S1(v) + rest_speed)/g(v)`` (1/s) and ``b = S0(v)^2 v``;
+        dz/dt = b - a z (``rest_speed`` 0: the paper's eq. 30)."""
         Kv = self.static.Kv
         g = self._g(v)
-        return self._p["sigma0"] * s1(v, Kv) / g, s0(v, Kv) ** 2 * v, g
+        return self._p["sigma0"] * (s1(v, Kv) + self.rest_speed) / g, s0(v, Kv) ** 2 * v, g
+
+    def _zss(self, v, g):
+        """``b/a``: ``S0 g/sigma0`` times ``S1/(S1 + rest_speed)`` (1 when rest_speed = 0)."""
+        v = np.asarray(v, float)
+        z = s0(v, self.static.Kv) * g / self._p["sigma0"]
+        if self.rest_speed > 0:
+            S1 = s1(v, self.static.Kv)
+            z = z * S1 / (S1 + self.rest_speed)
+        return z
 
     def steady_state(self, v) -> np.ndarray:
-        """z where dz/dt = 0 at constant velocity v: ``S0(v) g(v) / sigma0``."""
-        return s0(v, self.static.Kv) * self._g(v) / self._p["sigma0"]
+        """z where dz/dt = 0 at constant velocity v: ``S0(v) g(v) / sigma0`` (with a
+        ``rest_speed``, times ``S1/(S1 + rest_speed)``: 0 at standstill)."""
+        return self._zss(v, self._g(v))
 
     def state_derivative(self, z, qd, qdd=None) -> np.ndarray:
         """Eq. 5: ``dz/dt = S0(v)^2 v - sigma0 S1(v)/g(v) z`` (broadcasts)."""
@@ -220,8 +246,7 @@ class _LuGre(FrictionModel):
         v1 = np.asarray(qd_next, float)
         a0, _, g0 = self._ab(qd)
         a1, _, g1 = self._ab(v1)
-        Kv, sg = self.static.Kv, self._p["sigma0"]
-        zs0, zs1 = s0(qd, Kv) * g0 / sg, s0(v1, Kv) * g1 / sg
+        zs0, zs1 = self._zss(qd, g0), self._zss(v1, g1)
         x = 0.5 * np.asarray(dt, float) * (a0 + a1)
         return np.exp(-x) * z - np.expm1(-x) * zs0 + (zs1 - zs0) * (1.0 - _phi(x))
 
@@ -248,7 +273,7 @@ class _LuGre(FrictionModel):
             x = a * steps
             return linear_scan(x, steps * _phi(x) * b, z0)
         a, _, g = self._ab(v)                                     # first-order hold
-        zss = s0(v, self.static.Kv) * g / self._p["sigma0"]
+        zss = self._zss(v, g)
         x = 0.5 * steps * (a[:-1] + a[1:])
         drive = -np.expm1(-x) * zss[:-1] + (zss[1:] - zss[:-1]) * (1.0 - _phi(x))
         return linear_scan(x, drive, z0)
@@ -293,11 +318,14 @@ class LuGreDM1(_LuGre):
     DAMPING = ("constant", "eq10", "eq11", "eq12")
 
     def __init__(self, *, static: Arctan, damping: str = "constant", z0: float | None = None,
-                 hold: str = "first", **params):
+                 hold: str = "first", rest_speed: float = 0.0, **params):
         if damping not in self.DAMPING:
             raise ValueError(f"dm1: damping must be one of {self.DAMPING}, got {damping!r}")
+        if rest_speed > 0 and damping in ("eq10", "eq11"):
+            raise ValueError(f"dm1: damping {damping} divides by |v| through eq. 5 and needs "
+                             "rest_speed = 0")
         self.damping = damping
-        super().__init__(static=static, z0=z0, hold=hold, **params)
+        super().__init__(static=static, z0=z0, hold=hold, rest_speed=rest_speed, **params)
 
     @property
     def settings(self) -> dict:
@@ -325,12 +353,12 @@ class LuGreDM2(_LuGre):
 
     def __init__(self, *, static: Arctan, accel_ratio: float | None = None,
                  accel_floor: float = 1e-6, z0: float | None = None, hold: str = "first",
-                 **params):
+                 rest_speed: float = 0.0, **params):
         if accel_ratio is not None and not accel_ratio > 0:
             raise ValueError(f"dm2: accel_ratio (a_max/v_max) must be positive, got {accel_ratio}")
         self.accel_ratio = None if accel_ratio is None else float(accel_ratio)
         self.accel_floor = float(accel_floor)
-        super().__init__(static=static, z0=z0, hold=hold, **params)
+        super().__init__(static=static, z0=z0, hold=hold, rest_speed=rest_speed, **params)
         if self._p["gamma"] < 0:
             raise ValueError(f"dm2: gamma must be >= 0, got {self._p['gamma']}")
 

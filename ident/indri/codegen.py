@@ -33,7 +33,7 @@ from ident.friction import Arctan, CoulombViscous, FrictionModel, LuGreDM1, LuGr
 _DAMPING = {"constant": "JL_DAMP_CONSTANT", "eq10": "JL_DAMP_EQ10", "eq11": "JL_DAMP_EQ11",
             "eq12": "JL_DAMP_EQ12"}
 _FIELDS = ("tau_s", "tau_sc", "tau_v", "tau_nlv", "delta", "Kv", "c", "v", "sigma0", "sigma1",
-           "alpha", "beta", "gamma", "accel_ratio", "accel_floor", "Ts", "z0")
+           "alpha", "beta", "gamma", "accel_ratio", "accel_floor", "Ts", "z0", "rest_speed")
 
 _HEADER = """\
 /* {name}.h: friction models identified by jointlab (generated; do not edit).
@@ -68,6 +68,7 @@ typedef struct {{
     int has_z0;          /* 0: z starts at the steady state of the first velocity */
     double z0;
     int hold;            /* 0: velocity held over Ts (eq. 29-30); 1: first-order hold */
+    double rest_speed;   /* standstill relaxation speed, rad/s (0: eq. 30 as printed) */
 }} jl_friction_params;
 
 typedef struct {{
@@ -154,9 +155,10 @@ double jl_friction_step(jl_friction *f, double v, double a)
                + p->tau_nlv * v * v * S0;
     S1 = S0 * v;
     g = jl_g(p, v);
-    ak = p->sigma0 * S1 / g;                                                /* eq. 30 */
+    ak = p->sigma0 * (S1 + p->rest_speed) / g;                              /* eq. 30 */
     bk = S0 * S0 * v;
     zss = S0 * g / p->sigma0;
+    if (p->rest_speed > 0.0) zss *= S1 / (S1 + p->rest_speed);
     if (!f->started) {{
         if (!p->has_z0) f->z = zss;                     /* steady state of the first sample */
         f->started = 1;
@@ -240,7 +242,8 @@ def model_params(model: FrictionModel, dt: float | None) -> dict:
             raise ValueError(f"{model.name}: a dynamic model needs the controller's sample time dt")
         st = model.static
         p.update(kind="JL_KIND_LUGRE", **st.params, Kv=st.Kv, Ts=float(dt),
-                 sigma0=model.sigma0, hold={"zero": 0, "first": 1}[model.hold])
+                 sigma0=model.sigma0, hold={"zero": 0, "first": 1}[model.hold],
+                 rest_speed=model.rest_speed)
         if isinstance(model, LuGreDM1):
             p.update(damping=_DAMPING[model.damping], sigma1=model.sigma1)
         else:
