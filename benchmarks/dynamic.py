@@ -16,8 +16,9 @@ beside the campaign (``<campaign>.truth.json``) when its effect is presliding:
 
     python benchmarks/dynamic.py --campaign ../corpus/foreign/ind6-j3-presliding-s3 [--quick]
 
-(``--quick``: repetition-1 trials only.) :func:`campaign_comparison` returns the numbers for
-other benchmarks.
+(``--quick``: repetition-1 trials only; ``--heldout``: fit on the odd repetitions, compare on
+the even ones.) :func:`campaign_comparison` and :func:`heldout_comparison` return the numbers
+for other benchmarks.
 """
 from __future__ import annotations
 
@@ -29,11 +30,15 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import math  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # this checkout's packages
 
 import numpy as np  # noqa: E402
 
-from ident import indri as I  # noqa: E402
+from ident.indri import framework as I  # noqa: E402
 from ident.friction import Arctan, LuGreDM2, s0, s1  # noqa: E402
 from ident.friction import dynamic as dyn  # noqa: E402
 
@@ -117,9 +122,11 @@ def best_of(fn, n):
 def sigma0_truth(campaign_dir, joint: int) -> dict | None:
     """Comparable bristle stiffnesses of a foreign-world truth whose effect is presliding
     (None otherwise). The foreign forms scale the Coulomb level ``c`` by a presliding state
-    with a characteristic displacement ``xp``: ``c/xp`` is the stiffness the task compares
-    with; ``reversal_slope/2`` matches the LuGre reversal slope (``2 sigma0`` from a steady
-    sliding state): Dahl ``2^i c/xp``, Maxwell-slip ``c sum w_k / X_k``."""
+    with a characteristic displacement ``xp``. LuGre's sigma0 is ``dF/dx`` at zero bristle
+    deflection (eq. 5: ``dz/dt = v`` at z = 0); the same slope of the foreign forms is
+    ``c/xp`` for Dahl (any exponent) and ``c sum w_k / X_k`` for Maxwell-slip (every element
+    stuck; ``X_k = xp`` times a log-uniform factor in [0.3, 3], so about 1.3 c/xp).
+    ``c_over_xp`` is the scale the task names, ``zero_deflection`` the matched slope."""
     import json
     from pathlib import Path
 
@@ -141,12 +148,35 @@ def sigma0_truth(campaign_dir, joint: int) -> dict | None:
     c = float(doc["joints"][joint - 1]["coulomb"])
     xp = val("xp")
     if e["form"] == "dahl":
-        slope = 2.0 ** val("expo") * c / xp
+        k0 = c / xp
     else:
-        n = int(e["global"]["elements"])
-        slope = c * sum(val(f"w{i}") / val(f"x{i}") for i in range(n))
-    return {"form": e["form"], "c": c, "xp": xp, "c_over_xp": c / xp,
-            "reversal_matched": slope / 2.0}
+        k0 = c * sum(val(f"w{i}") / val(f"x{i}") for i in range(int(e["global"]["elements"])))
+    return {"form": e["form"], "c": c, "xp": xp, "c_over_xp": c / xp, "zero_deflection": k0}
+
+
+def heldout_comparison(campaign_dir, joint: int | None = None) -> dict:
+    """Identification on the odd repetitions, DM2 vs arctan per trial kind on the even ones
+    (trials the fit never saw): ``{"joint", "train": kinds, "heldout": kinds}``."""
+    import dataclasses
+
+    from ident.indri.campaign import DynamicFits, joint_dynamic_data
+    from mocap.io.campaign import load_campaign
+
+    camp = load_campaign(campaign_dir, check_files=False)
+    if joint is None:
+        joint = min(j for t in camp.trials for j in t.joints)
+    parts = {k: dataclasses.replace(camp, trials=tuple(t for t in camp.trials
+                                                       if t.repetition % 2 == r))
+             for k, r in (("train", 1), ("heldout", 0))}
+    data = {k: joint_dynamic_data(c, joint) for k, c in parts.items()}
+    d = data["train"]
+    res = I.IndriTrapani().fit(d.static, d.reversals, d.variable,
+                               refine_datasets=list(d.trials.values()))
+    out = {"joint": joint}
+    for k, dk in data.items():
+        out[k] = DynamicFits({joint: res}, {joint: dk}, ("arctan", "dm1", "dm2"),
+                             camp.name).compare_by_kind(joint)
+    return out
 
 
 def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = False) -> dict:
@@ -193,8 +223,8 @@ def print_campaign(r: dict) -> None:
     t = r["truth"]
     if t is not None:
         print(f"  truth ({t['form']}): c {t['c']:.3g} N m, xp {t['xp']:.3g} rad; sigma0 / (c/xp) "
-              f"{p['sigma0'] / t['c_over_xp']:.3f}; sigma0 / reversal-matched "
-              f"{p['sigma0'] / t['reversal_matched']:.3f}")
+              f"{p['sigma0'] / t['c_over_xp']:.3f}; sigma0 / zero-deflection stiffness "
+              f"{t['zero_deflection']:.4g}: {p['sigma0'] / t['zero_deflection']:.3f}")
 
 
 def main(argv=None):
@@ -203,7 +233,18 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--campaign", default=None, help="per-trial-kind DM2 vs arctan on a campaign")
     ap.add_argument("--joint", type=int, default=None)
+    ap.add_argument("--heldout", action="store_true",
+                    help="with --campaign: fit on odd repetitions, compare on even ones")
     args = ap.parse_args(argv)
+    if args.campaign and args.heldout:
+        r = heldout_comparison(args.campaign, args.joint)
+        for k in ("train", "heldout"):
+            print(f"  {k} trials: DM2 / arctan RMS per trial kind (median, max over trials)")
+            for kind, e in r[k].items():
+                print(f"    {kind:18s} n {e['n']:3d}  arctan {e['rms_arctan']:.3f}  dm2 "
+                      f"{e['rms_dm2']:.3f}  ratio median {e['ratio_median']:.3f}  max "
+                      f"{e['ratio_max']:.3f}")
+        return
     if args.campaign:
         print_campaign(campaign_comparison(args.campaign, args.joint, args.quick))
         return

@@ -158,9 +158,10 @@ def _smoother_label(sm, data=None) -> str:
 # ============================================================================================
 # reversal data sets
 # ============================================================================================
-def _sign_runs(v, thr):
+def _sign_runs(v, thr, min_len: int = 1):
     """Runs of one velocity sign with hysteresis: samples with ``|v| <= thr`` belong to the run
-    they are in. Returns (sign (R,), start (R,), end (R,) exclusive) of the runs."""
+    they are in, and runs shorter than ``min_len`` samples (chatter of a noisy velocity at a
+    crossing) are absorbed. Returns (sign (R,), start (R,), end (R,) exclusive)."""
     s = np.where(v > thr, 1, np.where(v < -thr, -1, 0))
     idx = np.flatnonzero(s)
     if idx.size == 0:
@@ -168,24 +169,32 @@ def _sign_runs(v, thr):
     ss = s[idx]
     change = np.flatnonzero(np.diff(ss) != 0) + 1             # first signed sample of a new run
     first = np.concatenate([[0], change])
+    last = np.concatenate([change, [idx.size]])
+    keep = (last - first >= min_len)
+    if keep.any():
+        first, ss_f = first[keep], ss[first[keep]]
+        new = np.concatenate([[True], ss_f[1:] != ss_f[:-1]])   # merge equal neighbours
+        first = first[new]
     sign = ss[first]
     start = idx[first]
     start[0] = 0
-    # a run ends where the velocity last had its sign before the next run's first signed
-    # sample: the zero crossing in between belongs to the reversal
     end = np.concatenate([start[1:], [v.size]])
     return sign, start, end
 
 
 def split_reversals(data: I.FrictionData, *, rest_speed: float = 0.002, level_tol: float = 0.25,
-                    slow_frac: float = 0.5, min_reversals: int = 2) -> list[I.FrictionData]:
+                    slow_frac: float = 0.5, min_reversals: int = 2,
+                    min_run_s: float = 0.02, min_rest: float = 0.25) -> list[I.FrictionData]:
     """Split one reversals acquisition into phase 2-A data sets of one acceleration each.
 
-    Velocity reversals are the sign changes of ``qd`` (hysteresis at ``rest_speed * max|qd|``,
-    so rests and noise do not count); the acceleration of a reversal is the median ``|qdd|``
-    over the samples around its zero crossing with ``|qd|`` below ``slow_frac`` of the smaller
-    peak speed of the two moves it joins (the ramp through zero: a constant-acceleration
-    reversal or the peak of a sinusoidal dither). Consecutive reversals whose accelerations agree
+    Velocity reversals are the sign changes of ``qd`` (hysteresis at ``rest_speed * max|qd|`` or
+    five times the velocity noise, runs shorter than ``min_run_s`` absorbed, so rests and noise
+    do not count); the acceleration of a reversal is the slope of a straight line fitted to
+    ``qd`` over the samples around its zero crossing with ``|qd|`` below ``slow_frac`` of the
+    smaller peak speed of the two moves it joins (the ramp through zero: a constant-acceleration
+    reversal or the peak of a sinusoidal dither; the line is robust to a noisy ``qdd``). A zero
+    crossing with more than ``min_rest`` s of standstill is a stop and a restart, not a
+    reversal. Consecutive reversals whose accelerations agree
     within ``level_tol`` (relative) form one data set; groups with fewer than ``min_reversals``
     reversals (a transition between two blocks) are dropped. A data set runs from the
     fastest sample of the move before its first reversal to the fastest sample of the move
@@ -199,7 +208,10 @@ def split_reversals(data: I.FrictionData, *, rest_speed: float = 0.002, level_to
     vmax = float(np.max(np.abs(v)))
     if vmax <= 0:
         return []
-    sign, start, end = _sign_runs(v, rest_speed * vmax)
+    dt = float(np.median(np.diff(t)))
+    noise = 1.4826 * float(np.median(np.abs(np.diff(v, 2)))) / np.sqrt(6.0)   # ramps cancel
+    thr = max(rest_speed * vmax, 5.0 * noise)
+    sign, start, end = _sign_runs(v, thr, max(5, int(round(min_run_s / dt))))
     if sign.size < 2:
         return []
     av = np.abs(v)
@@ -209,9 +221,12 @@ def split_reversals(data: I.FrictionData, *, rest_speed: float = 0.002, level_to
     for k in range(sign.size - 1):                            # loop over reversals (tens)
         lo, hi = peak_idx[k], peak_idx[k + 1]
         m = av[lo:hi + 1] < slow_frac * min(peak[k], peak[k + 1])
-        if m.sum() < 3:
+        still = av[lo:hi + 1] <= thr
+        if m.sum() < 3 or still.sum() * dt > min_rest:    # a stop and a restart, no reversal
             continue
-        rev.append((k, float(np.median(aq[lo:hi + 1][m]))))
+        tt, vv = t[lo:hi + 1][m], v[lo:hi + 1][m]             # the ramp through zero
+        slope = np.polyfit(tt - tt.mean(), vv, 1)[0]
+        rev.append((k, float(abs(slope))))
     groups = []
     for k, acc in rev:
         g = groups[-1] if groups else None
