@@ -7,6 +7,18 @@ coefficients are still computed vectorised; only the recursion loops, the faires
 
     python benchmarks/dynamic.py            # ~10^5 samples, loop baselines run in full
     python benchmarks/dynamic.py --quick    # ~4x10^4 samples, loop baselines projected
+
+Per trial kind, DM2 against the static arctan model on a campaign jointlab did not write
+(``jointlab fit CAMPAIGN --models arctan,dm1,dm2``; e.g. the foreign world with
+``--kinds excitation,constant_velocity,reversals``), with the paper's procedure alone (phase
+2-B, no phase 2-C) measured in the same run as the baseline, and sigma0 against the truth
+beside the campaign (``<campaign>.truth.json``) when its effect is presliding:
+
+    python benchmarks/dynamic.py --campaign ../corpus/foreign/ind6-j3-presliding-s3 [--quick]
+
+(``--quick``: repetition-1 trials only; ``--heldout``: fit on the odd repetitions, compare on
+the even ones.) :func:`campaign_comparison` and :func:`heldout_comparison` return the numbers
+for other benchmarks.
 """
 from __future__ import annotations
 
@@ -18,11 +30,15 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import math  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # this checkout's packages
 
 import numpy as np  # noqa: E402
 
-from ident import indri as I  # noqa: E402
+from ident.indri import framework as I  # noqa: E402
 from ident.friction import Arctan, LuGreDM2, s0, s1  # noqa: E402
 from ident.friction import dynamic as dyn  # noqa: E402
 
@@ -103,11 +119,135 @@ def best_of(fn, n):
     return best, out
 
 
+def sigma0_truth(campaign_dir, joint: int) -> dict | None:
+    """Comparable bristle stiffnesses of a foreign-world truth whose effect is presliding
+    (None otherwise). The foreign forms scale the Coulomb level ``c`` by a presliding state
+    with a characteristic displacement ``xp``. LuGre's sigma0 is ``dF/dx`` at zero bristle
+    deflection (eq. 5: ``dz/dt = v`` at z = 0); the same slope of the foreign forms is
+    ``c/xp`` for Dahl (any exponent) and ``c sum w_k / X_k`` for Maxwell-slip (every element
+    stuck; ``X_k = xp`` times a log-uniform factor in [0.3, 3], so about 1.3 c/xp).
+    ``c_over_xp`` is the scale the task names, ``zero_deflection`` the matched slope."""
+    import json
+    from pathlib import Path
+
+    p = Path(str(campaign_dir).rstrip("/") + ".truth.json")
+    if not p.is_file():
+        return None
+    doc = json.loads(p.read_text())
+    eff = [e for e in doc.get("effects", []) if e.get("effect") == "presliding"]
+    if not eff:
+        return None
+    e = eff[0]
+    pj = e["per_joint"]
+    pj = pj.get(str(joint), pj) if isinstance(pj, dict) else pj
+
+    def val(key):
+        x = pj[key]
+        return float(x[joint - 1] if isinstance(x, list) else x)
+
+    c = float(doc["joints"][joint - 1]["coulomb"])
+    xp = val("xp")
+    if e["form"] == "dahl":
+        k0 = c / xp
+    else:
+        k0 = c * sum(val(f"w{i}") / val(f"x{i}") for i in range(int(e["global"]["elements"])))
+    return {"form": e["form"], "c": c, "xp": xp, "c_over_xp": c / xp, "zero_deflection": k0}
+
+
+def heldout_comparison(campaign_dir, joint: int | None = None) -> dict:
+    """Identification on the odd repetitions, DM2 vs arctan per trial kind on the even ones
+    (trials the fit never saw): ``{"joint", "train": kinds, "heldout": kinds}``."""
+    import dataclasses
+
+    from ident.indri.campaign import DynamicFits, joint_dynamic_data
+    from mocap.io.campaign import load_campaign
+
+    camp = load_campaign(campaign_dir, check_files=False)
+    if joint is None:
+        joint = min(j for t in camp.trials for j in t.joints)
+    parts = {k: dataclasses.replace(camp, trials=tuple(t for t in camp.trials
+                                                       if t.repetition % 2 == r))
+             for k, r in (("train", 1), ("heldout", 0))}
+    data = {k: joint_dynamic_data(c, joint) for k, c in parts.items()}
+    d = data["train"]
+    res = I.IndriTrapani().fit(d.static, d.reversals, d.variable,
+                               refine_datasets=list(d.trials.values()))
+    out = {"joint": joint}
+    for k, dk in data.items():
+        out[k] = DynamicFits({joint: res}, {joint: dk}, ("arctan", "dm1", "dm2"),
+                             camp.name).compare_by_kind(joint)
+    return out
+
+
+def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = False) -> dict:
+    """DM2 vs arctan per trial kind on a campaign, for jointlab's procedure (phases 2-A, 2-B,
+    2-C) and the paper's (2-A, 2-B); plus sigma0 and its truth where known. Returns
+    ``{"joint", "kinds": {...}, "paper_kinds": {...}, "sigma0", "truth", "seconds"}`` with the
+    kinds as :meth:`ident.indri.campaign.DynamicFits.compare_by_kind` gives them."""
+    import dataclasses
+
+    from ident.indri.campaign import DynamicFits, joint_dynamic_data
+    from mocap.io.campaign import load_campaign
+
+    camp = load_campaign(campaign_dir, check_files=False)
+    if quick:
+        camp = dataclasses.replace(camp, trials=tuple(t for t in camp.trials if t.repetition == 1))
+    if joint is None:
+        joint = min(j for t in camp.trials for j in t.joints)
+    t0 = time.perf_counter()
+    d = joint_dynamic_data(camp, joint)
+    t1 = time.perf_counter()
+    out = {"joint": joint, "n_trials": len(d.trials)}
+    for key, est in (("kinds", I.IndriTrapani()), ("paper_kinds", I.IndriTrapani(refine=False))):
+        res = est.fit(d.static, d.reversals, d.variable, refine_datasets=list(d.trials.values()))
+        fits = DynamicFits({joint: res}, {joint: d}, ("arctan", "dm1", "dm2"), camp.name)
+        out[key] = fits.compare_by_kind(joint)
+        if key == "kinds":
+            out["params"] = {"sigma0": res.sigma0, "alpha": res.alpha, "beta": res.beta,
+                             "gamma": res.gamma, "accel_ratio": res.accel_ratio}
+    out["seconds"] = {"data": t1 - t0, "fits": time.perf_counter() - t1}
+    out["truth"] = sigma0_truth(campaign_dir, joint)
+    return out
+
+
+def print_campaign(r: dict) -> None:
+    print(f"campaign comparison, joint {r['joint']}, {r['n_trials']} trials "
+          f"(data {r['seconds']['data']:.1f} s, fits {r['seconds']['fits']:.1f} s)")
+    for key, name in (("kinds", "jointlab (2-A, 2-B, 2-C)"), ("paper_kinds", "paper (2-A, 2-B)")):
+        print(f"  {name}: DM2 / arctan RMS per trial kind (median, max over trials)")
+        for kind, e in r[key].items():
+            print(f"    {kind:18s} n {e['n']:3d}  arctan {e['rms_arctan']:.3f}  dm2 {e['rms_dm2']:.3f}"
+                  f"  ratio median {e['ratio_median']:.3f}  max {e['ratio_max']:.3f}")
+    p = r["params"]
+    print("  dm2: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()))
+    t = r["truth"]
+    if t is not None:
+        print(f"  truth ({t['form']}): c {t['c']:.3g} N m, xp {t['xp']:.3g} rad; sigma0 / (c/xp) "
+              f"{p['sigma0'] / t['c_over_xp']:.3f}; sigma0 / zero-deflection stiffness "
+              f"{t['zero_deflection']:.4g}: {p['sigma0'] / t['zero_deflection']:.3f}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short run, loop baseline projected")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--campaign", default=None, help="per-trial-kind DM2 vs arctan on a campaign")
+    ap.add_argument("--joint", type=int, default=None)
+    ap.add_argument("--heldout", action="store_true",
+                    help="with --campaign: fit on odd repetitions, compare on even ones")
     args = ap.parse_args(argv)
+    if args.campaign and args.heldout:
+        r = heldout_comparison(args.campaign, args.joint)
+        for k in ("train", "heldout"):
+            print(f"  {k} trials: DM2 / arctan RMS per trial kind (median, max over trials)")
+            for kind, e in r[k].items():
+                print(f"    {kind:18s} n {e['n']:3d}  arctan {e['rms_arctan']:.3f}  dm2 "
+                      f"{e['rms_dm2']:.3f}  ratio median {e['ratio_median']:.3f}  max "
+                      f"{e['ratio_max']:.3f}")
+        return
+    if args.campaign:
+        print_campaign(campaign_comparison(args.campaign, args.joint, args.quick))
+        return
 
     sd, rev, var = make_data(args.quick)
     n = sd.n + sum(d.n for d in rev) + var.n

@@ -22,6 +22,11 @@ MODELS = {
     "dm1-constant": LuGreDM1(static=STATIC, damping="constant", sigma0=8.0e3, sigma1=6.0),
     "dm1_eq10_z0": LuGreDM1(static=STATIC, damping="eq10", sigma0=1.0e4, sigma1=0.05, z0=-2e-4),
     "dm1_eq12": LuGreDM1(static=STATIC, damping="eq12", sigma0=1.0e4, sigma1=4.0),
+    "dm2 zero hold": LuGreDM2(static=STATIC, sigma0=1.0e4, alpha=50.0, beta=0.5, gamma=1.0,
+                              accel_ratio=13.3, hold="zero"),
+    "dm1 stiff": LuGreDM1(static=STATIC, damping="constant", sigma0=1.0e7, sigma1=2.0),
+    "dm2 rest": LuGreDM2(static=STATIC, sigma0=1.0e4, alpha=5.0, beta=0.5, gamma=1.0,
+                         accel_ratio=13.3, accel_floor=0.5, rest_speed=0.02),
     "arctan": STATIC,
     "cv": CoulombViscous(c=3.0, v=1.5),
 }

@@ -138,17 +138,26 @@ def test_linear_scan_matches_loop(n):
 
 
 def _loop_torque(m, qd, qdd, dt):
-    """Plain per-sample reference of eq. 29-30 (both branches) and eq. 6."""
+    """Plain per-sample reference of eq. 29-30 (both branches; ``hold="zero"``) or of the
+    first-order hold (``hold="first"``: a averaged over the step, the steady deflection
+    S0 g / sigma0 linear in between), and eq. 6."""
     Kv, st = m.static.Kv, m.static
     z = np.empty(qd.size)
     z[0] = m.steady_state(qd[0]) if m.z0 is None else m.z0
-    for k in range(qd.size - 1):
-        v = qd[k]
+
+    def ab(v):
         S0 = 2 / np.pi * np.arctan(Kv * v)
         g = st.tau_s + st.tau_sc * 2 / np.pi * np.arctan(S0 * v * st.delta)
-        a = m.sigma0 * S0 * v / g
-        b = S0 ** 2 * v
-        if a != 0:
+        return m.sigma0 * S0 * v / g, S0 ** 2 * v, S0 * g / m.sigma0
+
+    for k in range(qd.size - 1):
+        a, b, zs = ab(qd[k])
+        if m.hold == "first":
+            a1, _, zs1 = ab(qd[k + 1])
+            x = 0.5 * dt * (a + a1)
+            phi = (1 - np.exp(-x)) / x if x > 0 else 1.0
+            z[k + 1] = np.exp(-x) * z[k] + (1 - np.exp(-x)) * zs + (zs1 - zs) * (1 - phi)
+        elif a != 0:
             z[k + 1] = np.exp(-a * dt) * z[k] + (1 - np.exp(-a * dt)) / a * b
         else:
             z[k + 1] = z[k] + b * dt
@@ -168,10 +177,14 @@ DYN = [LuGreDM1(static=ARCTAN, sigma0=2e4, sigma1=40.0),
        LuGreDM1(static=ARCTAN, damping="eq10", sigma0=2e4, sigma1=40.0),
        LuGreDM1(static=ARCTAN, damping="eq11", sigma0=2e4, sigma1=0.5),
        LuGreDM1(static=ARCTAN, damping="eq12", sigma0=2e4, sigma1=40.0, z0=0.0),
-       LuGreDM2(static=ARCTAN, sigma0=2e4, alpha=6.5, beta=0.1, gamma=1.05, accel_ratio=5.3)]
+       LuGreDM2(static=ARCTAN, sigma0=2e4, alpha=6.5, beta=0.1, gamma=1.05, accel_ratio=5.3),
+       LuGreDM1(static=ARCTAN, sigma0=2e4, sigma1=40.0, hold="zero"),
+       LuGreDM2(static=ARCTAN, sigma0=2e4, alpha=6.5, beta=0.1, gamma=1.05, accel_ratio=5.3,
+                hold="zero")]
 
 
-@pytest.mark.parametrize("m", DYN, ids=lambda m: f"{m.name}-{m.settings.get('damping', '')}")
+@pytest.mark.parametrize("m", DYN, ids=lambda m: f"{m.name}-{m.settings.get('damping', '')}-"
+                                                f"{m.hold}")
 def test_dynamic_vectorised_equals_loop(m):
     t, qd, qdd = _reversals()
     tau = m.torque(qd, qdd, 1e-3)
@@ -186,7 +199,11 @@ def test_single_step_matches_the_sequence():
     m = DYN[0]
     t, qd, qdd = _reversals(T=300)
     z = m.states(qd, 1e-3)
-    np.testing.assert_allclose(m.step(z[:-1], qd[:-1], 1e-3), z[1:], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(m.step(z[:-1], qd[:-1], 1e-3, qd[1:]), z[1:], rtol=1e-12,
+                               atol=1e-15)
+    mz = LuGreDM1(static=ARCTAN, sigma0=2e4, sigma1=40.0, hold="zero")
+    z = mz.states(qd, 1e-3)
+    np.testing.assert_allclose(mz.step(z[:-1], qd[:-1], 1e-3), z[1:], rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("v", [0.02, 0.5, -1.7])

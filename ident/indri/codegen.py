@@ -10,8 +10,11 @@
   ``jl_friction_find(name)``;
 * ``jl_friction`` (parameters + the bristle state ``z``), ``jl_friction_init``,
   ``jl_friction_reset`` and ``jl_friction_step(f, v, a)`` returning the friction torque of the
-  current sample, then advancing ``z`` by the exact discretisation eq. 29-30 with the velocity
-  held over ``Ts``; ``jl_friction_run`` applies it to arrays.
+  current sample: with ``hold = 1`` (first-order hold, the default of the Python models, see
+  :mod:`ident.friction.dynamic`) it first advances ``z`` from the previous sample to this one
+  (it keeps the previous velocity), with ``hold = 0`` it advances ``z`` after the torque by the
+  exact discretisation eq. 29-30 with the velocity held over ``Ts``; ``jl_friction_run``
+  applies it to arrays.
 
 The step reproduces :meth:`ident.friction.LuGreDM1.torque` / ``LuGreDM2.torque`` (and the
 static models' ``torque``) sample by sample: the state starts at ``z0`` or the steady state of
@@ -30,7 +33,7 @@ from ident.friction import Arctan, CoulombViscous, FrictionModel, LuGreDM1, LuGr
 _DAMPING = {"constant": "JL_DAMP_CONSTANT", "eq10": "JL_DAMP_EQ10", "eq11": "JL_DAMP_EQ11",
             "eq12": "JL_DAMP_EQ12"}
 _FIELDS = ("tau_s", "tau_sc", "tau_v", "tau_nlv", "delta", "Kv", "c", "v", "sigma0", "sigma1",
-           "alpha", "beta", "gamma", "accel_ratio", "accel_floor", "Ts", "z0")
+           "alpha", "beta", "gamma", "accel_ratio", "accel_floor", "Ts", "z0", "rest_speed")
 
 _HEADER = """\
 /* {name}.h: friction models identified by jointlab (generated; do not edit).
@@ -64,11 +67,15 @@ typedef struct {{
     double Ts;           /* sample time, s (eq. 29) */
     int has_z0;          /* 0: z starts at the steady state of the first velocity */
     double z0;
+    int hold;            /* 0: velocity held over Ts (eq. 29-30); 1: first-order hold */
+    double rest_speed;   /* standstill relaxation speed, rad/s (0: eq. 30 as printed) */
 }} jl_friction_params;
 
 typedef struct {{
     jl_friction_params p;
     double z;            /* bristle deflection, rad */
+    double a_prev;       /* sigma0 S1/g and steady deflection of the previous sample (hold 1) */
+    double zss_prev;
     int started;
 }} jl_friction;
 
@@ -139,7 +146,7 @@ size_t jl_friction_size(void) {{ return sizeof(jl_friction); }}
 double jl_friction_step(jl_friction *f, double v, double a)
 {{
     const jl_friction_params *p = &f->p;
-    double S0, S1, g, ak, bk, zdot, damp, tau, x;
+    double S0, S1, g, ak, bk, zss, zdot, damp, tau, x;
     if (p->kind == JL_KIND_CV)
         return p->c * (double)((v > 0.0) - (v < 0.0)) + p->v * v;
     S0 = jl_s0(v, p->Kv);
@@ -148,12 +155,19 @@ double jl_friction_step(jl_friction *f, double v, double a)
                + p->tau_nlv * v * v * S0;
     S1 = S0 * v;
     g = jl_g(p, v);
-    if (!f->started) {{
-        if (!p->has_z0) f->z = S0 * g / p->sigma0;      /* steady state of the first sample */
-        f->started = 1;
-    }}
-    ak = p->sigma0 * S1 / g;                                                /* eq. 30 */
+    ak = p->sigma0 * (S1 + p->rest_speed) / g;                              /* eq. 30 */
     bk = S0 * S0 * v;
+    zss = S0 * g / p->sigma0;
+    if (p->rest_speed > 0.0) zss *= S1 / (S1 + p->rest_speed);
+    if (!f->started) {{
+        if (!p->has_z0) f->z = zss;                     /* steady state of the first sample */
+        f->started = 1;
+    }} else if (p->hold == 1) {{                      /* first-order hold from the last sample */
+        x = 0.5 * p->Ts * (f->a_prev + ak);
+        f->z = exp(-x) * f->z - expm1(-x) * f->zss_prev + (zss - f->zss_prev) * (1.0 - jl_phi(x));
+    }}
+    f->a_prev = ak;
+    f->zss_prev = zss;
     zdot = bk - ak * f->z;                                                  /* eq. 5 */
     switch (p->damping) {{
     case JL_DAMP_CONSTANT: damp = p->sigma1 * zdot; break;
@@ -170,8 +184,10 @@ double jl_friction_step(jl_friction *f, double v, double a)
     default: damp = 0.0;
     }}
     tau = damp + (p->sigma0 * f->z + jl_viscous(p, v));                    /* eq. 6 */
-    x = ak * p->Ts;                                                         /* eq. 29 */
-    f->z = exp(-x) * f->z + p->Ts * jl_phi(x) * bk;
+    if (p->hold == 0) {{
+        x = ak * p->Ts;                                                     /* eq. 29 */
+        f->z = exp(-x) * f->z + p->Ts * jl_phi(x) * bk;
+    }}
     return tau;
 }}
 
@@ -214,7 +230,7 @@ def c_identifier(name: str) -> str:
 def model_params(model: FrictionModel, dt: float | None) -> dict:
     """The ``jl_friction_params`` field values of a model (kind and damping as C names)."""
     p = {k: 0.0 for k in _FIELDS}
-    p.update(Kv=1000.0, Ts=0.0, has_z0=0, kind="JL_KIND_CV", damping="JL_DAMP_NONE")
+    p.update(Kv=1000.0, Ts=0.0, has_z0=0, hold=0, kind="JL_KIND_CV", damping="JL_DAMP_NONE")
     if isinstance(model, CoulombViscous):
         p.update(c=model.c, v=model.v)
         return p
@@ -226,7 +242,8 @@ def model_params(model: FrictionModel, dt: float | None) -> dict:
             raise ValueError(f"{model.name}: a dynamic model needs the controller's sample time dt")
         st = model.static
         p.update(kind="JL_KIND_LUGRE", **st.params, Kv=st.Kv, Ts=float(dt),
-                 sigma0=model.sigma0)
+                 sigma0=model.sigma0, hold={"zero": 0, "first": 1}[model.hold],
+                 rest_speed=model.rest_speed)
         if isinstance(model, LuGreDM1):
             p.update(damping=_DAMPING[model.damping], sigma1=model.sigma1)
         else:
@@ -247,7 +264,7 @@ def _instance(cname: str, label: str, p: dict) -> str:
     lab = label.replace("\\", "\\\\").replace('"', '\\"')
     return (f"const jl_friction_params JL_{cname.upper()} = {{\n"
             f"    .name = \"{lab}\",\n    .kind = {p['kind']},\n    .damping = {p['damping']},\n"
-            f"{vals},\n    .has_z0 = {int(p['has_z0'])}\n}};")
+            f"{vals},\n    .has_z0 = {int(p['has_z0'])},\n    .hold = {int(p['hold'])}\n}};")
 
 
 def export_c(models: dict, out_dir, *, dt: float | None = None,

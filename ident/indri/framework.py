@@ -15,6 +15,11 @@ Pieces, in the order of the paper:
   ``a_max / v_max`` from the fastest data set, fits ``gamma`` of eq. 24 by prediction error on a
   further, more varied acquisition, and keeps the ``sigma0`` of the slowest data set (DM2).
   DM1 (the paper's eq. 11 damping) is fitted by prediction error on the slowest data set;
+* phase 2-C (jointlab's addition, :meth:`IndriTrapani.refine_damping`): eq. 24's alpha, beta
+  (>= 0), gamma, its acceleration floor and the bristle's standstill relaxation by prediction
+  error over every trial at once, so that the identified ``f_sigma1(v, a)`` never adds
+  residual where the trend of phase 2-B (i) was not measured (DM2 then reduces to the static
+  model wherever the data show no bristle dynamics);
 * performance indices RMS, M, IN of ``tau_res - tau_f`` and the relative errors Err% of
   Tables I-II, as CSV and Markdown; the torque time histories of Figures 2, 4 and 5 (PNG and
   through a :class:`viz.sink.Sink`);
@@ -27,12 +32,12 @@ the damping coefficients, so the search is one-dimensional in ``log sigma0`` (a 
 then :func:`ident.friction.fit_friction` refines from the best grid point and supplies the
 standard errors); ``gamma`` does not change the states at all, so its search reuses one scan.
 
-Measured property of eq. 29 (tests/test_indri.py): the velocity is held over each sample, so on
-a joint whose velocity ramps within the sample the discrete state lags the continuous one by
-about Ts/2 and the identified damping absorbs it: a constant-sigma1 fit returns
-``sigma1 + sigma0 Ts/2`` (and phase 2-B's beta grows by the same amount). This is the right
-value for the discretised model run at the same Ts (controller, C export); re-identify when Ts
-changes.
+Discretisation (tests/test_indri.py): with the paper's eq. 29 the velocity is held over each
+sample, so on a joint whose velocity ramps within the sample the discrete state lags the
+continuous one by about Ts/2 and a constant-sigma1 fit returned ``sigma1 + sigma0 Ts/2``; with a
+stiff bristle the lag became one sample and the damping term a spike at every velocity change.
+The models use the first-order hold of :mod:`ident.friction.dynamic` by default (``hold``),
+which has neither defect; the C export implements the same step.
 """
 from __future__ import annotations
 
@@ -416,11 +421,23 @@ class IndriResult:
     gamma_grid: np.ndarray = field(repr=False)
     gamma_grid_rss: np.ndarray = field(repr=False)
     diagnostics: dict = field(default_factory=dict)
+    trend_alpha: float | None = None   # eq. 23 over the phase 2-A trend (None: = alpha)
+    trend_beta: float | None = None
+    refinement: dict | None = None     # phase 2-C (prediction error on every data set)
+
+    @property
+    def sigma1_trend(self) -> tuple:
+        """(alpha, beta) of eq. 23 fitted to the phase 2-A sigma1 values (Figure 3)."""
+        return (self.alpha if self.trend_alpha is None else self.trend_alpha,
+                self.beta if self.trend_beta is None else self.trend_beta)
 
     @property
     def dm2(self) -> LuGreDM2:
+        extra = {} if self.refinement is None else {
+            "accel_floor": self.refinement["accel_floor"],
+            "rest_speed": self.refinement["rest_speed"]}
         return LuGreDM2(static=self.static.model, accel_ratio=self.accel_ratio, sigma0=self.sigma0,
-                        alpha=self.alpha, beta=self.beta, gamma=self.gamma)
+                        alpha=self.alpha, beta=self.beta, gamma=self.gamma, **extra)
 
     @property
     def models(self) -> dict:
@@ -431,10 +448,15 @@ class IndriResult:
         """fits.json entries of one joint (FORMAT.md): ``{"arctan": ..., "dm1": ..., "dm2": ...}``."""
         dm2 = {"params": self.dm2.params,
                "stderr": {"sigma0": self.phase2a[self._slowest].fit.stderr["sigma0"],
-                          "alpha": self.diagnostics.get("alpha_stderr"),
-                          "beta": self.diagnostics.get("beta_stderr"), "gamma": self.gamma_stderr},
+                          "alpha": (self.diagnostics.get("alpha_stderr") if self.refinement is None
+                                    else None),
+                          "beta": (self.diagnostics.get("beta_stderr") if self.refinement is None
+                                   else None),
+                          "gamma": self.gamma_stderr},
                "rms": self.gamma_rms, "model": "dm2",
-               "settings": {"accel_ratio": self.accel_ratio, "static": self.static.model.to_dict()}}
+               "settings": {"accel_ratio": self.accel_ratio, "accel_floor": self.dm2.accel_floor,
+                            "rest_speed": self.dm2.rest_speed,
+                            "static": self.static.model.to_dict()}}
         return {"arctan": self.static.to_dict(), "dm1": self.dm1.to_dict(), "dm2": _jsonable(dm2)}
 
     @property
@@ -450,7 +472,9 @@ class IndriResult:
                         "sigma0": self.sigma0, "trend_rms": self.trend_rms,
                         "trend_r2": self.trend_r2, "gamma_rms": self.gamma_rms,
                         "alpha_stderr": self.diagnostics.get("alpha_stderr"),
-                        "beta_stderr": self.diagnostics.get("beta_stderr")},
+                        "beta_stderr": self.diagnostics.get("beta_stderr"),
+                        "trend_alpha": self.sigma1_trend[0], "trend_beta": self.sigma1_trend[1]},
+            "phase2c": self.refinement,
             "dm1": self.dm1.to_dict(), "dm2": self.dm2.to_dict(),
             "diagnostics": self.diagnostics})
 
@@ -473,12 +497,14 @@ class IndriTrapani:
     ``static_settle``: displacement (rad) after which a constant-speed sample is steady (step 1).
     ``critical_speed``: the speed ``v_m`` of eq. 22 (a "not negligible" speed with
     ``S0(v_m) ~ 1``); None: the speed where ``S0 = 0.99``, i.e. ``tan(0.99 pi/2) / Kv``.
+    ``refine``: run phase 2-C (:meth:`refine_damping`, jointlab's addition) when
+    :meth:`fit` is given the data sets to check on; False: the paper's alpha, beta, gamma.
     """
 
-    def __init__(self, *, Kv: float = 1000.0, delta_grid=None, deflection_range=(1e-5, 0.3),
-                 n_grid: int = 16, gamma_range=(1e-3, 1e3), n_gamma: int = 25,
+    def __init__(self, *, Kv: float = 1000.0, delta_grid=None, deflection_range=(1e-7, 0.3),
+                 n_grid: int = 20, gamma_range=(1e-3, 1e3), n_gamma: int = 25,
                  dm1_damping: str = "eq11", static_settle: float = 0.03,
-                 critical_speed: float | None = None):
+                 critical_speed: float | None = None, refine: bool = True):
         if dm1_damping not in LuGreDM1.DAMPING:
             raise ValueError(f"dm1_damping must be one of {LuGreDM1.DAMPING}")
         if not (0 < deflection_range[0] < deflection_range[1]):
@@ -499,6 +525,7 @@ class IndriTrapani:
             raise ValueError("critical_speed must be positive")
         self.critical_speed = (float(np.tan(0.99 * np.pi / 2) / self.Kv) if critical_speed is None
                                else float(critical_speed))
+        self.refine = bool(refine)
 
     # ---- step 1 ---------------------------------------------------------------------------
     def fit_static(self, data: FrictionData, mask=None) -> FrictionFit:
@@ -618,15 +645,114 @@ class IndriTrapani:
         se = float(np.sqrt(s2 / dd)) if dd > 0 else np.inf
         return gamma, float(np.sqrt(np.mean(resid ** 2))), se, np.exp(lgrid), grss
 
+    # ---- phase 2-C (jointlab) ------------------------------------------------------------------
+    def refine_damping(self, static: Arctan, sigma0: float, ratio: float, datasets,
+                       counter: _Counter | None = None, rest_times=(np.inf, 0.3, 0.03, 0.003),
+                       floor_fracs=(0.0, 0.003, 0.01, 0.03, 0.1),
+                       n_gamma: int = 9) -> dict:
+        """Phase 2-C, jointlab's addition to sec. III-B: alpha, beta >= 0 and gamma of eq. 24,
+        the acceleration floor of eq. 24's root and the standstill relaxation of the bristle
+        (:mod:`ident.friction.dynamic`, ``rest_speed``) by prediction error over every data
+        set at once (each with its own state scan, so no state crosses a join); sigma0 and
+        ``a_max/v_max`` stay the paper's.
+
+        Why: phase 2-B (i) fits eq. 23 to the sigma1 values of phase 2-A, each identified where
+        one acceleration dominates; nothing checks what ``f_sigma1(v, a)`` then does elsewhere,
+        e.g. at constant low speed or at standstill, where ``alpha / sqrt(gamma (r v)^2 + a^2)``
+        has no bound but the floor; and eq. 5 freezes the bristle at standstill, which holds
+        +-g where the joint's friction may relax (measured on an independent simulator: DM2
+        up to 40 % worse than the static model on some trial kinds, 2-4x over the rests).
+
+        Grid: the standstill relaxation time ``g(0)/(sigma0 rest_speed)`` over ``rest_times``
+        (s; inf: rest_speed 0, the paper's eq. 5), the floor over ``floor_fracs`` of
+        ``a_max`` (0: the 1e-6 numerical floor), gamma over ``n_gamma`` log points of the estimator's range. For each
+        the torque is linear in (alpha, beta), so the non-negative least squares over the
+        pooled 2x2 normal equations is exact (its four active sets enumerated); alpha = beta = 0
+        is always a candidate, so damping is kept only where it lowers the pooled error. The
+        best gamma is refined by a bounded 1-D search. Returns ``{"alpha", "beta", "gamma",
+        "accel_floor", "rest_speed", "rms", "rms_no_damping", "n", ...}``.
+        """
+        counter = counter or _Counter()
+        datasets = list(datasets)
+        g0 = float(static.g(np.array([0.0]))[0])
+        a_max = ratio * max(float(np.max(np.abs(d.qd))) for d in datasets)
+        floors = [1e-6 if f == 0 else f * a_max for f in floor_fracs]
+        v = np.concatenate([np.asarray(d.qd, float) for d in datasets])
+        acc = np.concatenate([np.asarray(d.qdd, float) for d in datasets])
+        tau = np.concatenate([np.asarray(d.tau, float) for d in datasets])
+        rv2 = (ratio * v) ** 2
+        lgrid = np.linspace(np.log(self.gamma_range[0]), np.log(self.gamma_range[1]), n_gamma)
+
+        def nnls2(G, h, yy):
+            cands = [np.zeros(2)]
+            if G[0, 0] > 0:
+                cands.append(np.array([max(h[0] / G[0, 0], 0.0), 0.0]))
+            if G[1, 1] > 0:
+                cands.append(np.array([0.0, max(h[1] / G[1, 1], 0.0)]))
+            try:
+                th = np.linalg.solve(G, h)
+                if np.all(th >= 0):
+                    cands.append(th)
+            except np.linalg.LinAlgError:
+                pass
+            rss = [yy - 2 * th @ h + th @ G @ th for th in cands]
+            k = int(np.argmin(rss))
+            return max(float(rss[k]), 0.0), cands[k]
+
+        best, table = None, []
+        for t_rest in rest_times:                            # loop over the grid (~25 points)
+            vr = 0.0 if not np.isfinite(t_rest) else g0 / (sigma0 * t_rest)
+            base = LuGreDM2(static=static, accel_ratio=ratio, sigma0=sigma0, alpha=0.0,
+                            beta=0.0, gamma=1.0, rest_speed=vr)
+            zs, zds = [], []
+            for d in datasets:                               # loop over data sets (tens)
+                qd = np.asarray(d.qd, float)
+                z = base.states(qd, d.dt)
+                a, b, _ = base._ab(qd)
+                zs.append(z)
+                zds.append(b - a * z)
+                counter.n += 1
+                counter.samples += qd.size
+            z, zdot = np.concatenate(zs), np.concatenate(zds)
+            y = tau - sigma0 * z - static.viscous(v)
+            yy, h2, g22 = float(y @ y), float(zdot @ y), float(zdot @ zdot)
+            for fl in floors:
+
+                def solve(gamma, fl=fl):
+                    c1 = zdot / np.sqrt(gamma * rv2 + acc ** 2 + fl ** 2)
+                    G = np.array([[c1 @ c1, c1 @ zdot], [c1 @ zdot, g22]])
+                    return nnls2(G, np.array([c1 @ y, h2]), yy)
+
+                sols = [solve(float(np.exp(u)))[0] for u in lgrid]
+                i = int(np.argmin(sols))
+                table.append((t_rest, fl, float(np.exp(lgrid[i])), sols[i], yy))
+                if best is None or sols[i] < best[0]:
+                    best = (sols[i], t_rest, vr, fl, i, solve, yy)
+        _, t_rest, vr, fl, i, solve, yy = best
+        lo, hi = lgrid[max(i - 1, 0)], lgrid[min(i + 1, lgrid.size - 1)]
+        res = minimize_scalar(lambda u: solve(float(np.exp(u)))[0], bounds=(lo, hi),
+                              method="bounded", options={"xatol": 1e-4})
+        lg = float(res.x) if res.fun <= best[0] else float(lgrid[i])
+        rss, (alpha, beta) = solve(float(np.exp(lg)))
+        n = max(int(tau.size), 1)
+        return {"alpha": float(alpha), "beta": float(beta), "gamma": float(np.exp(lg)),
+                "accel_floor": float(fl), "rest_speed": float(vr), "rest_time": float(t_rest),
+                "rms": float(np.sqrt(rss / n)), "rms_no_damping": float(np.sqrt(yy / n)),
+                "n": int(tau.size), "n_datasets": len(datasets),
+                "grid": [{"rest_time": r, "accel_floor": f, "gamma": g, "rms": float(np.sqrt(q / n)),
+                          "rms_no_damping": float(np.sqrt(w / n))} for r, f, g, q, w in table]}
+
     # ---- everything -------------------------------------------------------------------------
     def fit(self, static_data: FrictionData, reversal_datasets, variable_data: FrictionData,
-            static: FrictionFit | None = None) -> IndriResult:
-        """Steps 1, 2-A and 2-B (sec. III) plus the DM1 comparison model.
+            static: FrictionFit | None = None, refine_datasets=None) -> IndriResult:
+        """Steps 1, 2-A and 2-B (sec. III) plus the DM1 comparison model, and phase 2-C
+        (:meth:`refine_damping`) when ``refine`` is set and ``refine_datasets`` are given.
 
         ``static_data``: constant-speed runs (step 1; ignored if ``static`` is given);
         ``reversal_datasets``: phase 2-A data sets, one acceleration each (at least two);
         ``variable_data``: the further acquisition with varied speeds and accelerations used to
-        identify gamma (phase 2-B iii).
+        identify gamma (phase 2-B iii); ``refine_datasets``: the acquisitions phase 2-C pools
+        (e.g. every constant-velocity, reversal and excitation trial, each whole).
         """
         datasets = list(reversal_datasets)
         if len(datasets) < 2:
@@ -646,6 +772,18 @@ class IndriTrapani:
         sigma0 = p2a[slow].sigma0
         gamma, g_rms, g_se, ggrid, grss = self.fit_gamma(st, sigma0, alpha, beta, ratio,
                                                          variable_data, counter)
+        trend = (alpha, beta)
+        refinement = None
+        if self.refine and refine_datasets:
+            refinement = self.refine_damping(st, sigma0, ratio, list(refine_datasets), counter)
+            refinement["phase2b"] = {"alpha": alpha, "beta": beta, "gamma": gamma}
+            alpha, beta, gamma = (refinement["alpha"], refinement["beta"], refinement["gamma"])
+            g_rms = float(np.sqrt(np.mean((np.asarray(variable_data.tau) - LuGreDM2(
+                static=st, accel_ratio=ratio, sigma0=sigma0, alpha=alpha, beta=beta,
+                gamma=gamma, accel_floor=refinement["accel_floor"],
+                rest_speed=refinement["rest_speed"]).torque(
+                    variable_data.qd, variable_data.qdd, variable_data.dt)) ** 2)))
+            g_se = float("nan")
         t3 = _time.perf_counter()
         dm1 = self.fit_dm1(st, datasets[slow], self.dm1_damping, counter).fit
         t4 = _time.perf_counter()
@@ -659,7 +797,8 @@ class IndriTrapani:
         return IndriResult(static=st_fit, phase2a=p2a, alpha=alpha, beta=beta, accel_ratio=ratio,
                            gamma=gamma, sigma0=sigma0, dm1=dm1, trend_rms=trend_rms, trend_r2=r2,
                            gamma_rms=g_rms, gamma_stderr=g_se, gamma_grid=ggrid,
-                           gamma_grid_rss=grss, diagnostics=diag)
+                           gamma_grid_rss=grss, diagnostics=diag, trend_alpha=trend[0],
+                           trend_beta=trend[1], refinement=refinement)
 
 
 # ============================================================================================
@@ -883,7 +1022,7 @@ def write_report(result: IndriResult, out_dir, tables: dict | None = None,
                 "v_m", "critical_accel", "above_critical"])
     for f in result.phase2a:
         w.writerow([f.label, f"{f.accel:.6g}", f"{f.v_max:.6g}", f"{f.sigma0:.6g}",
-                    f"{f.sigma1:.6g}", f"{result.alpha / f.accel + result.beta:.6g}",
+                    f"{f.sigma1:.6g}", f"{result.sigma1_trend[0] / f.accel + result.sigma1_trend[1]:.6g}",
                     f"{f.fit.rms:.6g}", f"{f.v_m:.6g}", f"{f.critical_accel:.6g}",
                     int(f.above_critical)])
     p.write_text(buf.getvalue())
