@@ -52,7 +52,7 @@ sys.path.insert(0, str(_here.parent))          # this checkout's packages, not a
 
 import numpy as np  # noqa: E402
 
-from ident.coastdown.estimators import crb, fdm_batch, nls, simulate_coastdown, stop_time, tdm  # noqa: E402
+from ident.coastdown.estimators import crb, fdm_batch, nls, simulate_sdof_coastdown, stop_time, tdm  # noqa: E402
 
 J, KV, KC, V0 = 0.01, 0.01203, 0.0017, 10.0
 FS = 1000.0
@@ -73,7 +73,7 @@ def rel_rms(est, true):
 def run_snr(snr, runs, seed, rest_s=0.0):
     rng = np.random.default_rng([seed, int(snr), int(rest_s * 1000)])
     dur = None if rest_s == 0.0 else stop_time(J, KV, KC, V0) + rest_s
-    sim = simulate_coastdown(J, KV, KC, V0, FS, dur, snr, rng, runs=runs)
+    sim = simulate_sdof_coastdown(J, KV, KC, V0, FS, dur, snr, rng, runs=runs)
     t = sim.t
     est = {k: ([], []) for k in ("TDM", "TDM-grid", "TDM-meas", "NLS", "NLS-v0")}
     fdm_est = {}

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ident.coastdown.estimators import (_model_jac, coast_velocity, coastdown_from_trial, crb, fdm,
-                             fdm_batch, nls, record_spectrum, simulate_coastdown, stop_time, tdm)
+                             fdm_batch, nls, record_spectrum, simulate_sdof_coastdown, stop_time, tdm)
 from mocap.io.errors import InputError
 
 J, KV, KC, V0 = 0.01, 0.01203, 0.0017, 10.0   # paper Table 1
@@ -16,7 +16,7 @@ FS = 1000.0
 
 
 def paper_sim(snr, seed, runs=None, duration=None):
-    return simulate_coastdown(J, KV, KC, V0, FS, duration, snr, np.random.default_rng(seed), runs=runs)
+    return simulate_sdof_coastdown(J, KV, KC, V0, FS, duration, snr, np.random.default_rng(seed), runs=runs)
 
 
 # -- the model ----------------------------------------------------------------------------
@@ -214,7 +214,7 @@ def test_coastdown_from_the_flexible_joint_simulator():
     J = I + J_motor. The coasts last 10-20 ms (Coulomb dominated), so 5 % on Kv, 1 % on Kc."""
     from ident.sim.effects import Effect
     from ident.sim.plant import Controller, JointPlant
-    from ident.sim.plant import simulate_coastdown as sim_cd
+    from ident.sim.plant import simulate_sdof_coastdown as sim_cd
 
     I, a, b, Jm, B, c, v, tmax, vmax = 0.0041, 0.05, -0.65, 0.04, 0.15, 3.90, 0.84, 14.5, 2.43
     plant = JointPlant(I, a, b, Jm, B, Effect("none").joint_params(c, v, tmax, vmax, I + Jm))

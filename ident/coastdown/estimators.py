@@ -58,7 +58,7 @@ while NLS with ``v0`` free stays within 1.07x its own bound. Four of Table 2's s
 figures lie below the CRB at 1 kHz (Kv at 90 dB by 20x, at 20 dB by 78x: that would take fs
 >= 6 MHz).
 
-SNR (paper Table 2, :func:`simulate_coastdown`): ``SNR = 10 log10(P_signal / P_noise)``
+SNR (paper Table 2, :func:`simulate_sdof_coastdown`): ``SNR = 10 log10(P_signal / P_noise)``
 with ``P_signal`` the mean square of the noise-free velocity over the record and
 ``P_noise = sigma^2`` of white Gaussian noise.
 """
@@ -72,7 +72,7 @@ from scipy.optimize import brentq, least_squares
 from mocap.io.errors import InputError
 
 __all__ = ["CoastdownResult", "CoastdownBound", "CoastdownSim", "coast_velocity", "stop_time",
-           "tdm", "fdm", "fdm_batch", "record_spectrum", "nls", "crb", "simulate_coastdown",
+           "tdm", "fdm", "fdm_batch", "record_spectrum", "nls", "crb", "simulate_sdof_coastdown",
            "coast_segments", "coastdown_from_trial"]
 
 
@@ -483,7 +483,7 @@ def crb(t, J: float, Kv: float, Kc: float, v0: float, sigma: float, *,
 
 
 # -- simulation ---------------------------------------------------------------------------
-def simulate_coastdown(J: float, Kv: float, Kc: float, v0: float, fs: float,
+def simulate_sdof_coastdown(J: float, Kv: float, Kc: float, v0: float, fs: float,
                        duration: float | None, snr_db: float, rng: np.random.Generator,
                        runs: int | None = None) -> CoastdownSim:
     """Samples ``t = k/fs`` over ``[0, duration]`` (``None``: up to the stop time) of eq. 4
