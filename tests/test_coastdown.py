@@ -214,7 +214,7 @@ def test_coastdown_from_the_flexible_joint_simulator():
     J = I + J_motor. The coasts last 10-20 ms (Coulomb dominated), so 5 % on Kv, 1 % on Kc."""
     from ident.sim.effects import Effect
     from ident.sim.plant import Controller, JointPlant
-    from ident.sim.plant import simulate_sdof_coastdown as sim_cd
+    from ident.sim.plant import simulate_coastdown as sim_cd
 
     I, a, b, Jm, B, c, v, tmax, vmax = 0.0041, 0.05, -0.65, 0.04, 0.15, 3.90, 0.84, 14.5, 2.43
     plant = JointPlant(I, a, b, Jm, B, Effect("none").joint_params(c, v, tmax, vmax, I + Jm))
