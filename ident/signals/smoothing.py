@@ -28,7 +28,6 @@ estimated with :func:`estimate_time_offset`).
 """
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -474,28 +473,36 @@ def read_angles(path: str | Path) -> AngleTrack:
     path = Path(path)
     if not path.is_file():
         raise InputError("angles file not found", path=path)
-    with path.open(newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
-    if not rows:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
         raise InputError("empty angles file", path=path)
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in lines[0].split(",")]
     if "time" not in header:
         raise InputError("no 'time' column", path=path, line=1)
     qcols = {int(h[2:]): k for k, h in enumerate(header) if h.startswith("q_") and h[2:].isdigit()}
     if not qcols:
         raise InputError("no q_<j> column", path=path, line=1)
-    data = np.full((len(rows) - 1, len(header)), np.nan)
-    for i, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise InputError(f"{len(row)} cells, header has {len(header)}", path=path, line=i)
-        for k, cell in enumerate(row):
-            cell = cell.strip()
-            if cell:
-                try:
-                    data[i - 2, k] = float(cell)
-                except ValueError:
-                    raise InputError(f"not a number: {cell!r}", path=path, line=i,
-                                     label=header[k]) from None
+    body = np.array(lines[1:], dtype=str)
+    n_cells = np.char.count(body, ",") + 1 if body.size else np.zeros(0, int)
+    bad = np.flatnonzero(n_cells != len(header))
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(f"{int(n_cells[i])} cells, header has {len(header)}", path=path, line=i + 2)
+    cells = np.char.strip(np.array(",".join(lines[1:]).split(",") if body.size else [], dtype=str))
+    cells = np.where(cells == "", "nan", cells)
+    try:
+        data = cells.astype(float).reshape(body.size, len(header))
+    except ValueError:
+        data = None
+    if data is None:                       # the error path only: find the offending cell
+        for k, cell in enumerate(cells):
+            try:
+                float(cell)
+            except ValueError:
+                raise InputError(f"not a number: {str(cell)!r}", path=path, line=k // len(header) + 2,
+                                 label=header[k % len(header)]) from None
     time = data[:, header.index("time")]
     if not np.all(np.diff(time) > 0):
         bad = int(np.argmax(np.diff(time) <= 0)) + 3

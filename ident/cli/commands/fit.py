@@ -76,9 +76,9 @@ def run(args) -> int:
         check_out_dir(args.export_c, inputs)
     executor = None
     if args.workers > 1 and one_models:
-        from concurrent.futures import ProcessPoolExecutor
+        from ident.study.executor import make_executor
 
-        executor = ProcessPoolExecutor(max_workers=args.workers)
+        executor = make_executor(args.workers, progress=False)
     from viz import make_sink
 
     res = dyn = None
@@ -98,7 +98,7 @@ def run(args) -> int:
                 paths["indri"] = dyn.write_reports(out, sink=sink)
     finally:
         if executor is not None:
-            executor.shutdown()
+            executor.close()
     exported, export_note = [], None
     if args.export_c is not None:
         exported, export_note = _export_c(args.export_c, res, dyn, args.export_dt)
