@@ -1,0 +1,224 @@
+"""Link state (q, qd, qdd) of a flexible joint from the encoder and the markers together.
+
+The thesis (002, ch. 3-4) measures the link angle by motion capture to capture the flexible
+joint of eq. 2-1..2-4 and differentiates a Fourier fit of it. On real records the link angle
+per marker frame is noisy (0.1-0.2 deg: markers 0.5-1 mm a few cm from the axis) while the
+link-motor deflection is small (0.01-0.03 deg on a stiff drive), so a derivative of the
+marker angle is mostly noise and its noise in ``qd``, ``qdd`` biases the eq. 2-4 regression
+(errors in variables). The estimator here uses each sensor for what it measures well::
+
+    q(t) = qm(t) + delta(t),   delta(t) = delta0 + g delta_nom(t) + r(t)
+
+* ``qm``: the encoder angle smoothed at a bandwidth chosen from its own data
+  (:class:`ident.signals.smoothing.FourierSmoother`: a Fourier fit on the detected periodic
+  window when the record is one, else a Savitzky-Golay window chosen by GCV);
+* ``delta_nom = -y / K``: the nominal deflection under the transmitted torque
+  ``y = u - J qmdd - B qmd`` (the right-hand side of eq. 2-4) and the declared ``stiffness``
+  ``K`` of drives.toml (spring law ``tau_s = K (qm - q)``), smoothed by a GCV-chosen window;
+* ``delta0`` (the constant offset between the marker frame and the encoder zero), the gain
+  ``g`` (1 for a drive as stiff as declared) and ``r(t)``, a slow deflection the nominal law
+  misses, are fitted to the marker-minus-encoder samples: ``r`` is a cosine series over the
+  record whose number of terms (hence its bandwidth, ``M / (2 D)`` Hz) is chosen by BIC, so
+  that the markers only contribute the bandwidth their noise supports. Marker gaps (NaN) and
+  rests are simply samples with or without data.
+
+The result says which method and bandwidths were used and the standard deviation they imply
+for ``q``, ``qd`` and ``qdd`` (``LinkState.errors``), which the identification uses to
+quantify the errors-in-variables bias (:mod:`ident.model.onelink`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocap.io.errors import InputError
+
+from ident.signals.smoothing import SavGolSmoother, SmoothFit
+
+__all__ = ["DeflectionFit", "LinkState", "LinkStateEstimator"]
+
+
+def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
+    """``cos(pi m (t - t0) / D)``, m = 1..M, and its ``order``-th time derivative, (T, M)."""
+    w = np.pi * np.arange(1, M + 1) / D
+    ph = np.multiply.outer(np.asarray(t, float) - t0, w)
+    if order == 0:
+        return np.cos(ph)
+    if order == 1:
+        return -np.sin(ph) * w
+    if order == 2:
+        return -np.cos(ph) * w ** 2
+    raise ValueError("order must be 0, 1 or 2")
+
+
+@dataclass(frozen=True, eq=False)
+class DeflectionFit:
+    """``delta(t) = offset + gain delta_nom(t) + sum_m c_m cos(pi m (t - t0) / D)``."""
+
+    offset: float
+    gain: float                 # NaN without a declared stiffness; 1 (se 0) when fixed at the declared K
+    gain_se: float
+    coef: np.ndarray            # cosine coefficients (M,)
+    cov: np.ndarray = field(repr=False)   # covariance over [offset, (gain), coef]
+    t0: float = 0.0
+    duration: float = 1.0
+    marker_sigma: float = float("nan")   # per-frame noise of the marker angle (rad)
+    n_markers: int = 0
+    rms_nominal_deflection: float = float("nan")
+
+    @property
+    def n_terms(self) -> int:
+        return int(np.asarray(self.coef).size)
+
+    @property
+    def bandwidth_hz(self) -> float:
+        """Highest frequency of the fitted slow deflection ``r(t)`` (0: a constant offset)."""
+        return self.n_terms / (2.0 * self.duration)
+
+    def to_dict(self) -> dict:
+        return {"offset": self.offset, "gain": self.gain, "gain_se": self.gain_se,
+                "n_terms": self.n_terms, "bandwidth_hz": self.bandwidth_hz,
+                "marker_sigma": self.marker_sigma, "marker_sigma_deg": float(np.degrees(self.marker_sigma)),
+                "n_markers": self.n_markers, "rms_nominal_deflection": self.rms_nominal_deflection,
+                "rms_nominal_deflection_deg": float(np.degrees(self.rms_nominal_deflection))}
+
+
+@dataclass(frozen=True, eq=False)
+class LinkState:
+    """Link angle and derivatives on the robot-log samples ``time`` (rad, rad/s, rad/s^2).
+
+    ``method``: ``"encoder+deflection"`` (encoder plus the deflection seen by the markers),
+    ``"encoder"`` (no markers: rigid joint). ``errors``: the standard deviation (RMS over the
+    samples) the smoothing implies for q, qd, qdd; ``marker_rms``: markers minus the estimate.
+    """
+
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    method: str
+    motor_fit: SmoothFit
+    deflection: DeflectionFit | None
+    errors: dict
+    marker_rms: float = float("nan")
+    nominal_fit: SmoothFit | None = None
+
+    def to_dict(self) -> dict:
+        return {"method": self.method, "errors": dict(self.errors), "marker_rms": self.marker_rms,
+                "marker_rms_deg": float(np.degrees(self.marker_rms)),
+                "motor_method": self.motor_fit.method, "motor_bandwidth_hz": self.motor_fit.bandwidth_hz,
+                "deflection": self.deflection.to_dict() if self.deflection is not None else None,
+                "nominal_window_s": self.nominal_fit.window_s if self.nominal_fit is not None else None}
+
+    def as_smooth_fit(self) -> SmoothFit:
+        """The link angle as a :class:`SmoothFit` (grid values on the log samples)."""
+        t = self.time
+        return SmoothFit(self.method, self.marker_rms, self.marker_rms, int(t.size), float(t[0]),
+                         float(t[-1]), None, float("nan"), self.marker_rms, (t, self.q, self.qd, self.qdd),
+                         window_s=self.motor_fit.window_s, sigma=self.errors["q"],
+                         qd_noise=self.errors["qd"], qdd_noise=self.errors["qdd"],
+                         bandwidth_hz=self.motor_fit.bandwidth_hz)
+
+
+class LinkStateEstimator:
+    """Link state from the smoothed encoder angle plus a marker-estimated deflection (see the
+    module docstring).
+
+    Settings: ``max_bandwidth_hz`` caps the slow deflection's bandwidth (the candidates are
+    ``M = 0, 1, 2, 4, ...`` cosine terms up to it and up to a tenth of the marker samples);
+    ``fit_gain``: fit the gain of the nominal deflection when the markers determine it (a gain
+    within two standard errors of 1 is fixed at the declared 1; else fixed at 1); ``nominal_smoother``
+    smooths the nominal deflection (default: a Savitzky-Golay window chosen by GCV).
+    """
+
+    def __init__(self, max_bandwidth_hz: float = 5.0, fit_gain: bool = True, nominal_smoother=None):
+        if not max_bandwidth_hz >= 0:
+            raise ValueError("max_bandwidth_hz must be >= 0")
+        self.max_bandwidth_hz = float(max_bandwidth_hz)
+        self.fit_gain = bool(fit_gain)
+        self.nominal_smoother = nominal_smoother if nominal_smoother is not None else SavGolSmoother("auto")
+
+    def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
+            stiffness: float | None = None) -> LinkState:
+        """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
+        ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
+        ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
+        the declared K (N m/rad); without them the deflection is offset + slow part only."""
+        t = np.asarray(time, float)
+        qm, qmd, qmdd = motor_fit.evaluate(t)
+        mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
+        if q_marker is None:
+            errs = {"q": float(mq), "qd": float(mqd), "qdd": float(mqdd)}
+            return LinkState(t, qm, qmd, qmdd, "encoder", motor_fit, None, errs)
+        tm = np.asarray(t_marker, float)
+        qk = np.asarray(q_marker, float)
+        ok = np.isfinite(tm) & np.isfinite(qk) & (tm >= t[0]) & (tm <= t[-1])
+        if ok.sum() < 8:
+            raise InputError(f"only {int(ok.sum())} marker samples overlap the robot log")
+        tm, qk = tm[ok], qk[ok]
+        nominal = None
+        use_gain = self.fit_gain and y is not None and stiffness is not None and stiffness > 0
+        if y is not None and stiffness is not None and stiffness > 0:
+            nominal = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness))
+            dn = nominal.evaluate(t)
+            dn_m = nominal.evaluate(tm, order=0)[0]
+        else:
+            dn = (np.zeros_like(t),) * 3
+            dn_m = np.zeros_like(tm)
+        d_meas = qk - motor_fit.evaluate(tm, order=0)[0]
+        t0, D = float(t[0]), float(max(t[-1] - t[0], 1e-9))
+        m_cap = int(min(np.floor(2 * D * self.max_bandwidth_hz), tm.size // 10))
+        cands = [0] + [m for m in 2 ** np.arange(0, 16) if m <= m_cap]
+        fixed = [np.ones_like(tm)] + ([dn_m] if use_gain else [])
+        target = d_meas - (0.0 if use_gain else dn_m)
+        X = np.column_stack(fixed + [_cosine_basis(tm, t0, D, cands[-1])])
+        # all candidate sizes from one QR (columns ordered by frequency)
+        Q, R = np.linalg.qr(X)
+        proj = (Q.T @ target) ** 2
+        ok_cols = np.abs(np.diag(R)) > 1e-10 * np.max(np.abs(np.diag(R)))
+        proj = np.where(ok_cols, proj, 0.0)
+        cum = np.cumsum(proj)
+        total = float(target @ target)
+        nf = len(fixed)
+        n = tm.size
+        ks = np.array([nf + m for m in cands])
+        rss = np.maximum(total - cum[ks - 1], 1e-300)
+        bic = n * np.log(rss / n) + ks * np.log(n)
+        M = int(cands[int(np.argmin(bic))])
+        Xm = X[:, :nf + M]
+        coef, *_ = np.linalg.lstsq(Xm, target, rcond=None)
+        r = target - Xm @ coef
+        sigma = float(np.sqrt(r @ r / max(n - Xm.shape[1], 1)))
+        cov = sigma ** 2 * np.linalg.pinv(Xm.T @ Xm)
+        offset = float(coef[0])
+        gain = float(coef[1]) if use_gain else 1.0
+        gain_se = float(np.sqrt(cov[1, 1])) if use_gain else 0.0
+        c = coef[nf:]
+        # deflection and its derivatives on the log samples, with their standard deviations
+        parts, sds = [], []
+        for k in range(3):
+            B = _cosine_basis(t, t0, D, M, k) if M else np.zeros((t.size, 0))
+            cols = [np.full(t.size, 1.0 if k == 0 else 0.0)] + ([dn[k]] if use_gain else []) + [B]
+            Xe = np.column_stack(cols)
+            val = Xe @ coef + (0.0 if use_gain else dn[k])
+            parts.append(val)
+            sds.append(float(np.sqrt(np.mean(np.einsum("ij,jk,ik->i", Xe, cov, Xe)))))
+        fixed_gain = 1.0 if nominal is not None else float("nan")
+        defl = DeflectionFit(offset, gain if use_gain else fixed_gain, gain_se if use_gain else 0.0 * fixed_gain,
+                             np.asarray(c, float), cov, t0, D, sigma, int(n),
+                             float(np.sqrt(np.mean(dn[0] ** 2))) if nominal is not None else float("nan"))
+        q, qd, qdd = qm + parts[0], qmd + parts[1], qmdd + parts[2]
+        nom_sd = (0.0, 0.0, 0.0)
+        if nominal is not None:       # noise of the smoothed nominal deflection, scaled by the gain
+            nom_sd = (nominal.sigma, nominal.qd_noise, nominal.qdd_noise)
+        g = abs(gain)
+        errs = {"q": float(np.sqrt(mq ** 2 + sds[0] ** 2 + (g * nom_sd[0]) ** 2)),
+                "qd": float(np.sqrt(mqd ** 2 + sds[1] ** 2 + (g * nom_sd[1]) ** 2)),
+                "qdd": float(np.sqrt(mqdd ** 2 + sds[2] ** 2 + (g * nom_sd[2]) ** 2))}
+        marker_rms = float(np.sqrt(np.mean(r ** 2)))
+        if use_gain and abs(gain - 1.0) < 2.0 * gain_se:
+            # the markers do not tell the gain from the declared stiffness's: keep K as declared
+            return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
+                time, motor_fit, t_marker, q_marker, y, stiffness)
+        return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal)
