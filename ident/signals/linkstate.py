@@ -12,9 +12,12 @@ marker angle is mostly noise and its noise in ``qd``, ``qdd`` biases the eq. 2-4
 * ``qm``: the encoder angle smoothed at a bandwidth chosen from its own data
   (:class:`ident.signals.smoothing.FourierSmoother`: a Fourier fit on the detected periodic
   window when the record is one, else a Savitzky-Golay window chosen by GCV);
-* ``delta_nom = -y / K``: the nominal deflection under the transmitted torque
-  ``y = u - J qmdd - B qmd`` (the right-hand side of eq. 2-4) and the declared ``stiffness``
-  ``K`` of drives.toml (spring law ``tau_s = K (qm - q)``), smoothed by a GCV-chosen window;
+* ``delta_nom = -tau_s / K``: the nominal deflection under the transmitted torque and the
+  declared ``stiffness`` ``K`` of drives.toml (spring law ``tau_s = K (qm - q)``):
+  ``tau_s = y = u - J qmdd - B qmd`` (the right-hand side of eq. 2-4) when friction acts on the
+  link side, ``y - f(qmd)`` when it acts on the motor side; the side and the smoothing window
+  are those whose link acceleration best explains eq. 2-4 (the markers cannot see the fast
+  part of the deflection, a transmission resonance of 0.001 deg; the dynamics can);
 * ``delta0`` (the constant offset between the marker frame and the encoder zero), the gain
   ``g`` (1 for a drive as stiff as declared) and ``r(t)``, a slow deflection the nominal law
   misses, are fitted to the marker-minus-encoder samples: ``r`` is a cosine series over the
@@ -103,13 +106,16 @@ class LinkState:
     errors: dict
     marker_rms: float = float("nan")
     nominal_fit: SmoothFit | None = None
+    friction_side: str | None = None    # side of the spring the selected nominal deflection puts friction
 
     def to_dict(self) -> dict:
         return {"method": self.method, "errors": dict(self.errors), "marker_rms": self.marker_rms,
                 "marker_rms_deg": float(np.degrees(self.marker_rms)),
                 "motor_method": self.motor_fit.method, "motor_bandwidth_hz": self.motor_fit.bandwidth_hz,
                 "deflection": self.deflection.to_dict() if self.deflection is not None else None,
-                "nominal_window_s": self.nominal_fit.window_s if self.nominal_fit is not None else None}
+                "nominal_window_s": self.nominal_fit.window_s if self.nominal_fit is not None else None,
+                "nominal_bandwidth_hz": self.nominal_fit.bandwidth_hz if self.nominal_fit is not None else None,
+                "friction_side": self.friction_side}
 
     def as_smooth_fit(self) -> SmoothFit:
         """The link angle as a :class:`SmoothFit` (grid values on the log samples)."""
@@ -128,8 +134,10 @@ class LinkStateEstimator:
     Settings: ``max_bandwidth_hz`` caps the slow deflection's bandwidth (the candidates are
     ``M = 0, 1, 2, 4, ...`` cosine terms up to it and up to a tenth of the marker samples);
     ``fit_gain``: fit the gain of the nominal deflection when the markers determine it (a gain
-    within two standard errors of 1 is fixed at the declared 1; else fixed at 1); ``nominal_smoother``
-    smooths the nominal deflection (default: a Savitzky-Golay window chosen by GCV).
+    within two standard errors of 1, or one with which eq. 2-4 leaves more residual than with
+    the declared stiffness, is fixed at the declared 1); ``nominal_smoother``
+    smooths the nominal deflection (default None: the window and the friction side chosen by
+    the eq. 2-4 residual, :meth:`_nominal_deflection`).
     """
 
     def __init__(self, max_bandwidth_hz: float = 5.0, fit_gain: bool = True, nominal_smoother=None):
@@ -137,10 +145,53 @@ class LinkStateEstimator:
             raise ValueError("max_bandwidth_hz must be >= 0")
         self.max_bandwidth_hz = float(max_bandwidth_hz)
         self.fit_gain = bool(fit_gain)
-        self.nominal_smoother = nominal_smoother if nominal_smoother is not None else SavGolSmoother("auto")
+        self.nominal_smoother = nominal_smoother
+        self.windows_s = tuple(np.geomspace(0.004, 0.064, 9))
+        self.rest_frac = 0.01
+
+    @staticmethod
+    def _eq24_rss(q, qd, qdd, y, keep):
+        """(RSS, coefficients) of the Coulomb + viscous regression of eq. 2-4 on ``keep``."""
+        from ident.friction.base import CoulombViscous
+        from ident.model.onelink import onelink_regressor
+
+        X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])[keep]
+        b, *_ = np.linalg.lstsq(X, y[keep], rcond=None)
+        r = y[keep] - X @ b
+        return float(r @ r), b
+
+    def _nominal_deflection(self, t, qm, qmd, qmdd, y, K):
+        """The nominal deflection ``-tau_s / K`` smoothed at the window (and with the friction
+        on the side of the spring) that best explains eq. 2-4: the transmitted torque is
+        ``tau_s = y`` when the friction acts on the link (thesis eq. 2-1..2-3) and
+        ``y - f(qmd)`` when it acts on the motor side; the link acceleration
+        ``qmdd + delta''`` of each candidate enters the Coulomb + viscous regression of eq. 2-4
+        and the candidate with the smallest residual wins. (The markers cannot see the
+        deflection's fast part: 0.001 deg at a 40 Hz transmission resonance, under their noise;
+        the dynamics can.) Returns (SmoothFit of the nominal deflection, side)."""
+        peak = float(np.max(np.abs(qmd))) if qmd.size else 0.0
+        keep = np.abs(qmd) >= self.rest_frac * peak
+        if keep.sum() < 16 or peak <= 0:
+            return SavGolSmoother("auto").fit(t, -y / K), "link"
+
+        def rss_of(q, qd, qdd):
+            return self._eq24_rss(q, qd, qdd, y, keep)
+
+        _, b0 = rss_of(qm, qmd, qmdd)
+        eps = self.rest_frac * peak
+        sides = {"link": y, "motor": y - (b0[3] * np.tanh(qmd / eps) + b0[4] * qmd)}
+        best = None
+        for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
+            for w in self.windows_s:
+                sm = SavGolSmoother(float(w)).fit(t, -ts / K)
+                d0, d1, d2 = sm.evaluate(t)
+                rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
+                if best is None or rss < best[0]:
+                    best = (rss, sm, side)
+        return best[1], best[2]
 
     def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
-            stiffness: float | None = None) -> LinkState:
+            stiffness: float | None = None, _nominal=None) -> LinkState:
         """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
         ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
         ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
@@ -149,8 +200,20 @@ class LinkStateEstimator:
         qm, qmd, qmdd = motor_fit.evaluate(t)
         mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
         if q_marker is None:
-            errs = {"q": float(mq), "qd": float(mqd), "qdd": float(mqdd)}
-            return LinkState(t, qm, qmd, qmdd, "encoder", motor_fit, None, errs)
+            if y is None or stiffness is None or not stiffness > 0:
+                errs = {"q": float(mq), "qd": float(mqd), "qdd": float(mqdd)}
+                return LinkState(t, qm, qmd, qmdd, "encoder", motor_fit, None, errs)
+            # no markers: the encoder plus the nominal deflection (declared stiffness, gain 1)
+            if self.nominal_smoother is None:
+                nominal, side = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float),
+                                                         float(stiffness))
+            else:
+                nominal, side = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness)), None
+            d = nominal.evaluate(t)
+            errs = {"q": float(np.hypot(mq, nominal.sigma)), "qd": float(np.hypot(mqd, nominal.qd_noise)),
+                    "qdd": float(np.hypot(mqdd, nominal.qdd_noise))}
+            return LinkState(t, qm + d[0], qmd + d[1], qmdd + d[2], "encoder+nominal_deflection", motor_fit,
+                             None, errs, float("nan"), nominal, side)
         tm = np.asarray(t_marker, float)
         qk = np.asarray(q_marker, float)
         ok = np.isfinite(tm) & np.isfinite(qk) & (tm >= t[0]) & (tm <= t[-1])
@@ -158,9 +221,16 @@ class LinkStateEstimator:
             raise InputError(f"only {int(ok.sum())} marker samples overlap the robot log")
         tm, qk = tm[ok], qk[ok]
         nominal = None
+        side = None
         use_gain = self.fit_gain and y is not None and stiffness is not None and stiffness > 0
         if y is not None and stiffness is not None and stiffness > 0:
-            nominal = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness))
+            if _nominal is not None:
+                nominal, side = _nominal
+            elif self.nominal_smoother is None:
+                nominal, side = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float),
+                                                         float(stiffness))
+            else:
+                nominal = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness))
             dn = nominal.evaluate(t)
             dn_m = nominal.evaluate(tm, order=0)[0]
         else:
@@ -217,8 +287,19 @@ class LinkStateEstimator:
                 "qd": float(np.sqrt(mqd ** 2 + sds[1] ** 2 + (g * nom_sd[1]) ** 2)),
                 "qdd": float(np.sqrt(mqdd ** 2 + sds[2] ** 2 + (g * nom_sd[2]) ** 2))}
         marker_rms = float(np.sqrt(np.mean(r ** 2)))
-        if use_gain and abs(gain - 1.0) < 2.0 * gain_se:
+        refit = use_gain and abs(gain - 1.0) < 2.0 * gain_se
+        if use_gain and not refit:
+            # the markers see the slow deflection only (their noise hides the transmission's
+            # fast part): keep their gain only if the dynamics (eq. 2-4) agree better with it
+            # than with the declared stiffness
+            yy = np.asarray(y, float)
+            keep = np.abs(qmd) >= self.rest_frac * float(np.max(np.abs(qmd)))
+            d1 = qm + parts[0] - (gain - 1.0) * dn[0], qmd + parts[1] - (gain - 1.0) * dn[1], \
+                qmdd + parts[2] - (gain - 1.0) * dn[2]
+            refit = self._eq24_rss(*d1, yy, keep)[0] <= self._eq24_rss(q, qd, qdd, yy, keep)[0]
+        if refit:
             # the markers do not tell the gain from the declared stiffness's: keep K as declared
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
-                time, motor_fit, t_marker, q_marker, y, stiffness)
-        return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal)
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side))
+        return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal,
+                         side)

@@ -487,6 +487,10 @@ def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link
     qm = np.asarray(qm, float)
     tau = np.asarray(tau, float)
     fm = smoother.fit(log_time, qm)
+    if q_link is None and link_method == "encoder+deflection" and drive is not None \
+            and drive[2] is not None and np.isfinite(drive[2]) and drive[2] > 0:
+        return _encoder_deflection_signals(joint, log_time, qm, tau, None, None, fm, 0.0, drive,
+                                           link_estimator)
     if q_link is None:
         fl, source, offset = fm, "motor", 0.0
     else:
@@ -528,10 +532,13 @@ def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, dr
     """:func:`prepare_joint_signals` with the link state of :mod:`ident.signals.linkstate`."""
     from ident.signals.linkstate import LinkStateEstimator
 
-    fin = np.isfinite(ta) & np.isfinite(ql)
-    if fin.sum() < 8:
-        raise InputError(f"joint {joint}: only {int(fin.sum())} finite link-angle samples")
-    lo, hi = max(fm.t_start, float(ta[fin][0])), min(fm.t_end, float(ta[fin][-1]))
+    if ql is None:                     # no markers: encoder + nominal deflection
+        lo, hi = fm.t_start, fm.t_end
+    else:
+        fin = np.isfinite(ta) & np.isfinite(ql)
+        if fin.sum() < 8:
+            raise InputError(f"joint {joint}: only {int(fin.sum())} finite link-angle samples")
+        lo, hi = max(fm.t_start, float(ta[fin][0])), min(fm.t_end, float(ta[fin][-1]))
     keep = (log_time >= lo) & (log_time <= hi) & np.isfinite(tau) & np.isfinite(qm)
     t = log_time[keep]
     if t.size < 8:
@@ -545,7 +552,7 @@ def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, dr
     est = estimator if estimator is not None else LinkStateEstimator()
     st = est.fit(t, fm, ta, ql, y if K is not None else None, K)
     return JointSignals(joint, t, st.q, st.qd, st.qdd, qms, qmd, qmdd, tau[keep], st.as_smooth_fit(), fm,
-                        "mocap", offset, st.to_dict())
+                        "mocap" if ql is not None else "motor", offset, st.to_dict())
 
 
 # ---------------------------------------------------------------------------------------------
