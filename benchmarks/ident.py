@@ -82,8 +82,8 @@ def _synth_truth(doc) -> dict:
         if key in doc and isinstance(doc[key], (list, dict)):
             items = doc[key].items() if isinstance(doc[key], dict) else enumerate(doc[key], 1)
             for j, d in items:
-                if isinstance(d, dict):
-                    fr = d.get("friction", d)
+                if isinstance(d, dict) and d.get("studied", True):
+                    fr = (d.get("true_models") or {}).get("cv") or d.get("friction", d)
                     c = fr.get("c", fr.get("coulomb"))
                     v = fr.get("v", fr.get("viscous"))
                     if c is not None and v is not None:

@@ -55,6 +55,31 @@ def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
     raise ValueError("order must be 0, 1 or 2")
 
 
+def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
+    """Savitzky-Golay smoothing of ``x`` in which the value (and derivatives) at every sample
+    come from the OTHER samples only: the even samples are smoothed and evaluated at the odd
+    ones and vice versa. The nominal deflection is built from the torque ``y`` that eq. 2-4
+    also regresses on; without this split a sample's torque noise would enter its own
+    regressor (through the filter's centre weight), a spurious fit that favours the narrowest
+    window and biases the estimates."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    out = [np.empty_like(x) for _ in range(3)]
+    fits = []
+    for p in (0, 1):
+        src, dst = np.arange(p, t.size, 2), np.arange(1 - p, t.size, 2)
+        f = SavGolSmoother(window_s).fit(t[src], x[src])
+        fits.append(f)
+        for k, v in enumerate(f.evaluate(t[dst])):
+            out[k][dst] = v
+    f = fits[0]
+    r = x - out[0]
+    return SmoothFit("savgol_crossfit", float(np.sqrt(np.mean(r ** 2))), float(np.max(np.abs(r))), int(t.size),
+                     float(t[0]), float(t[-1]), None, float("nan"), f.noise_rms, (t, *out),
+                     window_s=f.window_s, sigma=f.sigma, qd_noise=f.qd_noise, qdd_noise=f.qdd_noise,
+                     bandwidth_hz=f.bandwidth_hz)
+
+
 @dataclass(frozen=True, eq=False)
 class DeflectionFit:
     """``delta(t) = offset + gain delta_nom(t) + sum_m c_m cos(pi m (t - t0) / D)``."""
@@ -146,7 +171,7 @@ class LinkStateEstimator:
         self.max_bandwidth_hz = float(max_bandwidth_hz)
         self.fit_gain = bool(fit_gain)
         self.nominal_smoother = nominal_smoother
-        self.windows_s = tuple(np.geomspace(0.004, 0.064, 9))
+        self.windows_s = tuple(np.geomspace(0.004, 0.128, 11))
         self.rest_frac = 0.01
 
     @staticmethod
@@ -177,17 +202,22 @@ class LinkStateEstimator:
         def rss_of(q, qd, qdd):
             return self._eq24_rss(q, qd, qdd, y, keep)
 
-        _, b0 = rss_of(qm, qmd, qmdd)
+        rss0, b0 = rss_of(qm, qmd, qmdd)
         eps = self.rest_frac * peak
         sides = {"link": y, "motor": y - (b0[3] * np.tanh(qmd / eps) + b0[4] * qmd)}
-        best = None
+        best = (rss0, None, None)               # no deflection unless one explains eq. 2-4 better
         for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
-                sm = SavGolSmoother(float(w)).fit(t, -ts / K)
+                sm = _crossfit_smooth(t, -ts / K, float(w))
                 d0, d1, d2 = sm.evaluate(t)
                 rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
-                if best is None or rss < best[0]:
+                if rss < best[0]:
                     best = (rss, sm, side)
+        if best[1] is None:
+            zero = np.zeros_like(t)
+            return SmoothFit("none", 0.0, 0.0, int(t.size), float(t[0]), float(t[-1]), None, float("nan"),
+                             0.0, (t, zero, zero, zero), sigma=0.0, qd_noise=0.0, qdd_noise=0.0,
+                             bandwidth_hz=0.0), None
         return best[1], best[2]
 
     def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
@@ -231,6 +261,8 @@ class LinkStateEstimator:
                                                          float(stiffness))
             else:
                 nominal = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness))
+            if nominal.method == "none":          # the dynamics see no deflection to fit a gain to
+                use_gain = False
             dn = nominal.evaluate(t)
             dn_m = nominal.evaluate(tm, order=0)[0]
         else:
