@@ -558,8 +558,8 @@ def fit_arctan(qd, tau, Kv: float = 1000.0, delta_grid=None, X_extra=None, extra
 def eiv_bias(X, beta, se, col_var) -> dict:
     """Errors-in-variables bias of a linear least-squares fit ``y ~ X beta`` whose regressor
     columns carry zero-mean noise of per-sample covariance ``col_var`` ((T, p, p) or the (T, p)
-    diagonal): ``E[X'X] = X0'X0 + sum_t S_t``, so to first order
-    ``bias = -(X'X)^-1 (sum_t S_t) beta`` (attenuation). Returns ``{"bias": (p,), "ratio":
+    diagonal): with ``X`` the observed (noisy) regressor, ``E[X'X] = X0'X0 + sum_t S_t`` and
+    the large-sample bias is ``-(X'X)^-1 (sum_t S_t) beta`` (attenuation). Returns ``{"bias": (p,), "ratio":
     |bias| / se (p,), "exceeds_se": bool}``: a bias above its standard error is reported."""
     X = np.asarray(X, float)
     S = np.asarray(col_var, float)

@@ -250,7 +250,7 @@ class LinkStateEstimator:
         if ok.sum() < 8:
             raise InputError(f"only {int(ok.sum())} marker samples overlap the robot log")
         tm, qk = tm[ok], qk[ok]
-        nominal = None
+        nominal = none_fit = None
         side = None
         use_gain = self.fit_gain and y is not None and stiffness is not None and stiffness > 0
         if y is not None and stiffness is not None and stiffness > 0:
@@ -261,7 +261,12 @@ class LinkStateEstimator:
                                                          float(stiffness))
             else:
                 nominal = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness))
-            if nominal.method == "none":          # the dynamics see no deflection to fit a gain to
+            if nominal.method == "none" and use_gain:
+                # the dynamics see no deflection at the declared stiffness; the markers may still
+                # see one (a drive softer than declared): offer them the slow nominal deflection
+                none_fit = nominal
+                nominal = _crossfit_smooth(t, -np.asarray(y, float) / float(stiffness), self.windows_s[-1])
+            elif nominal.method == "none":
                 use_gain = False
             dn = nominal.evaluate(t)
             dn_m = nominal.evaluate(tm, order=0)[0]
@@ -319,16 +324,30 @@ class LinkStateEstimator:
                 "qd": float(np.sqrt(mqd ** 2 + sds[1] ** 2 + (g * nom_sd[1]) ** 2)),
                 "qdd": float(np.sqrt(mqdd ** 2 + sds[2] ** 2 + (g * nom_sd[2]) ** 2))}
         marker_rms = float(np.sqrt(np.mean(r ** 2)))
-        refit = use_gain and abs(gain - 1.0) < 2.0 * gain_se
+        if use_gain:
+            # is the gain determined by the markers? judged on offset + gain alone (the slow
+            # cosines are collinear with a slow deflection and would hide it)
+            X0 = X[:, :nf]
+            b0, *_ = np.linalg.lstsq(X0, target, rcond=None)
+            r0 = target - X0 @ b0
+            s0 = float(np.sqrt(r0 @ r0 / max(n - nf, 1)))
+            se0 = s0 * float(np.sqrt(np.linalg.pinv(X0.T @ X0)[1, 1]))
+            refit = abs(float(b0[1]) - 1.0) < 2.0 * se0
+        else:
+            refit = False
         if use_gain and not refit:
             # the markers see the slow deflection only (their noise hides the transmission's
             # fast part): keep their gain only if the dynamics (eq. 2-4) agree better with it
             # than with the declared stiffness
             yy = np.asarray(y, float)
             keep = np.abs(qmd) >= self.rest_frac * float(np.max(np.abs(qmd)))
-            d1 = qm + parts[0] - (gain - 1.0) * dn[0], qmd + parts[1] - (gain - 1.0) * dn[1], \
-                qmdd + parts[2] - (gain - 1.0) * dn[2]
+            alt = 0.0 if none_fit is not None else 1.0      # the dynamics' own choice
+            d1 = qm + parts[0] - (gain - alt) * dn[0], qmd + parts[1] - (gain - alt) * dn[1], \
+                qmdd + parts[2] - (gain - alt) * dn[2]
             refit = self._eq24_rss(*d1, yy, keep)[0] <= self._eq24_rss(q, qd, qdd, yy, keep)[0]
+        if refit and none_fit is not None:
+            return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None))
         if refit:
             # the markers do not tell the gain from the declared stiffness's: keep K as declared
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
