@@ -188,17 +188,20 @@ class Hyperbolic(_StaticModel):
         return {"g2": 50.0 / vmax, "g3": 5.0 / vmax, "g5": 20.0 / vmax}, {"g2": b, "g3": b, "g5": b}
 
     def violations(self, form=None):
-        """Thesis eq. 2-7 signs: the Coulomb term ``g4 >= 0``, the viscous ``g6 >= 0`` and a
-        static level ``g1 + g4 >= 0`` (for the representative with ``g2 >= g3``)."""
+        """Thesis eq. 2-7 signs: the Coulomb term ``g4 >= 0``, the viscous ``g6 >= 0``, and a
+        friction that opposes the motion at every speed (``f(v) >= 0`` for 1e-3 <= v <= 10
+        rad/s: a static level g1 + g4 below zero, or a hump deeper than the Coulomb level)."""
         p = self._p
         out = []
         if p["g4"] < 0:
             out.append(f"g4 = {p['g4']:.3g} < 0: negative Coulomb term")
         if p["g6"] < 0:
             out.append(f"g6 = {p['g6']:.3g} < 0: negative viscous coefficient")
-        g1 = p["g1"] if p["g2"] >= p["g3"] else -p["g1"]
-        if g1 + p["g4"] < 0:
-            out.append(f"g1 + g4 = {g1 + p['g4']:.3g} < 0: negative static level")
+        v = np.geomspace(1e-3, 10.0, 400)                     # rad/s
+        f = self.torque(v)
+        if np.min(f) < 0:
+            k = int(np.argmin(f))
+            out.append(f"f({v[k]:.3g} rad/s) = {f[k]:.3g} < 0: the friction pushes the motion")
         return tuple(out)
 
     @classmethod

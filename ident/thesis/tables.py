@@ -65,9 +65,18 @@ def _none(x):
     return None if x is None or not np.isfinite(x) else float(x)
 
 
-def _valid(recs) -> list:
-    """The records without a physical-validity flag (``flags``): only these enter means."""
-    return [r for r in recs if not r.get("flags")]
+def _valid(recs, param: str | None = None) -> list:
+    """The records without a physical-validity flag (``flags``) and, for ``param``, those in
+    which the fit determined it (not in ``unidentified``, see :data:`UNIDENTIFIED`): only
+    these enter means."""
+    return [r for r in recs if not r.get("flags")
+            and (param is None or param not in UNIDENTIFIED.get(r.get("degenerate"), ()))]
+
+
+UNIDENTIFIED = {"hyperbolic_stribeck_nonunique": ("g1", "g2", "g3"), "stribeck_as_cv": ("Vc",),
+                "stribeck_Vc_at_bound": ("Vc",)}
+"""Parameters a degenerate form leaves undetermined (their value is arbitrary along a valley
+of equal fits): left out of that parameter's mean and CV."""
 
 
 def excluded_fits(records) -> list[dict]:
@@ -81,13 +90,14 @@ def summarize(records) -> list[dict]:
     """The ``summary`` list of fits.json: ``{joint, load_kg, vmax_frac, model, param, mean,
     cv_percent, n, n_excluded}`` for every parameter of every model in every group. Fits with a
     physical-validity flag (a negative Coulomb or Stribeck level, wrong hyperbolic signs) are
-    kept out of the mean and CV (``n_excluded``)."""
+    kept out of the mean and CV (``n_excluded``), and so are, for one parameter, the fits whose
+    degenerate form leaves it undetermined (:data:`UNIDENTIFIED`)."""
     out = []
     for (j, load, vf), by_model in group_records(records).items():
         for model, recs in by_model.items():
             names = list(recs[0]["params"])
-            good = _valid(recs)
             for p in names:
+                good = _valid(recs, p)
                 m, cv = mean_cv([r["params"].get(p, np.nan) for r in good])
                 out.append({"joint": j, "load_kg": load, "vmax_frac": vf, "model": model, "param": p,
                             "mean": _none(m), "cv_percent": _none(cv), "n": len(good),
@@ -132,7 +142,7 @@ def param_table(records, joint: int, models=("cv", "stribeck")) -> tuple[list, l
             continue
         stats = {}
         for m, p in cols:
-            recs = _valid(by_model.get(m, []))
+            recs = _valid(by_model.get(m, []), p)
             stats[(m, p)] = mean_cv([r["params"].get(p, np.nan) for r in recs]) if recs else (np.nan, np.nan)
         base = [j, load * G, _peak(by_model)]
         rows.append(base + ["mean"] + [stats[c][0] for c in cols])
@@ -216,6 +226,13 @@ def _footnotes(records, joint: int, models) -> str:
     if bad:
         lines.append(f"Excluded from the means and CVs ({len(bad)} physically impossible fit(s)):")
         lines += [f"- {r.get('trial')} ({r['model']}): {'; '.join(r['flags'])}" for r in bad]
+    und = [r for r in records if int(r["joint"]) == joint and r["model"] in models and not r.get("flags")
+           and UNIDENTIFIED.get(r.get("degenerate"))]
+    if und:
+        lines.append(f"Left out of single parameters' means ({len(und)} fit(s) in a degenerate form that "
+                     "does not determine them):")
+        lines += [f"- {r.get('trial')} ({r['model']}, {r['degenerate']}): "
+                  f"{', '.join(UNIDENTIFIED[r['degenerate']])}" for r in und]
     if eiv:
         lines.append(f"Errors in variables: in {len(eiv)} fit(s) the link-state noise biases a parameter "
                      "by more than its standard error (fits_diagnostics.json, `eiv`): "
