@@ -345,7 +345,7 @@ class FourierSmoother:
         self.periodic = periodic
         self.periodic_ratio = float(periodic_ratio)
         self.periodic_atol = float(periodic_atol)
-        self.fallback = fallback if fallback is not None else SavGolSmoother("auto")
+        self.fallback = fallback if fallback is not None else SavGolSmoother()
         self.trim_rest = bool(trim_rest)
         self.rest_frac = float(rest_frac)
 
@@ -466,7 +466,7 @@ class JointSignals:
 
 def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link=None,
                           time_offset: float | str = 0.0, smoother=None,
-                          link_smoother=None, link_method: str = "encoder+deflection",
+                          link_smoother=None, link_method: str = "markers",
                           drive: tuple | None = None, link_estimator=None) -> JointSignals:
     """Put one joint's link angle (marker clock) and motor angle/torque (robot clock) on the
     robot log's samples, smoothing both with eq. 3-2 fits and analytic derivatives.
@@ -474,11 +474,11 @@ def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link
     ``joint`` is 1-based (for naming only); ``qm``, ``tau`` are that joint's log columns.
     ``q_link`` None: the motor angle stands in for the link angle (``link_source="motor"``).
     ``time_offset``: seconds added to marker times, or ``"estimate"``.
-    ``link_method``: ``"encoder+deflection"`` (default; :class:`ident.signals.linkstate.LinkStateEstimator`:
+    ``link_method``: ``"encoder+deflection"`` (the thesis campaign's; :class:`ident.signals.linkstate.LinkStateEstimator`:
     the smoothed encoder angle plus the deflection the markers support; ``drive = (J, B, K)``
     gives the motor inertia, viscous and declared stiffness (K NaN or None: no nominal
     deflection) for the nominal deflection ``-(u - J qmdd - B qmd) / K``), or ``"markers"``
-    (the thesis's own way: the marker angle smoothed and differentiated by itself, below).
+    (default, the thesis's own way: the marker angle smoothed and differentiated by itself, below).
     For ``"markers"`` the link fit reuses the motor fit's fundamental (same commanded trajectory) and chooses
     its own number of harmonics. Samples outside the span of both signals are dropped.
     """

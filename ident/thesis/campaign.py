@@ -30,7 +30,7 @@ from mocap.io.errors import InputError
 
 from ident.thesis import tables as stats
 from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
-from ident.signals.smoothing import (FourierSmoother, angles_path, one_blas_thread, prepare_joint_signals,
+from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread, prepare_joint_signals,
                       read_angles)
 
 __all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
@@ -113,7 +113,10 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
     else:
         notes.append("no angles folder: the motor angle is used as the link angle (rigid-joint approximation)")
     periodic = None if task.kind == "excitation" else False
-    smoother = FourierSmoother(max_harmonics=task.max_harmonics, periodic=periodic)
+    # derivative bandwidth from the data: a Fourier fit only when its residual is at the noise
+    # level of a GCV-chosen Savitzky-Golay smoother (else that smoother)
+    smoother = FourierSmoother(max_harmonics=task.max_harmonics, periodic=periodic,
+                               fallback=SavGolSmoother("auto"))
     qm, tau = log.qm[:, j0], log.tau[:, j0]
     if not np.isfinite(qm).any() or not np.isfinite(tau).any():
         raise InputError(f"trial {task.trial!r}: the log has no qm_{task.joint}/tau_{task.joint} data",
