@@ -35,11 +35,9 @@ def test_cond_beats_random_trajectories():
     rng = np.random.default_rng(7)
     wf = 2 * np.pi / 10.0
     t = np.linspace(0, 10.0, 400, endpoint=False)
-    wl = wf * np.arange(1, 6)
-    ph = np.multiply.outer(t, wl)
     conds = []
     for _ in range(50):
-        out = des._build(rng.normal(size=8), LIM, 1.0, Na, Nb, wf, (np.sin(ph), np.cos(ph), wl))
+        out = des._build(rng.normal(size=8), LIM, 1.0, Na, Nb, wf, des._shapes(t, wf))
         _, _, _, q, qd, qdd = out
         if q.min() >= LIM.q_lower and q.max() <= LIM.q_upper and np.max(np.abs(qdd)) <= LIM.qdd_max:
             conds.append(regressor_cond(q, qd, qdd))

@@ -72,7 +72,7 @@ def test_stribeck_recovered_and_beats_cv():
         assert s.params[k] == pytest.approx(v, rel=0.05), k
     for k, v in TRUE.items():
         assert s.rigid[k] == pytest.approx(v, rel=0.02), k
-    assert s.degenerate is None and s.converged
+    assert s.form is None and s.converged
     assert s.rms == pytest.approx(0.05, rel=0.1)
     assert fits["cv"].rms > 2 * s.rms                        # cv cannot follow the Stribeck dip
     assert fits["hyperbolic"].rms < 1.1 * s.rms              # six parameters fit as well
@@ -83,7 +83,7 @@ def test_stribeck_on_cv_data_is_named_degenerate():
     t, qm, tau = one_link_data(CoulombViscous(c=4.1, v=1.2), seed=4)
     sig = prepare_joint_signals(5, t, qm, tau)
     s = OneLinkIdentifier(models=("stribeck",), n_starts=3).fit_signals(sig, J, B)["stribeck"]
-    assert s.degenerate in ("stribeck_as_cv", "stribeck_coulomb_in_Fs")
+    assert s.form in ("stribeck_as_cv", "stribeck_coulomb_in_Fs")
     # the Coulomb level at speed is still right: Fk - Fs
     assert s.params["Fk"] - s.params["Fs"] == pytest.approx(4.1, rel=0.03)
 

@@ -24,7 +24,9 @@ import numpy as np
 from scipy.linalg import null_space
 from scipy.optimize import minimize
 
-from ident.signals.fourier import FourierSeries
+from ident.friction.base import CoulombViscous
+from ident.model.onelink import onelink_regressor
+from ident.signals.fourier import FourierSeries, design_matrix
 
 __all__ = ["DesignLimits", "ExcitationDesign", "ExcitationDesigner", "regressor_cond",
            "limits_from_robot"]
@@ -48,7 +50,7 @@ class DesignLimits:
 
 def regressor_cond(q, qd, qdd) -> float:
     """cond(R) of the thesis's one-link regressor ``[qdd, -sin q, cos q, sign qd, qd]``."""
-    R = np.column_stack([qdd, -np.sin(q), np.cos(q), np.sign(qd), qd])
+    R = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])
     return float(np.linalg.cond(R))
 
 
@@ -125,24 +127,29 @@ class ExcitationDesigner:
         Nb = null_space(np.arange(1, N + 1, dtype=float)[None, :])
         return Na, Nb
 
+    def _shapes(self, t, wf):
+        """The eq. 3-2 design matrices of q, qd, qdd on the grid ``t`` (without the q0 column)."""
+        return tuple(design_matrix(t, wf, self.n_harmonics, order)[:, 1:] for order in (0, 1, 2))
+
     def _build(self, x, limits, vmax_frac, Na, Nb, wf, shapes):
         """Coefficients for direction x: scaled to the peak speed, centred. ``shapes`` holds the
         per-harmonic sin/cos tables on the grid."""
-        S, C, wl = shapes
+        D0, D1, D2 = shapes                   # eq. 3-2 design matrices without the q0 column
         k = Na.shape[1]
         a, b = Na @ x[:k], Nb @ x[k:]
-        qd = C @ a + S @ b
+        qd = D1 @ np.concatenate([a, b])
         peak = float(np.max(np.abs(qd)))
         if peak < 1e-12:
             return None
         s = vmax_frac * limits.qd_max / peak
         a, b = s * a, s * b
-        q_sh = S @ (a / wl) - C @ (b / wl)
+        ab = np.concatenate([a, b])
+        q_sh = D0 @ ab
         lo, hi = limits.q_lower, limits.q_upper
         centre = 0.5 * (lo + hi) if self.q_center is None else float(self.q_center)
         q0 = centre - 0.5 * (q_sh.max() + q_sh.min())
         q = q_sh + q0
-        qdd = -S @ (a * wl) + C @ (b * wl)
+        qdd = D2 @ ab
         return a, b, q0, q, s * qd, qdd
 
     def _objective(self, x, limits, vmax_frac, Na, Nb, wf, shapes):
@@ -166,9 +173,7 @@ class ExcitationDesigner:
         N = self.n_harmonics
         wf = 2 * np.pi / self.period
         t = np.linspace(0.0, self.period, self.n_samples, endpoint=False)
-        wl = wf * np.arange(1, N + 1)
-        ph = np.multiply.outer(t, wl)
-        shapes = (np.sin(ph), np.cos(ph), wl)
+        shapes = self._shapes(t, wf)
         Na, Nb = self._bases()
         rng = np.random.default_rng(self.seed)
         best, nfev = None, 0

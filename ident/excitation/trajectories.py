@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ident.signals.fourier import FourierSeries
+
 
 class Reference:
     duration: float = 0.0
@@ -48,14 +50,8 @@ class FourierReference(Reference):
         t = np.asarray(t, float)
         tt = np.clip(t - self.hold, 0.0, self.n_periods * 2 * np.pi / self.w)
         moving = (t >= self.hold) & (t <= self.duration - self.hold)
-        l = np.arange(1, self.a.size + 1)
-        wl = self.w * l
-        arg = tt[..., None] * wl
-        s, c = np.sin(arg), np.cos(arg)
-        q = self.q0 + np.sum(self.a / wl * s - self.b / wl * c, axis=-1)
-        qd = np.sum(self.a * c + self.b * s, axis=-1) * moving
-        qdd = np.sum(-self.a * wl * s + self.b * wl * c, axis=-1) * moving
-        return q, qd, qdd
+        q, qd, qdd = FourierSeries(self.a, self.b, self.w, self.q0).evaluate(tt)
+        return q, qd * moving, qdd * moving
 
     def to_dict(self):
         return {"type": "fourier", "duration": self.duration, "a": self.a.tolist(),

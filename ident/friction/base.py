@@ -52,6 +52,12 @@ class FrictionModel:
     def to_dict(self) -> dict:
         return {"model": self.name, "params": self.params}
 
+    def violations(self, form: str | None = None) -> tuple[str, ...]:
+        """Physically impossible parameter values (a friction that pushes the motion, a
+        negative Coulomb or viscous level), one short sentence each; () when none. ``form``:
+        the degenerate form the fit was classified as (some forms carry a level elsewhere)."""
+        return ()
+
     # -- evaluation ----------------------------------------------------------------------
     def torque(self, qd, qdd=None, dt: float | None = None) -> np.ndarray:
         """Friction torque (same shape as ``qd``) opposing motion: positive for qd > 0."""
@@ -67,6 +73,14 @@ class CoulombViscous(FrictionModel):
     def torque(self, qd, qdd=None, dt=None):
         qd = np.asarray(qd, float)
         return self._p["c"] * np.sign(qd) + self._p["v"] * qd
+
+    def violations(self, form=None):
+        out = []
+        if self._p["c"] < 0:
+            out.append(f"c = {self._p['c']:.3g} < 0: negative Coulomb level")
+        if self._p["v"] < 0:
+            out.append(f"v = {self._p['v']:.3g} < 0: negative viscous coefficient")
+        return tuple(out)
 
     @staticmethod
     def regressor(qd) -> np.ndarray:

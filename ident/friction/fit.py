@@ -45,7 +45,17 @@ def default_delta_grid() -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class FrictionFit:
-    """A fitted friction model with its nuisance coefficients and diagnostics."""
+    """A fitted friction model with its nuisance coefficients and diagnostics: the one result
+    type of every friction fit (Indri & Trapani's, and the thesis's one-link fits of eq. 2-4,
+    whose extra columns are the rigid parameters ``I, mglx, mgly``).
+
+    ``degenerate``: sentences naming what these data do not determine (None: nothing);
+    ``form``: the name of the thesis's degenerate form the parameters take
+    (:func:`ident.model.onelink.name_degenerate`), or None; ``flags``: physically impossible
+    values (the model's ``violations``: a negative Coulomb or Stribeck level, wrong hyperbolic
+    signs); a flagged fit is kept out of condition means. ``eiv``: errors-in-variables bias of
+    the parameters implied by the regressor noise (:func:`eiv_bias`), or None.
+    """
 
     model: FrictionModel
     extra: dict                 # extra column name -> coefficient
@@ -60,10 +70,31 @@ class FrictionFit:
     degenerate: str | None
     residuals: np.ndarray = field(repr=False)
     diagnostics: dict = field(default_factory=dict)
+    form: str | None = None
+    flags: tuple = ()
+    eiv: dict | None = None
 
     @property
     def params(self) -> dict:
         return self.model.params
+
+    @property
+    def rigid(self) -> dict:
+        """The one-link rigid parameters (``I, mglx, mgly``) among the extra coefficients."""
+        return {k: v for k, v in self.extra.items() if k in ("I", "mglx", "mgly")}
+
+    @property
+    def note(self) -> str | None:
+        return self.degenerate
+
+    @property
+    def valid(self) -> bool:
+        """False when the fit carries a physical-validity flag."""
+        return not self.flags
+
+    def friction(self) -> FrictionModel:
+        """The fitted friction model object."""
+        return self.model
 
     def to_dict(self) -> dict:
         """fits.json layout for one model (params, stderr, rms) plus diagnostics."""
@@ -76,8 +107,11 @@ class FrictionFit:
              "extra_stderr": {k: _json_float(self.stderr[k]) for k in self.extra},
              "n": int(self.n), "cond": _json_float(self.cond), "nfev": int(self.nfev),
              "converged": bool(self.converged), "degenerate": self.degenerate,
-             "names": list(self.names),
+             "form": self.form, "flags": list(self.flags), "valid": self.valid,
+             "eiv": self.eiv, "names": list(self.names),
              "cov": [[_json_float(x) for x in row] for row in np.asarray(self.cov)]}
+        if self.rigid:
+            d["rigid"] = dict(self.rigid)
         md = self.model.to_dict()
         if "settings" in md:
             d["settings"] = md["settings"]
@@ -519,6 +553,20 @@ def fit_arctan(qd, tau, Kv: float = 1000.0, delta_grid=None, X_extra=None, extra
                    "rss_profile_min": float(rss[i])}
     return _finish(model, qd, tau, X, enames, sw, None, None, nfev=int(grid.size), converged=True,
                    at_bound=at_bound, diagnostics=diagnostics, beta_extra=b[:e], jac_override=J)
+
+
+def eiv_bias(X, beta, se, col_var) -> dict:
+    """Errors-in-variables bias of a linear least-squares fit ``y ~ X beta`` whose regressor
+    columns carry zero-mean noise of per-sample covariance ``col_var`` ((T, p, p) or the (T, p)
+    diagonal): with ``X`` the observed (noisy) regressor, ``E[X'X] = X0'X0 + sum_t S_t`` and
+    the large-sample bias is ``-(X'X)^-1 (sum_t S_t) beta`` (attenuation). Returns ``{"bias": (p,), "ratio":
+    |bias| / se (p,), "exceeds_se": bool}``: a bias above its standard error is reported."""
+    X = np.asarray(X, float)
+    S = np.asarray(col_var, float)
+    S = np.einsum("tk,kl->kl", S, np.eye(S.shape[1])) if S.ndim == 2 else S.sum(axis=0)
+    bias = -np.linalg.pinv(X.T @ X) @ S @ np.asarray(beta, float)
+    ratio = np.abs(bias) / np.maximum(np.asarray(se, float), 1e-300)
+    return {"bias": bias, "ratio": ratio, "exceeds_se": bool(np.any(ratio > 1.0))}
 
 
 def predict(fit: FrictionFit, qd, X_extra=None, *, qdd=None, dt=None) -> np.ndarray:

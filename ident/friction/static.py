@@ -115,6 +115,22 @@ class Stribeck(_StaticModel):
         vmax = float(np.max(np.abs(qd)))
         return {"Vc": 0.05 * vmax}, {"Vc": (1e-4 * vmax, 10.0 * vmax)}
 
+    def violations(self, form=None):
+        """Thesis eq. 2-6 physics: static level ``Fk >= 0``, Coulomb level at speed
+        ``Fk - Fs >= 0``, ``Fv >= 0`` and a drop ``Fs >= 0`` (except in the thesis's joint-5
+        form ``stribeck_coulomb_in_Fs``, ``Fk = 0``, where ``-Fs`` carries the Coulomb level)."""
+        Fk, Fv, Fs = self._p["Fk"], self._p["Fv"], self._p["Fs"]
+        out = []
+        if Fk < 0:
+            out.append(f"Fk = {Fk:.3g} < 0: negative static friction level")
+        if Fk - Fs < 0:
+            out.append(f"Fk - Fs = {Fk - Fs:.3g} < 0: negative Coulomb level at speed")
+        if Fv < 0:
+            out.append(f"Fv = {Fv:.3g} < 0: negative viscous coefficient")
+        if Fs < 0 and form != "stribeck_coulomb_in_Fs" and Fk > 0:
+            out.append(f"Fs = {Fs:.3g} < 0: a rise, not a Stribeck drop")
+        return tuple(out)
+
     def degeneracy(self, qd, fit_scale: float) -> str | None:
         a = np.abs(np.asarray(qd, float))
         a = a[a > 0]
@@ -170,6 +186,23 @@ class Hyperbolic(_StaticModel):
         vmax = float(np.max(np.abs(qd)))
         b = (1e-3 / vmax, 1e4 / vmax)
         return {"g2": 50.0 / vmax, "g3": 5.0 / vmax, "g5": 20.0 / vmax}, {"g2": b, "g3": b, "g5": b}
+
+    def violations(self, form=None):
+        """Thesis eq. 2-7 signs: the Coulomb term ``g4 >= 0``, the viscous ``g6 >= 0``, and a
+        friction that opposes the motion at every speed (``f(v) >= 0`` for 1e-3 <= v <= 10
+        rad/s: a static level g1 + g4 below zero, or a hump deeper than the Coulomb level)."""
+        p = self._p
+        out = []
+        if p["g4"] < 0:
+            out.append(f"g4 = {p['g4']:.3g} < 0: negative Coulomb term")
+        if p["g6"] < 0:
+            out.append(f"g6 = {p['g6']:.3g} < 0: negative viscous coefficient")
+        v = np.geomspace(1e-3, 10.0, 400)                     # rad/s
+        f = self.torque(v)
+        if np.min(f) < 0:
+            k = int(np.argmin(f))
+            out.append(f"f({v[k]:.3g} rad/s) = {f[k]:.3g} < 0: the friction pushes the motion")
+        return tuple(out)
 
     @classmethod
     def canonical(cls, params):

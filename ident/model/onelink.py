@@ -34,12 +34,13 @@ Degenerate forms the thesis reports (ch. 5) are detected and named (:func:`name_
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import dataclasses
 
 import numpy as np
 
 from ident.friction import MODELS
 from ident.friction.base import CoulombViscous
+from ident.friction.fit import FrictionFit, eiv_bias, fit_friction
 
 
 def model_class(name: str):
@@ -58,7 +59,7 @@ def model_class(name: str):
 RIGID_NAMES = ("I", "mglx", "mgly")
 
 __all__ = ["RIGID_NAMES", "onelink_target", "onelink_regressor", "OneLinkFit",
-           "OneLinkIdentifier", "fit_cv_linear", "name_degenerate", "initial_guess"]
+           "OneLinkIdentifier", "fit_cv_linear", "name_degenerate", "initial_guess", "with_eiv"]
 
 
 def onelink_target(u, qmd, qmdd, J: float, B: float) -> np.ndarray:
@@ -72,67 +73,55 @@ def onelink_regressor(q, qdd) -> np.ndarray:
     return np.column_stack([np.asarray(qdd, float), -np.sin(q), np.cos(q)])
 
 
-@dataclass(frozen=True, eq=False)
-class OneLinkFit:
-    """One friction model fitted through eq. 2-4 on one joint of one trial.
-
-    ``params``: friction parameters (FORMAT.md names); ``rigid``: ``I``, ``mglx``, ``mgly``;
-    ``stderr`` covers both; ``rms``: residual RMS of eq. 2-4 (N m); ``degenerate``: the name
-    of a degenerate form or ``None``.
-    """
-
-    model: str
-    params: dict
-    rigid: dict
-    stderr: dict
-    rms: float
-    n: int
-    cond: float
-    nfev: int = 1
-    converged: bool = True
-    degenerate: str | None = None
-    cov: np.ndarray | None = field(default=None, repr=False)
-    note: str | None = None
-
-    def friction(self):
-        """The fitted friction model object."""
-        return model_class(self.model)(**self.params)
-
-    def to_dict(self) -> dict:
-        return {"model": self.model, "params": dict(self.params), "rigid": dict(self.rigid),
-                "stderr": dict(self.stderr), "rms": self.rms, "n": self.n, "cond": self.cond,
-                "nfev": self.nfev, "converged": self.converged, "degenerate": self.degenerate,
-                "note": self.note}
+OneLinkFit = FrictionFit
+"""The former one-link result type: one-link fits are :class:`ident.friction.fit.FrictionFit`
+(rigid parameters in ``extra``/``rigid``, the degenerate form's name in ``form``)."""
 
 
-def _stderr(X, r, n_par):
-    n = X.shape[0]
-    dof = max(n - n_par, 1)
-    s2 = float(r @ r) / dof
-    try:
-        XtX_inv = np.linalg.pinv(X.T @ X)
-    except np.linalg.LinAlgError:  # pragma: no cover
-        XtX_inv = np.full((n_par, n_par), np.nan)
-    cov = s2 * XtX_inv
-    return cov, np.sqrt(np.maximum(np.diag(cov), 0.0))
-
-
-def fit_cv_linear(q, qd, qdd, y, weights=None) -> OneLinkFit:
+def fit_cv_linear(q, qd, qdd, y, weights=None) -> FrictionFit:
     """Coulomb + viscous through eq. 2-4 by linear least squares on the regressor
     ``R = [qdd, -sin q, cos q, sign qd, qd]`` (thesis, after eq. 2-5)."""
+    f = fit_friction(CoulombViscous, qd, y, X_extra=onelink_regressor(q, qdd), extra_names=RIGID_NAMES,
+                     weights=weights)
+    return dataclasses.replace(f, flags=f.model.violations())
+
+
+def _regressor_noise(q, errors: dict) -> np.ndarray:
+    """(T, 5, 5) per-sample covariance of the cv regressor's columns ``[qdd, -sin q, cos q,
+    sign qd, qd]`` from independent errors of standard deviation ``errors`` q, qd, qdd (rad,
+    rad/s, rad/s^2); the sign column is taken as exact (slow samples are left out)."""
+    q = np.asarray(q, float)
+    sq, sqd, sqdd = (float(errors.get(k, 0.0) or 0.0) for k in ("q", "qd", "qdd"))
+    S = np.zeros((q.size, 5, 5))
+    S[:, 0, 0] = sqdd ** 2
+    c, s_ = np.cos(q), np.sin(q)
+    S[:, 1, 1] = sq ** 2 * c ** 2                      # d(-sin q) = -cos q dq
+    S[:, 2, 2] = sq ** 2 * s_ ** 2                     # d(cos q) = -sin q dq
+    S[:, 1, 2] = S[:, 2, 1] = sq ** 2 * c * s_
+    S[:, 4, 4] = sqd ** 2
+    return S
+
+
+def with_eiv(fit: FrictionFit, q, qd, qdd, errors: dict) -> FrictionFit:
+    """``fit`` (cv, eq. 2-4) with its errors-in-variables bias (:func:`ident.friction.fit.eiv_bias`)
+    for link-state errors ``errors``; the bias per parameter, its ratio to the standard error
+    and whether any exceeds it go into ``fit.eiv`` (and a sentence into ``degenerate``)."""
     X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])
-    y = np.asarray(y, float)
-    w = None if weights is None else np.sqrt(np.asarray(weights, float))
-    Xw, yw = (X, y) if w is None else (X * w[:, None], y * w)
-    beta, *_ = np.linalg.lstsq(Xw, yw, rcond=None)
-    r = yw - Xw @ beta
-    cov, se = _stderr(Xw, r, X.shape[1])
     names = RIGID_NAMES + CoulombViscous.param_names
-    rms = float(np.sqrt(np.mean((y - X @ beta) ** 2)))
-    return OneLinkFit("cv", dict(zip(("c", "v"), map(float, beta[3:]))),
-                      dict(zip(RIGID_NAMES, map(float, beta[:3]))),
-                      dict(zip(names, map(float, se))), rms, int(y.size), float(np.linalg.cond(Xw)),
-                      cov=cov)
+    vals = {**fit.rigid, **fit.params}
+    beta = np.array([vals[k] for k in names])
+    se = np.array([fit.stderr[k] for k in names])
+    b = eiv_bias(X, beta, se, _regressor_noise(q, errors))
+    eiv = {"errors": {k: float(v) for k, v in errors.items()},
+           "bias": dict(zip(names, map(float, b["bias"]))),
+           "bias_over_se": dict(zip(names, map(float, b["ratio"]))), "exceeds_se": b["exceeds_se"]}
+    deg = fit.degenerate
+    if b["exceeds_se"]:
+        worst = names[int(np.argmax(b["ratio"]))]
+        msg = (f"errors in variables: the regressor noise biases {worst} by "
+               f"{b['bias'][names.index(worst)]:.3g} ({b['ratio'].max():.1f} standard errors)")
+        deg = f"{deg}; {msg}" if deg else msg
+    return dataclasses.replace(fit, eiv=eiv, degenerate=deg)
 
 
 def initial_guess(model: str, cv: OneLinkFit, qd) -> dict:
@@ -148,14 +137,18 @@ def initial_guess(model: str, cv: OneLinkFit, qd) -> dict:
     return {}
 
 
-def name_degenerate(model: str, params: dict, stderr: dict, qd=None, bounds=None) -> str | None:
-    """Name the thesis's degenerate forms (module docstring) or return ``None``."""
+def name_degenerate(model: str, params: dict, stderr: dict, qd=None, bounds=None,
+                    fit_scale: float | None = None) -> str | None:
+    """Name the thesis's degenerate forms (module docstring) or return ``None``: the one
+    classifier of one-link fits (``FrictionFit.form``). ``fit_scale``: the torque scale "~ 0"
+    is judged against (the fits pass the 99th percentile of the friction torque, the scale of
+    the models' own ``degeneracy`` sentences); default ``max(|Fk|, |Fs|)``."""
     rel = lambda k: abs(stderr.get(k, np.nan)) / max(abs(params[k]), 1e-12)  # noqa: E731
     if model == "stribeck":
         Fk, Fs, Vc = params["Fk"], params["Fs"], params["Vc"]
-        scale = max(abs(Fk), abs(Fs), 1e-9)
+        scale = float(fit_scale) if fit_scale else max(abs(Fk), abs(Fs), 1e-9)
         vmax = float(np.max(np.abs(qd))) if qd is not None and np.size(qd) else 1.0
-        if abs(Fk) < 0.05 * scale and Fs < 0 and Vc < 0.05 * vmax:
+        if abs(Fk) < 0.05 * max(abs(Fk), abs(Fs), 1e-9) and Fs < 0 and Vc < 0.05 * vmax:
             return "stribeck_coulomb_in_Fs"
         se_fs = abs(stderr.get("Fs", np.nan))
         if abs(Fs) < 0.02 * scale or (np.isfinite(se_fs) and abs(Fs) < 2.0 * se_fs):
@@ -166,6 +159,10 @@ def name_degenerate(model: str, params: dict, stderr: dict, qd=None, bounds=None
                 return "stribeck_Vc_at_bound"
     elif model == "hyperbolic":
         g1, g2, g3 = params["g1"], params["g2"], params["g3"]
+        if fit_scale and qd is not None and np.size(qd):
+            a = np.abs(np.asarray(qd, float))
+            if np.max(np.abs(g1 * (np.tanh(g2 * a) - np.tanh(g3 * a)))) < 0.02 * fit_scale:
+                return "hyperbolic_stribeck_nonunique"
         if abs(g2 - g3) < 0.02 * max(abs(g2), abs(g3), 1e-9) or abs(g1) < 1e-9:
             return "hyperbolic_stribeck_nonunique"
         if any(not np.isfinite(rel(k)) or rel(k) > 0.5 for k in ("g1", "g2", "g3")):
@@ -197,14 +194,6 @@ def _canonical_stribeck(params, se, ff, qd):
     return out, se
 
 
-def _note(cls, params, qd, y):
-    """The model's own sentence on its degenerate form (``degeneracy``), when it has one."""
-    try:
-        return cls(**params).degeneracy(qd, float(np.max(np.abs(y))))
-    except (AttributeError, TypeError, ValueError):
-        return None
-
-
 class OneLinkIdentifier:
     """Fit friction models through eq. 2-4 on one joint's signals.
 
@@ -217,8 +206,15 @@ class OneLinkIdentifier:
     joint sticks for a moment, which a smooth (Fourier) speed cannot resolve. Measured on a
     simulated Stribeck joint (Fk 5.66, Fs 1.76, Vc 0.05 rad/s, peak 2.43 rad/s): the default
     1 % recovers Fk 5.53, Fs 1.64, Vc 0.07, where 0.2 % gives a degenerate fit.
-    ``fit(q, qd, qdd, y)`` returns {model: :class:`OneLinkFit`}; ``fit_signals(sig, J, B)``
-    builds ``y`` from a :class:`ident.signals.smoothing.JointSignals`.
+    ``fit(q, qd, qdd, y, errors=None)`` returns {model: :class:`ident.friction.fit.FrictionFit`}
+    with ``form`` (the degenerate form's name), ``flags`` (physically impossible values) and,
+    given the link state's ``errors`` (standard deviations of q, qd, qdd), the cv fit's
+    errors-in-variables bias in ``eiv``; ``fit_signals(sig, J, B)`` builds ``y`` from a
+    :class:`ident.signals.smoothing.JointSignals` and passes its errors.
+
+    The viscous coefficient is in the LINK-ONLY basis: the motor viscous ``B`` of drives.toml is
+    removed in the target ``y = u - J qmdd - B qmd``, so ``v`` (``Fv``, ``g6``) is the viscous
+    friction beyond the declared motor viscous; link + motor viscous is ``v + B``.
     """
 
     def __init__(self, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8, seed: int = 0,
@@ -231,20 +227,22 @@ class OneLinkIdentifier:
 
     def fit_signals(self, sig, J: float, B: float) -> dict:
         y = onelink_target(sig.tau, sig.qmd, sig.qmdd, J, B)
-        return self.fit(sig.q, sig.qd, sig.qdd, y)
+        return self.fit(sig.q, sig.qd, sig.qdd, y, errors=sig.errors)
 
-    def fit(self, q, qd, qdd, y) -> dict:
+    def fit(self, q, qd, qdd, y, errors: dict | None = None) -> dict:
         from ident.signals.smoothing import one_blas_thread
 
         with one_blas_thread():
-            return self._fit(q, qd, qdd, y)
+            return self._fit(q, qd, qdd, y, errors)
 
-    def _fit(self, q, qd, qdd, y) -> dict:
+    def _fit(self, q, qd, qdd, y, errors=None) -> dict:
         q, qd, qdd, y = (np.asarray(a, float) for a in (q, qd, qdd, y))
         if self.rest_frac > 0 and qd.size:
             keep = np.abs(qd) >= self.rest_frac * np.max(np.abs(qd))
             q, qd, qdd, y = q[keep], qd[keep], qdd[keep], y[keep]
         cv = fit_cv_linear(q, qd, qdd, y)
+        if errors and all(np.isfinite(float(errors.get(k, np.nan))) for k in ("q", "qd", "qdd")):
+            cv = with_eiv(cv, q, qd, qdd, errors)
         out = {}
         for name in self.models:
             if name == "cv":
@@ -253,9 +251,7 @@ class OneLinkIdentifier:
             out[name] = self._fit_nonlinear(name, q, qd, qdd, y, cv)
         return out
 
-    def _fit_nonlinear(self, name, q, qd, qdd, y, cv) -> OneLinkFit:
-        from ident.friction.fit import fit_friction
-
+    def _fit_nonlinear(self, name, q, qd, qdd, y, cv) -> FrictionFit:
         cls = model_class(name)
         X = onelink_regressor(q, qdd)
         x0 = {k: v for k, v in initial_guess(name, cv, qd).items()
@@ -263,19 +259,17 @@ class OneLinkIdentifier:
         bounds = self.bounds.get(name)
         ff = fit_friction(cls, qd, y, X_extra=X, extra_names=RIGID_NAMES, bounds=bounds, x0=x0 or None,
                           n_starts=self.n_starts, seed=self.seed)
-        raw = dict(ff.model.params)
-        params = cls.canonical(raw) if hasattr(cls, "canonical") else raw
+        params = dict(ff.model.params)          # fit_friction returns the canonical representative
         se = {k: float(v) for k, v in ff.stderr.items()}
-        if params != raw and "g2" in params:  # hyperbolic representative with g2 >= g3
-            se["g2"], se["g3"] = se.get("g3", np.nan), se.get("g2", np.nan)
         if name == "stribeck":
             params, se = _canonical_stribeck(params, se, ff, qd)
         vc_bounds = None
         if name == "stribeck" and bounds and "Vc" in bounds:
             vc_bounds = (np.array([0, 0, 0, bounds["Vc"][0]]), np.array([0, 0, 0, bounds["Vc"][1]]))
-        deg = name_degenerate(name, params, se, qd, vc_bounds)
+        f_data = y - X @ np.array([ff.extra[k] for k in RIGID_NAMES])
+        fit_scale = float(np.percentile(np.abs(f_data), 99.0)) if f_data.size else None
+        deg = name_degenerate(name, params, se, qd, vc_bounds, fit_scale)
         if deg is None and ff.degenerate:
             deg = f"{name}_degenerate"
-        return OneLinkFit(name, params, {k: float(ff.extra[k]) for k in RIGID_NAMES}, se, float(ff.rms),
-                          int(ff.n), float(ff.cond), int(ff.nfev), bool(ff.converged), deg, ff.cov,
-                          ff.degenerate or _note(cls, params, qd, y))
+        model = cls(**params)
+        return dataclasses.replace(ff, model=model, stderr=se, form=deg, flags=model.violations(deg))

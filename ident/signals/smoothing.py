@@ -28,13 +28,13 @@ estimated with :func:`estimate_time_offset`).
 """
 from __future__ import annotations
 
-import csv
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize_scalar
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from mocap.io.errors import InputError
 
@@ -100,6 +100,11 @@ class SmoothFit:
     cond: float = float("nan")
     noise_rms: float = float("nan")
     grid: tuple = field(default=(), repr=False)  # (t, q, qd, qdd) for the smoother
+    window_s: float = float("nan")      # savgol window (s); NaN for Fourier
+    sigma: float = float("nan")         # noise level of the signal (rad)
+    qd_noise: float = float("nan")      # standard deviation the noise implies for qd (rad/s)
+    qdd_noise: float = float("nan")     # ... and for qdd (rad/s^2)
+    bandwidth_hz: float = float("nan")  # highest Fourier harmonic, or the savgol -3 dB frequency
 
     @property
     def wf(self) -> float:
@@ -120,7 +125,9 @@ class SmoothFit:
     def to_dict(self) -> dict:
         d = {"method": self.method, "rms": self.rms, "rms_deg": float(np.degrees(self.rms)),
              "max_abs": self.max_abs, "n_samples": self.n_samples, "noise_rms": self.noise_rms,
-             "t_start": self.t_start, "t_end": self.t_end}
+             "t_start": self.t_start, "t_end": self.t_end, "window_s": self.window_s,
+             "bandwidth_hz": self.bandwidth_hz, "sigma": self.sigma, "qd_noise": self.qd_noise,
+             "qdd_noise": self.qdd_noise}
         if self.series is not None:
             d.update({"wf": self.wf, "n_harmonics": self.n_harmonics, "cond": self.cond,
                       "q0": float(self.series.q0), "a": np.asarray(self.series.a).tolist(),
@@ -133,27 +140,70 @@ class SmoothFit:
 # ---------------------------------------------------------------------------------------------
 class SavGolSmoother:
     """Savitzky-Golay smoothing and differentiation on a uniform grid (the fallback for
-    non-periodic trials). ``window_s``: window length in seconds; ``polyorder``: local
-    polynomial degree."""
+    non-periodic trials). ``window_s``: window length in seconds, or ``"auto"``: chosen from
+    the data by generalised cross-validation (GCV) over ``n_windows`` lengths spaced
+    geometrically from ``min_window_s`` to ``max_window_s``: ``GCV(w) = n RSS / (n - tr H)^2``
+    with ``tr H = n h_0(w)`` (the filter's centre weight), the classical data-driven choice
+    of a linear smoother's bandwidth; ``polyorder``: local polynomial degree.
 
-    def __init__(self, window_s: float = 0.1, polyorder: int = 3):
-        if window_s <= 0 or polyorder < 2:
-            raise ValueError("window_s must be > 0 and polyorder >= 2")
-        self.window_s = float(window_s)
+    The fit reports the window and the noise level ``sigma = sqrt(RSS / (n - tr H))`` and,
+    from the filter coefficients, the standard deviation the noise implies for the velocity
+    and acceleration (``qd_noise = sigma ||h_1||``, ``qdd_noise = sigma ||h_2||``); bias from
+    too wide a window is what GCV balances against that noise.
+    """
+
+    def __init__(self, window_s: float | str = 0.1, polyorder: int = 3, min_window_s: float = 0.004,
+                 max_window_s: float = 0.4, n_windows: int = 14):
+        auto = isinstance(window_s, str)
+        if auto and window_s != "auto":
+            raise ValueError(f"window_s must be seconds or 'auto', got {window_s!r}")
+        if (not auto and window_s <= 0) or polyorder < 2:
+            raise ValueError("window_s must be > 0 (or 'auto') and polyorder >= 2")
+        if not 0 < min_window_s < max_window_s or n_windows < 2:
+            raise ValueError("need 0 < min_window_s < max_window_s and n_windows >= 2")
+        self.window_s = window_s if auto else float(window_s)
         self.polyorder = int(polyorder)
+        self.min_window_s = float(min_window_s)
+        self.max_window_s = float(max_window_s)
+        self.n_windows = int(n_windows)
 
-    def _window(self, dt: float, n: int) -> int:
-        w = int(round(self.window_s / dt)) | 1
+    def _window(self, dt: float, n: int, window_s: float | None = None) -> int:
+        w = int(round((self.window_s if window_s is None else window_s) / dt)) | 1
         w = max(w, self.polyorder + 2 + (self.polyorder % 2 == 0))
         w = min(w, n - 1 if n % 2 == 0 else n)
         if w % 2 == 0:
             w -= 1
         return w
 
+    def _gcv_window(self, qu, dt):
+        """(window, sigma) minimising GCV over the candidate windows."""
+        n = qu.size
+        cands = sorted({self._window(dt, n, ws) for ws in
+                        np.geomspace(self.min_window_s, self.max_window_s, self.n_windows)})
+        best = None
+        for w in cands:  # a dozen candidate windows, each one vectorised filter
+            if w <= self.polyorder:
+                continue
+            g0 = savgol_filter(qu, w, self.polyorder, mode="interp")
+            rss = float(np.sum((qu - g0) ** 2))
+            h0 = float(savgol_coeffs(w, self.polyorder)[w // 2])
+            dof = n * (1.0 - h0)
+            if dof <= 0:
+                continue
+            gcv = n * rss / dof ** 2
+            if best is None or gcv < best[0]:
+                best = (gcv, w, np.sqrt(rss / dof))
+        if best is None:
+            raise InputError(f"{n} samples are too few for a Savitzky-Golay window")
+        return best[1], float(best[2])
+
     def fit(self, t, q) -> SmoothFit:
         t, q = _clean(t, q)
         tu, qu, dt = _uniform(t, q)
-        w = self._window(dt, tu.size)
+        if self.window_s == "auto":
+            w, sigma = self._gcv_window(qu, dt)
+        else:
+            w, sigma = self._window(dt, tu.size), float("nan")
         if w <= self.polyorder:
             raise InputError(f"{tu.size} samples are too few for a Savitzky-Golay window")
         kw = dict(window_length=w, polyorder=self.polyorder, delta=dt, mode="interp")
@@ -162,8 +212,15 @@ class SavGolSmoother:
         g2 = savgol_filter(qu, deriv=2, **kw)
         r = q - np.interp(t, tu, g0)
         rms = float(np.sqrt(np.mean(r ** 2)))
+        if not np.isfinite(sigma):
+            h0 = float(savgol_coeffs(w, self.polyorder)[w // 2])
+            sigma = rms / np.sqrt(max(1.0 - h0, 1e-12))
+        h1 = savgol_coeffs(w, self.polyorder, deriv=1, delta=dt)
+        h2 = savgol_coeffs(w, self.polyorder, deriv=2, delta=dt)
         return SmoothFit("savgol", rms, float(np.max(np.abs(r))), int(t.size), float(t[0]),
-                         float(t[-1]), None, float("nan"), rms, (tu, g0, g1, g2))
+                         float(t[-1]), None, float("nan"), rms, (tu, g0, g1, g2), window_s=w * dt,
+                         bandwidth_hz=(self.polyorder + 1) / (3.2 * w - 4.6) / dt, sigma=sigma, qd_noise=float(sigma * np.linalg.norm(h1)),
+                         qdd_noise=float(sigma * np.linalg.norm(h2)))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -300,8 +357,14 @@ class FourierSmoother:
         coef, *_ = np.linalg.lstsq(X, q, rcond=None)
         r = q - X @ coef
         series = FourierSeries(coef[1:1 + n], coef[1 + n:], wf, float(coef[0]))
+        sigma = float(np.sqrt(r @ r / max(t.size - X.shape[1], 1)))
+        C = np.linalg.pinv(X.T @ X)
+        D1, D2 = (design_matrix(t, wf, n, k) for k in (1, 2))
+        sd = [sigma * np.sqrt(np.mean(np.einsum("ij,jk,ik->i", D, C, D))) for D in (D1, D2)]
         return SmoothFit("fourier", float(np.sqrt(np.mean(r ** 2))), float(np.max(np.abs(r))),
-                         int(t.size), float(t[0]), float(t[-1]), series, float(np.linalg.cond(X)))
+                         int(t.size), float(t[0]), float(t[-1]), series, float(np.linalg.cond(X)),
+                         sigma=sigma, qd_noise=float(sd[0]), qdd_noise=float(sd[1]),
+                         bandwidth_hz=float(wf * n / (2 * np.pi)))
 
     def fit(self, t, q) -> SmoothFit:
         with one_blas_thread():
@@ -333,8 +396,7 @@ class FourierSmoother:
             return four
         noise = smooth.rms
         if four.rms <= self.periodic_ratio * noise + self.periodic_atol:
-            return SmoothFit(four.method, four.rms, four.max_abs, four.n_samples, four.t_start,
-                             four.t_end, four.series, four.cond, noise)
+            return dataclasses.replace(four, noise_rms=noise)
         return smooth
 
 
@@ -384,10 +446,17 @@ class JointSignals:
     motor_fit: SmoothFit
     link_source: str = "mocap"
     time_offset: float = 0.0
+    link_state: dict | None = None      # LinkState.to_dict() of the encoder+deflection method
+
+    @property
+    def errors(self) -> dict:
+        """Standard deviations the smoothing implies for the link q, qd, qdd (rad, /s, /s^2)."""
+        f = self.link_fit
+        return {"q": f.sigma, "qd": f.qd_noise, "qdd": f.qdd_noise}
 
     def to_dict(self) -> dict:
         return {"joint": self.joint, "n_samples": int(self.time.size), "link_source": self.link_source,
-                "time_offset": self.time_offset, "link_fit": self.link_fit.to_dict(),
+                "time_offset": self.time_offset, "link_state": self.link_state, "errors": self.errors, "link_fit": self.link_fit.to_dict(),
                 "motor_fit": self.motor_fit.to_dict(),
                 "link_fit_rms_deg": float(np.degrees(self.link_fit.rms)),
                 "motor_fit_rms_deg": float(np.degrees(self.motor_fit.rms)),
@@ -397,14 +466,20 @@ class JointSignals:
 
 def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link=None,
                           time_offset: float | str = 0.0, smoother=None,
-                          link_smoother=None) -> JointSignals:
+                          link_smoother=None, link_method: str = "markers",
+                          drive: tuple | None = None, link_estimator=None) -> JointSignals:
     """Put one joint's link angle (marker clock) and motor angle/torque (robot clock) on the
     robot log's samples, smoothing both with eq. 3-2 fits and analytic derivatives.
 
     ``joint`` is 1-based (for naming only); ``qm``, ``tau`` are that joint's log columns.
     ``q_link`` None: the motor angle stands in for the link angle (``link_source="motor"``).
     ``time_offset``: seconds added to marker times, or ``"estimate"``.
-    The link fit reuses the motor fit's fundamental (same commanded trajectory) and chooses
+    ``link_method``: ``"encoder+deflection"`` (the thesis campaign's; :class:`ident.signals.linkstate.LinkStateEstimator`:
+    the smoothed encoder angle plus the deflection the markers support; ``drive = (J, B, K)``
+    gives the motor inertia, viscous and declared stiffness (K NaN or None: no nominal
+    deflection) for the nominal deflection ``-(u - J qmdd - B qmd) / K``), or ``"markers"``
+    (default, the thesis's own way: the marker angle smoothed and differentiated by itself, below).
+    For ``"markers"`` the link fit reuses the motor fit's fundamental (same commanded trajectory) and chooses
     its own number of harmonics. Samples outside the span of both signals are dropped.
     """
     smoother = smoother if smoother is not None else FourierSmoother()
@@ -412,6 +487,10 @@ def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link
     qm = np.asarray(qm, float)
     tau = np.asarray(tau, float)
     fm = smoother.fit(log_time, qm)
+    if q_link is None and link_method == "encoder+deflection" and drive is not None \
+            and drive[2] is not None and np.isfinite(drive[2]) and drive[2] > 0:
+        return _encoder_deflection_signals(joint, log_time, qm, tau, None, None, fm, 0.0, drive,
+                                           link_estimator)
     if q_link is None:
         fl, source, offset = fm, "motor", 0.0
     else:
@@ -419,6 +498,11 @@ def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link
         offset = estimate_time_offset(ta, q_link, fm) if time_offset == "estimate" else float(time_offset)
         ta = ta + offset
         ql = np.asarray(q_link, float)
+        if link_method == "encoder+deflection" and link_smoother is None:
+            return _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, drive,
+                                               link_estimator)
+        if link_method not in ("markers", "encoder+deflection"):
+            raise ValueError(f"link_method must be 'encoder+deflection' or 'markers', got {link_method!r}")
         if link_smoother is None and isinstance(smoother, FourierSmoother):
             # same commanded trajectory: the motor fit's fundamental and moving span (the
             # noisier link angle would blur the rest detection)
@@ -442,6 +526,33 @@ def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link
     q, qd, qdd = fl.evaluate(t)
     qms, qmd, qmdd = fm.evaluate(t)
     return JointSignals(joint, t, q, qd, qdd, qms, qmd, qmdd, tau[keep], fl, fm, source, offset)
+
+
+def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, drive, estimator):
+    """:func:`prepare_joint_signals` with the link state of :mod:`ident.signals.linkstate`."""
+    from ident.signals.linkstate import LinkStateEstimator
+
+    if ql is None:                     # no markers: encoder + nominal deflection
+        lo, hi = fm.t_start, fm.t_end
+    else:
+        fin = np.isfinite(ta) & np.isfinite(ql)
+        if fin.sum() < 8:
+            raise InputError(f"joint {joint}: only {int(fin.sum())} finite link-angle samples")
+        lo, hi = max(fm.t_start, float(ta[fin][0])), min(fm.t_end, float(ta[fin][-1]))
+    keep = (log_time >= lo) & (log_time <= hi) & np.isfinite(tau) & np.isfinite(qm)
+    t = log_time[keep]
+    if t.size < 8:
+        raise InputError(f"joint {joint}: the link angles and the robot log overlap in only {t.size} samples")
+    qms, qmd, qmdd = fm.evaluate(t)
+    y = K = None
+    if drive is not None:
+        J, B, K = (float(x) if x is not None else float("nan") for x in drive)
+        y = tau[keep] - J * qmdd - B * qmd
+        K = K if np.isfinite(K) and K > 0 else None
+    est = estimator if estimator is not None else LinkStateEstimator()
+    st = est.fit(t, fm, ta, ql, y if K is not None else None, K)
+    return JointSignals(joint, t, st.q, st.qd, st.qdd, qms, qmd, qmdd, tau[keep], st.as_smooth_fit(), fm,
+                        "mocap" if ql is not None else "motor", offset, st.to_dict())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -474,28 +585,36 @@ def read_angles(path: str | Path) -> AngleTrack:
     path = Path(path)
     if not path.is_file():
         raise InputError("angles file not found", path=path)
-    with path.open(newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
-    if not rows:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
         raise InputError("empty angles file", path=path)
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in lines[0].split(",")]
     if "time" not in header:
         raise InputError("no 'time' column", path=path, line=1)
     qcols = {int(h[2:]): k for k, h in enumerate(header) if h.startswith("q_") and h[2:].isdigit()}
     if not qcols:
         raise InputError("no q_<j> column", path=path, line=1)
-    data = np.full((len(rows) - 1, len(header)), np.nan)
-    for i, row in enumerate(rows[1:], start=2):
-        if len(row) != len(header):
-            raise InputError(f"{len(row)} cells, header has {len(header)}", path=path, line=i)
-        for k, cell in enumerate(row):
-            cell = cell.strip()
-            if cell:
-                try:
-                    data[i - 2, k] = float(cell)
-                except ValueError:
-                    raise InputError(f"not a number: {cell!r}", path=path, line=i,
-                                     label=header[k]) from None
+    body = np.array(lines[1:], dtype=str)
+    n_cells = np.char.count(body, ",") + 1 if body.size else np.zeros(0, int)
+    bad = np.flatnonzero(n_cells != len(header))
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(f"{int(n_cells[i])} cells, header has {len(header)}", path=path, line=i + 2)
+    cells = np.char.strip(np.array(",".join(lines[1:]).split(",") if body.size else [], dtype=str))
+    cells = np.where(cells == "", "nan", cells)
+    try:
+        data = cells.astype(float).reshape(body.size, len(header))
+    except ValueError:
+        data = None
+    if data is None:                       # the error path only: find the offending cell
+        for k, cell in enumerate(cells):
+            try:
+                float(cell)
+            except ValueError:
+                raise InputError(f"not a number: {str(cell)!r}", path=path, line=k // len(header) + 2,
+                                 label=header[k % len(header)]) from None
     time = data[:, header.index("time")]
     if not np.all(np.diff(time) > 0):
         bad = int(np.argmax(np.diff(time) <= 0)) + 3

@@ -30,7 +30,7 @@ from mocap.io.errors import InputError
 
 from ident.thesis import tables as stats
 from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
-from ident.signals.smoothing import (FourierSmoother, angles_path, one_blas_thread, prepare_joint_signals,
+from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread, prepare_joint_signals,
                       read_angles)
 
 __all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
@@ -60,6 +60,8 @@ class FitTask:
     time_offset: float | str = 0.0
     max_harmonics: int = 20
     coupling: tuple | None = None   # [robot] coupling (q_urdf = coupling @ q_log)
+    K: float = float("nan")         # declared stiffness (drives.toml), N m/rad; NaN: not declared
+    link_method: str = "encoder+deflection"
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,7 +69,7 @@ class TrialJointFit:
     """The fits of one joint of one trial, with the signal diagnostics and plot samples."""
 
     task: FitTask
-    fits: dict                      # model -> OneLinkFit
+    fits: dict                      # model -> FrictionFit (one-link, eq. 2-4)
     signals: dict                   # JointSignals.to_dict()
     max_abs_tau: float
     peak_speed: float
@@ -79,7 +81,9 @@ class TrialJointFit:
         return [{"trial": t.trial, "joint": t.joint, "load_kg": t.load_kg, "vmax_frac": t.vmax_frac,
                  "repetition": t.repetition, "model": m, "params": dict(f.params),
                  "stderr": {k: f.stderr.get(k, float("nan")) for k in f.params}, "rms": f.rms,
-                 "max_abs_tau": self.max_abs_tau, "peak_speed": self.peak_speed}
+                 "max_abs_tau": self.max_abs_tau, "peak_speed": self.peak_speed,
+                 "degenerate": f.form, "flags": list(f.flags),
+                 "eiv_exceeds_se": bool(f.eiv["exceeds_se"]) if f.eiv else None}
                 for m, f in self.fits.items()]
 
 
@@ -112,16 +116,20 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
     else:
         notes.append("no angles folder: the motor angle is used as the link angle (rigid-joint approximation)")
     periodic = None if task.kind == "excitation" else False
-    smoother = FourierSmoother(max_harmonics=task.max_harmonics, periodic=periodic)
+    # derivative bandwidth from the data: a Fourier fit only when its residual is at the noise
+    # level of a GCV-chosen Savitzky-Golay smoother (else that smoother)
+    smoother = FourierSmoother(max_harmonics=task.max_harmonics, periodic=periodic,
+                               fallback=SavGolSmoother("auto"))
     qm, tau = log.qm[:, j0], log.tau[:, j0]
     if not np.isfinite(qm).any() or not np.isfinite(tau).any():
         raise InputError(f"trial {task.trial!r}: the log has no qm_{task.joint}/tau_{task.joint} data",
                          path=task.log, label=f"qm_{task.joint}")
     sig = prepare_joint_signals(task.joint, log.time, qm, tau, t_ang, q_link,
-                                time_offset=task.time_offset, smoother=smoother)
+                                time_offset=task.time_offset, smoother=smoother,
+                                link_method=task.link_method, drive=(task.J, task.B, task.K))
     ident = OneLinkIdentifier(task.models, n_starts=task.n_starts, seed=task.seed)
     y = onelink_target(sig.tau, sig.qmd, sig.qmdd, task.J, task.B)
-    fits = ident.fit(sig.q, sig.qd, sig.qdd, y)
+    fits = ident.fit(sig.q, sig.qd, sig.qdd, y, errors=sig.errors)
     # plot samples: measured friction = y - rigid part of the cv fit (or of the first model)
     ref = fits.get("cv") or next(iter(fits.values()))
     X = onelink_regressor(sig.q, sig.qdd)
@@ -164,14 +172,17 @@ class FitsResult:
                          "stderr": {k: _jnum(f.stderr.get(k, np.nan)) for k in f.params},
                          "rms": _jnum(f.rms)}
         summ = [{k: r[k] for k in ("joint", "load_kg", "vmax_frac", "model", "param", "mean", "cv_percent")}
-                for r in self.summary]
+                for r in self.summary]    # means over the physically valid fits only (n_excluded: diagnostics)
         return {"format": 1, "trials": trials, "summary": summ}
 
     def diagnostics(self) -> dict:
         """Everything else: rigid parameters, conditioning, degenerate forms, signal fits,
         the RMS statistics (``fits_diagnostics.json``)."""
         out = {"format": 1, "campaign": self.campaign, "models": list(self.models),
-               "skipped": list(self.skipped), "trials": {}, "rms_summary": stats.rms_summary(self.records())}
+               "skipped": list(self.skipped), "trials": {}, "rms_summary": stats.rms_summary(self.records()),
+               "summary": self.summary, "excluded": stats.excluded_fits(self.records()),
+               "viscous_basis": "link only: v, Fv, g6 exclude the motor viscous B of drives.toml "
+                                "(removed in the eq. 2-4 target); link + motor viscous is v + B"}
         for e in self.entries:
             d = out["trials"].setdefault(e.task.trial, {})
             d[str(e.task.joint)] = {
@@ -249,7 +260,8 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
             tasks.append(FitTask(tr.id, int(j), str(tr.log), ang, float(d.motor_inertia),
                                  float(d.motor_viscous), robot.n, tr.load_kg, tr.vmax_frac,
                                  tr.repetition, tr.kind, tuple(models), n_starts,
-                                 int(seed) + 1000 * k + int(j), off, coupling=campaign.coupling))
+                                 int(seed) + 1000 * k + int(j), off, coupling=campaign.coupling,
+                                 K=float(d.extra.get("stiffness", float("nan")))))
     return tasks, skipped
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["mean_cv", "group_records", "summarize", "rms_summary", "param_table", "rms_table",
+__all__ = ["mean_cv", "group_records", "summarize", "excluded_fits", "rms_summary", "param_table", "rms_table",
            "write_table", "write_tables", "plot_friction_vs_speed", "PARAM_NAMES", "MODEL_TITLES"]
 
 G = 9.81
@@ -65,17 +65,43 @@ def _none(x):
     return None if x is None or not np.isfinite(x) else float(x)
 
 
+def _valid(recs, param: str | None = None) -> list:
+    """The records without a physical-validity flag (``flags``) and, for ``param``, those in
+    which the fit determined it (not in ``unidentified``, see :data:`UNIDENTIFIED`): only
+    these enter means."""
+    return [r for r in recs if not r.get("flags")
+            and (param is None or param not in UNIDENTIFIED.get(r.get("degenerate"), ()))]
+
+
+UNIDENTIFIED = {"hyperbolic_stribeck_nonunique": ("g1", "g2", "g3"), "stribeck_as_cv": ("Vc",),
+                "stribeck_Vc_at_bound": ("Vc",)}
+"""Parameters a degenerate form leaves undetermined (their value is arbitrary along a valley
+of equal fits): left out of that parameter's mean and CV."""
+
+
+def excluded_fits(records) -> list[dict]:
+    """The fits kept out of the condition means: ``{trial, joint, model, flags}``."""
+    return [{"trial": r.get("trial"), "joint": int(r["joint"]), "load_kg": float(r["load_kg"]),
+             "vmax_frac": float(r["vmax_frac"]), "model": r["model"], "flags": list(r["flags"])}
+            for r in records if r.get("flags")]
+
+
 def summarize(records) -> list[dict]:
     """The ``summary`` list of fits.json: ``{joint, load_kg, vmax_frac, model, param, mean,
-    cv_percent, n}`` for every parameter of every model in every group."""
+    cv_percent, n, n_excluded}`` for every parameter of every model in every group. Fits with a
+    physical-validity flag (a negative Coulomb or Stribeck level, wrong hyperbolic signs) are
+    kept out of the mean and CV (``n_excluded``), and so are, for one parameter, the fits whose
+    degenerate form leaves it undetermined (:data:`UNIDENTIFIED`)."""
     out = []
     for (j, load, vf), by_model in group_records(records).items():
         for model, recs in by_model.items():
             names = list(recs[0]["params"])
             for p in names:
-                m, cv = mean_cv([r["params"].get(p, np.nan) for r in recs])
+                good = _valid(recs, p)
+                m, cv = mean_cv([r["params"].get(p, np.nan) for r in good])
                 out.append({"joint": j, "load_kg": load, "vmax_frac": vf, "model": model, "param": p,
-                            "mean": _none(m), "cv_percent": _none(cv), "n": len(recs)})
+                            "mean": _none(m), "cv_percent": _none(cv), "n": len(good),
+                            "n_excluded": len(recs) - len(good)})
     return out
 
 
@@ -116,7 +142,7 @@ def param_table(records, joint: int, models=("cv", "stribeck")) -> tuple[list, l
             continue
         stats = {}
         for m, p in cols:
-            recs = by_model.get(m, [])
+            recs = _valid(by_model.get(m, []), p)
             stats[(m, p)] = mean_cv([r["params"].get(p, np.nan) for r in recs]) if recs else (np.nan, np.nan)
         base = [j, load * G, _peak(by_model)]
         rows.append(base + ["mean"] + [stats[c][0] for c in cols])
@@ -190,9 +216,33 @@ def _markdown(title, header, rows, models_header=None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_table(out_base: Path, title: str, header, rows) -> tuple[Path, Path]:
+def _footnotes(records, joint: int, models) -> str:
+    """Markdown footnote listing the fits of ``joint``/``models`` kept out of the means, and
+    those whose errors-in-variables bias exceeds their standard error."""
+    bad = [r for r in records if int(r["joint"]) == joint and r["model"] in models and r.get("flags")]
+    eiv = [r for r in records if int(r["joint"]) == joint and r["model"] in models and r.get("eiv_exceeds_se")]
+    lines = ["Viscous coefficients (v, F_v, γ_6) are in the link-only basis: the motor viscous B of "
+             "drives.toml is removed in the eq. 2-4 target; link + motor viscous is v + B."]
+    if bad:
+        lines.append(f"Excluded from the means and CVs ({len(bad)} physically impossible fit(s)):")
+        lines += [f"- {r.get('trial')} ({r['model']}): {'; '.join(r['flags'])}" for r in bad]
+    und = [r for r in records if int(r["joint"]) == joint and r["model"] in models and not r.get("flags")
+           and UNIDENTIFIED.get(r.get("degenerate"))]
+    if und:
+        lines.append(f"Left out of single parameters' means ({len(und)} fit(s) in a degenerate form that "
+                     "does not determine them):")
+        lines += [f"- {r.get('trial')} ({r['model']}, {r['degenerate']}): "
+                  f"{', '.join(UNIDENTIFIED[r['degenerate']])}" for r in und]
+    if eiv:
+        lines.append(f"Errors in variables: in {len(eiv)} fit(s) the link-state noise biases a parameter "
+                     "by more than its standard error (fits_diagnostics.json, `eiv`): "
+                     + ", ".join(f"{r.get('trial')} ({r['model']})" for r in eiv))
+    return "\n" + "\n".join(lines) + "\n"
+
+
+def write_table(out_base: Path, title: str, header, rows, footnote: str = "") -> tuple[Path, Path]:
     """Write ``out_base.csv`` (raw numbers, header as given) and ``out_base.md`` (thesis
-    formatting); returns both paths."""
+    formatting, then ``footnote``); returns both paths."""
     out_base = Path(out_base)
     out_base.parent.mkdir(parents=True, exist_ok=True)
     csv_path, md_path = out_base.with_suffix(".csv"), out_base.with_suffix(".md")
@@ -211,7 +261,7 @@ def write_table(out_base: Path, title: str, header, rows) -> tuple[Path, Path]:
             m = h.split(":")[0]
             models_header.append(MODEL_TITLES.get(m, m) if m != prev else "")
             prev = m
-    md_path.write_text(_markdown(title, header, rows, models_header), encoding="utf-8")
+    md_path.write_text(_markdown(title, header, rows, models_header) + footnote, encoding="utf-8")
     return csv_path, md_path
 
 
@@ -231,12 +281,14 @@ def write_tables(records, out_dir: str | Path, models=("cv", "stribeck", "hyperb
             h, rows = param_table(records, j, first)
             title = (f"Friction parameter identification results of "
                      f"{' and '.join(MODEL_TITLES[m] for m in first)} for joint {j}.")
-            written += write_table(out_dir / f"params_{'_'.join(first)}_joint{j}", title, h, rows)
+            written += write_table(out_dir / f"params_{'_'.join(first)}_joint{j}", title, h, rows,
+                                   _footnotes(records, j, first))
             md.append(written[-1].read_text(encoding="utf-8"))
         if "hyperbolic" in present:
             h, rows = param_table(records, j, ("hyperbolic",))
             title = f"Friction parameter identification results of hyperbolic model for joint {j}."
-            written += write_table(out_dir / f"params_hyperbolic_joint{j}", title, h, rows)
+            written += write_table(out_dir / f"params_hyperbolic_joint{j}", title, h, rows,
+                                   _footnotes(records, j, ("hyperbolic",)))
             md.append(written[-1].read_text(encoding="utf-8"))
         h, rows = rms_table(records, j, tuple(present))
         count = {1: "one", 2: "two", 3: "three"}.get(len(present), str(len(present)))

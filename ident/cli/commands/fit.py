@@ -99,9 +99,9 @@ def run(args) -> int:
         check_out_dir(args.export_c, inputs)
     executor = None
     if args.workers > 1 and one_models:
-        from concurrent.futures import ProcessPoolExecutor
+        from ident.study.executor import make_executor
 
-        executor = ProcessPoolExecutor(max_workers=args.workers)
+        executor = make_executor(args.workers, progress=False)
     from viz import make_sink
 
     res = dyn = None
@@ -121,7 +121,7 @@ def run(args) -> int:
                 paths["indri"] = dyn.write_reports(out, sink=sink)
     finally:
         if executor is not None:
-            executor.shutdown()
+            executor.close()
     exported, export_note = [], None
     if args.export_c is not None:
         exported, export_note = _export_c(args.export_c, res, dyn, args.export_dt)
@@ -139,10 +139,13 @@ def run(args) -> int:
         if res.skipped:
             print(f"skipped (coast-down): {', '.join(res.skipped)}")
         for e in res.entries:
-            line = ", ".join(f"{m} rms {f.rms:.3g}" + (f" [{f.degenerate}]" if f.degenerate else "")
+            line = ", ".join(f"{m} rms {f.rms:.3g}" + (f" [{f.form}]" if f.form else "")
+                             + (f" [INVALID: {'; '.join(f.flags)}]" if f.flags else "")
                              for m, f in e.fits.items())
-            print(f"  {e.task.trial} joint {e.task.joint}: link fit {e.signals['link_fit_rms_deg']:.3f} deg, "
-                  f"motor fit {e.signals['motor_fit_rms_deg']:.3f} deg; {line}")
+            lf = e.signals["link_fit"]
+            print(f"  {e.task.trial} joint {e.task.joint}: link {lf['method']} ({e.signals['link_fit_rms_deg']:.3f} deg "
+                  f"vs markers), motor {e.signals['motor_fit']['method']} "
+                  f"{e.signals['motor_fit']['bandwidth_hz']:.3g} Hz; {line}")
     if dyn is not None:
         print(f"Indri & Trapani ({', '.join(dyn_models)}) for joints {', '.join(map(str, dyn))} "
               f"-> {paths['fits']}, {out / 'indri'}")

@@ -1,0 +1,356 @@
+"""Link state (q, qd, qdd) of a flexible joint from the encoder and the markers together.
+
+The thesis (002, ch. 3-4) measures the link angle by motion capture to capture the flexible
+joint of eq. 2-1..2-4 and differentiates a Fourier fit of it. On real records the link angle
+per marker frame is noisy (0.1-0.2 deg: markers 0.5-1 mm a few cm from the axis) while the
+link-motor deflection is small (0.01-0.03 deg on a stiff drive), so a derivative of the
+marker angle is mostly noise and its noise in ``qd``, ``qdd`` biases the eq. 2-4 regression
+(errors in variables). The estimator here uses each sensor for what it measures well::
+
+    q(t) = qm(t) + delta(t),   delta(t) = delta0 + g delta_nom(t) + r(t)
+
+* ``qm``: the encoder angle smoothed at a bandwidth chosen from its own data
+  (:class:`ident.signals.smoothing.FourierSmoother`: a Fourier fit on the detected periodic
+  window when the record is one, else a Savitzky-Golay window chosen by GCV);
+* ``delta_nom = -tau_s / K``: the nominal deflection under the transmitted torque and the
+  declared ``stiffness`` ``K`` of drives.toml (spring law ``tau_s = K (qm - q)``):
+  ``tau_s = y = u - J qmdd - B qmd`` (the right-hand side of eq. 2-4) when friction acts on the
+  link side, ``y - f(qmd)`` when it acts on the motor side; the side and the smoothing window
+  are those whose link acceleration best explains eq. 2-4 (the markers cannot see the fast
+  part of the deflection, a transmission resonance of 0.001 deg; the dynamics can);
+* ``delta0`` (the constant offset between the marker frame and the encoder zero), the gain
+  ``g`` (1 for a drive as stiff as declared) and ``r(t)``, a slow deflection the nominal law
+  misses, are fitted to the marker-minus-encoder samples: ``r`` is a cosine series over the
+  record whose number of terms (hence its bandwidth, ``M / (2 D)`` Hz) is chosen by BIC, so
+  that the markers only contribute the bandwidth their noise supports. Marker gaps (NaN) and
+  rests are simply samples with or without data.
+
+The result says which method and bandwidths were used and the standard deviation they imply
+for ``q``, ``qd`` and ``qdd`` (``LinkState.errors``), which the identification uses to
+quantify the errors-in-variables bias (:mod:`ident.model.onelink`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mocap.io.errors import InputError
+
+from ident.signals.smoothing import SavGolSmoother, SmoothFit
+
+__all__ = ["DeflectionFit", "LinkState", "LinkStateEstimator"]
+
+
+def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
+    """``cos(pi m (t - t0) / D)``, m = 1..M, and its ``order``-th time derivative, (T, M)."""
+    w = np.pi * np.arange(1, M + 1) / D
+    ph = np.multiply.outer(np.asarray(t, float) - t0, w)
+    if order == 0:
+        return np.cos(ph)
+    if order == 1:
+        return -np.sin(ph) * w
+    if order == 2:
+        return -np.cos(ph) * w ** 2
+    raise ValueError("order must be 0, 1 or 2")
+
+
+def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
+    """Savitzky-Golay smoothing of ``x`` in which the value (and derivatives) at every sample
+    come from the OTHER samples only: the even samples are smoothed and evaluated at the odd
+    ones and vice versa. The nominal deflection is built from the torque ``y`` that eq. 2-4
+    also regresses on; without this split a sample's torque noise would enter its own
+    regressor (through the filter's centre weight), a spurious fit that favours the narrowest
+    window and biases the estimates."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    out = [np.empty_like(x) for _ in range(3)]
+    fits = []
+    for p in (0, 1):
+        src, dst = np.arange(p, t.size, 2), np.arange(1 - p, t.size, 2)
+        f = SavGolSmoother(window_s).fit(t[src], x[src])
+        fits.append(f)
+        for k, v in enumerate(f.evaluate(t[dst])):
+            out[k][dst] = v
+    f = fits[0]
+    r = x - out[0]
+    return SmoothFit("savgol_crossfit", float(np.sqrt(np.mean(r ** 2))), float(np.max(np.abs(r))), int(t.size),
+                     float(t[0]), float(t[-1]), None, float("nan"), f.noise_rms, (t, *out),
+                     window_s=f.window_s, sigma=f.sigma, qd_noise=f.qd_noise, qdd_noise=f.qdd_noise,
+                     bandwidth_hz=f.bandwidth_hz)
+
+
+@dataclass(frozen=True, eq=False)
+class DeflectionFit:
+    """``delta(t) = offset + gain delta_nom(t) + sum_m c_m cos(pi m (t - t0) / D)``."""
+
+    offset: float
+    gain: float                 # NaN without a declared stiffness; 1 (se 0) when fixed at the declared K
+    gain_se: float
+    coef: np.ndarray            # cosine coefficients (M,)
+    cov: np.ndarray = field(repr=False)   # covariance over [offset, (gain), coef]
+    t0: float = 0.0
+    duration: float = 1.0
+    marker_sigma: float = float("nan")   # per-frame noise of the marker angle (rad)
+    n_markers: int = 0
+    rms_nominal_deflection: float = float("nan")
+
+    @property
+    def n_terms(self) -> int:
+        return int(np.asarray(self.coef).size)
+
+    @property
+    def bandwidth_hz(self) -> float:
+        """Highest frequency of the fitted slow deflection ``r(t)`` (0: a constant offset)."""
+        return self.n_terms / (2.0 * self.duration)
+
+    def to_dict(self) -> dict:
+        return {"offset": self.offset, "gain": self.gain, "gain_se": self.gain_se,
+                "n_terms": self.n_terms, "bandwidth_hz": self.bandwidth_hz,
+                "marker_sigma": self.marker_sigma, "marker_sigma_deg": float(np.degrees(self.marker_sigma)),
+                "n_markers": self.n_markers, "rms_nominal_deflection": self.rms_nominal_deflection,
+                "rms_nominal_deflection_deg": float(np.degrees(self.rms_nominal_deflection))}
+
+
+@dataclass(frozen=True, eq=False)
+class LinkState:
+    """Link angle and derivatives on the robot-log samples ``time`` (rad, rad/s, rad/s^2).
+
+    ``method``: ``"encoder+deflection"`` (encoder plus the deflection seen by the markers),
+    ``"encoder"`` (no markers: rigid joint). ``errors``: the standard deviation (RMS over the
+    samples) the smoothing implies for q, qd, qdd; ``marker_rms``: markers minus the estimate.
+    """
+
+    time: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    method: str
+    motor_fit: SmoothFit
+    deflection: DeflectionFit | None
+    errors: dict
+    marker_rms: float = float("nan")
+    nominal_fit: SmoothFit | None = None
+    friction_side: str | None = None    # side of the spring the selected nominal deflection puts friction
+
+    def to_dict(self) -> dict:
+        return {"method": self.method, "errors": dict(self.errors), "marker_rms": self.marker_rms,
+                "marker_rms_deg": float(np.degrees(self.marker_rms)),
+                "motor_method": self.motor_fit.method, "motor_bandwidth_hz": self.motor_fit.bandwidth_hz,
+                "deflection": self.deflection.to_dict() if self.deflection is not None else None,
+                "nominal_window_s": self.nominal_fit.window_s if self.nominal_fit is not None else None,
+                "nominal_bandwidth_hz": self.nominal_fit.bandwidth_hz if self.nominal_fit is not None else None,
+                "friction_side": self.friction_side}
+
+    def as_smooth_fit(self) -> SmoothFit:
+        """The link angle as a :class:`SmoothFit` (grid values on the log samples)."""
+        t = self.time
+        return SmoothFit(self.method, self.marker_rms, self.marker_rms, int(t.size), float(t[0]),
+                         float(t[-1]), None, float("nan"), self.marker_rms, (t, self.q, self.qd, self.qdd),
+                         window_s=self.motor_fit.window_s, sigma=self.errors["q"],
+                         qd_noise=self.errors["qd"], qdd_noise=self.errors["qdd"],
+                         bandwidth_hz=self.motor_fit.bandwidth_hz)
+
+
+class LinkStateEstimator:
+    """Link state from the smoothed encoder angle plus a marker-estimated deflection (see the
+    module docstring).
+
+    Settings: ``max_bandwidth_hz`` caps the slow deflection's bandwidth (the candidates are
+    ``M = 0, 1, 2, 4, ...`` cosine terms up to it and up to a tenth of the marker samples);
+    ``fit_gain``: fit the gain of the nominal deflection when the markers determine it (a gain
+    within two standard errors of 1, or one with which eq. 2-4 leaves more residual than with
+    the declared stiffness, is fixed at the declared 1); ``nominal_smoother``
+    smooths the nominal deflection (default None: the window and the friction side chosen by
+    the eq. 2-4 residual, :meth:`_nominal_deflection`).
+    """
+
+    def __init__(self, max_bandwidth_hz: float = 5.0, fit_gain: bool = True, nominal_smoother=None):
+        if not max_bandwidth_hz >= 0:
+            raise ValueError("max_bandwidth_hz must be >= 0")
+        self.max_bandwidth_hz = float(max_bandwidth_hz)
+        self.fit_gain = bool(fit_gain)
+        self.nominal_smoother = nominal_smoother
+        self.windows_s = tuple(np.geomspace(0.004, 0.128, 11))
+        self.rest_frac = 0.01
+
+    @staticmethod
+    def _eq24_rss(q, qd, qdd, y, keep):
+        """(RSS, coefficients) of the Coulomb + viscous regression of eq. 2-4 on ``keep``."""
+        from ident.friction.base import CoulombViscous
+        from ident.model.onelink import onelink_regressor
+
+        X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])[keep]
+        b, *_ = np.linalg.lstsq(X, y[keep], rcond=None)
+        r = y[keep] - X @ b
+        return float(r @ r), b
+
+    def _nominal_deflection(self, t, qm, qmd, qmdd, y, K):
+        """The nominal deflection ``-tau_s / K`` smoothed at the window (and with the friction
+        on the side of the spring) that best explains eq. 2-4: the transmitted torque is
+        ``tau_s = y`` when the friction acts on the link (thesis eq. 2-1..2-3) and
+        ``y - f(qmd)`` when it acts on the motor side; the link acceleration
+        ``qmdd + delta''`` of each candidate enters the Coulomb + viscous regression of eq. 2-4
+        and the candidate with the smallest residual wins. (The markers cannot see the
+        deflection's fast part: 0.001 deg at a 40 Hz transmission resonance, under their noise;
+        the dynamics can.) Returns (SmoothFit of the nominal deflection, side)."""
+        peak = float(np.max(np.abs(qmd))) if qmd.size else 0.0
+        keep = np.abs(qmd) >= self.rest_frac * peak
+        if keep.sum() < 16 or peak <= 0:
+            return SavGolSmoother("auto").fit(t, -y / K), "link"
+
+        def rss_of(q, qd, qdd):
+            return self._eq24_rss(q, qd, qdd, y, keep)
+
+        rss0, b0 = rss_of(qm, qmd, qmdd)
+        eps = self.rest_frac * peak
+        sides = {"link": y, "motor": y - (b0[3] * np.tanh(qmd / eps) + b0[4] * qmd)}
+        best = (rss0, None, None)               # no deflection unless one explains eq. 2-4 better
+        for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
+            for w in self.windows_s:
+                sm = _crossfit_smooth(t, -ts / K, float(w))
+                d0, d1, d2 = sm.evaluate(t)
+                rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
+                if rss < best[0]:
+                    best = (rss, sm, side)
+        if best[1] is None:
+            zero = np.zeros_like(t)
+            return SmoothFit("none", 0.0, 0.0, int(t.size), float(t[0]), float(t[-1]), None, float("nan"),
+                             0.0, (t, zero, zero, zero), sigma=0.0, qd_noise=0.0, qdd_noise=0.0,
+                             bandwidth_hz=0.0), None
+        return best[1], best[2]
+
+    def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
+            stiffness: float | None = None, _nominal=None) -> LinkState:
+        """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
+        ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
+        ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
+        the declared K (N m/rad); without them the deflection is offset + slow part only."""
+        t = np.asarray(time, float)
+        qm, qmd, qmdd = motor_fit.evaluate(t)
+        mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
+        if q_marker is None:
+            if y is None or stiffness is None or not stiffness > 0:
+                errs = {"q": float(mq), "qd": float(mqd), "qdd": float(mqdd)}
+                return LinkState(t, qm, qmd, qmdd, "encoder", motor_fit, None, errs)
+            # no markers: the encoder plus the nominal deflection (declared stiffness, gain 1)
+            if self.nominal_smoother is None:
+                nominal, side = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float),
+                                                         float(stiffness))
+            else:
+                nominal, side = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness)), None
+            d = nominal.evaluate(t)
+            errs = {"q": float(np.hypot(mq, nominal.sigma)), "qd": float(np.hypot(mqd, nominal.qd_noise)),
+                    "qdd": float(np.hypot(mqdd, nominal.qdd_noise))}
+            return LinkState(t, qm + d[0], qmd + d[1], qmdd + d[2], "encoder+nominal_deflection", motor_fit,
+                             None, errs, float("nan"), nominal, side)
+        tm = np.asarray(t_marker, float)
+        qk = np.asarray(q_marker, float)
+        ok = np.isfinite(tm) & np.isfinite(qk) & (tm >= t[0]) & (tm <= t[-1])
+        if ok.sum() < 8:
+            raise InputError(f"only {int(ok.sum())} marker samples overlap the robot log")
+        tm, qk = tm[ok], qk[ok]
+        nominal = none_fit = None
+        side = None
+        use_gain = self.fit_gain and y is not None and stiffness is not None and stiffness > 0
+        if y is not None and stiffness is not None and stiffness > 0:
+            if _nominal is not None:
+                nominal, side = _nominal
+            elif self.nominal_smoother is None:
+                nominal, side = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float),
+                                                         float(stiffness))
+            else:
+                nominal = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness))
+            if nominal.method == "none" and use_gain:
+                # the dynamics see no deflection at the declared stiffness; the markers may still
+                # see one (a drive softer than declared): offer them the slow nominal deflection
+                none_fit = nominal
+                nominal = _crossfit_smooth(t, -np.asarray(y, float) / float(stiffness), self.windows_s[-1])
+            elif nominal.method == "none":
+                use_gain = False
+            dn = nominal.evaluate(t)
+            dn_m = nominal.evaluate(tm, order=0)[0]
+        else:
+            dn = (np.zeros_like(t),) * 3
+            dn_m = np.zeros_like(tm)
+        d_meas = qk - motor_fit.evaluate(tm, order=0)[0]
+        t0, D = float(t[0]), float(max(t[-1] - t[0], 1e-9))
+        m_cap = int(min(np.floor(2 * D * self.max_bandwidth_hz), tm.size // 10))
+        cands = [0] + [m for m in 2 ** np.arange(0, 16) if m <= m_cap]
+        fixed = [np.ones_like(tm)] + ([dn_m] if use_gain else [])
+        target = d_meas - (0.0 if use_gain else dn_m)
+        X = np.column_stack(fixed + [_cosine_basis(tm, t0, D, cands[-1])])
+        # all candidate sizes from one QR (columns ordered by frequency)
+        Q, R = np.linalg.qr(X)
+        proj = (Q.T @ target) ** 2
+        ok_cols = np.abs(np.diag(R)) > 1e-10 * np.max(np.abs(np.diag(R)))
+        proj = np.where(ok_cols, proj, 0.0)
+        cum = np.cumsum(proj)
+        total = float(target @ target)
+        nf = len(fixed)
+        n = tm.size
+        ks = np.array([nf + m for m in cands])
+        rss = np.maximum(total - cum[ks - 1], 1e-300)
+        bic = n * np.log(rss / n) + ks * np.log(n)
+        M = int(cands[int(np.argmin(bic))])
+        Xm = X[:, :nf + M]
+        coef, *_ = np.linalg.lstsq(Xm, target, rcond=None)
+        r = target - Xm @ coef
+        sigma = float(np.sqrt(r @ r / max(n - Xm.shape[1], 1)))
+        cov = sigma ** 2 * np.linalg.pinv(Xm.T @ Xm)
+        offset = float(coef[0])
+        gain = float(coef[1]) if use_gain else 1.0
+        gain_se = float(np.sqrt(cov[1, 1])) if use_gain else 0.0
+        c = coef[nf:]
+        # deflection and its derivatives on the log samples, with their standard deviations
+        parts, sds = [], []
+        for k in range(3):
+            B = _cosine_basis(t, t0, D, M, k) if M else np.zeros((t.size, 0))
+            cols = [np.full(t.size, 1.0 if k == 0 else 0.0)] + ([dn[k]] if use_gain else []) + [B]
+            Xe = np.column_stack(cols)
+            val = Xe @ coef + (0.0 if use_gain else dn[k])
+            parts.append(val)
+            sds.append(float(np.sqrt(np.mean(np.einsum("ij,jk,ik->i", Xe, cov, Xe)))))
+        fixed_gain = 1.0 if nominal is not None else float("nan")
+        defl = DeflectionFit(offset, gain if use_gain else fixed_gain, gain_se if use_gain else 0.0 * fixed_gain,
+                             np.asarray(c, float), cov, t0, D, sigma, int(n),
+                             float(np.sqrt(np.mean(dn[0] ** 2))) if nominal is not None else float("nan"))
+        q, qd, qdd = qm + parts[0], qmd + parts[1], qmdd + parts[2]
+        nom_sd = (0.0, 0.0, 0.0)
+        if nominal is not None:       # noise of the smoothed nominal deflection, scaled by the gain
+            nom_sd = (nominal.sigma, nominal.qd_noise, nominal.qdd_noise)
+        g = abs(gain)
+        errs = {"q": float(np.sqrt(mq ** 2 + sds[0] ** 2 + (g * nom_sd[0]) ** 2)),
+                "qd": float(np.sqrt(mqd ** 2 + sds[1] ** 2 + (g * nom_sd[1]) ** 2)),
+                "qdd": float(np.sqrt(mqdd ** 2 + sds[2] ** 2 + (g * nom_sd[2]) ** 2))}
+        marker_rms = float(np.sqrt(np.mean(r ** 2)))
+        if use_gain:
+            # is the gain determined by the markers? judged on offset + gain alone (the slow
+            # cosines are collinear with a slow deflection and would hide it)
+            X0 = X[:, :nf]
+            b0, *_ = np.linalg.lstsq(X0, target, rcond=None)
+            r0 = target - X0 @ b0
+            s0 = float(np.sqrt(r0 @ r0 / max(n - nf, 1)))
+            se0 = s0 * float(np.sqrt(np.linalg.pinv(X0.T @ X0)[1, 1]))
+            refit = abs(float(b0[1]) - 1.0) < 2.0 * se0
+        else:
+            refit = False
+        if use_gain and not refit:
+            # the markers see the slow deflection only (their noise hides the transmission's
+            # fast part): keep their gain only if the dynamics (eq. 2-4) agree better with it
+            # than with the declared stiffness
+            yy = np.asarray(y, float)
+            keep = np.abs(qmd) >= self.rest_frac * float(np.max(np.abs(qmd)))
+            alt = 0.0 if none_fit is not None else 1.0      # the dynamics' own choice
+            d1 = qm + parts[0] - (gain - alt) * dn[0], qmd + parts[1] - (gain - alt) * dn[1], \
+                qmdd + parts[2] - (gain - alt) * dn[2]
+            refit = self._eq24_rss(*d1, yy, keep)[0] <= self._eq24_rss(q, qd, qdd, yy, keep)[0]
+        if refit and none_fit is not None:
+            return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None))
+        if refit:
+            # the markers do not tell the gain from the declared stiffness's: keep K as declared
+            return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side))
+        return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal,
+                         side)
