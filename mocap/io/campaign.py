@@ -107,6 +107,9 @@ class Campaign:
             log = log.coupled(self.coupling)
         if robot is not None:
             log.check_limits(robot.lower, robot.upper, robot.joint_names)
+            log.check_drive_limits(robot.max_torque, robot.max_velocity, robot.joint_names)
+        if isinstance(rec, Trial):
+            log.check_joints_logged(rec.joints, what=f"trial {rec.id!r}")
         return log
 
     def recordings(self):

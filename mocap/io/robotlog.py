@@ -117,6 +117,34 @@ class RobotLog:
                              f"[{lo[j]:.3f}, {hi[j]:.3f}] rad: degrees suspected (the format wants radians)",
                              path=self.source, label=f"qm_{j + 1}")
 
+    def check_drive_limits(self, max_torque, max_velocity, names=(), factor: float = 100.0) -> None:
+        """Refuse torques (``tau_<j>``) or logged velocities (``qd_<j>``) beyond ``factor`` times
+        the drive's limit (a damaged cell, or a unit far off): ``max_torque``/``max_velocity``
+        (n,) link side, inf where unknown."""
+        for sym, X, lim, unit in (("tau", self.tau, max_torque, "N m"),
+                                  ("qd", self.qd, max_velocity, "rad/s")):
+            if X is None:
+                continue
+            lim = np.asarray(lim, float)
+            lim = factor * np.where(lim > 0, lim, np.inf)            # 0: no limit given
+            with np.errstate(invalid="ignore"):
+                bad = np.abs(X) > lim[None, :]
+            if bad.any():
+                i, j = (int(x[0]) for x in np.nonzero(bad))
+                name = names[j] if j < len(names) else f"joint {j + 1}"
+                raise InputError(f"column {sym}_{j + 1} has {X[i, j]:.4g} {unit}, more than {factor:g} "
+                                 f"times the drive limit of {name} ({lim[j] / factor:.4g} {unit}): a "
+                                 "damaged value or the wrong unit", path=self.source,
+                                 line=self.line_of(i), label=f"{sym}_{j + 1}")
+
+    def check_joints_logged(self, joints, what: str = "the trial") -> None:
+        """Every joint in ``joints`` (1-based) needs ``qm_<j>`` and ``tau_<j>`` values."""
+        for j in joints:
+            for sym, X in (("qm", self.qm), ("tau", self.tau)):
+                if j > X.shape[1] or not np.isfinite(X[:, j - 1]).any():
+                    raise InputError(f"no {sym}_{j} values, but {what} moves joint {j}",
+                                     path=self.source, line=1, label=f"{sym}_{j}")
+
     @property
     def qd(self) -> np.ndarray | None:
         """(T, n) logged joint velocities ``qd_<j>`` (NaN for joints without one), or None when
