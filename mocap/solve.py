@@ -683,6 +683,11 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     # FORMAT.md: t_robot = t_marker + time_offset (the trial's key, 0 by default)
     offset = float(getattr(trial, "extra", {}).get("time_offset", 0.0))
     q_guess = motor_guess(log, rec.time + offset, joints0)
+    deepest = max(chain.frames[link_of[lb]][0] for lb in used)
+    lost = [j for j in range(deepest + 1) if not np.isfinite(log.qm[:, j]).any()]
+    if lost:   # a braked joint without angles would flag every frame
+        raise InputError(f"no qm_{lost[0] + 1} values: trial {trial.id!r} needs joint {lost[0] + 1}'s "
+                         "angle to place its markers", path=log.source, line=1, label=f"qm_{lost[0] + 1}")
     mj, pj = references.for_chain(chain, used)
     fixed = _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
     refinement = None
