@@ -647,7 +647,6 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     static poses (:func:`refine_markers`); ``refine_geometry``: also fit small placement offsets
     of the moving joints (axis tilt and position). ``solver_settings`` go to :class:`MarkerSolver`."""
     from mocap.io.errors import InputError
-    from mocap.io.markers import read_markers
     from mocap.kinematics import apply_transform, invert_transform
 
     if isinstance(trial, str):
@@ -669,7 +668,7 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     if norefs:
         raise InputError(f"trial {trial.id!r}: marker {norefs[0]!r} has no static reference (it is "
                          "not in the static pose)", path=campaign.manifest, label=norefs[0])
-    rec = read_markers(trial.markers)
+    rec = campaign.read_markers(trial, robot)
     log = campaign.read_log(trial, robot)
     absent = tuple(lb for lb in used if lb not in rec.labels)
     if len(absent) == len(used):
