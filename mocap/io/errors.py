@@ -46,8 +46,21 @@ def read_text(path: str | Path, encoding: str = "utf-8") -> str:
     column of the first byte that is not ``encoding`` (a damaged header, a file saved in
     another code page), or the reason it cannot be read (missing, a folder, no permission)."""
     path = Path(path)
+    raw = read_bytes(path)
     try:
-        raw = path.read_bytes()
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise InputError(f"byte 0x{raw[exc.start]:02x} in column {col} is not {encoding} text",
+                         path=path, line=line) from None
+
+
+def read_bytes(path: str | Path) -> bytes:
+    """The bytes of a user file, or an :class:`InputError` saying why it cannot be read."""
+    path = Path(path)
+    try:
+        return path.read_bytes()
     except FileNotFoundError:
         raise InputError("file not found", path=path) from None
     except IsADirectoryError:
@@ -56,10 +69,3 @@ def read_text(path: str | Path, encoding: str = "utf-8") -> str:
         raise InputError("permission denied (cannot read)", path=path) from None
     except OSError as exc:
         raise InputError(f"cannot read: {exc.strerror or exc}", path=path) from None
-    try:
-        return raw.decode(encoding)
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise InputError(f"byte 0x{raw[exc.start]:02x} in column {col} is not {encoding} text",
-                         path=path, line=line) from None
