@@ -7,7 +7,11 @@ showing a traceback.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
+
+#: characters no text input holds: C0 controls but tab, newline and carriage return, and DEL
+_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 
 
 class InputError(ValueError):
@@ -69,3 +73,18 @@ def read_bytes(path: str | Path) -> bytes:
         raise InputError("permission denied (cannot read)", path=path) from None
     except OSError as exc:
         raise InputError(f"cannot read: {exc.strerror or exc}", path=path) from None
+
+
+def check_control_chars(text: str, path: str | Path, also: str = "") -> None:
+    """Refuse a control character in a text input (a NUL or form feed from a damaged file would
+    otherwise end a cell or a line early, silently): an :class:`InputError` naming the line and
+    column. ``also``: more characters to refuse (a reader splitting lines on them)."""
+    pat = _CONTROL if not also else re.compile(_CONTROL.pattern[:-1] + re.escape(also) + "]")
+    m = pat.search(text)
+    if m is None:
+        return
+    i = m.start()
+    line = text.count("\n", 0, i) + 1
+    col = i - (text.rfind("\n", 0, i) + 1) + 1
+    raise InputError(f"control character {text[i]!r} in column {col} (a damaged file?)", path=path,
+                     line=line)

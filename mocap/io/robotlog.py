@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError, read_text
+from mocap.io.errors import InputError, check_control_chars, read_text
 
 _QM = re.compile(r"^qm_(\d+)$")
 _TAU = re.compile(r"^tau_(\d+)$")
@@ -209,6 +209,10 @@ def _parse_float_table(rows: list[list[str]], header: list[str], path: Path,
 _CANONICAL = re.compile(r"^(time|(qm|tau|qd)_([1-9]\d*))$")
 #: a name that is a FORMAT.md name in another spelling: qm3, QM_3, tau-3, qd_03, "tau 3"
 _LOOKALIKE = re.compile(r"^(qm|tau|qd)[\W_]*0*(\d+)$", re.IGNORECASE)
+#: a FORMAT.md prefix followed by a damaged joint index: qm_1e30, tau_inf, qd_2x
+_DAMAGED_INDEX = re.compile(r"^(qm|tau|qd)[\W_]*(\d|inf|nan)", re.IGNORECASE)
+#: an extra column named after a joint's signal: tau_1_filtered, qm_2_ref
+_SUFFIXED = re.compile(r"^(qm|tau|qd)_[1-9]\d*_[A-Za-z]")
 #: values no joint angle (rad), torque (N m) or velocity (rad/s) of any robot reaches; a
 #: campaign's reader checks torques and velocities against the robot's own limits too
 ABSURD = 1e9
@@ -262,6 +266,10 @@ def check_header(header: list[str], path: Path, n_joints: int | None = None) -> 
             js = {int(d) for d in digits if len(d) < 6} | set(range(1, top + 1))
             cands = ["time"] + [f"{p}_{j}" for p in ("qm", "tau", "qd") for j in sorted(js)]
             want = next((c for c in cands if _distance_at_most_one(h.lower(), c)), None)
+        if want is None and _DAMAGED_INDEX.match(h) and not _SUFFIXED.match(h):
+            raise InputError(f"{where} {h!r} is not a FORMAT.md name: a damaged joint index? "
+                             "(time, qm_<j>, tau_<j>, qd_<j> with j = 1, 2, ...; names such as "
+                             "tau_1_filtered are kept as extra columns)", path=path, line=1)
         if want is not None:
             raise InputError(f"{where} {h!r} is not a FORMAT.md name; did you mean {want!r}? "
                              "(time, qm_<j>, tau_<j>, qd_<j>; other names are kept as extra "
@@ -293,6 +301,7 @@ def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
     if not path.is_file():
         raise InputError("robot log not found", path=path)
     text = read_text(path, "utf-8-sig")
+    check_control_chars(text, path, also="\x85\u2028\u2029")   # splitlines would break there
     lines = text.splitlines()
     if not lines or not lines[0].strip():
         raise InputError("robot log is empty" if not lines else "line 1 (the header) is empty",

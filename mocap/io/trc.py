@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError, read_bytes
+from mocap.io.errors import InputError, check_control_chars, read_bytes
 from mocap.io.recording import MarkerRecording
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",
@@ -103,7 +103,9 @@ def read_trc(path: str | Path) -> MarkerRecording:
     path = Path(path)
     if not path.is_file():
         raise InputError("TRC file not found", path=path)
-    lines = _decode(path).split("\n")
+    text = _decode(path)
+    check_control_chars(text, path)
+    lines = text.split("\n")
     if len(lines) < 4 or not lines[0].strip():
         raise InputError("too short for a TRC file (needs at least 4 header lines)", path=path)
     sep = _sniff_delimiter(lines, path)
