@@ -4,15 +4,14 @@ byte of the input campaign changed. Each case damages one file of a copy of the 
 from __future__ import annotations
 
 import hashlib
-import re
 import shutil
 from pathlib import Path
 
 import pytest
 
 from ident.cli.main import main
+from tests_paths import DEMO, set_first_trial_key
 
-DEMO = Path(__file__).resolve().parents[1] / "fixtures" / "demo"
 TRIAL = "trials/j5-load0-v50-r1"          # the first trial of the manifest
 
 
@@ -63,14 +62,7 @@ def _replace(path: Path, old: str, new: str, count: int = 1) -> Path:
 
 
 def _trial_key(camp, key: str, value: str) -> Path:
-    toml = camp / "campaign.toml"
-    text = toml.read_text()
-    start = text.index("[[trial]]")
-    end = text.index("[[trial]]", start + 1)
-    first = re.sub(rf"^{key} = .*\n", "", text[start:end], flags=re.M)
-    first = first.replace("[[trial]]\n", f"[[trial]]\n{key} = {value}\n", 1)
-    toml.write_text(text[:start] + first + text[end:])
-    return toml
+    return set_first_trial_key(camp / "campaign.toml", key, value)
 
 
 def _trc_rows(camp, keep: int) -> Path:

@@ -20,9 +20,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mocap.io.campaign import load_campaign
 from mocap.io.errors import InputError, InputWarning
+from mocap.io.robotlog import read_robot_log
+from mocap.io.trc import read_trc
+from tests_paths import DEMO
 
-DEMO = Path(__file__).resolve().parents[1] / "fixtures" / "demo"
 
 # ---------------------------------------------------------------------------------------------
 # mutations (bytes in, bytes out; every choice from the seeded generator)
@@ -105,14 +108,29 @@ def _csv_oracle(text: str) -> dict | None:
     return cols
 
 
-def _check_csv(path: Path, text: str) -> str:
-    from mocap.io.robotlog import read_robot_log
-
+def _read(reader, path: Path):
+    """The reader's result, or None after checking its InputError is one line naming ``path``."""
     try:
-        log = read_robot_log(path)
+        return reader(path)
     except InputError as exc:
         _one_line_naming(exc, path)
-        return "error"
+        return None
+
+
+def _checker(reader, compare):
+    """check(path, raw) -> "read" or "error": the reader's InputError is one line naming the
+    file, and what it reads equals ``compare``'s independent parse of ``raw``."""
+    def check(path: Path, raw: bytes) -> str:
+        res = _read(reader, path)
+        if res is None:
+            return "error"
+        compare(res, raw)
+        return "read"
+    return check
+
+
+def _compare_csv(log, raw: bytes) -> None:
+    text = raw.decode("utf-8-sig") if _utf8(raw) else ""
     cols = _csv_oracle(text)
     assert cols is not None, f"read a log the independent parse finds invalid:\n{text}"
     got = {"time": log.time}
@@ -132,7 +150,6 @@ def _check_csv(path: Path, text: str) -> str:
         for sym, X in (("qm", log.qm), ("tau", log.tau)):
             if f"{sym}_{j + 1}" not in cols:
                 assert np.all(np.isnan(X[:, j]))
-    return "read"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -199,33 +216,19 @@ def _trc_oracle(raw: bytes):
     return labels, np.array(t), np.array(P).reshape(len(t), M, 3)
 
 
-def _check_trc(path: Path, raw: bytes) -> str:
-    from mocap.io.trc import read_trc
-
-    try:
-        rec = read_trc(path)
-    except InputError as exc:
-        _one_line_naming(exc, path)
-        return "error"
+def _compare_trc(rec, raw: bytes) -> None:
     ref = _trc_oracle(raw)
     assert ref is not None, f"read a TRC the independent parse finds invalid:\n{raw!r}"
     labels, t, P = ref
     assert list(rec.labels) == labels
     assert _same(rec.time, t), f"time differs:\n{raw!r}"
     assert _same(rec.positions, P), f"coordinates differ (shifted?):\n{raw!r}"
-    return "read"
 
 
 # ---------------------------------------------------------------------------------------------
 # campaign.toml (paths are not opened: check_files=False)
-def _check_toml(path: Path, raw: bytes) -> str:
-    from mocap.io.campaign import load_campaign
-
-    try:
-        camp = load_campaign(path, check_files=False)
-    except InputError as exc:
-        _one_line_naming(exc, path)
-        return "error"
+def _compare_toml(camp, raw: bytes) -> None:
+    path = camp.manifest
     doc = tomllib.loads(raw.decode("utf-8"))
     assert doc["format"] == 1
     assert camp.urdf == path.parent / doc["robot"]["urdf"]
@@ -238,7 +241,11 @@ def _check_toml(path: Path, raw: bytes) -> str:
         assert tr.log == path.parent / tab["log"]
         assert tr.extra.get("time_offset") == tab.get("time_offset")
     assert [c.joint for c in camp.calib] == [c["joint"] for c in doc.get("calib", [])]
-    return "read"
+
+
+_check_csv = _checker(read_robot_log, _compare_csv)
+_check_trc = _checker(read_trc, _compare_trc)
+_check_toml = _checker(lambda p: load_campaign(p, check_files=False), _compare_toml)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -256,14 +263,6 @@ def _run(name: str, seed: int, n: int, tmp_path: Path, base: bytes, seps: bytes,
     return outcomes
 
 
-def _csv(seed, n, tmp_path):
-    base = _csv_base()
-    out = _run("log.csv", seed, n, tmp_path, base, b",\n",
-               lambda p, raw: _check_csv(p, raw.decode("utf-8-sig", errors="strict")
-                                         if _utf8(raw) else ""))
-    return out
-
-
 def _utf8(raw: bytes) -> bool:
     try:
         raw.decode("utf-8-sig")
@@ -274,7 +273,7 @@ def _utf8(raw: bytes) -> bool:
 
 def _all(seed: int, tmp_path: Path, scale: int = 1) -> dict:
     toml_base = (DEMO / "campaign.toml").read_bytes()
-    return {"csv": _csv(seed, 400 * scale, tmp_path),
+    return {"csv": _run("log.csv", seed, 400 * scale, tmp_path, _csv_base(), b",\n", _check_csv),
             "trc": _run("m.trc", seed, 400 * scale, tmp_path, _trc_base(), b"\t\n", _check_trc),
             "toml": _run("campaign.toml", seed, 250 * scale, tmp_path, toml_base, b'=",[]\n',
                          _check_toml)}
@@ -298,7 +297,7 @@ def test_unmutated_bases_read_back_exactly(tmp_path):
     """The oracles agree with the readers on the untouched files (and the files are valid)."""
     p = tmp_path / "log.csv"
     p.write_bytes(_csv_base())
-    assert _check_csv(p, _csv_base().decode()) == "read"
+    assert _check_csv(p, _csv_base()) == "read"
     p = tmp_path / "m.trc"
     p.write_bytes(_trc_base())
     assert _check_trc(p, _trc_base()) == "read"
