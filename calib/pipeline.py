@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.errors import InputError
+from mocap.quality import chain_reach, check_marker_units  # noqa: F401 (calib's names)
 
 from calib.axis import (MIN_POSES, AxisFit, CircleAxisEstimator, ClusterAxisEstimator,
                         marker_angles)
@@ -134,33 +135,6 @@ def moving_links(chain, joint: int, marker_links) -> list:
     return [lk for lk in marker_links if lk in chain.frames and chain.frames[lk][0] >= joint - 1]
 
 
-def chain_reach(chain) -> float:
-    """Sum of the joint-to-joint distances of the chain (m): a bound on the robot's size."""
-    return float(np.linalg.norm(np.asarray(chain.T_parent_joint)[:, :3, 3], axis=1).sum())
-
-
-def check_marker_units(positions, labels, chain, path=None, joint: int | None = None) -> None:
-    """Refuse a sweep whose marker cloud cannot belong to the robot: larger than three times its
-    reach plus a metre, or whose markers all move less than 2 mm (units suspected: mm read as m
-    or back; a marker that close to the axis could not place it anyway)."""
-    P = np.asarray(positions, float)
-    ext = np.nanmax(P, axis=0) - np.nanmin(P, axis=0)             # (M, 3) per-marker extent
-    ext_m = np.nanmax(ext, axis=1)
-    allx = float(np.nanmax(np.nanmax(P.reshape(-1, 3), axis=0) - np.nanmin(P.reshape(-1, 3), axis=0)))
-    reach = chain_reach(chain)
-    what = f"sweep of joint {joint}" if joint is not None else "marker cloud"
-    if allx > 3.0 * reach + 1.0:
-        k = int(np.nanargmax(ext_m))
-        raise InputError(f"{what}: the markers span {allx:.3g} m, the robot reaches {reach:.2f} m: units "
-                         f"suspected (marker {labels[k]!r} alone moves {ext_m[k]:.3g} m; check the Units "
-                         "the marker file declares)", path=path, label=labels[k])
-    if np.nanmax(ext_m) < 2e-3:
-        k = int(np.nanargmax(ext_m))
-        raise InputError(f"{what}: the markers move at most {1e3 * ext_m[k]:.3g} mm for a robot that reaches "
-                         f"{reach:.2f} m: units suspected (marker {labels[k]!r}; check the Units the marker "
-                         "file declares)", path=path, label=labels[k])
-
-
 def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: float = 15.0,
                   min_markers: int = 1, min_frames: int = MIN_POSES) -> SweepData:
     """Check one sweep (one joint moving, far enough, enough markers) and select its markers.
@@ -228,7 +202,6 @@ def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: flo
 
 def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> list:
     """Read and check the campaign's calibration sweeps of ``joints``."""
-    from mocap.io.markers import read_markers
 
     found = {c.joint: c for c in campaign.calib}
     missing = [j for j in joints if j not in found]
@@ -240,7 +213,7 @@ def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> 
     out = []
     for j in joints:
         c = found[j]
-        rec = read_markers(c.markers)
+        rec = campaign.read_markers(c, robot)
         log = campaign.read_log(c, robot)
         out.append(prepare_sweep(j, rec, log, robot.chain, campaign.markers, min_sweep_deg))
     return out

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from mocap.io.errors import InputError
+
 
 def cramer_rao_bound(chain, joints, marker_joint, p_joint, q: np.ndarray, sigma_axis: float,
                      visible: np.ndarray | None = None) -> np.ndarray:
@@ -78,3 +80,33 @@ def summary(results, references=None) -> dict:
         d["markers"] = marker_report(r.solve)
         doc["trials"][r.trial_id] = d
     return doc
+
+
+# ---------------------------------------------------------------------------------------
+def chain_reach(chain) -> float:
+    """Sum of the joint-to-joint distances of the chain (m): a bound on the robot's size."""
+    return float(np.linalg.norm(np.asarray(chain.T_parent_joint)[:, :3, 3], axis=1).sum())
+
+
+def check_marker_units(positions, labels, chain, path=None, joint: int | None = None,
+                       check_motion: bool = True) -> None:
+    """Refuse a marker cloud that cannot belong to the robot: larger than three times its reach
+    plus a metre, or (``check_motion``, a calibration sweep) whose markers all move less than
+    2 mm (units suspected: mm read as m or back; a marker that close to the axis could not
+    place it anyway). ``positions`` (T, M, 3) in metres, ``labels`` (M,)."""
+    P = np.asarray(positions, float)
+    ext = np.nanmax(P, axis=0) - np.nanmin(P, axis=0)             # (M, 3) per-marker extent
+    ext_m = np.nanmax(ext, axis=1)
+    allx = float(np.nanmax(np.nanmax(P.reshape(-1, 3), axis=0) - np.nanmin(P.reshape(-1, 3), axis=0)))
+    reach = chain_reach(chain)
+    what = f"sweep of joint {joint}" if joint is not None else "marker cloud"
+    if allx > 3.0 * reach + 1.0:
+        k = int(np.nanargmax(ext_m))
+        raise InputError(f"{what}: the markers span {allx:.3g} m, the robot reaches {reach:.2f} m: units "
+                         f"suspected (marker {labels[k]!r} alone moves {ext_m[k]:.3g} m; check the Units "
+                         "the marker file declares)", path=path, label=labels[k])
+    if check_motion and np.nanmax(ext_m) < 2e-3:
+        k = int(np.nanargmax(ext_m))
+        raise InputError(f"{what}: the markers move at most {1e3 * ext_m[k]:.3g} mm for a robot that reaches "
+                         f"{reach:.2f} m: units suspected (marker {labels[k]!r}; check the Units the marker "
+                         "file declares)", path=path, label=labels[k])

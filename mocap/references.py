@@ -312,7 +312,6 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
 
     ``T_camera_base`` (4, 4) from a calibration; ``None`` estimates it from the static poses
     (needs >= 2 poses differing in two non-parallel joints, see the module doc)."""
-    from mocap.io.markers import read_markers
 
     check_marker_links(campaign)
     link_of = campaign.link_of_label()
@@ -324,7 +323,7 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
                          path=campaign.manifest)
     poses = []
     for st in campaign.static:
-        rec = read_markers(st.markers)
+        rec = campaign.read_markers(st, robot)
         log = campaign.read_log(st, robot)
         poses.append(read_static_pose(rec, log, labels, still_tol_rad,
                                       source=str(Path(st.markers).relative_to(campaign.root))))

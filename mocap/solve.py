@@ -647,7 +647,6 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     static poses (:func:`refine_markers`); ``refine_geometry``: also fit small placement offsets
     of the moving joints (axis tilt and position). ``solver_settings`` go to :class:`MarkerSolver`."""
     from mocap.io.errors import InputError
-    from mocap.io.markers import read_markers
     from mocap.kinematics import apply_transform, invert_transform
 
     if isinstance(trial, str):
@@ -669,7 +668,7 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     if norefs:
         raise InputError(f"trial {trial.id!r}: marker {norefs[0]!r} has no static reference (it is "
                          "not in the static pose)", path=campaign.manifest, label=norefs[0])
-    rec = read_markers(trial.markers)
+    rec = campaign.read_markers(trial, robot)
     log = campaign.read_log(trial, robot)
     absent = tuple(lb for lb in used if lb not in rec.labels)
     if len(absent) == len(used):
@@ -683,6 +682,11 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     # FORMAT.md: t_robot = t_marker + time_offset (the trial's key, 0 by default)
     offset = float(getattr(trial, "extra", {}).get("time_offset", 0.0))
     q_guess = motor_guess(log, rec.time + offset, joints0)
+    deepest = max(chain.frames[link_of[lb]][0] for lb in used)
+    lost = [j for j in range(deepest + 1) if not np.isfinite(log.qm[:, j]).any()]
+    if lost:   # a braked joint without angles would flag every frame
+        raise InputError(f"no qm_{lost[0] + 1} values: trial {trial.id!r} needs joint {lost[0] + 1}'s "
+                         "angle to place its markers", path=log.source, line=1, label=f"qm_{lost[0] + 1}")
     mj, pj = references.for_chain(chain, used)
     fixed = _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
     refinement = None

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from ident.cli.main import main
+from tests_paths import set_first_trial_key
 
 DEMO = Path(__file__).resolve().parents[1] / "fixtures" / "demo"
 
@@ -104,13 +105,7 @@ def test_manifest_paths_stay_inside_the_campaign(camp, tmp_path, capsys, bad):
 ])
 def test_bad_trial_values_are_one_line(camp, capsys, key, value, says):
     """The first trial gets the bad value (replaced when the key is there, added otherwise)."""
-    toml = camp / "campaign.toml"
-    text = toml.read_text()
-    start = text.index("[[trial]]")
-    end = text.index("[[trial]]", start + 1)
-    first = re.sub(rf"^{key} = .*$", "", text[start:end], flags=re.M)
-    first = first.replace("[[trial]]\n", f"[[trial]]\n{key} = {value}\n", 1)
-    toml.write_text(text[:start] + first + text[end:])
+    toml = set_first_trial_key(camp / "campaign.toml", key, value)
     assert main(["info", str(camp)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0] and str(toml) in err[0]

@@ -838,8 +838,11 @@ class Study:
             md = md.rstrip("\n") + "\n\n" + self._coast_md
         _write_atomic(ctx.out / "report.md", md, ctx.tmp_dir)
         if rrd_path is not None or spawn:
-            log_study(ctx.camp, ctx.robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, md,
-                      ctx.out, s.rrd_trials, ctx.tmp_dir)
+            bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
+            shown = dataclasses.replace(ctx.camp, trials=tuple(t for t in ctx.camp.trials
+                                                               if t.id not in bad))
+            log_study(shown, ctx.robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, md,
+                      ctx.out, s.rrd_trials, ctx.tmp_dir)   # failed trials are in the report only
         up["report"] = {"hash": h, "outputs": outputs + ([str(rrd_path)] if rrd_path else [])}
         ctx.stages["report"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
 

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.markers import read_markers
 
 MAX_ROBOT_RATE_HZ = 60.0
 MARKER_RADIUS_M = 0.008
@@ -140,7 +139,7 @@ def log_campaign(campaign, sink, robot=None, T_camera_base=None, meshes: dict | 
         base = f"{root}/{kind}/{name}"
         markers = None
         if rec.markers is not None:          # None: a campaign without motion capture
-            markers = read_markers(rec.markers)
+            markers = campaign.read_markers(rec, robot)
             sink.points_over_time(f"{base}/markers", markers.time, markers.positions,
                                   labels=markers.labels,
                                   colors=marker_colors(markers.labels, link_of_label),

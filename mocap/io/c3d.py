@@ -49,9 +49,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, read_bytes
 from mocap.io.recording import MarkerRecording
-from mocap.io.trc import UNIT_SCALE, check_writable, normalise_units
+from mocap.io.trc import ABSURD_M, UNIT_SCALE, check_writable, normalise_units
 
 #: POINT parameters that list non-marker (model output) points
 NON_MARKER_GROUPS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
@@ -101,7 +101,7 @@ def check_c3d_structure(path: str | Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError("C3D file not found", path=path)
-    raw = path.read_bytes()
+    raw = read_bytes(path)
     size = len(raw)
     if size < 1024:
         raise InputError(f"not a C3D file: {size} bytes, shorter than the header and one "
@@ -326,6 +326,16 @@ def read_c3d(path: str | Path, *, isolate: bool = True, timeout_s: float = 60.0)
     xyz[invalid] = np.nan
     first0 = info["first_frame0"]
     time = (first0 + np.arange(n_frames)) / rate
+    if n_frames == 0 or not keep:
+        raise InputError("no marker data: the file holds no frames" if n_frames == 0 else
+                         "no marker points (only model outputs)", path=path)
+    with np.errstate(invalid="ignore"):
+        far = np.abs(xyz) * UNIT_SCALE[units] > ABSURD_M
+    if far.any():
+        f, m, a = (int(x[0]) for x in np.nonzero(far))
+        raise InputError(f"frame {first0 + 1 + f}: marker {labels[keep[m]]!r} {'XYZ'[a]} is "
+                         f"{xyz[f, m, a]:.6g} {units}, absurd (beyond {ABSURD_M:g} m): a damaged file",
+                         path=path, label=labels[keep[m]])
 
     mismatch = []
     if struct_info["frames_declared"] != n_frames:

@@ -107,7 +107,27 @@ class Campaign:
             log = log.coupled(self.coupling)
         if robot is not None:
             log.check_limits(robot.lower, robot.upper, robot.joint_names)
+            log.check_drive_limits(robot.max_torque, robot.max_velocity, robot.joint_names)
+        if isinstance(rec, Trial):
+            log.check_joints_logged(rec.joints, what=f"trial {rec.id!r}")
         return log
+
+    def read_markers(self, rec: Recording, robot=None):
+        """The marker file of ``rec`` (:func:`mocap.io.markers.read_markers`, metres); given the
+        ``robot``, a cloud of the campaign's markers far larger than the robot reaches is refused
+        (units suspected: millimetres declared as metres). Every command reading markers of a
+        campaign goes through here."""
+        import numpy as np
+
+        from mocap.io.markers import read_markers
+        from mocap.quality import check_marker_units
+
+        m = read_markers(rec.markers)
+        ours = [k for k, lb in enumerate(m.labels) if lb in self.link_of_label()]
+        if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
+            check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,
+                               path=m.source, check_motion=False)
+        return m
 
     def recordings(self):
         """Every (kind, name, Recording) in the manifest."""

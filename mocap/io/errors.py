@@ -7,7 +7,11 @@ showing a traceback.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
+
+#: characters no text input holds: C0 controls but tab, newline and carriage return, and DEL
+_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 
 
 class InputError(ValueError):
@@ -46,8 +50,21 @@ def read_text(path: str | Path, encoding: str = "utf-8") -> str:
     column of the first byte that is not ``encoding`` (a damaged header, a file saved in
     another code page), or the reason it cannot be read (missing, a folder, no permission)."""
     path = Path(path)
+    raw = read_bytes(path)
     try:
-        raw = path.read_bytes()
+        return raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise InputError(f"byte 0x{raw[exc.start]:02x} in column {col} is not {encoding} text",
+                         path=path, line=line) from None
+
+
+def read_bytes(path: str | Path) -> bytes:
+    """The bytes of a user file, or an :class:`InputError` saying why it cannot be read."""
+    path = Path(path)
+    try:
+        return path.read_bytes()
     except FileNotFoundError:
         raise InputError("file not found", path=path) from None
     except IsADirectoryError:
@@ -56,10 +73,18 @@ def read_text(path: str | Path, encoding: str = "utf-8") -> str:
         raise InputError("permission denied (cannot read)", path=path) from None
     except OSError as exc:
         raise InputError(f"cannot read: {exc.strerror or exc}", path=path) from None
-    try:
-        return raw.decode(encoding)
-    except UnicodeDecodeError as exc:
-        line = raw.count(b"\n", 0, exc.start) + 1
-        col = exc.start - (raw.rfind(b"\n", 0, exc.start) + 1) + 1
-        raise InputError(f"byte 0x{raw[exc.start]:02x} in column {col} is not {encoding} text",
-                         path=path, line=line) from None
+
+
+def check_control_chars(text: str, path: str | Path, also: str = "") -> None:
+    """Refuse a control character in a text input (a NUL or form feed from a damaged file would
+    otherwise end a cell or a line early, silently): an :class:`InputError` naming the line and
+    column. ``also``: more characters to refuse (a reader splitting lines on them)."""
+    pat = _CONTROL if not also else re.compile(_CONTROL.pattern[:-1] + re.escape(also) + "]")
+    m = pat.search(text)
+    if m is None:
+        return
+    i = m.start()
+    line = text.count("\n", 0, i) + 1
+    col = i - (text.rfind("\n", 0, i) + 1) + 1
+    raise InputError(f"control character {text[i]!r} in column {col} (a damaged file?)", path=path,
+                     line=line)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError, read_text
+from mocap.io.errors import InputError, check_control_chars, read_text
 
 _QM = re.compile(r"^qm_(\d+)$")
 _TAU = re.compile(r"^tau_(\d+)$")
@@ -58,6 +58,11 @@ class RobotLog:
     tau: np.ndarray
     extra: dict = field(default_factory=dict)
     source: Path | None = None
+    line_numbers: np.ndarray | None = None   # (T,) the file line of each sample, for messages
+
+    def line_of(self, i: int) -> int | None:
+        """The file line of sample ``i`` (None for a log not read from a file)."""
+        return None if self.line_numbers is None else int(self.line_numbers[i])
 
     @property
     def n_samples(self) -> int:
@@ -92,7 +97,8 @@ class RobotLog:
             QD = np.column_stack([np.asarray(extra.get(k, np.full(self.n_samples, np.nan)), float)
                                   for k in qd])
             extra.update({k: v for k, v in zip(qd, apply(C, QD).T)})
-        return RobotLog(self.time, apply(C, self.qm), apply(Ct, self.tau), extra, self.source)
+        return RobotLog(self.time, apply(C, self.qm), apply(Ct, self.tau), extra, self.source,
+                        self.line_numbers)
 
     def check_limits(self, lower, upper, names=()) -> None:
         """Refuse angles far beyond the URDF's joint limits (by more than 10 % of the range plus
@@ -110,6 +116,34 @@ class RobotLog:
             raise InputError(f"column qm_{j + 1} reaches {v:.4g} rad, beyond the URDF limits of {name} "
                              f"[{lo[j]:.3f}, {hi[j]:.3f}] rad: degrees suspected (the format wants radians)",
                              path=self.source, label=f"qm_{j + 1}")
+
+    def check_drive_limits(self, max_torque, max_velocity, names=(), factor: float = 100.0) -> None:
+        """Refuse torques (``tau_<j>``) or logged velocities (``qd_<j>``) beyond ``factor`` times
+        the drive's limit (a damaged cell, or a unit far off): ``max_torque``/``max_velocity``
+        (n,) link side, inf where unknown."""
+        for sym, X, lim, unit in (("tau", self.tau, max_torque, "N m"),
+                                  ("qd", self.qd, max_velocity, "rad/s")):
+            if X is None:
+                continue
+            lim = np.asarray(lim, float)
+            lim = factor * np.where(lim > 0, lim, np.inf)            # 0: no limit given
+            with np.errstate(invalid="ignore"):
+                bad = np.abs(X) > lim[None, :]
+            if bad.any():
+                i, j = (int(x[0]) for x in np.nonzero(bad))
+                name = names[j] if j < len(names) else f"joint {j + 1}"
+                raise InputError(f"column {sym}_{j + 1} has {X[i, j]:.4g} {unit}, more than {factor:g} "
+                                 f"times the drive limit of {name} ({lim[j] / factor:.4g} {unit}): a "
+                                 "damaged value or the wrong unit", path=self.source,
+                                 line=self.line_of(i), label=f"{sym}_{j + 1}")
+
+    def check_joints_logged(self, joints, what: str = "the trial") -> None:
+        """Every joint in ``joints`` (1-based) needs ``qm_<j>`` and ``tau_<j>`` values."""
+        for j in joints:
+            for sym, X in (("qm", self.qm), ("tau", self.tau)):
+                if j > X.shape[1] or not np.isfinite(X[:, j - 1]).any():
+                    raise InputError(f"no {sym}_{j} values, but {what} moves joint {j}",
+                                     path=self.source, line=1, label=f"{sym}_{j}")
 
     @property
     def qd(self) -> np.ndarray | None:
@@ -151,7 +185,8 @@ class RobotLog:
         return cols
 
 
-def _parse_float_table(rows: list[list[str]], header: list[str], path: Path) -> np.ndarray:
+def _parse_float_table(rows: list[list[str]], header: list[str], path: Path,
+                       line_no: np.ndarray) -> np.ndarray:
     arr = np.array(rows, dtype=object)
     strs = np.char.strip(arr.astype(str))
     empty = (strs == "") | (np.char.lower(strs) == "nan")
@@ -165,60 +200,150 @@ def _parse_float_table(rows: list[list[str]], header: list[str], path: Path) -> 
                 try:
                     float(cell)
                 except ValueError:
-                    raise InputError(f"column {header[k]!r} has a non-numeric value {cell!r}",
-                                     path=path, line=i + 2) from None
+                    raise InputError(f"column {k + 1} ({header[k]!r}) has a non-numeric value {cell!r}",
+                                     path=path, line=int(line_no[i])) from None
         raise
+
+
+#: the names FORMAT.md gives a robot log's columns
+_CANONICAL = re.compile(r"^(time|(qm|tau|qd)_([1-9]\d*))$")
+#: a name that is a FORMAT.md name in another spelling: qm3, QM_3, tau-3, qd_03, "tau 3"
+_LOOKALIKE = re.compile(r"^(qm|tau|qd)[\W_]*0*(\d+)$", re.IGNORECASE)
+#: a FORMAT.md prefix followed by a damaged joint index: qm_1e30, tau_inf, qd_2x
+_DAMAGED_INDEX = re.compile(r"^(qm|tau|qd)[\W_]*(\d|inf|nan)", re.IGNORECASE)
+#: an extra column named after a joint's signal: tau_1_filtered, qm_2_ref
+_SUFFIXED = re.compile(r"^(qm|tau|qd)_[1-9]\d*_[A-Za-z]")
+#: values no joint angle (rad), torque (N m) or velocity (rad/s) of any robot reaches; a
+#: campaign's reader checks torques and velocities against the robot's own limits too
+ABSURD = 1e9
+
+
+def _distance_at_most_one(a: str, b: str) -> bool:
+    """True when ``a`` becomes ``b`` by at most one edit (insert, delete, substitute, swap)."""
+    if a == b:
+        return True
+    la, lb = len(a), len(b)
+    if abs(la - lb) > 1:
+        return False
+    i = 0
+    while i < min(la, lb) and a[i] == b[i]:
+        i += 1
+    if la == lb:
+        return a[i + 1:] == b[i + 1:] or (a[i + 2:] == b[i + 2:] and a[i:i + 2] == b[i:i + 2][::-1])
+    return (a[i + 1:] == b[i:]) if la > lb else (a[i:] == b[i + 1:])
+
+
+def check_header(header: list[str], path: Path, n_joints: int | None = None) -> None:
+    """Refuse a header whose names cannot be read without guessing (FORMAT.md names ``time``,
+    ``qm_<j>``, ``tau_<j>``, ``qd_<j>``; any other name is an extra column): an empty or
+    unprintable name, a name used twice, or a damaged FORMAT.md name (``qm3``, ``tua_5``,
+    ``qm_``: one edit from ``qm_<j>``), which would otherwise be kept as an extra column
+    while its joint reads as NaN."""
+    seen = {}
+    idx = [int(m.group(3)) for h in header for m in [_CANONICAL.match(h)] if m and m.group(3)]
+    top = max([n_joints or 0, 9] + idx)
+    for k, h in enumerate(header, 1):
+        where = f"column {k}"
+        if not h:
+            raise InputError(f"{where} has no name (a damaged header or a doubled separator?)",
+                             path=path, line=1)
+        if not h.isprintable():
+            raise InputError(f"{where} name {h!r} has a control character (a damaged header)",
+                             path=path, line=1)
+        if h in seen:
+            raise InputError(f"{where} {h!r} repeats column {seen[h]}'s name", path=path, line=1)
+        seen[h] = k
+        if _CANONICAL.match(h):
+            continue
+        m = _LOOKALIKE.match(h.strip())
+        if m:
+            want = f"{m.group(1).lower()}_{int(m.group(2))}"
+            if int(m.group(2)) == 0:
+                raise InputError(f"{where} {h!r}: joint indices start at 1 (qm_1, tau_1, ...)",
+                                 path=path, line=1)
+        else:
+            digits = re.findall(r"\d+", h)
+            js = {int(d) for d in digits if len(d) < 6} | set(range(1, top + 1))
+            cands = ["time"] + [f"{p}_{j}" for p in ("qm", "tau", "qd") for j in sorted(js)]
+            want = next((c for c in cands if _distance_at_most_one(h.lower(), c)), None)
+        if want is None and _DAMAGED_INDEX.match(h) and not _SUFFIXED.match(h):
+            raise InputError(f"{where} {h!r} is not a FORMAT.md name: a damaged joint index? "
+                             "(time, qm_<j>, tau_<j>, qd_<j> with j = 1, 2, ...; names such as "
+                             "tau_1_filtered are kept as extra columns)", path=path, line=1)
+        if want is not None:
+            raise InputError(f"{where} {h!r} is not a FORMAT.md name; did you mean {want!r}? "
+                             "(time, qm_<j>, tau_<j>, qd_<j>; other names are kept as extra "
+                             "columns, so a misspelt one would lose its joint)", path=path, line=1)
+
+
+def _check_values(data: np.ndarray, header: list[str], path: Path, line_no: np.ndarray) -> None:
+    """Infinite cells anywhere, and angles, torques or velocities beyond :data:`ABSURD`."""
+    bad = np.isinf(data)
+    signal = np.array([bool(_CANONICAL.match(h)) and h != "time" for h in header])
+    with np.errstate(invalid="ignore"):
+        bad |= signal[None, :] & (np.abs(data) > ABSURD)
+    if bad.any():
+        i, k = (int(x[0]) for x in np.nonzero(bad))
+        what = "infinite" if np.isinf(data[i, k]) else "absurd"
+        raise InputError(f"column {k + 1} ({header[k]!r}) has an {what} value {data[i, k]:.6g}",
+                         path=path, line=int(line_no[i]), label=header[k])
 
 
 def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
     """Read a robot log CSV.
 
     ``n_joints`` (from the URDF) fixes the width of ``qm``/``tau``; a log naming a joint
-    beyond it is an error. Without it, the width is the highest joint index found.
+    beyond it is an error. Without it, the width is the highest joint index found. The header
+    is checked by :func:`check_header`; every row must have as many cells as the header has
+    names (never shifted); infinite cells and absurd signal values (:data:`ABSURD`) are errors.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError("robot log not found", path=path)
     text = read_text(path, "utf-8-sig")
+    check_control_chars(text, path, also="\x85\u2028\u2029")   # splitlines would break there
     lines = text.splitlines()
-    if not lines:
-        raise InputError("robot log is empty", path=path)
+    if not lines or not lines[0].strip():
+        raise InputError("robot log is empty" if not lines else "line 1 (the header) is empty",
+                         path=path, line=None if not lines else 1)
     header = [h.strip() for h in lines[0].split(",")]
     if "time" not in header:
-        raise InputError(f"no 'time' column in the header (found {header})", path=path, line=1)
-    if len(set(header)) != len(header):
-        raise InputError("duplicate column names in the header", path=path, line=1)
+        raise InputError(f"no 'time' column in the header (found {header[:12]})", path=path, line=1)
+    body = np.array(lines[1:], dtype=str)
+    keep = np.char.str_len(np.char.strip(body)) > 0
+    line_no = np.flatnonzero(keep) + 2
+    body = body[keep]
+    if body.size == 0:
+        raise InputError("robot log has a header but no samples", path=path)
+    n_cells = np.char.count(body, ",") + 1
+    if np.any(n_cells != len(header)):
+        if np.all(n_cells == n_cells[0]):
+            raise InputError(f"the header names {len(header)} columns but every row has {n_cells[0]} "
+                             "cells (a lost or extra separator in the header?)", path=path, line=1)
+        i = int(np.flatnonzero(n_cells != len(header))[0])
+        raise InputError(f"expected {len(header)} cells, found {n_cells[i]}", path=path,
+                         line=int(line_no[i]))
+    check_header(header, path, n_joints)
     data = None
     try:  # fast path: a complete numeric table (C parser); anything unusual takes the slow path
-        data = np.loadtxt(lines[1:], delimiter=",", dtype=float, ndmin=2)
-        if data.shape[1] != len(header):
+        data = np.loadtxt(list(body), delimiter=",", dtype=float, ndmin=2)
+        if data.shape != (body.size, len(header)):
             data = None
     except ValueError:
         data = None
-    if data is not None and data.shape[0] == 0:
-        raise InputError("robot log has a header but no samples", path=path)
-    rows = [] if data is None else None
-    for i, ln in enumerate(lines[1:] if data is None else [], start=2):
-        if not ln.strip():
-            continue
-        cells = ln.split(",")
-        if len(cells) != len(header):
-            raise InputError(f"expected {len(header)} cells, found {len(cells)}", path=path, line=i)
-        rows.append(cells)
     if data is None:
-        if not rows:
-            raise InputError("robot log has a header but no samples", path=path)
-        data = _parse_float_table(rows, header, path)
+        data = _parse_float_table([ln.split(",") for ln in body], header, path, line_no)
+    _check_values(data, header, path, line_no)
     col = {h: data[:, k] for k, h in enumerate(header)}
     t = col["time"]
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
-        raise InputError("missing time value", path=path, line=int(bad[0]) + 2)
+        raise InputError("missing time value", path=path, line=int(line_no[bad[0]]))
     nonmono = np.flatnonzero(np.diff(t) <= 0)
     if nonmono.size:
         i = int(nonmono[0]) + 1
         raise InputError(f"time is not strictly increasing ({t[i - 1]!r} then {t[i]!r})",
-                         path=path, line=i + 2)
+                         path=path, line=int(line_no[i]))
     idx = [int(m.group(1)) for h in header for m in [_QM.match(h) or _TAU.match(h)] if m]
     if any(j < 1 for j in idx):
         raise InputError("joint indices start at 1 (qm_1, tau_1, ...)", path=path, line=1)
@@ -242,7 +367,7 @@ def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
             tau[:, int(m_t.group(1)) - 1] = col[h]
         else:
             extra[h] = col[h]
-    return RobotLog(t, qm, tau, extra, path)
+    return RobotLog(t, qm, tau, extra, path, line_no)
 
 
 def write_robot_log(path: str | Path, log: RobotLog, joints=None, overwrite: bool = False,

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, check_control_chars, read_bytes
 from mocap.io.recording import MarkerRecording
 
 HEADER_KEYS = ("DataRate", "CameraRate", "NumFrames", "NumMarkers", "Units",
@@ -73,7 +73,7 @@ def _header_value(s: str):
 
 
 def _decode(path: Path) -> str:
-    raw = path.read_bytes()
+    raw = read_bytes(path)
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -103,7 +103,9 @@ def read_trc(path: str | Path) -> MarkerRecording:
     path = Path(path)
     if not path.is_file():
         raise InputError("TRC file not found", path=path)
-    lines = _decode(path).split("\n")
+    text = _decode(path)
+    check_control_chars(text, path)
+    lines = text.split("\n")
     if len(lines) < 4 or not lines[0].strip():
         raise InputError("too short for a TRC file (needs at least 4 header lines)", path=path)
     sep = _sniff_delimiter(lines, path)
@@ -194,6 +196,9 @@ def read_trc(path: str | Path) -> MarkerRecording:
     if values is None:
         body = body_text.split("\n") if line_no.size else []
         values = _careful_values(body, n_cells, sep, n_cols, n_markers, labels, line_no, path)
+    if values.shape[0] == 0:
+        raise InputError("no data rows: the file has only its header", path=path)
+    _check_finite(values, UNIT_SCALE[units], labels, line_no, path)
     frame_col, time = values[:, 0], values[:, 1]
     bad_t = np.flatnonzero(~np.isfinite(time))
     if bad_t.size:
@@ -287,6 +292,25 @@ def _careful_values(body, n_cells, sep, n_cols, n_markers, labels, line_no, path
         return np.where(blank, "nan", cells).astype(np.float64)
     except ValueError:
         _raise_bad_cell(cells, blank, labels, line_no, path)
+
+
+#: coordinates farther than this from the camera origin (m) are no measurement
+ABSURD_M = 1e4
+
+
+def _check_finite(values, scale, labels, line_no, path):
+    """Refuse infinite cells (they are neither a number nor an occlusion) and coordinates beyond
+    :data:`ABSURD_M`, naming the line and the column."""
+    bad = np.isinf(values)
+    with np.errstate(invalid="ignore"):
+        bad[:, 2:] |= np.abs(values[:, 2:]) * scale > ABSURD_M
+    if not bad.any():
+        return
+    r, c = (int(x[0]) for x in np.nonzero(bad))
+    col = ("Frame#", "Time")[c] if c < 2 else f"{labels[(c - 2) // 3]} {'XYZ'[(c - 2) % 3]}"
+    what = "infinite" if np.isinf(values[r, c]) else f"absurd (beyond {ABSURD_M:g} m)"
+    raise InputError(f"cell {values[r, c]:.6g} in column {c + 1} ({col}) is {what}", path=path,
+                     line=int(line_no[r]), label=labels[(c - 2) // 3] if c >= 2 else None)
 
 
 def _raise_extra(n_cells, i, n_cols, n_markers, line_no, path):

@@ -49,7 +49,6 @@ def _trial_motion(camp, trial, log, n: int) -> tuple[dict, list]:
 
 def campaign_info(path: Path) -> dict:
     from mocap.io.campaign import load_campaign
-    from mocap.io.markers import read_markers
 
     camp = load_campaign(path)
     robot = camp.load_robot()
@@ -65,7 +64,7 @@ def campaign_info(path: Path) -> dict:
              "log_samples": log.n_samples, "log_rate_hz": log.rate_hz,
              "sampling": samp.to_dict(), "warnings": list(samp.warnings), "markers_used": 0}
         if rec.markers is not None:
-            m = read_markers(rec.markers)
+            m = camp.read_markers(rec, robot)
             if kind == "trial":
                 _check_trial_labels(camp, rec, m)
             e.update({"marker_frames": m.n_frames, "marker_rate_hz": m.rate_hz,
