@@ -35,6 +35,9 @@ class DiagnosisSettings:
     alpha: float = 0.01              # family-wise level (Holm) per selection step
     min_explained: float = 0.30      # an effect must remove this share of the gap above the noise floor
     min_reduction: float = 0.003     # ... and this fraction of the held-out RMS
+    min_effect_to_floor: float = 0.25  # ... and remove at least this share of the channel's noise-floor
+    #                                    variance (one scale for every channel: an effect within its
+    #                                    channel's noise is not claimed, however large its relative share)
     max_effects: int = 3             # stepwise steps
     n_perm: int = 20000
     n_boot: int = 300
@@ -180,6 +183,14 @@ def nominal_heldout_rms(d: JointData, nominal: str = "cv") -> float:
     return _rms(cv.sse, ch.bounds[:, 1] - ch.bounds[:, 0])
 
 
+def _over_floor(removed_mse: float, noise_mse: float) -> float:
+    """Held-out variance an effect removes, in units of its channel's noise-floor variance (the
+    one scale on which channels with different units are compared)."""
+    if not np.isfinite(noise_mse) or noise_mse <= 0:
+        return float("inf") if removed_mse > 0 else 0.0
+    return float(removed_mse / noise_mse)
+
+
 def _rms(sse, n):
     return float(np.sqrt(np.sum(sse) / max(np.sum(n), 1)))
 
@@ -302,7 +313,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 reduction=float(1 - np.sqrt(mse_e / mse_nom)) if mse_nom > 0 else 0.0,
                 reduction_step=float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
                 explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
-                p_value=p, p_min_attainable=p_min, shape=cand.describe(hp)), cvr, cols)
+                p_value=p, p_min_attainable=p_min, shape=cand.describe(hp),
+                evidence={"removed_variance_over_floor": _over_floor(mse_cur - mse_e, noise)}), cvr, cols)
         adj = holm(pvals)
         for name, r in rows.items():
             if not r.test.identifiable:
@@ -310,7 +322,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
             t = r.test
             r.test = replace(t, p_adjusted=adj[name], significant=bool(
                 t.physical and adj[name] < settings.alpha and t.explained_share >= settings.min_explained
-                and t.reduction_step >= settings.min_reduction))
+                and t.reduction_step >= settings.min_reduction
+                and t.evidence["removed_variance_over_floor"] >= settings.min_effect_to_floor))
         if tested_first is None:
             tested_first = rows
         sig = [r for r in rows.values() if r.test.significant]
@@ -319,7 +332,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         best = _discriminate(sig, rows, ch, X)
         t = best.test
         steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
-                                    t.explained_share, t.shape, t.family), best.cv.sse))
+                                    t.explained_share, t.shape, t.family,
+                                    t.evidence["removed_variance_over_floor"]), best.cv.sse))
         C = best.cols[best.cv.hp_all][0]
         base = grams_augmented(base, X, C, ch.target, ch.bounds)
         X = np.column_stack([X, C])
@@ -434,15 +448,13 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
             effects.append(replace(row.test, confounded_with=tuple(conf), separating_experiment=exp,
                                    bootstrap_top_share=stab.get(name, 0.0)))
         selected += [s for s, _ in res.steps]
-    # verdict: a significant transmission effect first. Friction-type effects cannot open a gap
-    # between link and motor angles of a stiff joint, whereas compliance and backlash also disturb
-    # the torque around reversals (a presliding-like torque signature): the transmission
-    # channel's finding is the root cause. Otherwise the torque channel's first selection.
-    verdict = "none"
-    for c in ("transmission", "torque"):
-        if c in chres and chres[c].selected:
-            verdict = chres[c].selected[0].effect
-            break
+    # verdict: the channel whose first selection is the larger effect on one scale (held-out
+    # variance removed over the channel's noise-floor variance). A transmission effect of a
+    # stiff-enough joint explains its own channel only through a real deflection, and its torque
+    # signature (presliding-like disturbances at reversals) is then the smaller one; a marginal
+    # transmission finding (its gap within its noise floor) must not override a strong torque one.
+    firsts = [chres[c].selected[0] for c in ("transmission", "torque") if c in chres and chres[c].selected]
+    verdict = max(firsts, key=lambda s: s.effect_to_floor).effect if firsts else "none"
     insufficient = ""
     if verdict == "none":
         weak = [(c, r) for c, r in runs.items() if r.powerless(settings.alpha)]
