@@ -90,10 +90,15 @@ class JointData:
     group: np.ndarray               # per-trial condition index (same load, speed, kind)
     fold: np.ndarray                # per-trial held-out fold
     deriv_window_s: float = 0.0     # Savitzky-Golay window of the motor-angle derivatives
+    sgn_filtered: np.ndarray | None = None  # (N,) Coulomb direction through the derivative filter
 
     @cached_property
     def sgn(self) -> np.ndarray:
-        """Smoothed sign of the velocity (computed once; many candidate columns use it)."""
+        """Coulomb direction of every sample (many candidate columns use it): the smoothed sign
+        of the velocity passed through the same Savitzky-Golay filter as the derivatives when the
+        builder had the full-rate signal (``sgn_filtered``), else the plain smoothed sign."""
+        if self.sgn_filtered is not None:
+            return self.sgn_filtered
         from ident.gap.candidates import ssign
 
         return ssign(self.qd)
@@ -170,7 +175,9 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
     J, B = drive.motor_inertia, drive.motor_viscous
     k_declared = float(drive.extra.get("stiffness", 0.0) or 0.0)
     offsets = campaign_clock(logs)
-    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "y", "tau_urdf", "tau_grav", "regs", "load",
+    from ident.gap.candidates import ssign
+
+    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "y", "tau_urdf", "tau_grav", "regs", "load",
                             "trial_m", "e", "qd_m", "y_m", "t_m", "tau_m")}
     cache = {}
     for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
@@ -180,7 +187,13 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         # short derivative window: friction transients at reversals last tens of ms, and a
         # longer window smears them into J qdd (measured on the foreign world: a 0.1 s window
         # hid two thirds of a Stribeck drop); at least 11 samples on slow logs
-        q, qd, qdd = savgol_derivatives(t, qm, window_s=max(deriv_window_s, 11 * float(np.median(np.diff(t)))))
+        window_s = max(deriv_window_s, 11 * float(np.median(np.diff(t))))
+        q, qd, qdd = savgol_derivatives(t, qm, window_s=window_s)
+        # consistent filtering: J qdd is the filtered rotor acceleration, which at a reversal
+        # smears the friction step that the controller's (smooth) command does not contain; the
+        # Coulomb direction goes through the same filter, so J S[qm''] + c S[sgn] = S[u] ~ u
+        # (measured on the foreign world: the nominal's error at |qd| < 0.1 rad/s halves)
+        sgn_f = savgol_derivatives(t, ssign(qd), window_s=window_s)[0]
         rest = np.where(np.isfinite(lg.qm[0]), np.nanmedian(lg.qm, axis=0), 0.0)
         rest[j0] = 0.0
         p_com = tuple(float(x) for x in getattr(tr, "extra", {}).get("payload_com", (0.0, 0.0, 0.0)))
@@ -205,6 +218,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         cols["q"].append((q)[keep])
         cols["qd"].append((qd)[keep])
         cols["qdd"].append((qdd)[keep])
+        cols["sgn"].append(sgn_f[keep])
         cols["y"].append((y)[keep])
         cols["tau_urdf"].append((I_u * qdd + a_u * s + b_u * c)[keep])
         cols["tau_grav"].append((a_u * s + b_u * c)[keep])
@@ -239,7 +253,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                      vmax=float(drive.max_velocity), tau_max=float(drive.max_torque),
                      trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
                      t_m=cat["t_m"], tau_m=cat["tau_m"], rep=reps, group=group, fold=fold,
-                     deriv_window_s=float(deriv_window_s))
+                     deriv_window_s=float(deriv_window_s), sgn_filtered=cat["sgn"])
 
 
 def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20) -> np.ndarray:

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ident.gap.candidates import Candidate, candidate_effects, confounders, ssign
+from ident.gap.candidates import Candidate, candidate_effects, confounders
 from ident.gap.data import JointData
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
                               repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
@@ -57,6 +57,12 @@ class Channel:
     trial: np.ndarray
     bounds: np.ndarray
     demean: bool  # within-trial demeaning (per-trial offsets as nuisance)
+    blocks: np.ndarray | None = None       # (n_blocks, 2) sample ranges of the motion cycles
+    block_trial: np.ndarray | None = None  # (n_blocks,) trial of each block
+
+    def block_fold(self, fold: np.ndarray) -> np.ndarray:
+        """Held-out fold of each block (its trial's fold)."""
+        return fold[self.block_trial]
 
     def prep(self, X: np.ndarray) -> np.ndarray:
         if not self.demean or X.size == 0:
@@ -81,23 +87,48 @@ class NominalModel:
 
 NOMINAL_MODELS = {
     "cv": NominalModel("coulomb_viscous", "Coulomb + viscous (thesis eq. 2-5)",
-                       lambda d: np.column_stack([ssign(d.qd), d.qd])),
+                       lambda d: np.column_stack([d.sgn, d.qd])),
     "cv_asym": NominalModel("coulomb_viscous_asymmetric",
                             "Coulomb + viscous with a direction-dependent Coulomb level",
-                            lambda d: np.column_stack([ssign(d.qd), d.qd, d.qd > 0])),
+                            lambda d: np.column_stack([d.sgn, d.qd, d.qd > 0])),
 }
+
+
+def _motion_blocks(trial: np.ndarray, qd: np.ndarray, n_trials: int) -> tuple[np.ndarray, np.ndarray]:
+    """Blocks of the randomisation test and units of the held-out SSE: the motion cycles of each
+    trial (:func:`ident.gap.data.motion_cycles`, chosen from the data, never across trials).
+    Residual correlation is short against a cycle, so cycles are nearly exchangeable units, and a
+    campaign of 12 trials gives the sign-flip test tens of blocks instead of 12 (whose smallest p,
+    times Holm's multiplier, cannot reach the level). Returns (bounds (n_blocks, 2), trial of each)."""
+    from ident.gap.data import motion_cycles
+
+    if trial.size == 0:
+        return np.zeros((0, 2), int), np.zeros(0, int)
+    cyc = motion_cycles(qd)
+    new = np.r_[True, (trial[1:] != trial[:-1]) | (cyc[1:] != cyc[:-1])]
+    starts = np.flatnonzero(new)
+    ends = np.r_[starts[1:], trial.size]
+    # a trial whose first or last cycle is a short remnant: join it to its neighbour
+    short = (ends - starts) < 20
+    keep = ~short | np.r_[True, trial[starts[1:]] != trial[starts[:-1]]]
+    starts = starts[keep]
+    ends = np.r_[starts[1:], trial.size]
+    bt = trial[starts].astype(int)
+    return np.column_stack([starts, ends]), bt
 
 
 def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
     X0 = (nominal or NOMINAL_MODELS["cv"]).columns(d)
     nt = d.n_trials
-    return Channel("torque", "N m", d.y - d.tau_urdf, X0, d.trial, trial_bounds(d.trial, nt), False)
+    blocks, bt = _motion_blocks(d.trial, d.qd, nt)
+    return Channel("torque", "N m", d.y - d.tau_urdf, X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt)
 
 
 def _transmission_channel(d: JointData) -> Channel:
     nt = d.n_trials
     b = trial_bounds(d.trial_m, nt)
-    ch = Channel("transmission", "rad", d.e, np.zeros((d.e.shape[0], 0)), d.trial_m, b, True)
+    blocks, bt = _motion_blocks(d.trial_m, d.qd_m, nt)
+    ch = Channel("transmission", "rad", d.e, np.zeros((d.e.shape[0], 0)), d.trial_m, b, True, blocks, bt)
     ch.target = ch.prep(d.e[:, None])[:, 0]
     return ch
 
@@ -113,7 +144,7 @@ def _cv(channel: Channel, X: np.ndarray, fold: np.ndarray, gb: dict | None = Non
     """Leave-one-fold-out CV of ``X`` augmented by each entry of ``gb`` (hp -> Grams of
     ``[X | C(hp)]``); without ``gb``, of ``X`` alone (``base`` = its Grams, built if None)."""
     if gb is None:
-        base = base if base is not None else grams(X, channel.target, channel.bounds)
+        base = base if base is not None else grams(X, channel.target, channel.blocks)
         if X.shape[1] == 0:
             return CVResult(base.yy.copy(), {}, np.zeros(0), None, float(base.yy.sum())), {None: base}
         gb = {None: base}
@@ -157,13 +188,13 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
             C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
             if C.shape[0] == 0 or not np.all(np.isfinite(C)):
                 continue
-            g = grams_augmented(base, X, C, ch.target, ch.bounds)
+            g = grams_augmented(base, X, C, ch.target, ch.blocks)
             keep = unexplained_fractions(g, p) >= 1e-3
             if not keep.any():
                 continue
             if not keep.all():
                 C = C[:, keep]
-                g = grams_augmented(base, X, C, ch.target, ch.bounds)
+                g = grams_augmented(base, X, C, ch.target, ch.blocks)
             out[(cand, hp)] = g
             cols[(cand, hp)] = (C, keep)
     return out, cols
@@ -179,8 +210,8 @@ def _amplitudes(theta: np.ndarray, p: int, keep: np.ndarray) -> np.ndarray:
 def nominal_heldout_rms(d: JointData, nominal: str = "cv") -> float:
     """Held-out torque RMS of the nominal model (leave-one-fold-out), for data-preparation choices."""
     ch = _torque_channel(d, NOMINAL_MODELS[nominal])
-    cv, _ = _cv(ch, ch.X0, d.fold)
-    return _rms(cv.sse, ch.bounds[:, 1] - ch.bounds[:, 0])
+    cv, _ = _cv(ch, ch.X0, ch.block_fold(d.fold))
+    return _rms(cv.sse, ch.blocks[:, 1] - ch.blocks[:, 0])
 
 
 def _over_floor(removed_mse: float, noise_mse: float) -> float:
@@ -271,10 +302,10 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray) -> "_Row":
 
 
 def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSettings) -> _ChannelRun:
-    fold = d.fold
-    n_per_trial = ch.bounds[:, 1] - ch.bounds[:, 0]
+    fold = ch.block_fold(d.fold)
+    n_per_trial = ch.blocks[:, 1] - ch.blocks[:, 0]   # per block (motion cycle)
     X = ch.prep(ch.X0)
-    base = grams(X, ch.target, ch.bounds)
+    base = grams(X, ch.target, ch.blocks)
     base_cv, _ = _cv(ch, X, fold, base=base)
     nominal_sse = base_cv.sse.copy()
     # residual of the nominal fit on all data -> white-noise floor
@@ -335,7 +366,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                                     t.explained_share, t.shape, t.family,
                                     t.evidence["removed_variance_over_floor"]), best.cv.sse))
         C = best.cols[best.cv.hp_all][0]
-        base = grams_augmented(base, X, C, ch.target, ch.bounds)
+        base = grams_augmented(base, X, C, ch.target, ch.blocks)
         X = np.column_stack([X, C])
         current_sse = best.cv.sse
         by_effect.pop(best.effect)
