@@ -85,20 +85,7 @@ def test_control_is_not_attributed(diagnosed):
     assert jr["heldout_rms_nominal"] < 3.0 * ref.noise_rms
 
 
-# Known misses of the current diagnosis on this set (issue 14 open), measured: a Gaussian
-# Stribeck drop gets `none` (the reference removes 63 % of the held-out RMS); position ripple and
-# torque scale get the right verdict but remove 0.18 and 0.19 of the held-out RMS where the
-# true structure removes 0.69 and 0.78. Strict: the marks fail as soon as the diagnosis passes.
-_KNOWN_MISS = {
-    "stribeck": "Gaussian Stribeck drop not recognised (verdict none)",
-    "position_ripple": "right verdict, reduction 0.18 < 0.4 x the true structure's 0.69",
-    "torque_scale": "right verdict, reduction 0.19 < 0.4 x the true structure's 0.78",
-}
-
-
-@pytest.mark.parametrize("effect", [
-    pytest.param(e, marks=pytest.mark.xfail(strict=True, reason=_KNOWN_MISS[e])) if e in _KNOWN_MISS
-    else e for e in EFFECTS])
+@pytest.mark.parametrize("effect", EFFECTS)
 def test_verdict_names_the_withheld_effect(diagnosed, effect):
     camp, rep = diagnosed(effect)
     score = F.score_diagnosis(_args(effect), rep)

@@ -91,6 +91,7 @@ class JointData:
     fold: np.ndarray                # per-trial held-out fold
     deriv_window_s: float = 0.0     # Savitzky-Golay window of the motor-angle derivatives
     sgn_filtered: np.ndarray | None = None  # (N,) Coulomb direction through the derivative filter
+    q_hf: np.ndarray | None = None  # (N,) encoder reading minus its smoothed value (what feedback sees beyond it)
 
     @cached_property
     def sgn(self) -> np.ndarray:
@@ -138,7 +139,7 @@ def campaign_clock(logs: list) -> list[float]:
 DERIV_WINDOWS = (0.02, 0.04, 0.1)
 
 
-def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.02,
+def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
                      max_rate_hz: float = 250.0, deriv_window_s: float | None = None) -> JointData:
     """Assemble :class:`JointData`; the Savitzky-Golay window of the motor-angle derivatives is
     ``deriv_window_s`` or, when None, chosen from the data: the window of :data:`DERIV_WINDOWS`
@@ -158,7 +159,7 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
     return _build_joint_data(joint, trials, logs, robot, angles, v_zero, max_rate_hz, deriv_window_s)
 
 
-def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.02,
+def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
                       max_rate_hz: float = 250.0, deriv_window_s: float = 0.04) -> JointData:
     """Assemble :class:`JointData` for ``joint`` (1-based) from trials moving only that joint.
 
@@ -177,7 +178,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
     offsets = campaign_clock(logs)
     from ident.gap.candidates import ssign
 
-    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "y", "tau_urdf", "tau_grav", "regs", "load",
+    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "q_hf", "y", "tau_urdf", "tau_grav", "regs", "load",
                             "trial_m", "e", "qd_m", "y_m", "t_m", "tau_m")}
     cache = {}
     for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
@@ -219,6 +220,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         cols["qd"].append((qd)[keep])
         cols["qdd"].append((qdd)[keep])
         cols["sgn"].append(sgn_f[keep])
+        cols["q_hf"].append((qm - q)[keep])
         cols["y"].append((y)[keep])
         cols["tau_urdf"].append((I_u * qdd + a_u * s + b_u * c)[keep])
         cols["tau_grav"].append((a_u * s + b_u * c)[keep])
@@ -253,7 +255,8 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                      vmax=float(drive.max_velocity), tau_max=float(drive.max_torque),
                      trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
                      t_m=cat["t_m"], tau_m=cat["tau_m"], rep=reps, group=group, fold=fold,
-                     deriv_window_s=float(deriv_window_s), sgn_filtered=cat["sgn"])
+                     deriv_window_s=float(deriv_window_s), sgn_filtered=cat["sgn"],
+                     q_hf=cat["q_hf"])
 
 
 def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20) -> np.ndarray:

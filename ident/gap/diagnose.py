@@ -82,7 +82,19 @@ class NominalModel:
     friction: Callable  # JointData -> (N, k) friction regressors
 
     def columns(self, d: JointData) -> np.ndarray:
-        return np.column_stack([d.urdf_regs, self.friction(d)])
+        return np.column_stack([d.urdf_regs, self.friction(d)] + _feedback_columns(d))
+
+
+def _feedback_columns(d: JointData) -> list:
+    """The logged torque is a feedback controller's command: it reacts to the encoder reading,
+    including the part beyond the smoothed trajectory (quantisation steps, small vibration) that
+    the smoothed derivatives do not carry. One column, that part of the reading, with a free gain
+    (measured on the foreign world's effect-free campaigns: the nominal's held-out RMS over the
+    torque noise drops from 1.26 to 1.16 on tri3). Absent on records without the raw reading."""
+    if d.q_hf is None or d.q_hf.shape[0] != d.q.shape[0]:
+        return []
+    scale = float(np.sqrt(np.mean(d.q_hf ** 2)))   # unit scale: the solver's ridge is relative
+    return [d.q_hf[:, None] / scale] if scale > 0 else []
 
 
 NOMINAL_MODELS = {
