@@ -90,10 +90,14 @@ def test_verdict_names_the_withheld_effect(diagnosed, effect):
     camp, rep = diagnosed(effect)
     score = F.score_diagnosis(_args(effect), rep)
     assert score["verdict"] == effect, f"{camp.name}: verdict {score['verdict']}, ranked {score['ranked']}"
-    # and the diagnosis explains a fair part of what the true structure explains
+    # and the effect's model closes at least half of the distance from the nominal's held-out RMS
+    # to the true structure's (which is the torque noise). Distances, not the reference's own
+    # reduction: the reference's nominal has no rigid-body corrections, so part of e.g. a
+    # torque-constant error that jointlab's nominal absorbs would count as the reference's reduction.
     ref = F.truth_reference(camp, 2)
     assert ref.reduction > 0.1, f"{camp.name}: effect too small to test ({ref.to_dict()})"
-    assert score["reduction_true_effect"] >= 0.4 * ref.reduction, (score, ref.to_dict())
+    nom, eff = score["heldout_rms_nominal"], score["heldout_rms_true_effect"]
+    assert nom - eff >= 0.5 * (nom - ref.rms_true), (score, ref.to_dict())
 
 
 def test_truth_reference_recovers_the_true_structure(diagnosed):

@@ -8,7 +8,7 @@ available (mocap), the transmission residual ``q_link - q_motor`` on the marker 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -145,18 +145,21 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
     ``deriv_window_s`` or, when None, chosen from the data: the window of :data:`DERIV_WINDOWS`
     whose nominal model has the least held-out torque RMS. (Short windows keep friction
     transients at reversals, which last tens of ms, out of ``J qdd``; long ones average encoder
-    quantisation: which wins depends on the drive and the logger, not on the effect sought.)"""
-    if deriv_window_s is None:
-        from ident.gap.diagnose import nominal_heldout_rms
+    quantisation: which wins depends on the drive and the logger, not on the effect sought.) The
+    Coulomb direction is chosen the same way: sampled, or through the derivative filter."""
+    from ident.gap.diagnose import nominal_heldout_rms
 
-        best = None
-        for w in DERIV_WINDOWS:
-            d = _build_joint_data(joint, trials, logs, robot, angles, v_zero, max_rate_hz, w)
-            rms = nominal_heldout_rms(d)
+    best = None
+    for w in (DERIV_WINDOWS if deriv_window_s is None else (deriv_window_s,)):
+        d = _build_joint_data(joint, trials, logs, robot, angles, v_zero, max_rate_hz, w)
+        # the Coulomb direction as sampled, or through the derivative filter: a torque computed
+        # from the motion (inverse dynamics) carries the friction step itself, a feedback
+        # controller's command does not (its rotor acceleration does); the data decide
+        for variant in (d, replace(d, sgn_filtered=None)):
+            rms = nominal_heldout_rms(variant)
             if best is None or rms < best[0]:
-                best = (rms, d)
-        return best[1]
-    return _build_joint_data(joint, trials, logs, robot, angles, v_zero, max_rate_hz, deriv_window_s)
+                best = (rms, variant)
+    return best[1]
 
 
 def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
