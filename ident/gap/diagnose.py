@@ -120,7 +120,7 @@ def _motion_blocks(trial: np.ndarray, qd: np.ndarray, n_trials: int) -> tuple[np
     new = np.r_[True, (trial[1:] != trial[:-1]) | (cyc[1:] != cyc[:-1])]
     starts = np.flatnonzero(new)
     ends = np.r_[starts[1:], trial.size]
-    # a trial whose first or last cycle is a short remnant: join it to its neighbour
+    # a short remnant (e.g. a trial's last half cycle) joins the previous block of its trial
     short = (ends - starts) < 20
     keep = ~short | np.r_[True, trial[starts[1:]] != trial[starts[:-1]]]
     starts = starts[keep]
