@@ -7,9 +7,12 @@ Protocol (per joint, per channel):
 2. Held-out residuals by leave-one-repetition-out (or leave-one-trial-out) cross-validation.
 3. Each candidate effect augments the nominal model in its channel; its shape parameter is
    chosen on the training folds only. Held-out SSE per trial, before and after.
-4. Significance: a sign-flip randomisation test on per-trial SSE reductions (trials are the
-   blocks, so autocorrelation within a trial is respected), Holm correction over candidates,
-   and an effect-size floor relative to the gap above the white-noise floor.
+4. Significance: a sign-flip randomisation test on the held-out SSE reductions of the motion
+   cycles of each trial (blocks chosen from the data; autocorrelation within a cycle is
+   respected), Holm correction over candidates, an effect-size floor relative to the gap above
+   the white-noise floor, and a floor on the variance removed relative to the channel's noise
+   variance (one scale for both channels; the verdict takes the channel whose first selection is
+   the larger on it).
 5. Forward stepwise selection (the selected effect joins the model, the rest are re-tested),
    bootstrap over trials for the stability of the verdict and confidence intervals.
 """
