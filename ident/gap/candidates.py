@@ -162,7 +162,10 @@ def _ripple_grid(gear_ratio):
 
 
 def _ripple(d, hp):
-    return np.column_stack([np.sin(hp * d.q), np.cos(hp * d.q)])
+    """A torque periodic in the angle with ``hp`` periods per joint revolution, to its second
+    harmonic (a ripple is rarely a pure sine: harmonic-drive orders come with their double)."""
+    a = hp * d.q
+    return np.column_stack([np.sin(a), np.cos(a), np.sin(2 * a), np.cos(2 * a)])
 
 
 def _modulation(d, hp):
@@ -302,7 +305,7 @@ FAMILIES = {
     "presliding_maxwell": ("torque", lambda g: _PRESLIDING_GRID, _elastoplastic,
                            lambda hp: f"elasto-plastic (Maxwell-slip) elements, break-away {hp:.2e} and "
                                       f"{4 * hp:.2e} rad", _maxwell_pos),
-    "ripple_additive": ("torque", _ripple_grid, _ripple, lambda hp: f"additive ripple, {hp:g} cycles per joint revolution",
+    "ripple_additive": ("torque", _ripple_grid, _ripple, lambda hp: f"additive ripple, {hp:g} cycles per joint revolution (and its 2nd harmonic)",
                         lambda hp, th: True),
     "ripple_modulation": ("torque", _ripple_grid, _modulation,
                           lambda hp: f"friction level modulated {hp:g} times per joint revolution",

@@ -8,7 +8,7 @@ available (mocap), the transmission residual ``q_link - q_motor`` on the marker 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -90,10 +90,16 @@ class JointData:
     group: np.ndarray               # per-trial condition index (same load, speed, kind)
     fold: np.ndarray                # per-trial held-out fold
     deriv_window_s: float = 0.0     # Savitzky-Golay window of the motor-angle derivatives
+    sgn_filtered: np.ndarray | None = None  # (N,) Coulomb direction through the derivative filter
+    q_hf: np.ndarray | None = None  # (N,) encoder reading minus its smoothed value (what feedback sees beyond it)
 
     @cached_property
     def sgn(self) -> np.ndarray:
-        """Smoothed sign of the velocity (computed once; many candidate columns use it)."""
+        """Coulomb direction of every sample (many candidate columns use it): the smoothed sign
+        of the velocity passed through the same Savitzky-Golay filter as the derivatives when the
+        builder had the full-rate signal (``sgn_filtered``), else the plain smoothed sign."""
+        if self.sgn_filtered is not None:
+            return self.sgn_filtered
         from ident.gap.candidates import ssign
 
         return ssign(self.qd)
@@ -133,27 +139,30 @@ def campaign_clock(logs: list) -> list[float]:
 DERIV_WINDOWS = (0.02, 0.04, 0.1)
 
 
-def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.02,
+def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
                      max_rate_hz: float = 250.0, deriv_window_s: float | None = None) -> JointData:
     """Assemble :class:`JointData`; the Savitzky-Golay window of the motor-angle derivatives is
     ``deriv_window_s`` or, when None, chosen from the data: the window of :data:`DERIV_WINDOWS`
     whose nominal model has the least held-out torque RMS. (Short windows keep friction
     transients at reversals, which last tens of ms, out of ``J qdd``; long ones average encoder
-    quantisation: which wins depends on the drive and the logger, not on the effect sought.)"""
-    if deriv_window_s is None:
-        from ident.gap.diagnose import nominal_heldout_rms
+    quantisation: which wins depends on the drive and the logger, not on the effect sought.) The
+    Coulomb direction is chosen the same way: sampled, or through the derivative filter."""
+    from ident.gap.diagnose import nominal_heldout_rms
 
-        best = None
-        for w in DERIV_WINDOWS:
-            d = _build_joint_data(joint, trials, logs, robot, angles, v_zero, max_rate_hz, w)
-            rms = nominal_heldout_rms(d)
+    best = None
+    for w in (DERIV_WINDOWS if deriv_window_s is None else (deriv_window_s,)):
+        d = _build_joint_data(joint, trials, logs, robot, angles, v_zero, max_rate_hz, w)
+        # the Coulomb direction as sampled, or through the derivative filter: a torque computed
+        # from the motion (inverse dynamics) carries the friction step itself, a feedback
+        # controller's command does not (its rotor acceleration does); the data decide
+        for variant in (d, replace(d, sgn_filtered=None)):
+            rms = nominal_heldout_rms(variant)
             if best is None or rms < best[0]:
-                best = (rms, d)
-        return best[1]
-    return _build_joint_data(joint, trials, logs, robot, angles, v_zero, max_rate_hz, deriv_window_s)
+                best = (rms, variant)
+    return best[1]
 
 
-def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.02,
+def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
                       max_rate_hz: float = 250.0, deriv_window_s: float = 0.04) -> JointData:
     """Assemble :class:`JointData` for ``joint`` (1-based) from trials moving only that joint.
 
@@ -170,7 +179,9 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
     J, B = drive.motor_inertia, drive.motor_viscous
     k_declared = float(drive.extra.get("stiffness", 0.0) or 0.0)
     offsets = campaign_clock(logs)
-    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "y", "tau_urdf", "tau_grav", "regs", "load",
+    from ident.gap.candidates import ssign
+
+    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "q_hf", "y", "tau_urdf", "tau_grav", "regs", "load",
                             "trial_m", "e", "qd_m", "y_m", "t_m", "tau_m")}
     cache = {}
     for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
@@ -180,7 +191,13 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         # short derivative window: friction transients at reversals last tens of ms, and a
         # longer window smears them into J qdd (measured on the foreign world: a 0.1 s window
         # hid two thirds of a Stribeck drop); at least 11 samples on slow logs
-        q, qd, qdd = savgol_derivatives(t, qm, window_s=max(deriv_window_s, 11 * float(np.median(np.diff(t)))))
+        window_s = max(deriv_window_s, 11 * float(np.median(np.diff(t))))
+        q, qd, qdd = savgol_derivatives(t, qm, window_s=window_s)
+        # consistent filtering: J qdd is the filtered rotor acceleration, which at a reversal
+        # smears the friction step that the controller's (smooth) command does not contain; the
+        # Coulomb direction goes through the same filter, so J S[qm''] + c S[sgn] = S[u] ~ u
+        # (measured on the foreign world: the nominal's error at |qd| < 0.1 rad/s halves)
+        sgn_f = savgol_derivatives(t, ssign(qd), window_s=window_s)[0]
         rest = np.where(np.isfinite(lg.qm[0]), np.nanmedian(lg.qm, axis=0), 0.0)
         rest[j0] = 0.0
         p_com = tuple(float(x) for x in getattr(tr, "extra", {}).get("payload_com", (0.0, 0.0, 0.0)))
@@ -205,6 +222,8 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         cols["q"].append((q)[keep])
         cols["qd"].append((qd)[keep])
         cols["qdd"].append((qdd)[keep])
+        cols["sgn"].append(sgn_f[keep])
+        cols["q_hf"].append((qm - q)[keep])
         cols["y"].append((y)[keep])
         cols["tau_urdf"].append((I_u * qdd + a_u * s + b_u * c)[keep])
         cols["tau_grav"].append((a_u * s + b_u * c)[keep])
@@ -239,7 +258,8 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                      vmax=float(drive.max_velocity), tau_max=float(drive.max_torque),
                      trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
                      t_m=cat["t_m"], tau_m=cat["tau_m"], rep=reps, group=group, fold=fold,
-                     deriv_window_s=float(deriv_window_s))
+                     deriv_window_s=float(deriv_window_s), sgn_filtered=cat["sgn"],
+                     q_hf=cat["q_hf"])
 
 
 def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20) -> np.ndarray:

@@ -66,11 +66,13 @@ class SelectionStep:
     explained_share: float
     shape: str
     family: str = ""
+    effect_to_floor: float = float("nan")   # held-out variance removed / channel noise-floor variance
 
     def to_dict(self) -> dict:
         return {"effect": self.effect, "channel": self.channel, "heldout_rms": float(self.heldout_rms),
                 "reduction": float(self.reduction), "p_adjusted": float(self.p_adjusted),
-                "explained_share": float(self.explained_share), "shape": self.shape, "family": self.family}
+                "explained_share": float(self.explained_share), "shape": self.shape, "family": self.family,
+                "effect_to_floor": _f(self.effect_to_floor)}
 
 
 @dataclass(frozen=True)
