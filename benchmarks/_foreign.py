@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 WORLD = Path(__file__).resolve().parents[2] / "shared" / "worlds" / "foreign"
-DEFAULT_CACHE = Path("/work/corpus/foreign")
+DEFAULT_CACHE = Path.home() / ".cache" / "jointlab" / "foreign"   # or $JOINTLAB_CORPUS
 EFFECTS = ("stribeck", "presliding", "position_ripple", "load_dependent", "thermal_drift",
            "compliance", "backlash", "torque_scale", "asymmetry", "nonlinear_viscous", "time_offset")
 # effects that change the commanded torque (the others show in the motor-link deflection or
@@ -63,7 +63,7 @@ class WorldArgs:
     @property
     def name(self) -> str:
         """Cache name: robot-j<joint>-<effect>-m<mag>-s<seed> plus one suffix per non-default
-        argument (the scheme of /work/corpus/foreign)."""
+        argument (the cache's naming scheme)."""
         s = f"{self.robot}-j{self.moving_joint}-{self.effect}-m{self.magnitude:g}-s{self.seed}"
         if self.second_effect:
             s += f"-x{self.second_effect}"

@@ -9,7 +9,7 @@ diagnosis.json; the truth files beside each campaign are read only to score and 
 true-structure reference (benchmarks/_foreign.py, which does not import ident.gap).
 
 Campaign generation is the cost (30-50 s of one core per foreign campaign): campaigns are
-cached under $JOINTLAB_CORPUS (default /work/corpus/foreign), keyed by the exact generator
+cached under $JOINTLAB_CORPUS (default ~/.cache/jointlab/foreign), keyed by the exact generator
 arguments; generation + diagnosis run in a process pool (--workers).
 
 Prints, per world: confusion matrices (true effect x verdict) per robot and magnitude, top-1
@@ -39,7 +39,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
 # ... and import this checkout's packages (not the venv's editable install), after any
-# PYTHONPATH entries (PYTHONPATH=/work/wt-other python benchmarks/gap.py measures that branch)
+# PYTHONPATH entries (PYTHONPATH=../other-checkout python benchmarks/gap.py measures that checkout)
 _npp = len([p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])
 sys.path.insert(_npp, str(HERE.parent))
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -322,7 +322,7 @@ def main(argv=None):
     ap.add_argument("--pairs", type=int, default=len(PAIRS), help=f"two-effect pairs per robot (at most {len(PAIRS)})")
     ap.add_argument("--reps", type=int, default=4, help="foreign world: repetitions per load and speed")
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--cache", type=Path, default=None, help="campaign cache (default $JOINTLAB_CORPUS or /work/corpus/foreign)")
+    ap.add_argument("--cache", type=Path, default=None, help="campaign cache (default $JOINTLAB_CORPUS or ~/.cache/jointlab/foreign)")
     ap.add_argument("--only-cached", action="store_true", help="skip foreign campaigns that are not cached yet")
     ap.add_argument("--no-reference", action="store_true", help="skip the true-structure reference")
     ap.add_argument("--generate-only", action="store_true", help="fill the foreign-world cache, diagnose nothing")

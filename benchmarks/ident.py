@@ -16,7 +16,7 @@ Viscous basis: the foreign world's friction ``c tanh(qm'/eps) + b qm'`` acts on 
 of the spring, beside the motor viscous ``B`` of drives.toml; eq. 2-4 removes ``B qmd`` in its
 target, so the fitted ``v`` is compared with ``b`` (link-only basis), not with ``b + B``.
 
-Worlds: the cached foreign campaigns (/work/corpus/foreign/<name>, made by
+Worlds: the cached foreign campaigns ($JOINTLAB_CORPUS/<name>, default ~/.cache/jointlab/foreign, made by
 ``../shared/worlds/foreign/make_world.py``, see INDEX.md there) and a ``jointlab synth``
 campaign (holds before/after each excitation; made once into the cache folder). Marker angles
 are solved once per campaign into the cache folder (``--cache``, default /tmp/jointlab-bench-ident).
@@ -47,7 +47,7 @@ from mocap.io.campaign import load_campaign  # noqa: E402
 from ident.study.executor import make_executor  # noqa: E402
 from ident.thesis.campaign import campaign_tasks, fit_trial_joint  # noqa: E402
 
-FOREIGN = Path("/work/corpus/foreign")
+FOREIGN = Path(os.environ.get("JOINTLAB_CORPUS", Path.home() / ".cache" / "jointlab" / "foreign"))
 FOREIGN_WORLDS = ("ind6-j3-none-s1", "ind6-j5-none-s2", "tri3-j2-none-s4")
 SYNTH = dict(name="pa10-j35-none-s7", args=["--effect", "none", "--seed", "7", "--joints", "3,5",
                                              "--loads", "0,3.373", "--vmax", "0.5,1.0", "--reps", "3",
