@@ -133,8 +133,10 @@ def _run(args) -> int:
         status = 2
         return status
     except (FileExistsError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
-        what = {PermissionError: "permission denied", IsADirectoryError: "is a folder",
-                NotADirectoryError: "not a folder", FileExistsError: "exists"}[type(exc)]
+        what = next(w for cls, w in ((PermissionError, "permission denied"),
+                                     (IsADirectoryError, "is a folder"),
+                                     (NotADirectoryError, "not a folder"),
+                                     (FileExistsError, "exists")) if isinstance(exc, cls))
         where = exc.filename if exc.filename else str(exc)
         msg = f"{where}: {what}" if exc.filename else str(exc)
         print(f"jointlab: error: {msg}", file=sys.stderr)

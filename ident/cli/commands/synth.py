@@ -14,24 +14,24 @@ from mocap.io.errors import InputError
 from ident.cli.main import add_common
 
 
-def _floats(s: str, what: str) -> tuple[float, ...]:
+def _numbers(s: str, what: str, kind=float) -> tuple:
+    """A comma-separated list of ``kind`` values, or a one-line error naming the option."""
+    noun = "numbers" if kind is float else "integers"
     try:
-        vals = tuple(float(x) for x in s.split(",") if x.strip())
+        vals = tuple(kind(x) for x in s.split(",") if x.strip())
     except ValueError:
-        raise InputError(f"{what}: expected comma-separated numbers, got {s!r}") from None
+        raise InputError(f"{what}: expected comma-separated {noun}, got {s!r}") from None
     if not vals:
         raise InputError(f"{what}: empty list")
     return vals
+
+
+def _floats(s: str, what: str) -> tuple[float, ...]:
+    return _numbers(s, what, float)
 
 
 def _ints(s: str, what: str) -> tuple[int, ...]:
-    try:
-        vals = tuple(int(x) for x in s.split(",") if x.strip())
-    except ValueError:
-        raise InputError(f"{what}: expected comma-separated integers, got {s!r}") from None
-    if not vals:
-        raise InputError(f"{what}: empty list")
-    return vals
+    return _numbers(s, what, int)
 
 
 def _mpl(s: str) -> tuple[int, int]:
