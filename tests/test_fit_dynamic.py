@@ -90,19 +90,21 @@ def test_parameters_against_the_truth(fitted):
 
 
 def test_dm2_against_the_static_model(fitted):
-    """Issue 13: DM2 against the static arctan model per trial. On this campaign (jointlab's
-    own LuGre plant, 200 Hz log, a coarse 1.9e-4 rad encoder) DM2 is far better on the
-    constant-velocity and reversal trials (measured 0.33-0.53 of arctan's RMS) and on the
-    median trial, but on the fast excitation trial (v100, Fourier-smoothed) it is 1.26x arctan
-    (DM1 1.01x): a known limitation, see the report of issue 13; the foreign-world campaigns
-    (benchmarks/dynamic.py --campaign) meet the 10 % bound on every trial."""
+    """Issue 13: DM2 is never more than 10 % worse than the static arctan model on any trial and
+    better on the median one. On this campaign (jointlab's own LuGre plant, 200 Hz log, a coarse
+    1.9e-4 rad encoder) measured: 0.31-0.40 of arctan's RMS on the constant-velocity and
+    reversal trials, 0.19 and 0.74 on the two excitation trials. Before the fix of phase 2-C
+    (its best grid point was solved with the states of another one, alpha = beta = 0) the fast
+    excitation trial, whose motor velocity jumps at each reversal faster than the 200 Hz
+    derivative follows, was at 1.26x: the damping of eq. 24 is what compensates that lag."""
     _, _, fits, _ = fitted
     ratios = {tid: e["5"]["dm2"]["rms"] / e["5"]["arctan"]["rms"]
               for tid, e in fits["trials"].items() if "5" in e and "dm2" in e["5"]}
     assert len(ratios) == 6
-    assert np.median(list(ratios.values())) < 0.6, ratios
-    assert all(r < 0.7 for tid, r in ratios.items() if "-cvel-" in tid or "-rev-" in tid), ratios
-    assert max(ratios.values()) < 1.4, ratios
+    assert np.median(list(ratios.values())) < 0.5, ratios
+    assert all(r < 0.6 for tid, r in ratios.items() if "-cvel-" in tid or "-rev-" in tid), ratios
+    assert max(ratios.values()) <= 1.10, ratios
+    assert max(ratios.values()) < 0.9, ratios
 
 
 def _cc():
@@ -140,7 +142,10 @@ def test_exported_c_compiles_and_reproduces_dm2(fitted, camp):
 
     e = fits["joints"]["5"]["models"]["dm2"]
     st = e["settings"]["static"]["params"]
-    model = LuGreDM2(static=Arctan(**st), accel_ratio=e["settings"]["accel_ratio"], **e["params"])
+    model = LuGreDM2(static=Arctan(**st), accel_ratio=e["settings"]["accel_ratio"],
+                     accel_floor=e["settings"]["accel_floor"],
+                     rest_speed=e["settings"]["rest_speed"], **e["params"])
+    assert e["params"]["alpha"] > 0                       # the acceleration term is exercised
     dt = fits["joints"]["5"]["dt"]
     t, qd, qdd = I.piecewise_linear_velocity(*I.reversal_knots(5.0, 1.0, 2, 0.2), dt)
     qd, qdd = np.ascontiguousarray(qd), np.ascontiguousarray(qdd)

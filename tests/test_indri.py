@@ -308,6 +308,29 @@ def test_report_and_figures(result, table, synth, tmp_path):
     json.dumps(fj)
 
 
+def test_phase2c_returns_the_parameters_of_its_best_grid_point(result, synth):
+    """Phase 2-C (refine_damping) over the reversal and variable data of a DM2 joint (true
+    damping alpha 50, beta 0.5, no standstill relaxation): the returned alpha, beta, gamma,
+    floor and rest speed, put into LuGreDM2 and run over each data set, give the pooled RMS
+    it reports, that RMS is the best of its grid, and the damping it keeps lowers the error.
+    (Regression: the solver of the best grid point used the states of the last rest time
+    tried, returning alpha = beta = 0 with another grid point's rest speed.)"""
+    _, rev, var, _ = synth
+    datasets = list(rev) + [var]
+    st = result.static.model
+    r = I.IndriTrapani().refine_damping(st, result.sigma0, result.accel_ratio, datasets)
+    m = LuGreDM2(static=st, accel_ratio=result.accel_ratio, sigma0=result.sigma0,
+                 alpha=r["alpha"], beta=r["beta"], gamma=r["gamma"],
+                 accel_floor=r["accel_floor"], rest_speed=r["rest_speed"])
+    res = np.concatenate([d.tau - I.model_torque(m, d) for d in datasets])
+    assert np.sqrt(np.mean(res ** 2)) == pytest.approx(r["rms"], rel=1e-6)
+    assert r["rms"] <= min(g["rms"] for g in r["grid"]) * (1 + 1e-9)
+    assert r["rest_time"] == np.inf                     # the truth's bristle does not relax
+    assert r["rms"] < 0.7 * r["rms_no_damping"]
+    assert r["rms"] < 1.3 * NOISE
+    assert r["alpha"] > 0
+
+
 def test_estimator_validates():
     with pytest.raises(ValueError, match="dm1_damping"):
         I.IndriTrapani(dm1_damping="eq99")

@@ -718,7 +718,9 @@ class IndriTrapani:
             yy, h2, g22 = float(y @ y), float(zdot @ y), float(zdot @ zdot)
             for fl in floors:
 
-                def solve(gamma, fl=fl):
+                # every loop variable bound now: ``solve`` of the best grid point is called
+                # after the loops (a late-bound zdot, y took the last rest time's states)
+                def solve(gamma, fl=fl, zdot=zdot, y=y, yy=yy, h2=h2, g22=g22):
                     c1 = zdot / np.sqrt(gamma * rv2 + acc ** 2 + fl ** 2)
                     G = np.array([[c1 @ c1, c1 @ zdot], [c1 @ zdot, g22]])
                     return nnls2(G, np.array([c1 @ y, h2]), yy)
