@@ -17,9 +17,10 @@ Pieces, in the order of the paper:
   DM1 (the paper's eq. 11 damping) is fitted by prediction error on the slowest data set;
 * phase 2-C (jointlab's addition, :meth:`IndriTrapani.refine_damping`): eq. 24's alpha, beta
   (>= 0), gamma, its acceleration floor and the bristle's standstill relaxation by prediction
-  error over every trial at once, so that the identified ``f_sigma1(v, a)`` never adds
-  residual where the trend of phase 2-B (i) was not measured (DM2 then reduces to the static
-  model wherever the data show no bristle dynamics);
+  error over every trial at once, each trial counting by its RMS ratio to the static model;
+  the damping is shrunk so that no trial ends more than 5 % worse than the static model, and
+  the bristle's static limit (sigma0 -> infinity, no damping) is a candidate too, so DM2
+  reduces to the static model wherever the data do not support the bristle dynamics;
 * performance indices RMS, M, IN of ``tau_res - tau_f`` and the relative errors Err% of
   Tables I-II, as CSV and Markdown; the torque time histories of Figures 2, 4 and 5 (PNG and
   through a :class:`viz.sink.Sink`);
