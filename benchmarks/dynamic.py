@@ -18,8 +18,8 @@ beside the campaign (``<campaign>.truth.json``) when its effect is presliding:
     python benchmarks/dynamic.py --worlds       # every world of WORLDS, then one summary table
 
 (``--quick``: repetition-1 trials only; ``--heldout``: fit on the odd repetitions, compare on
-the even ones.) ``--worlds`` runs jointlab's own synth (PA10 joint 5, LuGre presliding, 200 Hz
-log, coarse encoder; written to a temporary folder) and the foreign world's ind6 joint 3
+the even ones.) ``--worlds`` runs jointlab's own synth (PA10 joint 5, LuGre presliding and no
+effect, 200 Hz log, coarse encoder; written to a temporary folder) and the foreign world's ind6 joint 3
 campaigns of WORLDS (presliding in its Dahl and Maxwell-slip forms and an effect-free one;
 generated once into ``$JOINTLAB_CORPUS`` by ``benchmarks/_foreign.py``) and prints, per world,
 DM2 / arctan RMS per trial kind (median and max over the trials) and the error of sigma0.
@@ -222,6 +222,8 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
         if key == "kinds":
             out["params"] = {"sigma0": res.sigma0, "alpha": res.alpha, "beta": res.beta,
                              "gamma": res.gamma, "accel_ratio": res.accel_ratio}
+            out["bristle"] = (res.refinement or {}).get("bristle", "identified")
+            out["sigma0_phase2a"] = res.phase2a[res._slowest].sigma0
     out["seconds"] = {"data": t1 - t0, "fits": time.perf_counter() - t1}
     out["truth"] = sigma0_truth(campaign_dir, joint)
     return out
@@ -236,7 +238,8 @@ def print_campaign(r: dict, title: str | None = None) -> None:
             print(f"    {kind:18s} n {e['n']:3d}  arctan {e['rms_arctan']:.3f}  dm2 {e['rms_dm2']:.3f}"
                   f"  ratio median {e['ratio_median']:.3f}  max {e['ratio_max']:.3f}")
     p = r["params"]
-    print("  dm2: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()))
+    print("  dm2: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items())
+          + f"; bristle: {r['bristle']} (phase 2-A sigma0 {r['sigma0_phase2a']:.4g})")
     t = r["truth"]
     if t is not None:
         print(f"  truth ({t['form']}): c {t['c']:.3g} N m, xp {t['xp']:.3g} rad; sigma0 error "
@@ -253,7 +256,8 @@ def sigma0_error(r: dict, key: str = "zero_deflection") -> float:
 
 # worlds of --worlds: (name, kind, arguments); "synth": jointlab synth, "foreign": make_world.py
 WORLDS = (
-    ("synth PA10 j5 presliding (LuGre) s3, 200 Hz", "synth", 3),
+    ("synth PA10 j5 presliding (LuGre) s3, 200 Hz", "synth", ("presliding", 3, "0.5,1.0")),
+    ("synth PA10 j5 none s3, 200 Hz", "synth", ("none", 3, "0.3,0.6,1.0")),
     ("foreign ind6 j3 presliding s2 (dahl)", "foreign", ("presliding", 2)),
     ("foreign ind6 j3 presliding s3 (maxwell_slip)", "foreign", ("presliding", 3)),
     ("foreign ind6 j3 none s2", "foreign", ("none", 2)),
@@ -275,11 +279,12 @@ def world_campaign(kind: str, arg, tmp: Path) -> Path:
     if kind == "synth":
         from ident.cli.main import main as cli
 
-        out = tmp / f"synth-s{arg}"
+        effect, seed, vmax = arg
+        out = tmp / f"synth-{effect}-s{seed}"
         if not (out / "campaign.toml").is_file():
-            rc = cli(["synth", str(out), "--effect", "presliding", "--seed", str(arg), "--kinds",
+            rc = cli(["synth", str(out), "--effect", effect, "--seed", str(seed), "--kinds",
                       "constant_velocity,reversals,excitation", "--reps", "1", "--loads", "0",
-                      "--vmax", "0.5,1.0", "--duration", "8", "--quiet"])
+                      "--vmax", vmax, "--duration", "8", "--quiet"])
             if rc != 0:
                 raise RuntimeError(f"jointlab synth failed ({rc})")
         return out
@@ -303,7 +308,7 @@ def run_worlds(quick: bool = False) -> list:
 
     out = []
     with tempfile.TemporaryDirectory() as td:
-        for name, kind, arg in WORLDS:                    # loop over worlds (four)
+        for name, kind, arg in WORLDS:                    # loop over worlds (five)
             try:
                 camp = world_campaign(kind, arg, Path(td))
             except RuntimeError as exc:
@@ -322,7 +327,7 @@ def run_worlds(quick: bool = False) -> list:
         cells = "  ".join(f"{kk[:5]} {k[kk]['ratio_median']:.3f}/{k[kk]['ratio_max']:.3f}"
                           for kk in ("constant_velocity", "reversals", "excitation", "all")
                           if kk in k)
-        s0 = ("" if r["truth"] is None else
+        s0 = (f"  bristle: {r['bristle']}" if r["truth"] is None else
               f"  sigma0 {sigma0_error(r):+.1f} % ({sigma0_error(r, 'c_over_xp'):+.1f} %)")
         print(f"  {name:46s} {cells}{s0}  [{r['cpu_s']:.1f} s CPU]")
     return out
