@@ -18,7 +18,7 @@ beside the campaign (``<campaign>.truth.json``) when its effect is presliding:
     python benchmarks/dynamic.py --worlds       # every world of WORLDS, then one summary table
 
 (``--quick``: repetition-1 trials only; ``--heldout``: fit on the odd repetitions, compare on
-the even ones.) ``--worlds`` runs jointlab's own synth (PA10 joint 5, LuGre presliding and no
+the even ones; ``--heldout load``: fit on the unloaded trials, compare on the loaded ones.) ``--worlds`` runs jointlab's own synth (PA10 joint 5, LuGre presliding and no
 effect, 200 Hz log, coarse encoder; written to a temporary folder) and the foreign world's ind6 joint 3
 campaigns of WORLDS (presliding in its Dahl and Maxwell-slip forms and an effect-free one;
 generated once into ``$JOINTLAB_CORPUS`` by ``benchmarks/_foreign.py``) and prints, per world,
@@ -171,20 +171,27 @@ def sigma0_truth(campaign_dir, joint: int) -> dict | None:
     return {"form": e["form"], "c": c, "xp": xp, "c_over_xp": c / xp, "zero_deflection": k0}
 
 
-def heldout_comparison(campaign_dir, joint: int | None = None) -> dict:
-    """Identification on the odd repetitions, DM2 vs arctan per trial kind on the even ones
-    (trials the fit never saw): ``{"joint", "train": kinds, "heldout": kinds}``."""
+def heldout_comparison(campaign_dir, joint: int | None = None, by: str = "rep") -> dict:
+    """Identification on part of the trials, DM2 vs arctan per trial kind on the rest (trials
+    the fit never saw): ``by="rep"``: fit on the odd repetitions, compare on the even ones;
+    ``by="load"``: fit on the unloaded trials, compare on the loaded ones (a campaign with one
+    repetition). Returns ``{"joint", "train": kinds, "heldout": kinds}``."""
     import dataclasses
 
     from ident.indri.campaign import DynamicFits, joint_dynamic_data
     from mocap.io.campaign import load_campaign
 
+    if by not in ("rep", "load"):
+        raise ValueError(f"heldout split by 'rep' or 'load', got {by!r}")
     camp = load_campaign(campaign_dir, check_files=False)
     if joint is None:
         joint = min(j for t in camp.trials for j in t.joints)
-    parts = {k: dataclasses.replace(camp, trials=tuple(t for t in camp.trials
-                                                       if t.repetition % 2 == r))
-             for k, r in (("train", 1), ("heldout", 0))}
+
+    def train(t):
+        return t.repetition % 2 == 1 if by == "rep" else t.load_kg == 0
+
+    parts = {k: dataclasses.replace(camp, trials=tuple(t for t in camp.trials if train(t) == r))
+             for k, r in (("train", True), ("heldout", False))}
     data = {k: joint_dynamic_data(c, joint) for k, c in parts.items()}
     d = data["train"]
     res = I.IndriTrapani().fit(d.static, d.reversals, d.variable,
@@ -339,8 +346,9 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--campaign", default=None, help="per-trial-kind DM2 vs arctan on a campaign")
     ap.add_argument("--joint", type=int, default=None)
-    ap.add_argument("--heldout", action="store_true",
-                    help="with --campaign: fit on odd repetitions, compare on even ones")
+    ap.add_argument("--heldout", nargs="?", const="rep", choices=("rep", "load"), default=None,
+                    help="with --campaign: fit on odd repetitions (or the unloaded trials: "
+                         "--heldout load), compare on the even ones (the loaded ones)")
     ap.add_argument("--worlds", action="store_true",
                     help="DM2 vs arctan per trial kind and sigma0 error on every world of WORLDS")
     args = ap.parse_args(argv)
@@ -348,7 +356,7 @@ def main(argv=None):
         run_worlds(args.quick)
         return
     if args.campaign and args.heldout:
-        r = heldout_comparison(args.campaign, args.joint)
+        r = heldout_comparison(args.campaign, args.joint, args.heldout)
         for k in ("train", "heldout"):
             print(f"  {k} trials: DM2 / arctan RMS per trial kind (median, max over trials)")
             for kind, e in r[k].items():
