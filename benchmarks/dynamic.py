@@ -69,16 +69,15 @@ def make_data(quick: bool, seed: int = 0):
 
 
 def loop_states(self, qd, dt):
-    """Drop-in for ``_LuGre.states``: the same coefficients, the recursion as a Python loop."""
+    """Drop-in for ``_LuGre.states`` (first-order hold, the models' default): the same
+    coefficients, the recursion as a Python loop."""
     v = np.asarray(qd, float)
     T = v.shape[0]
     steps = np.broadcast_to(np.asarray(dt, float), (max(T - 1, 0),))
-    Kv = self.static.Kv
-    vv = v[:-1]
-    a = self.sigma0 * s1(vv, Kv) / self.static.g(vv)
-    b = s0(vv, Kv) ** 2 * vv
-    x = a * steps
-    drive = steps * dyn._phi(x) * b
+    a, _, g = self._ab(v)
+    zss = self._zss(v, g)
+    x = 0.5 * steps * (a[:-1] + a[1:])
+    drive = -np.expm1(-x) * zss[:-1] + (zss[1:] - zss[:-1]) * (1.0 - dyn._phi(x))
     dec = np.exp(-x)
     z0 = float(self.steady_state(v[0])) if self.z0 is None else self.z0
     out = [0.0] * T
@@ -92,24 +91,30 @@ def loop_states(self, qd, dt):
 
 
 def naive_loop_states(self, qd, dt):
-    """Drop-in for ``_LuGre.states``: eq. 29-30 written sample by sample, as in the C export."""
+    """Drop-in for ``_LuGre.states``: the first-order-hold step written sample by sample, as
+    in the C export (no rest relaxation: rest_speed 0)."""
     v = np.asarray(qd, float).tolist()
     T = len(v)
     steps = np.broadcast_to(np.asarray(dt, float), (max(T - 1, 0),)).tolist()
     st = self.static
     Kv, ts, tsc, de, sg0 = st.Kv, st.tau_s, st.tau_sc, st.delta, self.sigma0
     c = 2.0 / math.pi
-    S = c * math.atan(Kv * v[0])
-    z = S * (ts + tsc * c * math.atan(S * v[0] * de)) / sg0 if self.z0 is None else self.z0
-    out = [z]
-    for k in range(T - 1):                                   # the per-sample loop
-        vk = v[k]
+
+    def coef(vk):
         S = c * math.atan(Kv * vk)
         g = ts + tsc * c * math.atan(S * vk * de)
-        x = sg0 * S * vk / g * steps[k]
+        return sg0 * S * vk / g, S * g / sg0                 # a, steady state
+
+    a0, zs0 = coef(v[0])
+    z = zs0 if self.z0 is None else self.z0
+    out = [z]
+    for k in range(T - 1):                                   # the per-sample loop
+        a1, zs1 = coef(v[k + 1])
+        x = 0.5 * steps[k] * (a0 + a1)
         phi = 1.0 - 0.5 * x if abs(x) < 1e-12 else -math.expm1(-x) / x
-        z = math.exp(-x) * z + steps[k] * phi * S * S * vk
+        z = math.exp(-x) * z - math.expm1(-x) * zs0 + (zs1 - zs0) * (1.0 - phi)
         out.append(z)
+        a0, zs0 = a1, zs1
     return np.array(out)
 
 
