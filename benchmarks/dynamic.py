@@ -14,7 +14,8 @@ Per trial kind, DM2 against the static arctan model on a campaign jointlab did n
 2-B, no phase 2-C) measured in the same run as the baseline, and sigma0 against the truth
 beside the campaign (``<campaign>.truth.json``) when its effect is presliding:
 
-    python benchmarks/dynamic.py --campaign $JOINTLAB_CORPUS/ind6-j3-presliding-m1-s2-r1-kecr [--quick]
+    python benchmarks/dynamic.py --campaign DIR [--quick]   # DIR e.g. \
+        $JOINTLAB_CORPUS/ind6-j3-presliding-m1-s2-r1-kecr
     python benchmarks/dynamic.py --worlds       # every world of WORLDS, then one summary table
 
 (``--quick``: repetition-1 trials only; ``--heldout``: fit on the odd repetitions, compare on
