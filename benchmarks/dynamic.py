@@ -14,16 +14,17 @@ Per trial kind, DM2 against the static arctan model on a campaign jointlab did n
 2-B, no phase 2-C) measured in the same run as the baseline, and sigma0 against the truth
 beside the campaign (``<campaign>.truth.json``) when its effect is presliding:
 
-    python benchmarks/dynamic.py --campaign DIR [--quick]   # DIR e.g. \
-        $JOINTLAB_CORPUS/ind6-j3-presliding-m1-s2-r1-kecr
+    python benchmarks/dynamic.py --campaign DIR [--quick] [--heldout [rep|load]]
     python benchmarks/dynamic.py --worlds       # every world of WORLDS, then one summary table
 
-(``--quick``: repetition-1 trials only; ``--heldout``: fit on the odd repetitions, compare on
-the even ones; ``--heldout load``: fit on the unloaded trials, compare on the loaded ones.) ``--worlds`` runs jointlab's own synth (PA10 joint 5, LuGre presliding and no
-effect, 200 Hz log, coarse encoder; written to a temporary folder) and the foreign world's ind6 joint 3
-campaigns of WORLDS (presliding in its Dahl and Maxwell-slip forms and an effect-free one;
-generated once into ``$JOINTLAB_CORPUS`` by ``benchmarks/_foreign.py``) and prints, per world,
-DM2 / arctan RMS per trial kind (median and max over the trials) and the error of sigma0.
+(DIR e.g. ``$JOINTLAB_CORPUS/ind6-j3-presliding-m1-s2-r1-kecr``; ``--quick``: repetition-1
+trials only; ``--heldout``: fit on the odd repetitions, compare on the even ones;
+``--heldout load``: fit on the unloaded trials, compare on the loaded ones.) ``--worlds`` runs
+jointlab's own synth (PA10 joint 5, LuGre presliding and no effect, 200 Hz log, coarse
+encoder; written to a temporary folder) and the foreign world's ind6 joint 3 campaigns of
+WORLDS (presliding in its Dahl and Maxwell-slip forms and an effect-free one; generated once
+into ``$JOINTLAB_CORPUS`` by ``benchmarks/_foreign.py``) and prints, per world, DM2 / arctan
+RMS per trial kind (median and max over the trials) and the error of sigma0.
 :func:`campaign_comparison` and :func:`heldout_comparison` return the numbers for other
 benchmarks.
 """
