@@ -14,11 +14,19 @@ Per trial kind, DM2 against the static arctan model on a campaign jointlab did n
 2-B, no phase 2-C) measured in the same run as the baseline, and sigma0 against the truth
 beside the campaign (``<campaign>.truth.json``) when its effect is presliding:
 
-    python benchmarks/dynamic.py --campaign ../corpus/foreign/ind6-j3-presliding-s3 [--quick]
+    python benchmarks/dynamic.py --campaign DIR [--quick] [--heldout [rep|load]]
+    python benchmarks/dynamic.py --worlds       # every world of WORLDS, then one summary table
 
-(``--quick``: repetition-1 trials only; ``--heldout``: fit on the odd repetitions, compare on
-the even ones.) :func:`campaign_comparison` and :func:`heldout_comparison` return the numbers
-for other benchmarks.
+(DIR e.g. ``$JOINTLAB_CORPUS/ind6-j3-presliding-m1-s2-r1-kecr``; ``--quick``: repetition-1
+trials only; ``--heldout``: fit on the odd repetitions, compare on the even ones;
+``--heldout load``: fit on the unloaded trials, compare on the loaded ones.) ``--worlds`` runs
+jointlab's own synth (PA10 joint 5, LuGre presliding and no effect, 200 Hz log, coarse
+encoder; written to a temporary folder) and the foreign world's ind6 joint 3 campaigns of
+WORLDS (presliding in its Dahl and Maxwell-slip forms and an effect-free one; generated once
+into ``$JOINTLAB_CORPUS`` by ``benchmarks/_foreign.py``) and prints, per world, DM2 / arctan
+RMS per trial kind (median and max over the trials) and the error of sigma0.
+:func:`campaign_comparison` and :func:`heldout_comparison` return the numbers for other
+benchmarks.
 """
 from __future__ import annotations
 
@@ -63,16 +71,15 @@ def make_data(quick: bool, seed: int = 0):
 
 
 def loop_states(self, qd, dt):
-    """Drop-in for ``_LuGre.states``: the same coefficients, the recursion as a Python loop."""
+    """Drop-in for ``_LuGre.states`` (first-order hold, the models' default): the same
+    coefficients, the recursion as a Python loop."""
     v = np.asarray(qd, float)
     T = v.shape[0]
     steps = np.broadcast_to(np.asarray(dt, float), (max(T - 1, 0),))
-    Kv = self.static.Kv
-    vv = v[:-1]
-    a = self.sigma0 * s1(vv, Kv) / self.static.g(vv)
-    b = s0(vv, Kv) ** 2 * vv
-    x = a * steps
-    drive = steps * dyn._phi(x) * b
+    a, _, g = self._ab(v)
+    zss = self._zss(v, g)
+    x = 0.5 * steps * (a[:-1] + a[1:])
+    drive = -np.expm1(-x) * zss[:-1] + (zss[1:] - zss[:-1]) * (1.0 - dyn._phi(x))
     dec = np.exp(-x)
     z0 = float(self.steady_state(v[0])) if self.z0 is None else self.z0
     out = [0.0] * T
@@ -86,24 +93,30 @@ def loop_states(self, qd, dt):
 
 
 def naive_loop_states(self, qd, dt):
-    """Drop-in for ``_LuGre.states``: eq. 29-30 written sample by sample, as in the C export."""
+    """Drop-in for ``_LuGre.states``: the first-order-hold step written sample by sample, as
+    in the C export (no rest relaxation: rest_speed 0)."""
     v = np.asarray(qd, float).tolist()
     T = len(v)
     steps = np.broadcast_to(np.asarray(dt, float), (max(T - 1, 0),)).tolist()
     st = self.static
     Kv, ts, tsc, de, sg0 = st.Kv, st.tau_s, st.tau_sc, st.delta, self.sigma0
     c = 2.0 / math.pi
-    S = c * math.atan(Kv * v[0])
-    z = S * (ts + tsc * c * math.atan(S * v[0] * de)) / sg0 if self.z0 is None else self.z0
-    out = [z]
-    for k in range(T - 1):                                   # the per-sample loop
-        vk = v[k]
+
+    def coef(vk):
         S = c * math.atan(Kv * vk)
         g = ts + tsc * c * math.atan(S * vk * de)
-        x = sg0 * S * vk / g * steps[k]
+        return sg0 * S * vk / g, S * g / sg0                 # a, steady state
+
+    a0, zs0 = coef(v[0])
+    z = zs0 if self.z0 is None else self.z0
+    out = [z]
+    for k in range(T - 1):                                   # the per-sample loop
+        a1, zs1 = coef(v[k + 1])
+        x = 0.5 * steps[k] * (a0 + a1)
         phi = 1.0 - 0.5 * x if abs(x) < 1e-12 else -math.expm1(-x) / x
-        z = math.exp(-x) * z + steps[k] * phi * S * S * vk
+        z = math.exp(-x) * z - math.expm1(-x) * zs0 + (zs1 - zs0) * (1.0 - phi)
         out.append(z)
+        a0, zs0 = a1, zs1
     return np.array(out)
 
 
@@ -120,13 +133,16 @@ def best_of(fn, n):
 
 
 def sigma0_truth(campaign_dir, joint: int) -> dict | None:
-    """Comparable bristle stiffnesses of a foreign-world truth whose effect is presliding
-    (None otherwise). The foreign forms scale the Coulomb level ``c`` by a presliding state
-    with a characteristic displacement ``xp``. LuGre's sigma0 is ``dF/dx`` at zero bristle
-    deflection (eq. 5: ``dz/dt = v`` at z = 0); the same slope of the foreign forms is
-    ``c/xp`` for Dahl (any exponent) and ``c sum w_k / X_k`` for Maxwell-slip (every element
-    stuck; ``X_k = xp`` times a log-uniform factor in [0.3, 3], so about 1.3 c/xp).
-    ``c_over_xp`` is the scale the task names, ``zero_deflection`` the matched slope."""
+    """Comparable bristle stiffnesses of a campaign's truth whose effect is presliding (None
+    otherwise), from ``<campaign>.truth.json``.
+
+    Foreign world: its forms scale the Coulomb level ``c`` by a presliding state with a
+    characteristic displacement ``xp``. LuGre's sigma0 is ``dF/dx`` at zero bristle deflection
+    (eq. 5: ``dz/dt = v`` at z = 0); the same slope of the foreign forms is ``c/xp`` for Dahl
+    (any exponent) and ``c sum w_k / X_k`` for Maxwell-slip (every element stuck; ``X_k = xp``
+    times a log-uniform factor in [0.3, 3], so about 1.3 c/xp). ``c_over_xp`` is the scale the
+    task names, ``zero_deflection`` the matched slope. jointlab synth: the plant's own LuGre
+    sigma0 (both keys)."""
     import json
     from pathlib import Path
 
@@ -134,6 +150,14 @@ def sigma0_truth(campaign_dir, joint: int) -> dict | None:
     if not p.is_file():
         return None
     doc = json.loads(p.read_text())
+    if isinstance(doc.get("effect"), dict):                       # jointlab synth
+        if doc["effect"].get("name") != "presliding":
+            return None
+        tj = doc["joints"][str(joint)]
+        s0 = float(tj["plant"]["sigma0"])
+        c = float(tj["plant"]["c_pos"])
+        return {"form": "lugre (jointlab synth)", "c": c, "xp": c / s0, "c_over_xp": s0,
+                "zero_deflection": s0}
     eff = [e for e in doc.get("effects", []) if e.get("effect") == "presliding"]
     if not eff:
         return None
@@ -154,20 +178,27 @@ def sigma0_truth(campaign_dir, joint: int) -> dict | None:
     return {"form": e["form"], "c": c, "xp": xp, "c_over_xp": c / xp, "zero_deflection": k0}
 
 
-def heldout_comparison(campaign_dir, joint: int | None = None) -> dict:
-    """Identification on the odd repetitions, DM2 vs arctan per trial kind on the even ones
-    (trials the fit never saw): ``{"joint", "train": kinds, "heldout": kinds}``."""
+def heldout_comparison(campaign_dir, joint: int | None = None, by: str = "rep") -> dict:
+    """Identification on part of the trials, DM2 vs arctan per trial kind on the rest (trials
+    the fit never saw): ``by="rep"``: fit on the odd repetitions, compare on the even ones;
+    ``by="load"``: fit on the unloaded trials, compare on the loaded ones (a campaign with one
+    repetition). Returns ``{"joint", "train": kinds, "heldout": kinds}``."""
     import dataclasses
 
     from ident.indri.campaign import DynamicFits, joint_dynamic_data
     from mocap.io.campaign import load_campaign
 
+    if by not in ("rep", "load"):
+        raise ValueError(f"heldout split by 'rep' or 'load', got {by!r}")
     camp = load_campaign(campaign_dir, check_files=False)
     if joint is None:
         joint = min(j for t in camp.trials for j in t.joints)
-    parts = {k: dataclasses.replace(camp, trials=tuple(t for t in camp.trials
-                                                       if t.repetition % 2 == r))
-             for k, r in (("train", 1), ("heldout", 0))}
+
+    def train(t):
+        return t.repetition % 2 == 1 if by == "rep" else t.load_kg == 0
+
+    parts = {k: dataclasses.replace(camp, trials=tuple(t for t in camp.trials if train(t) == r))
+             for k, r in (("train", True), ("heldout", False))}
     data = {k: joint_dynamic_data(c, joint) for k, c in parts.items()}
     d = data["train"]
     res = I.IndriTrapani().fit(d.static, d.reversals, d.variable,
@@ -205,13 +236,15 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
         if key == "kinds":
             out["params"] = {"sigma0": res.sigma0, "alpha": res.alpha, "beta": res.beta,
                              "gamma": res.gamma, "accel_ratio": res.accel_ratio}
+            out["bristle"] = (res.refinement or {}).get("bristle", "identified")
+            out["sigma0_phase2a"] = res.phase2a[res._slowest].sigma0
     out["seconds"] = {"data": t1 - t0, "fits": time.perf_counter() - t1}
     out["truth"] = sigma0_truth(campaign_dir, joint)
     return out
 
 
-def print_campaign(r: dict) -> None:
-    print(f"campaign comparison, joint {r['joint']}, {r['n_trials']} trials "
+def print_campaign(r: dict, title: str | None = None) -> None:
+    print(f"{title or 'campaign comparison'}: joint {r['joint']}, {r['n_trials']} trials "
           f"(data {r['seconds']['data']:.1f} s, fits {r['seconds']['fits']:.1f} s)")
     for key, name in (("kinds", "jointlab (2-A, 2-B, 2-C)"), ("paper_kinds", "paper (2-A, 2-B)")):
         print(f"  {name}: DM2 / arctan RMS per trial kind (median, max over trials)")
@@ -219,12 +252,99 @@ def print_campaign(r: dict) -> None:
             print(f"    {kind:18s} n {e['n']:3d}  arctan {e['rms_arctan']:.3f}  dm2 {e['rms_dm2']:.3f}"
                   f"  ratio median {e['ratio_median']:.3f}  max {e['ratio_max']:.3f}")
     p = r["params"]
-    print("  dm2: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()))
+    print("  dm2: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items())
+          + f"; bristle: {r['bristle']} (phase 2-A sigma0 {r['sigma0_phase2a']:.4g})")
     t = r["truth"]
     if t is not None:
-        print(f"  truth ({t['form']}): c {t['c']:.3g} N m, xp {t['xp']:.3g} rad; sigma0 / (c/xp) "
-              f"{p['sigma0'] / t['c_over_xp']:.3f}; sigma0 / zero-deflection stiffness "
-              f"{t['zero_deflection']:.4g}: {p['sigma0'] / t['zero_deflection']:.3f}")
+        print(f"  truth ({t['form']}): c {t['c']:.3g} N m, xp {t['xp']:.3g} rad; sigma0 error "
+              f"{sigma0_error(r, 'zero_deflection'):+.1f} % of the zero-deflection stiffness "
+              f"{t['zero_deflection']:.4g}, {sigma0_error(r, 'c_over_xp'):+.1f} % of c/xp "
+              f"{t['c_over_xp']:.4g}")
+
+
+def sigma0_error(r: dict, key: str = "zero_deflection") -> float:
+    """sigma0 against the truth's ``key`` stiffness, percent (nan without a presliding truth)."""
+    t = r.get("truth")
+    return float("nan") if t is None else 100.0 * (r["params"]["sigma0"] / t[key] - 1.0)
+
+
+# worlds of --worlds: (name, kind, arguments); "synth": jointlab synth, "foreign": make_world.py
+WORLDS = (
+    ("synth PA10 j5 presliding (LuGre) s3, 200 Hz", "synth", ("presliding", 3, "0.5,1.0")),
+    ("synth PA10 j5 none s3, 200 Hz", "synth", ("none", 3, "0.3,0.6,1.0")),
+    ("foreign ind6 j3 presliding s2 (dahl)", "foreign", ("presliding", 2)),
+    ("foreign ind6 j3 presliding s3 (maxwell_slip)", "foreign", ("presliding", 3)),
+    ("foreign ind6 j3 none s2", "foreign", ("none", 2)),
+)
+
+
+def foreign_world_dir():
+    """../shared/worlds/foreign beside this checkout (or beside a parent folder of it)."""
+    for p in Path(__file__).resolve().parents:
+        w = p / "shared" / "worlds" / "foreign"
+        if (w / "make_world.py").is_file():
+            return w
+    return None
+
+
+def world_campaign(kind: str, arg, tmp: Path) -> Path:
+    """The campaign folder of one WORLDS entry: jointlab synth into ``tmp`` (the fixture of
+    tests/test_fit_dynamic.py), the foreign world through the shared cache."""
+    if kind == "synth":
+        from ident.cli.main import main as cli
+
+        effect, seed, vmax = arg
+        out = tmp / f"synth-{effect}-s{seed}"
+        if not (out / "campaign.toml").is_file():
+            rc = cli(["synth", str(out), "--effect", effect, "--seed", str(seed), "--kinds",
+                      "constant_velocity,reversals,excitation", "--reps", "1", "--loads", "0",
+                      "--vmax", vmax, "--duration", "8", "--quiet"])
+            if rc != 0:
+                raise RuntimeError(f"jointlab synth failed ({rc})")
+        return out
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _foreign import WorldArgs, ensure_campaign
+
+    world = foreign_world_dir()
+    if world is None:
+        raise RuntimeError("the foreign world (shared/worlds/foreign) was not found")
+    effect, seed = arg
+    camp, _ = ensure_campaign(WorldArgs(effect, seed, reps=1,
+                                        kinds="excitation,constant_velocity,reversals"),
+                              world=world)
+    return camp
+
+
+def run_worlds(quick: bool = False) -> list:
+    """Every world of WORLDS through :func:`campaign_comparison`; prints each and a summary.
+    Returns [(name, result)]."""
+    import tempfile
+
+    out = []
+    with tempfile.TemporaryDirectory() as td:
+        for name, kind, arg in WORLDS:                    # loop over worlds (five)
+            try:
+                camp = world_campaign(kind, arg, Path(td))
+            except RuntimeError as exc:
+                print(f"{name}: skipped ({exc})")
+                continue
+            t0 = time.process_time()
+            r = campaign_comparison(camp, quick=quick)
+            r["cpu_s"] = time.process_time() - t0
+            print_campaign(r, title=name)
+            out.append((name, r))
+    print("\nsummary: DM2 / arctan RMS per trial (jointlab's procedure), median / max over the "
+          "trials of each kind; sigma0 error against the truth's zero-deflection stiffness "
+          "(c/xp in brackets)")
+    for name, r in out:
+        k = r["kinds"]
+        cells = "  ".join(f"{kk[:5]} {k[kk]['ratio_median']:.3f}/{k[kk]['ratio_max']:.3f}"
+                          for kk in ("constant_velocity", "reversals", "excitation", "all")
+                          if kk in k)
+        s0 = (f"  bristle: {r['bristle']}" if r["truth"] is None else
+              f"  sigma0 {sigma0_error(r):+.1f} % ({sigma0_error(r, 'c_over_xp'):+.1f} %)")
+        print(f"  {name:46s} {cells}{s0}  [{r['cpu_s']:.1f} s CPU]")
+    return out
 
 
 def main(argv=None):
@@ -233,11 +353,17 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--campaign", default=None, help="per-trial-kind DM2 vs arctan on a campaign")
     ap.add_argument("--joint", type=int, default=None)
-    ap.add_argument("--heldout", action="store_true",
-                    help="with --campaign: fit on odd repetitions, compare on even ones")
+    ap.add_argument("--heldout", nargs="?", const="rep", choices=("rep", "load"), default=None,
+                    help="with --campaign: fit on odd repetitions (or the unloaded trials: "
+                         "--heldout load), compare on the even ones (the loaded ones)")
+    ap.add_argument("--worlds", action="store_true",
+                    help="DM2 vs arctan per trial kind and sigma0 error on every world of WORLDS")
     args = ap.parse_args(argv)
+    if args.worlds:
+        run_worlds(args.quick)
+        return
     if args.campaign and args.heldout:
-        r = heldout_comparison(args.campaign, args.joint)
+        r = heldout_comparison(args.campaign, args.joint, args.heldout)
         for k in ("train", "heldout"):
             print(f"  {k} trials: DM2 / arctan RMS per trial kind (median, max over trials)")
             for kind, e in r[k].items():

@@ -90,19 +90,106 @@ def test_parameters_against_the_truth(fitted):
 
 
 def test_dm2_against_the_static_model(fitted):
-    """Issue 13: DM2 against the static arctan model per trial. On this campaign (jointlab's
-    own LuGre plant, 200 Hz log, a coarse 1.9e-4 rad encoder) DM2 is far better on the
-    constant-velocity and reversal trials (measured 0.33-0.53 of arctan's RMS) and on the
-    median trial, but on the fast excitation trial (v100, Fourier-smoothed) it is 1.26x arctan
-    (DM1 1.01x): a known limitation, see the report of issue 13; the foreign-world campaigns
-    (benchmarks/dynamic.py --campaign) meet the 10 % bound on every trial."""
+    """Issue 13: DM2 is never more than 10 % worse than the static arctan model on any trial and
+    better on the median one. On this campaign (jointlab's own LuGre plant, 200 Hz log, a coarse
+    1.9e-4 rad encoder) measured: 0.23-0.42 of arctan's RMS on the constant-velocity and
+    reversal trials, 0.27 and 0.57 on the two excitation trials, median 0.36. Before the fix of
+    phase 2-C (its best grid point was solved with the states of another one: alpha = beta = 0)
+    the fast excitation trial, whose motor velocity jumps at each reversal faster than the
+    200 Hz derivative follows, was at 1.26x: the damping of eq. 24 compensates that lag."""
     _, _, fits, _ = fitted
     ratios = {tid: e["5"]["dm2"]["rms"] / e["5"]["arctan"]["rms"]
               for tid, e in fits["trials"].items() if "5" in e and "dm2" in e["5"]}
     assert len(ratios) == 6
-    assert np.median(list(ratios.values())) < 0.6, ratios
-    assert all(r < 0.7 for tid, r in ratios.items() if "-cvel-" in tid or "-rev-" in tid), ratios
-    assert max(ratios.values()) < 1.4, ratios
+    assert np.median(list(ratios.values())) < 0.5, ratios
+    assert all(r < 0.6 for tid, r in ratios.items() if "-cvel-" in tid or "-rev-" in tid), ratios
+    assert max(ratios.values()) <= 1.10, ratios
+    assert max(ratios.values()) < 0.9, ratios
+
+
+def test_dm2_reduces_to_the_static_model_without_presliding(tmp_path):
+    """Issue 13, the other side: a jointlab synth campaign with no effect (friction Coulomb +
+    viscous, 200 Hz log, coarse encoder, speeds 0.3/0.6/1.0). Phase 2-A still returns a
+    finite sigma0 (~9e5 N m/rad: its slowest data set cannot tell a stiff bristle from none),
+    whose plain bristle was 1.9x the static model on an excitation trial; phase 2-C falls back
+    to the bristle's static limit, and DM2 is then within 5 % of arctan on every trial
+    (measured: 1.000-1.001; before, 2.33x on the v60 excitation trial)."""
+    c = tmp_path / "c"
+    assert main(["synth", str(c), "--effect", "none", "--seed", "3", "--kinds",
+                 "constant_velocity,reversals,excitation", "--reps", "1", "--loads", "0",
+                 "--vmax", "0.3,0.6,1.0", "--duration", "8", "--quiet"]) == 0
+    res = fit_campaign_dynamic(load_campaign(c, check_files=False), joints=[5])
+    cmp = res.compare_by_kind(5)
+    ratios = {tid: a / b for tid, (a, b) in cmp["all"]["trials"].items()}
+    assert len(ratios) == 9
+    assert max(ratios.values()) <= 1.05, ratios
+    ref = res[5].refinement
+    assert ref["bristle"] == "static limit" and ref["alpha"] == ref["beta"] == 0.0
+    assert res[5].sigma0 > 1e3 * ref["phase2b"]["sigma0"]          # phase 2-A: ~9e5
+    assert res.fits_json()["joints"]["5"]["models"]["dm2"]["stderr"]["sigma0"] is None
+
+
+def _foreign_module():
+    """benchmarks/_foreign.py (campaign cache of the independent foreign world) and the world's
+    folder (../shared/worlds/foreign beside this checkout or a parent of it), or None."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    here = Path(__file__).resolve()
+    world = next((p / "shared" / "worlds" / "foreign" for p in here.parents
+                  if (p / "shared" / "worlds" / "foreign" / "make_world.py").is_file()), None)
+    if world is None:
+        return None, None
+    spec = importlib.util.spec_from_file_location("jointlab_bench_foreign",
+                                                  here.parents[1] / "benchmarks" / "_foreign.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod, world
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", ["presliding", "none"])
+def test_dm2_on_the_foreign_world(effect, tmp_path_factory):
+    """Issue 13 on a campaign jointlab did not write (../shared/worlds/foreign, ind6 joint 3,
+    seed 2: Dahl presliding, or no effect; constant-velocity, reversal and excitation trials,
+    2 loads x 3 speeds, 500 Hz log): DM2 is never more than 10 % worse than the static arctan
+    model and better on the median trial; with presliding sigma0 is within 35 % of the Dahl
+    stiffness c/xp of the truth. Measured: presliding median 0.17, max 0.27, sigma0 -17 %;
+    none median 0.94, max 0.97. The campaigns are generated once (30-60 s each) into
+    $JOINTLAB_CORPUS when set."""
+    import os
+    from pathlib import Path
+
+    F, world = _foreign_module()
+    if F is None:
+        pytest.skip("foreign world (shared/worlds/foreign) not found")
+    env = os.environ.get("JOINTLAB_CORPUS")
+    cache = Path(env) if env else tmp_path_factory.mktemp("foreign-dm2")
+    args = F.WorldArgs(effect, 2, reps=1, kinds="excitation,constant_velocity,reversals")
+    camp, _ = F.ensure_campaign(args, cache, world=world, nice=0)
+    truth = json.loads(camp.with_name(camp.name + ".truth.json").read_text())
+    res = fit_campaign_dynamic(load_campaign(camp, check_files=False), joints=[3])
+    cmp = res.compare_by_kind(3)
+    ratios = {tid: a / b for tid, (a, b) in cmp["all"]["trials"].items()}
+    assert len(ratios) == 18
+    assert set(cmp) == {"constant_velocity", "reversals", "excitation", "all"}
+    assert max(ratios.values()) <= 1.10, ratios
+    assert np.median(list(ratios.values())) < 1.0, ratios
+    sigma0 = res[3].sigma0
+    if effect == "presliding":
+        eff = truth["effects"][0]
+        assert eff["form"] == "dahl"
+        c = truth["joints"][2]["coulomb"]
+        xp = eff["per_joint"]["xp"][2]
+        assert sigma0 == pytest.approx(c / xp, rel=0.35)
+        assert np.median(list(ratios.values())) < 0.4, ratios     # the bristles are captured
+    else:
+        # no presliding in the plant: a bristle far stiffer than any presliding (steady
+        # deflection g/sigma0 below one encoder count), i.e. DM2 near the static model
+        g = res[3].static.model.g(np.array([0.0]))[0]
+        assert g / sigma0 < truth["joints"][2]["encoder_resolution"]
 
 
 def _cc():
@@ -140,7 +227,10 @@ def test_exported_c_compiles_and_reproduces_dm2(fitted, camp):
 
     e = fits["joints"]["5"]["models"]["dm2"]
     st = e["settings"]["static"]["params"]
-    model = LuGreDM2(static=Arctan(**st), accel_ratio=e["settings"]["accel_ratio"], **e["params"])
+    model = LuGreDM2(static=Arctan(**st), accel_ratio=e["settings"]["accel_ratio"],
+                     accel_floor=e["settings"]["accel_floor"],
+                     rest_speed=e["settings"]["rest_speed"], **e["params"])
+    assert e["params"]["alpha"] > 0                       # the acceleration term is exercised
     dt = fits["joints"]["5"]["dt"]
     t, qd, qdd = I.piecewise_linear_velocity(*I.reversal_knots(5.0, 1.0, 2, 0.2), dt)
     qd, qdd = np.ascontiguousarray(qd), np.ascontiguousarray(qdd)

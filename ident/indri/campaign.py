@@ -23,8 +23,10 @@ joints are left out with a note: the residual of eq. 25-26 is built for one movi
    from the fastest data set, gamma by prediction error on the ``excitation`` trials (joined
    end to end; each starts and ends at rest, so the bristle state is near zero at the joins);
 5. **phase 2-C** (jointlab's addition, :meth:`ident.indri.framework.IndriTrapani.refine_damping`):
-   alpha, beta >= 0 and gamma again, by prediction error over every trial used (each trial
-   its own state scan), so that eq. 24's damping is kept only where it lowers the error.
+   alpha, beta >= 0, gamma, the floor and the standstill relaxation again, by prediction error
+   over every trial used (each trial its own state scan, each weighted by its static-model
+   residual), with no trial left more than 5 % worse than the static model, and with the
+   bristle's static limit as the fallback where the data do not support the bristle.
 
 What each model needs (an :class:`mocap.io.errors.InputError` names what is missing):
 ``arctan``: constant_velocity trials; ``dm1``: also reversals trials; ``dm2``: also reversals

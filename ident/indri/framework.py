@@ -17,9 +17,10 @@ Pieces, in the order of the paper:
   DM1 (the paper's eq. 11 damping) is fitted by prediction error on the slowest data set;
 * phase 2-C (jointlab's addition, :meth:`IndriTrapani.refine_damping`): eq. 24's alpha, beta
   (>= 0), gamma, its acceleration floor and the bristle's standstill relaxation by prediction
-  error over every trial at once, so that the identified ``f_sigma1(v, a)`` never adds
-  residual where the trend of phase 2-B (i) was not measured (DM2 then reduces to the static
-  model wherever the data show no bristle dynamics);
+  error over every trial at once, each trial counting by its RMS ratio to the static model;
+  the damping is shrunk so that no trial ends more than 5 % worse than the static model, and
+  the bristle's static limit (sigma0 -> infinity, no damping) is a candidate too, so DM2
+  reduces to the static model wherever the data do not support the bristle dynamics;
 * performance indices RMS, M, IN of ``tau_res - tau_f`` and the relative errors Err% of
   Tables I-II, as CSV and Markdown; the torque time histories of Figures 2, 4 and 5 (PNG and
   through a :class:`viz.sink.Sink`);
@@ -447,7 +448,9 @@ class IndriResult:
     def fits_json(self) -> dict:
         """fits.json entries of one joint (FORMAT.md): ``{"arctan": ..., "dm1": ..., "dm2": ...}``."""
         dm2 = {"params": self.dm2.params,
-               "stderr": {"sigma0": self.phase2a[self._slowest].fit.stderr["sigma0"],
+               "stderr": {"sigma0": (self.phase2a[self._slowest].fit.stderr["sigma0"]
+                                     if self.sigma0 == self.phase2a[self._slowest].sigma0
+                                     else None),
                           "alpha": (self.diagnostics.get("alpha_stderr") if self.refinement is None
                                     else None),
                           "beta": (self.diagnostics.get("beta_stderr") if self.refinement is None
@@ -649,39 +652,79 @@ class IndriTrapani:
     def refine_damping(self, static: Arctan, sigma0: float, ratio: float, datasets,
                        counter: _Counter | None = None, rest_times=(np.inf, 0.3, 0.03, 0.003),
                        floor_fracs=(0.0, 0.003, 0.01, 0.03, 0.1),
-                       n_gamma: int = 9) -> dict:
+                       n_gamma: int = 9, max_ratio: float = 1.05,
+                       static_limit_deflection: float = 1e-9) -> dict:
         """Phase 2-C, jointlab's addition to sec. III-B: alpha, beta >= 0 and gamma of eq. 24,
-        the acceleration floor of eq. 24's root and the standstill relaxation of the bristle
-        (:mod:`ident.friction.dynamic`, ``rest_speed``) by prediction error over every data
-        set at once (each with its own state scan, so no state crosses a join); sigma0 and
-        ``a_max/v_max`` stay the paper's.
+        the acceleration floor of eq. 24's root, the standstill relaxation of the bristle
+        (:mod:`ident.friction.dynamic`, ``rest_speed``) and whether the data support the
+        bristle at all, by prediction error over every data set (each with its own state
+        scan, so no state crosses a join); ``a_max/v_max`` stays the paper's.
 
         Why: phase 2-B (i) fits eq. 23 to the sigma1 values of phase 2-A, each identified where
         one acceleration dominates; nothing checks what ``f_sigma1(v, a)`` then does elsewhere,
         e.g. at constant low speed or at standstill, where ``alpha / sqrt(gamma (r v)^2 + a^2)``
-        has no bound but the floor; and eq. 5 freezes the bristle at standstill, which holds
+        has no bound but the floor; eq. 5 freezes the bristle at standstill, which holds
         +-g where the joint's friction may relax (measured on an independent simulator: DM2
-        up to 40 % worse than the static model on some trial kinds, 2-4x over the rests).
+        up to 40 % worse than the static model on some trial kinds, 2-4x over the rests); and
+        on a joint without presliding phase 2-A still returns a finite sigma0 (its slowest
+        data set cannot tell a stiff bristle from none), whose lag at the velocity reversals
+        of fast trials made DM2 up to 1.9x worse than the static model (jointlab synth, no
+        effect, 200 Hz).
 
-        Grid: the standstill relaxation time ``g(0)/(sigma0 rest_speed)`` over ``rest_times``
-        (s; inf: rest_speed 0, the paper's eq. 5), the floor over ``floor_fracs`` of
-        ``a_max`` (0: the 1e-6 numerical floor), gamma over ``n_gamma`` log points of the estimator's range. For each
-        the torque is linear in (alpha, beta), so the non-negative least squares over the
-        pooled 2x2 normal equations is exact (its four active sets enumerated); alpha = beta = 0
-        is always a candidate, so damping is kept only where it lowers the pooled error. The
-        best gamma is refined by a bounded 1-D search. Returns ``{"alpha", "beta", "gamma",
-        "accel_floor", "rest_speed", "rms", "rms_no_damping", "n", ...}``.
+        Objective: the sum over the data sets of ``rho_k^2 = RSS_k(DM2) / RSS_k(static)``,
+        the squared ratio of each data set's residual RMS to the static model's (step 1's
+        arctan on the same data), so each data set counts by how much DM2 improves on the
+        static model there, not by its length or residual level (with the pooled RSS, long
+        trials with large residuals at rest chose a relaxation that bends the low-speed steady
+        curve by ``S1/(S1 + rest_speed)`` and doubled the error of excitation trials whose
+        static residual is at the noise level).
+
+        Candidates: sigma0 of phase 2-A (the paper's) with the grid below, and the bristle's
+        static limit (sigma0 = max g / ``static_limit_deflection``: with the first-order hold
+        DM2 is then the static curve ``S0(v) g(v) + tau_fv(v)`` sample by sample), undamped
+        and unrelaxed, plus the damping fit. Constraint: no data set may end above
+        ``cap_k = max(max_ratio, rho_k(static limit))``; the damping found by the weighted
+        least squares, ``(alpha, beta)``, is scaled by the largest ``s`` in [0, 1] that meets
+        every bound (each ``rho_k^2(s)`` is a quadratic in s), and a candidate that meets it
+        at no s is dropped. The static limit without damping always meets it, so DM2 falls
+        back to the static model where the data do not support the dynamics, and is never
+        more than ``max_ratio`` times worse than it on any data set used here.
+
+        Grid (phase 2-A's sigma0): the standstill relaxation time ``g(0)/(sigma0 rest_speed)``
+        over ``rest_times`` (s; inf: rest_speed 0, the paper's eq. 5), the floor over
+        ``floor_fracs`` of ``a_max`` (0: the 1e-6 numerical floor), gamma over ``n_gamma`` log
+        points of the estimator's range. For each the torque is linear in (alpha, beta), so
+        the non-negative least squares over the weighted 2x2 normal equations is exact (its
+        four active sets enumerated); alpha = beta = 0 is always a candidate. The best gamma is
+        refined by a bounded 1-D search. Returns ``{"sigma0", "bristle" ("identified" or
+        "static limit"), "alpha", "beta", "gamma", "accel_floor", "rest_speed", "rest_time",
+        "shrink", "ratio_rms", "ratio_rms_no_damping" (quadratic mean of rho_k over the data
+        sets, with and without the damping), "ratios" (rho_k), "ratios_identified" (the best
+        admissible candidate with phase 2-A's sigma0, None if none is), "ratios_static_limit",
+        "rms", "rms_no_damping", "rms_static" (pooled, N m), "n", "n_datasets", "grid"}``.
         """
         counter = counter or _Counter()
         datasets = list(datasets)
+        K = len(datasets)
         g0 = float(static.g(np.array([0.0]))[0])
-        a_max = ratio * max(float(np.max(np.abs(d.qd))) for d in datasets)
+        vmax = max(float(np.max(np.abs(d.qd))) for d in datasets)
+        a_max = ratio * vmax
         floors = [1e-6 if f == 0 else f * a_max for f in floor_fracs]
         v = np.concatenate([np.asarray(d.qd, float) for d in datasets])
         acc = np.concatenate([np.asarray(d.qdd, float) for d in datasets])
         tau = np.concatenate([np.asarray(d.tau, float) for d in datasets])
         rv2 = (ratio * v) ** 2
+        starts = np.cumsum([0] + [d.n for d in datasets[:-1]])
+        # per-sample weights: 1 / RSS of the static model on the sample's data set
+        rss_st = np.array([float(np.sum((np.asarray(d.tau, float)
+                                         - static.torque(np.asarray(d.qd, float))) ** 2))
+                           for d in datasets])
+        rss_st = np.maximum(rss_st, 1e-12 * max(float(rss_st.max()), 1e-300))
+        sw = np.repeat(1.0 / np.sqrt(rss_st), [d.n for d in datasets])
         lgrid = np.linspace(np.log(self.gamma_range[0]), np.log(self.gamma_range[1]), n_gamma)
+
+        def seg(x):
+            return np.add.reduceat(x, starts)
 
         def nnls2(G, h, yy):
             cands = [np.zeros(2)]
@@ -696,51 +739,117 @@ class IndriTrapani:
             except np.linalg.LinAlgError:
                 pass
             rss = [yy - 2 * th @ h + th @ G @ th for th in cands]
-            k = int(np.argmin(rss))
-            return max(float(rss[k]), 0.0), cands[k]
+            return cands[int(np.argmin(rss))]
 
-        best, table = None, []
-        for t_rest in rest_times:                            # loop over the grid (~25 points)
-            vr = 0.0 if not np.isfinite(t_rest) else g0 / (sigma0 * t_rest)
-            base = LuGreDM2(static=static, accel_ratio=ratio, sigma0=sigma0, alpha=0.0,
-                            beta=0.0, gamma=1.0, rest_speed=vr)
+        def largest_shrink(a, b, c):
+            """Largest s in [0, 1] with a s^2 - 2 b s + c <= 0 for every k (a >= 0), or None."""
+            lo, hi = 0.0, 1.0
+            for ak, bk, ck in zip(a, b, c):                  # loop over data sets (tens)
+                if ak <= 1e-15 * max(abs(bk), abs(ck), 1e-300):
+                    if bk > 0:
+                        lo = max(lo, ck / (2 * bk))
+                    elif ck > 0:
+                        return None
+                    continue
+                disc = bk * bk - ak * ck
+                if disc < 0:
+                    return None
+                r = np.sqrt(disc)
+                lo, hi = max(lo, (bk - r) / ak), min(hi, (bk + r) / ak)
+            return hi if lo <= hi else None
+
+        def states(s0, t_rest):
+            vr = 0.0 if not np.isfinite(t_rest) else g0 / (s0 * t_rest)
+            bm = LuGreDM2(static=static, accel_ratio=ratio, sigma0=s0, alpha=0.0,
+                          beta=0.0, gamma=1.0, rest_speed=vr)
             zs, zds = [], []
             for d in datasets:                               # loop over data sets (tens)
                 qd = np.asarray(d.qd, float)
-                z = base.states(qd, d.dt)
-                a, b, _ = base._ab(qd)
+                z = bm.states(qd, d.dt)
+                a, b, _ = bm._ab(qd)
                 zs.append(z)
                 zds.append(b - a * z)
                 counter.n += 1
                 counter.samples += qd.size
             z, zdot = np.concatenate(zs), np.concatenate(zds)
-            y = tau - sigma0 * z - static.viscous(v)
-            yy, h2, g22 = float(y @ y), float(zdot @ y), float(zdot @ zdot)
-            for fl in floors:
+            return vr, zdot, tau - s0 * z - static.viscous(v)
 
-                def solve(gamma, fl=fl):
-                    c1 = zdot / np.sqrt(gamma * rv2 + acc ** 2 + fl ** 2)
-                    G = np.array([[c1 @ c1, c1 @ zdot], [c1 @ zdot, g22]])
-                    return nnls2(G, np.array([c1 @ y, h2]), yy)
+        def make_solve(fl, zdot, y, cap2):
+            """The constrained, weighted fit of (alpha, beta) at one (sigma0, rest time, floor)
+            as a function of gamma: (objective, (alpha, beta), shrink, rho_k^2); everything it
+            needs bound here (it is called again after the grid loops)."""
+            zw, yw = sw * zdot, sw * y
+            yyk, h2k, g22k = seg(yw * yw), seg(zw * yw), seg(zw * zw)
 
-                sols = [solve(float(np.exp(u)))[0] for u in lgrid]
-                i = int(np.argmin(sols))
-                table.append((t_rest, fl, float(np.exp(lgrid[i])), sols[i], yy))
-                if best is None or sols[i] < best[0]:
-                    best = (sols[i], t_rest, vr, fl, i, solve, yy)
-        _, t_rest, vr, fl, i, solve, yy = best
-        lo, hi = lgrid[max(i - 1, 0)], lgrid[min(i + 1, lgrid.size - 1)]
-        res = minimize_scalar(lambda u: solve(float(np.exp(u)))[0], bounds=(lo, hi),
-                              method="bounded", options={"xatol": 1e-4})
-        lg = float(res.x) if res.fun <= best[0] else float(lgrid[i])
-        rss, (alpha, beta) = solve(float(np.exp(lg)))
-        n = max(int(tau.size), 1)
-        return {"alpha": float(alpha), "beta": float(beta), "gamma": float(np.exp(lg)),
-                "accel_floor": float(fl), "rest_speed": float(vr), "rest_time": float(t_rest),
-                "rms": float(np.sqrt(rss / n)), "rms_no_damping": float(np.sqrt(yy / n)),
-                "n": int(tau.size), "n_datasets": len(datasets),
-                "grid": [{"rest_time": r, "accel_floor": f, "gamma": g, "rms": float(np.sqrt(q / n)),
-                          "rms_no_damping": float(np.sqrt(w / n))} for r, f, g, q, w in table]}
+            def solve(gamma):
+                c1 = zw / np.sqrt(gamma * rv2 + acc ** 2 + fl ** 2)
+                g11k, g12k, h1k = seg(c1 * c1), seg(c1 * zw), seg(c1 * yw)
+                G = np.array([[g11k.sum(), g12k.sum()], [g12k.sum(), g22k.sum()]])
+                th = nnls2(G, np.array([h1k.sum(), h2k.sum()]), yyk.sum())
+                a = th[0] ** 2 * g11k + 2 * th[0] * th[1] * g12k + th[1] ** 2 * g22k
+                b = th[0] * h1k + th[1] * h2k
+                s = largest_shrink(a, b, yyk - cap2)
+                if s is None:
+                    return np.inf, (0.0, 0.0), 0.0, yyk
+                q = yyk - 2 * s * b + s * s * a
+                return float(q.sum()), (float(s * th[0]), float(s * th[1])), float(s), q
+            return solve, yyk
+
+        # the static limit first: its ratios set the bound of every candidate, and it is the
+        # fallback (no damping: zdot of a stiff bristle is numerical, not a bristle velocity)
+        s_lim = float(np.max(static.g(np.array([0.0, vmax])))) / static_limit_deflection
+        _, zdot_l, y_l = states(s_lim, np.inf)
+        q_lim = seg((sw * y_l) ** 2)
+        ratios_lim = np.sqrt(q_lim)
+        cap2 = np.maximum(max_ratio, ratios_lim) ** 2 * (1.0 + 1e-9)
+        best = (float(q_lim.sum()), "static limit", s_lim, np.inf, 0.0, 1e-6, 1.0, (0.0, 0.0),
+                0.0, q_lim, q_lim, zdot_l, y_l)
+        table, ident = [], None
+        if sigma0 < s_lim:                                   # phase 2-A's sigma0 and the grid
+            cb = None
+            for t_rest in rest_times:                        # loop over the grid (~25 points)
+                vr, zdot, y = states(float(sigma0), t_rest)
+                for fl in floors:
+                    solve, yyk = make_solve(fl, zdot, y, cap2)
+                    sols = [solve(float(np.exp(u)))[0] for u in lgrid]
+                    i = int(np.argmin(sols))
+                    table.append((t_rest, fl, float(np.exp(lgrid[i])), sols[i], float(yyk.sum())))
+                    if np.isfinite(sols[i]) and (cb is None or sols[i] < cb[0]):
+                        cb = (sols[i], t_rest, vr, fl, i, solve, yyk, zdot, y)
+            if cb is not None:
+                _, t_rest, vr, fl, i, solve, yyk, zdot, y = cb
+                lo, hi = lgrid[max(i - 1, 0)], lgrid[min(i + 1, lgrid.size - 1)]
+                pen = 1e30 * max(K, 1)                       # finite: the search subtracts values
+
+                def f(u):
+                    o = solve(float(np.exp(u)))[0]
+                    return o if np.isfinite(o) else pen
+                res = minimize_scalar(f, bounds=(lo, hi), method="bounded",
+                                      options={"xatol": 1e-4})
+                lg = float(res.x) if res.fun <= cb[0] else float(lgrid[i])
+                obj, th, shrink, q = solve(float(np.exp(lg)))
+                ident = np.sqrt(np.maximum(q, 0.0)).tolist()
+                if obj < best[0]:
+                    best = (obj, "identified", float(sigma0), t_rest, vr, fl, float(np.exp(lg)),
+                            th, shrink, q, yyk, zdot, y)
+        obj, name, s0, t_rest, vr, fl, gamma, (alpha, beta), shrink, q, yyk, zdot, y = best
+        r = y - (alpha / np.sqrt(gamma * rv2 + acc ** 2 + fl ** 2) + beta) * zdot
+        k = max(K, 1)
+        return {"sigma0": float(s0), "bristle": name, "alpha": alpha, "beta": beta,
+                "gamma": gamma, "accel_floor": float(fl), "rest_speed": float(vr),
+                "rest_time": float(t_rest), "shrink": shrink, "max_ratio": float(max_ratio),
+                "ratio_rms": float(np.sqrt(obj / k)),
+                "ratio_rms_no_damping": float(np.sqrt(yyk.sum() / k)),
+                "ratios": np.sqrt(np.maximum(q, 0.0)).tolist(), "ratios_identified": ident,
+                "ratios_static_limit": ratios_lim.tolist(),
+                "rms": float(np.sqrt(np.mean(r ** 2))),
+                "rms_no_damping": float(np.sqrt(np.mean(y ** 2))),
+                "rms_static": float(np.sqrt(rss_st.sum() / max(tau.size, 1))),
+                "n": int(tau.size), "n_datasets": K,
+                "grid": [{"rest_time": rt, "accel_floor": f, "gamma": g,
+                          "ratio_rms": float(np.sqrt(qq / k)),
+                          "ratio_rms_no_damping": float(np.sqrt(w / k))}
+                         for rt, f, g, qq, w in table]}
 
     # ---- everything -------------------------------------------------------------------------
     def fit(self, static_data: FrictionData, reversal_datasets, variable_data: FrictionData,
@@ -776,8 +885,10 @@ class IndriTrapani:
         refinement = None
         if self.refine and refine_datasets:
             refinement = self.refine_damping(st, sigma0, ratio, list(refine_datasets), counter)
-            refinement["phase2b"] = {"alpha": alpha, "beta": beta, "gamma": gamma}
+            refinement["phase2b"] = {"alpha": alpha, "beta": beta, "gamma": gamma,
+                                     "sigma0": sigma0}
             alpha, beta, gamma = (refinement["alpha"], refinement["beta"], refinement["gamma"])
+            sigma0 = refinement["sigma0"]
             g_rms = float(np.sqrt(np.mean((np.asarray(variable_data.tau) - LuGreDM2(
                 static=st, accel_ratio=ratio, sigma0=sigma0, alpha=alpha, beta=beta,
                 gamma=gamma, accel_floor=refinement["accel_floor"],
