@@ -121,7 +121,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     import time
 
     from ident.model.regressor import ChainDynamics, base_parameters
-    from ident.model.rigidbody import RigidBodyIdentifier
+    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier
 
     robot = campaign.load_robot()
     chain = ChainDynamics.from_model(robot.model)
@@ -133,6 +133,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
         pre[tr.id] = rec.preprocessing
         fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **settings).fit(rec)
                        for m in models}
+        _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
 
