@@ -148,8 +148,11 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
     ``"<joint>"`` (one multi-joint trial) or ``"<trial>/<joint>"`` (several)."""
     from ident.gap import diagnose_joint
     from ident.gap.data import build_joint_data_record
+    from ident.gap.nominal import check_nominal
 
     trials = multijoint_trials(campaign)
+    nominal = check_nominal(settings.nominal, [j for tr in trials for j in tr.joints
+                                               if not joints or j in joints])
     reports, series = {}, {}
     for tr in trials:
         rec = load_record(campaign, tr, robot, record)
@@ -159,6 +162,7 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
             d = build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
             res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
             rep = res.to_dict()
+            rep["nominal"] = nominal.describe(d)
             folds = ("leave-one-block-out over the joint's motion cycles (blocks chosen from the data)"
                      if n_segments is None else
                      f"leave-one-segment-out ({n_segments} contiguous segments)")
