@@ -134,7 +134,7 @@ def test_bad_nominal_spec_is_a_one_line_error(stribeck_campaign, capsys, spec, n
 def test_tx40_published_model_as_nominal(tmp_path, capsys):
     """The TX40's published friction (TX40_config.yaml: fs, fv per joint) as a fits.json nominal
     on its multi-joint record. The published joint-6 Coulomb level (0.282 N m) leaves out the
-    coupled wrist motor's own friction (fsm6 = 1.95 N m, on motor 6 = q6 - q5 seen by joint 6),
+    coupled wrist motor's own friction (fsm6 = 1.95 N m, on the motor velocity qd5 + qd6),
     which a Coulomb + viscous nominal fitted on the joint absorbs: with the published model fixed,
     joint 6's held-out gap must be clearly larger."""
     from ident.thesis.campaign import read_tx40_config
