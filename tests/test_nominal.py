@@ -157,3 +157,26 @@ def test_tx40_published_model_as_nominal(tmp_path, capsys):
     assert pub["heldout_rms_nominal"] > 1.15 * held["cv"]["heldout_rms_nominal"]
     assert np.isfinite(pub["heldout_rms_nominal"])
     capsys.readouterr()
+
+
+def test_fits_json_with_several_trials_takes_the_median_of_the_physical_entries(tmp_path):
+    """A `jointlab fit` file has one entry per trial: the nominal takes each parameter's median
+    over the entries with physical values and names the ones left out; none physical is an
+    error naming the first."""
+    from mocap.io.errors import InputError
+
+    from ident.gap.nominal import FitsNominal
+
+    cs, vs = [3.7, 4.1, 3.9, 12.0], [0.80, 0.86, 0.84, 0.5]
+    trials = {f"t{k}": {"5": {"cv": {"params": {"c": c, "v": v}}}} for k, (c, v) in enumerate(zip(cs, vs))}
+    trials["t9"] = {"5": {"cv": {"params": {"c": -2.0, "v": 0.9}}}}          # impossible
+    trials["t8"] = {"5": {"cv": {"params": {"c": 50.0, "v": 0.9}, "valid": False}}}
+    f = tmp_path / "fits.json"
+    f.write_text(json.dumps({"format": 1, "trials": trials}))
+    nom = FitsNominal(f)
+    assert nom.models["5"].params == pytest.approx({"c": np.median(cs), "v": np.median(vs)})
+    assert set(nom.left_out["5"]) == {"trials.t9.5.cv", "trials.t8.5.cv"}
+    f.write_text(json.dumps({"format": 1, "trials": {k: trials[k] for k in ("t9",)} | {
+        "t7": {"5": {"cv": {"params": {"c": 1.0, "v": -0.3}}}}}}))
+    with pytest.raises(InputError, match=r"trials\.t9\.5\.cv\.params"):
+        FitsNominal(f)

@@ -255,6 +255,10 @@ def _num(x, path, key) -> float:
     return float(x)
 
 
+class _Unphysical(InputError):
+    """A fits.json entry with physically impossible values."""
+
+
 def _model_from_entry(name: str, ent: dict, path, key: str):
     """A friction model instance from a fits.json entry ``{"params": ..., "settings": ...}``."""
     from ident.friction import MODELS
@@ -307,8 +311,8 @@ def _model_from_entry(name: str, ent: dict, path, key: str):
     bad = list(model.violations()) if hasattr(model, "violations") else []
     if neg or bad:
         what = bad[0] if bad else f"{neg[0]} = {vals[neg[0]]:.3g} < 0"
-        raise InputError(f"physically impossible {name} friction: {what}", path=path,
-                         label=f"{key}.params")
+        raise _Unphysical(f"physically impossible {name} friction: {what}", path=path,
+                          label=f"{key}.params")
     return model
 
 
@@ -372,13 +376,23 @@ class FitsNominal:
                                  f"--nominal {self.path}:MODEL", path=self.path, label="trials")
             model = names[0]
         self.model_name = model
-        self.models, self.sources = {}, {}
+        self.models, self.sources, self.left_out = {}, {}, {}
         for j, by in self.entries.items():
             ents = by.get(model)
             if not ents:
                 continue
             good = [(k, e) for k, e in ents if _usable(e)] or ents
-            inst = [(k, _model_from_entry(model, e, self.path, k)) for k, e in good]
+            inst, unphysical = [], []
+            for k, e in good:     # several entries (per-trial fits): impossible ones are left out
+                try:
+                    inst.append((k, _model_from_entry(model, e, self.path, k)))
+                except _Unphysical as exc:
+                    if len(good) == 1:
+                        raise
+                    unphysical.append((k, exc))
+            if not inst:
+                raise unphysical[0][1]
+            self.left_out[j] = [k for k, _ in unphysical] + [k for k, e in ents if (k, e) not in good]
             if len(inst) == 1:
                 self.models[j] = inst[0][1]
             else:   # several trials: the median of each parameter (settings of the first)
@@ -419,6 +433,12 @@ class FitsNominal:
         def details(d):
             m = self.model_for(d)
             out = {"fixed_parameters": _jsonable_params(m), "from": self.sources[str(d.joint)]}
+            if len(out["from"]) > 1:
+                out["aggregate"] = f"median of each parameter over the {len(out['from'])} entries"
+            if self.left_out.get(str(d.joint)):
+                out["left_out"] = self.left_out[str(d.joint)]
+                out["left_out_why"] = ("physically impossible values, or flagged invalid or "
+                                       "implausible by the fit that wrote them")
             st = m.to_dict().get("settings")
             if st:
                 out["fixed_settings"] = json.loads(json.dumps(st, default=lambda o: o.to_dict()))

@@ -30,7 +30,12 @@ def _nominal_params(jp: dict) -> str:
 
     parts = []
     if "fixed_parameters" in jp:
-        parts.append(f"fixed {kv(jp['fixed_parameters'])} (from {', '.join(jp.get('from', []))})")
+        src = jp.get("from", [])
+        src = ", ".join(src) if len(src) <= 2 else f"{src[0]} and {len(src) - 1} more entries"
+        parts.append(f"fixed {kv(jp['fixed_parameters'])} (from {src}"
+                     + (f"; {jp['aggregate']}" if jp.get("aggregate") else "") + ")")
+    if jp.get("left_out"):
+        parts.append(f"{len(jp['left_out'])} entries left out ({jp.get('left_out_why', '')})")
     if jp.get("held"):
         parts.append(f"shape held at {kv(jp['held'])}")
     if jp.get("shape_fitted"):
