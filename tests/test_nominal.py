@@ -180,3 +180,16 @@ def test_fits_json_with_several_trials_takes_the_median_of_the_physical_entries(
         "t7": {"5": {"cv": {"params": {"c": 1.0, "v": -0.3}}}}}}))
     with pytest.raises(InputError, match=r"trials\.t9\.5\.cv\.params"):
         FitsNominal(f)
+
+
+@pytest.mark.parametrize("model", ["arctan", "dm1"])
+def test_other_registry_nominals_run_and_absorb_the_drop(stribeck_campaign, capsys, model):
+    """Indri & Trapani's static arctan model and the dynamic LuGre DM1 (bristle state through the
+    joint's sample times) as nominals: both contain a velocity-weakening static curve."""
+    root, camp, _ = stribeck_campaign
+    rep, j, md = _diagnose(root, camp, model, model)
+    assert not _row(j, "stribeck")["significant"] and j["nominal_model"] == model
+    jp = j["nominal"]["joint_parameters"]
+    assert set(jp["shape_fitted"]) == ({"delta"} if model == "arctan" else {"sigma0"})
+    assert (model == "dm1") == ("static_arctan" in jp)
+    capsys.readouterr()

@@ -98,11 +98,12 @@ def _no_friction(d) -> np.ndarray:
 # helpers shared by the registry and the file nominals
 # --------------------------------------------------------------------------------------------
 def _steps(d) -> np.ndarray:
-    """Time steps between the joint's samples for the dynamic models' state; a step across trials,
-    backwards in time or longer than 0.5 s is set to 1 s (the bristle state settles: restart)."""
+    """Time steps between the joint's samples for the dynamic models' state (the samples the data
+    preparation left out, slow ones around reversals and rests, are bridged by the model's
+    discretisation); a step backwards in time (the next trial) or longer than 0.5 s is set to
+    1 s, where the bristle state settles: a restart."""
     st = np.diff(np.asarray(d.t, float))
-    same = d.trial[1:] == d.trial[:-1]
-    return np.where(same & (st > 0) & (st <= 0.5), st, 1.0)
+    return np.where((st > 0) & (st <= 0.5), st, 1.0)
 
 
 def _jump_consistent(phi: np.ndarray, jump: np.ndarray, d) -> np.ndarray:
