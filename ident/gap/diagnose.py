@@ -24,7 +24,7 @@ import numpy as np
 
 from ident.gap.candidates import Candidate, candidate_effects, confounders
 from ident.gap.data import JointData
-from ident.gap.nominal import NOMINAL_MODELS, NominalModel, _feedback_columns, nominal_model  # noqa: F401
+from ident.gap.nominal import NOMINAL_MODELS, NominalModel, nominal_model
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
                               repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)

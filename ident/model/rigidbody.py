@@ -22,8 +22,9 @@ reversal exactly. Friction models linear in their parameters (``cv``) are solved
 linear system; the others alternate: the linear part with the friction fixed, then per joint
 :func:`ident.friction.fit.fit_friction` on the joint's remaining torque with offset and
 armature as extra columns, up to ``n_iter`` times (fewer once no joint's friction torque moves
-by 1e-4 of its torque level); their row weights come from the Coulomb + viscous pass. Held-out RMS: contiguous segments of the record
-(``folds``), each predicted by a fit on the others (leave-one-segment-out).
+by 1e-4 of its torque level); their row weights come from the Coulomb + viscous pass.
+Held-out RMS: contiguous segments of the record (``folds``), each predicted by a fit on the
+others (leave-one-segment-out).
 """
 from __future__ import annotations
 
