@@ -193,3 +193,30 @@ def test_other_registry_nominals_run_and_absorb_the_drop(stribeck_campaign, caps
     assert set(jp["shape_fitted"]) == ({"delta"} if model == "arctan" else {"sigma0"})
     assert (model == "dm1") == ("static_arctan" in jp)
     capsys.readouterr()
+
+
+def test_multijoint_fit_output_as_nominal(tmp_path, capsys):
+    """`jointlab fit` on a 7-joint record, its fits.json as the nominal of `diagnose` on the same
+    record: the friction fixed to the fitted Coulomb + viscous values (true c, v of the record
+    within 10 %) must give the held-out RMS of the free Coulomb + viscous nominal within 5 %,
+    and the record's torque noise level (no effect in the data) within 10 %."""
+    import test_multijoint as tm
+
+    tm._write_arm7_campaign(tmp_path / "c", duration=6.0)
+    assert main(["fit", str(tmp_path / "c"), "--out", str(tmp_path / "f"), "--models", "cv"]) == 0
+    fits = tmp_path / "f" / "fits.json"
+    held = {}
+    for nom in ("cv", str(fits)):
+        out = tmp_path / ("d_" + Path(nom).stem)
+        assert main(["diagnose", str(tmp_path / "c"), "--out", str(out), "--joints", "2,3",
+                     "--nominal", nom]) == 0
+        held[nom] = json.loads((out / "diagnosis.json").read_text())["joints"]
+    for j in ("2", "3"):
+        fixed = held[str(fits)][j]
+        jp = fixed["nominal"]["joint_parameters"]
+        assert jp["from"] == [f"trials.rec.{j}.cv"]
+        assert jp["fixed_parameters"]["c"] == pytest.approx(tm.C_TRUE[int(j) - 1], rel=0.10)
+        ratio = fixed["heldout_rms_nominal"] / held["cv"][j]["heldout_rms_nominal"]
+        assert abs(ratio - 1) < 0.05, ratio
+        assert fixed["heldout_rms_nominal"] == pytest.approx(tm.NOISE[int(j) - 1], rel=0.10)
+    capsys.readouterr()
