@@ -1,6 +1,8 @@
 """Benchmark: a 20k-sample 7-joint record (the hand-written arm of fixtures/arm7, irregular time
 stamps, 5 % repeated rows, link-side torques, no markers) through `jointlab fit` and
-`jointlab diagnose` (wall time of each command in-process; the goal is < 30 s each on 2 cores),
+`jointlab diagnose` (wall and process CPU time of each command in-process, `fit` with its
+default models cv, stribeck, hyperbolic and with cv alone, `diagnose` with the default and a
+Stribeck nominal; the goal is < 30 s each on 2 cores; on a shared machine compare CPU times),
 and the batched joint torque regressor against a per-sample loop over pinocchio's
 ``computeJointTorqueRegressor`` measured in the same run.
 
@@ -52,12 +54,18 @@ def main(argv=None):
         t_loop = time.perf_counter() - t0
         print(f"regressor: batched {t_batch:.2f} s, per-sample pinocchio loop {t_loop:.2f} s "
               f"(ratio loop/batched {t_loop / t_batch:.2f}); max |diff| {np.abs(W - Y).max():.2e}")
-        for cmd in (["fit", str(d / "c"), "--out", str(d / "f"), "--models", "cv"],
-                    ["diagnose", str(d / "c"), "--out", str(d / "g")]):
-            t0 = time.perf_counter()
+        rows = []
+        for cmd in (["fit", str(d / "c"), "--out", str(d / "f")],          # default models
+                    ["fit", str(d / "c"), "--out", str(d / "f1"), "--models", "cv"],
+                    ["diagnose", str(d / "c"), "--out", str(d / "g")],
+                    ["diagnose", str(d / "c"), "--out", str(d / "g1"), "--nominal", "stribeck"]):
+            t0, c0 = time.perf_counter(), time.process_time()
             rc = cli(cmd)
-            dt = time.perf_counter() - t0
-            print(f"jointlab {cmd[0]}: {dt:.1f} s wall (goal < 30 s), exit {rc}")
+            rows.append((" ".join(["jointlab", cmd[0]] + cmd[4:]), time.perf_counter() - t0,
+                         time.process_time() - c0, rc))
+        print(f"{'command (20k-sample 7-joint record)':48s} {'wall s':>7s} {'CPU s':>7s}  exit")
+        for name, w, c, rc in rows:
+            print(f"{name:48s} {w:7.1f} {c:7.1f}  {rc}   (goal < 30 s on 2 cores)")
     return 0
 
 

@@ -49,8 +49,12 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         by_joint = {j: v for j, v in by_joint.items() if j in set(joints)}
     if not by_joint:
         raise InputError("no single-joint trials to diagnose", path=campaign.manifest)
+    from ident.gap.nominal import check_nominal
+
+    nominal = check_nominal(settings.nominal, by_joint)
     report = {"format": 1, "campaign": campaign.name, "settings": settings.to_dict(), "joints": {},
-              "skipped_trials": skipped, "link_angles": angles is not None and bool(angles)}
+              "skipped_trials": skipped, "link_angles": angles is not None and bool(angles),
+              "nominal": nominal.describe()}
     items = sorted(by_joint.items())
     if progress:
         from tqdm import tqdm
@@ -67,6 +71,7 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         d = build_joint_data(j, trials, logs, robot, ang)
         res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
         rep = res.to_dict()
+        rep["nominal"] = nominal.describe(d)
         if not d.has_transmission:
             rep["note_transmission"] = "no link angles: transmission channel (compliance, backlash, time_offset) not diagnosed"
         series[str(j)] = res.series

@@ -19,12 +19,12 @@ Protocol (per joint, per channel):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
-from typing import Callable
 
 import numpy as np
 
 from ident.gap.candidates import Candidate, candidate_effects, confounders
 from ident.gap.data import JointData
+from ident.gap.nominal import NOMINAL_MODELS, NominalModel, nominal_model
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
                               repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)
@@ -45,7 +45,7 @@ class DiagnosisSettings:
     n_perm: int = 20000
     n_boot: int = 300
     seed: int = 0
-    nominal: str = "cv"              # key of NOMINAL_MODELS
+    nominal: str = "cv"              # --nominal SPEC (ident.gap.nominal.nominal_model)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -76,39 +76,6 @@ class Channel:
         return out
 
 
-@dataclass(frozen=True)
-class NominalModel:
-    """The simulator's friction model the gap is measured against (``diagnose --nominal``)."""
-
-    label: str
-    doc: str
-    friction: Callable  # JointData -> (N, k) friction regressors
-
-    def columns(self, d: JointData) -> np.ndarray:
-        return np.column_stack([d.urdf_regs, self.friction(d)] + _feedback_columns(d))
-
-
-def _feedback_columns(d: JointData) -> list:
-    """The logged torque is a feedback controller's command: it reacts to the encoder reading,
-    including the part beyond the smoothed trajectory (quantisation steps, small vibration) that
-    the smoothed derivatives do not carry. One column, that part of the reading, with a free gain
-    (measured on the foreign world's effect-free campaigns: the nominal's held-out RMS over the
-    torque noise drops from 1.26 to 1.16 on tri3). Absent on records without the raw reading."""
-    if d.q_hf is None or d.q_hf.shape[0] != d.q.shape[0]:
-        return []
-    scale = float(np.sqrt(np.mean(d.q_hf ** 2)))   # unit scale: the solver's ridge is relative
-    return [d.q_hf[:, None] / scale] if scale > 0 else []
-
-
-NOMINAL_MODELS = {
-    "cv": NominalModel("coulomb_viscous", "Coulomb + viscous (thesis eq. 2-5)",
-                       lambda d: np.column_stack([d.sgn, d.qd])),
-    "cv_asym": NominalModel("coulomb_viscous_asymmetric",
-                            "Coulomb + viscous with a direction-dependent Coulomb level",
-                            lambda d: np.column_stack([d.sgn, d.qd, d.qd > 0])),
-}
-
-
 def _motion_blocks(trial: np.ndarray, qd: np.ndarray, n_trials: int) -> tuple[np.ndarray, np.ndarray]:
     """Blocks of the randomisation test and units of the held-out SSE: the motion cycles of each
     trial (:func:`ident.gap.data.motion_cycles`, chosen from the data, never across trials).
@@ -133,10 +100,11 @@ def _motion_blocks(trial: np.ndarray, qd: np.ndarray, n_trials: int) -> tuple[np
 
 
 def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
-    X0 = (nominal or NOMINAL_MODELS["cv"]).columns(d)
+    nominal = nominal or NOMINAL_MODELS["cv"]
+    X0 = nominal.columns(d)
     nt = d.n_trials
     blocks, bt = _motion_blocks(d.trial, d.qd, nt)
-    return Channel("torque", "N m", d.y - d.tau_urdf, X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt)
+    return Channel("torque", "N m", nominal.target(d), X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt)
 
 
 def _transmission_channel(d: JointData) -> Channel:
@@ -224,7 +192,7 @@ def _amplitudes(theta: np.ndarray, p: int, keep: np.ndarray) -> np.ndarray:
 
 def nominal_heldout_rms(d: JointData, nominal: str = "cv") -> float:
     """Held-out torque RMS of the nominal model (leave-one-fold-out), for data-preparation choices."""
-    ch = _torque_channel(d, NOMINAL_MODELS[nominal])
+    ch = _torque_channel(d, nominal_model(nominal))
     cv, _ = _cv(ch, ch.X0, ch.block_fold(d.fold))
     return _rms(cv.sse, ch.blocks[:, 1] - ch.blocks[:, 0])
 
@@ -477,7 +445,7 @@ def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings
 
 
 def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None) -> DiagnosisResult:
-    nominal = NOMINAL_MODELS[settings.nominal]
+    nominal = nominal_model(settings.nominal)
     cands = candidate_effects(gear_ratio)
     channels = [_torque_channel(d, nominal)]
     if d.has_transmission:

@@ -22,11 +22,38 @@ def _cell(x) -> str:
     return str(x).replace("|", "\\|")
 
 
+def _nominal_params(jp: dict) -> str:
+    """One line on the nominal friction of a joint: fixed values and their source, or the
+    shape parameters fitted or held."""
+    def kv(d):
+        return ", ".join(f"{k} = {_fmt(float(v), 4)}" for k, v in d.items())
+
+    parts = []
+    if "fixed_parameters" in jp:
+        src = jp.get("from", [])
+        src = ", ".join(src) if len(src) <= 2 else f"{src[0]} and {len(src) - 1} more entries"
+        parts.append(f"fixed {kv(jp['fixed_parameters'])} (from {src}"
+                     + (f"; {jp['aggregate']}" if jp.get("aggregate") else "") + ")")
+    if jp.get("left_out"):
+        parts.append(f"{len(jp['left_out'])} entries left out ({jp.get('left_out_why', '')})")
+    if jp.get("held"):
+        parts.append(f"shape held at {kv(jp['held'])}")
+    if jp.get("shape_fitted"):
+        parts.append(f"shape fitted {kv(jp['shape_fitted'])}")
+    if jp.get("static_arctan"):
+        parts.append(f"static arctan curve fitted {kv(jp['static_arctan'])}")
+    if jp.get("shape_note"):
+        parts.append(f"note: {jp['shape_note']}")
+    return "; ".join(parts) + "."
+
+
 def markdown(report: dict, plots: dict) -> str:
     L = [f"# Sim-to-real gap diagnosis: {report['campaign']}", ""]
-    L.append("Nominal model: rigid joint, URDF rigid-body dynamics, Coulomb + viscous friction, "
-             "identified on training trials; every figure below is on held-out trials "
-             "(leave-one-repetition-out).")
+    nom = report.get("nominal") or {}
+    L.append("Nominal model: rigid joint, URDF rigid-body dynamics with small corrections, "
+             + (nom.get("text") or "Coulomb + viscous friction") + "; its free parameters "
+             "identified on the training folds; every figure below is on held-out folds "
+             "(each joint's folds are named in diagnosis.json).")
     L.append("")
     if not report.get("link_angles"):
         L += ["> No link angles were available: only the torque channel was diagnosed.", ""]
@@ -35,6 +62,9 @@ def markdown(report: dict, plots: dict) -> str:
         if "note" in rep:
             L += [rep["note"], ""]
             continue
+        jp = (rep.get("nominal") or {}).get("joint_parameters")
+        if jp:
+            L += ["Nominal friction of this joint: " + _nominal_params(jp), ""]
         if rep.get("insufficient_data"):
             L += [f"**Insufficient data**: {rep['insufficient_data']}", ""]
         for name, ch in rep["channels"].items():

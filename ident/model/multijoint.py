@@ -121,7 +121,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     import time
 
     from ident.model.regressor import ChainDynamics, base_parameters
-    from ident.model.rigidbody import RigidBodyIdentifier
+    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier
 
     robot = campaign.load_robot()
     chain = ChainDynamics.from_model(robot.model)
@@ -133,6 +133,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
         pre[tr.id] = rec.preprocessing
         fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **settings).fit(rec)
                        for m in models}
+        _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
 
@@ -147,8 +148,11 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
     ``"<joint>"`` (one multi-joint trial) or ``"<trial>/<joint>"`` (several)."""
     from ident.gap import diagnose_joint
     from ident.gap.data import build_joint_data_record
+    from ident.gap.nominal import check_nominal
 
     trials = multijoint_trials(campaign)
+    nominal = check_nominal(settings.nominal, [j for tr in trials for j in tr.joints
+                                               if not joints or j in joints])
     reports, series = {}, {}
     for tr in trials:
         rec = load_record(campaign, tr, robot, record)
@@ -158,6 +162,7 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
             d = build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
             res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
             rep = res.to_dict()
+            rep["nominal"] = nominal.describe(d)
             folds = ("leave-one-block-out over the joint's motion cycles (blocks chosen from the data)"
                      if n_segments is None else
                      f"leave-one-segment-out ({n_segments} contiguous segments)")

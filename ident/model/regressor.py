@@ -160,7 +160,16 @@ class BaseParameters:
 def base_parameters(chain: ChainDynamics, lower=None, upper=None, n_states: int = 200,
                     seed: int = 0, tol: float = 1e-8) -> BaseParameters:
     """Base parameters by QR with column pivoting of the regressor stacked over random states
-    (positions within ``lower``/``upper`` or +-pi, velocities and accelerations standard normal)."""
+    (positions within ``lower``/``upper`` or +-pi, velocities and accelerations standard normal).
+    One BLAS thread: the matrices are small (200 n rows), where threads only add overhead (and on
+    a loaded 2-core machine made this step take seconds)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, "blas"):
+        return _base_parameters(chain, lower, upper, n_states, seed, tol)
+
+
+def _base_parameters(chain, lower, upper, n_states, seed, tol) -> BaseParameters:
     from scipy.linalg import qr
 
     rng = np.random.default_rng(seed)

@@ -11,11 +11,13 @@ def register(sub):
     p = sub.add_parser("diagnose", help="diagnose the sim-to-real gap of a campaign (diagnosis.json, .md, plots)")
     p.add_argument("campaign", type=Path)
     add_common(p, out_required=True)
-    from ident.gap.diagnose import NOMINAL_MODELS
-
-    p.add_argument("--nominal", default="cv", choices=sorted(NOMINAL_MODELS),
-                   help="nominal friction model of the simulator: "
-                        + "; ".join(f"{k}: {m.doc}" for k, m in NOMINAL_MODELS.items()))
+    p.add_argument("--nominal", default="cv", metavar="SPEC",
+                   help="the simulator's friction model the gap is measured against: cv (Coulomb + "
+                        "viscous, default), cv_asym, or any model of the friction registry (stribeck, "
+                        "hyperbolic, arctan, dm1, dm2: shape parameters fitted on the joint's samples, "
+                        "or held with NAME:k=v,...; amplitudes free); or a fits.json (FILE or "
+                        "FILE:MODEL): the friction fixed to the file's values per joint, only the "
+                        "rigid-body corrections refitted")
     p.add_argument("--angles", type=Path, metavar="DIR",
                    help="link angles from `jointlab mocap` (angles/<trial>.csv); default: solve them here")
     p.add_argument("--no-markers", action="store_true", help="torque channel only (ignore marker files)")
@@ -68,7 +70,11 @@ def run(args) -> int:
     from ident.gap import DiagnosisSettings
     from ident.gap.report import write_report
 
+    from ident.gap.nominal import check_nominal
+
     camp = load_campaign(args.campaign)
+    joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
+    check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
     out = check_out_dir(args.out, [camp.root])
     robot = camp.load_robot()
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
