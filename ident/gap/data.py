@@ -271,15 +271,14 @@ def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20,
     of each sample), the count starts afresh in every group, so that a group's cycles do not
     depend on how many reversals the groups before it had."""
     s = np.where(np.abs(qd) >= v_zero, np.sign(qd), 0.0)
-    idx = np.where(s != 0, np.arange(s.shape[0]), 0)
+    start = np.zeros(s.shape[0], bool) if group is None else np.r_[True, group[1:] != group[:-1]]
+    idx = np.where((s != 0) | start, np.arange(s.shape[0]), 0)   # a group inherits no direction
     idx = np.maximum.accumulate(idx)
     s = s[idx]
-    rev = np.r_[False, (s[1:] != s[:-1]) & (s[1:] != 0) & (s[:-1] != 0)]
+    rev = np.r_[False, (s[1:] != s[:-1]) & (s[1:] != 0) & (s[:-1] != 0)] & ~start
     if group is None:
         cyc = np.cumsum(rev) // 2
     else:
-        start = np.r_[True, group[1:] != group[:-1]]
-        rev &= ~start
         r = np.cumsum(rev)
         local = (r - r[np.maximum.accumulate(np.where(start, np.arange(r.size), 0))]) // 2
         cyc = np.cumsum(np.r_[True, start[1:] | (local[1:] != local[:-1])]) - 1
