@@ -4,8 +4,10 @@ record does not change between any two reasonable segmentations").
 * :func:`arm7_campaign` writes a FORMAT campaign of the hand-written 7-joint arm
   (``fixtures/arm7/arm7.urdf``) in which all joints move together: rigid-body torques from
   pinocchio's own ``rnea`` (per sample; no code shared with jointlab), Coulomb + viscous + offset
-  per joint, and optionally, on one joint, a friction drop at low speed written here in a form
-  that jointlab's candidates do not contain (a Lorentzian ``Fs sgn(v) / (1 + (v / vs)^2)``),
+  per joint, and optionally, on one joint, a withheld effect written here in a form of its own:
+  ``stribeck``, a friction drop at low speed of Lorentzian shape ``Fs sgn(v) / (1 + (v / vs)^2)``,
+  or ``presliding``, a friction deficit after each velocity reversal that recovers
+  hyperbolically with the displacement ``s`` since the reversal, ``-Fs sgn(v) s0 / (s0 + s)``;
   torque noise and encoder quantisation.
 * :func:`resegment` rewrites a campaign whose one trial is a continuous record as the same record
   cut into several log files at arbitrary instants (a logger that rotates its files), or
@@ -29,8 +31,10 @@ NOISE = np.array([0.2, 0.2, 0.15, 0.15, 0.05, 0.04, 0.03])
 
 
 def arm7_campaign(root: Path, duration: float = 30.0, rate: float = 250.0, effect_joint: int | None = 2,
-                  fs: float = 2.0, vs: float = 0.12, seed: int = 7) -> dict:
-    """Write the campaign (``root/campaign.toml``, one trial ``rec``) and return its truth."""
+                  fs: float = 2.0, vs: float = 0.12, seed: int = 7, effect: str = "stribeck",
+                  s0: float = 0.01) -> dict:
+    """Write the campaign (``root/campaign.toml``, one trial ``rec``) and return its truth:
+    ``effect`` (``stribeck`` or ``presliding``) on ``effect_joint`` (None: effect-free)."""
     import pinocchio as pin
 
     rng = np.random.default_rng(seed)
@@ -48,9 +52,17 @@ def arm7_campaign(root: Path, duration: float = 30.0, rate: float = 250.0, effec
     qdd = -np.sum(a * w ** 2 * np.sin(arg), axis=2)
     tau = np.array([pin.rnea(model, data, q[k], qd[k], qdd[k]) for k in range(t.size)])
     tau += C_TRUE * np.sign(qd) + V_TRUE * qd + OFF_TRUE
-    if effect_joint is not None:
+    if effect_joint is not None and effect == "stribeck":
         v = qd[:, effect_joint - 1]
         tau[:, effect_joint - 1] += fs * np.sign(v) / (1.0 + (v / vs) ** 2)
+    elif effect_joint is not None and effect == "presliding":
+        x, v = q[:, effect_joint - 1], qd[:, effect_joint - 1]
+        turn = np.r_[True, np.sign(v[1:]) != np.sign(v[:-1])]
+        last = np.maximum.accumulate(np.where(turn, np.arange(t.size), 0))
+        s = np.abs(x - x[last])                    # displacement since the last reversal
+        tau[:, effect_joint - 1] += -fs * np.sign(v) * s0 / (s0 + s)
+    elif effect_joint is not None:
+        raise ValueError(f"unknown effect {effect!r}")
     tau += NOISE * rng.standard_normal(tau.shape)
     qm = np.round(q / 2e-5) * 2e-5
     root = Path(root)
@@ -75,7 +87,8 @@ def resegment(src: Path, dst: Path, cuts=(), crop=(0.0, 0.0), lost: float = 0.0)
     ``dst`` with that record cut at the fractions ``cuts`` of its rows (one log file and one
     ``[[trial]]`` per piece) after dropping ``crop = (s_start, s_end)`` seconds at its ends;
     ``lost`` seconds of samples are dropped after every cut (a logger that loses samples while
-    it rotates its files: the pieces are then separate records). Everything before the first ``[[trial]]`` (robot, coupling) is kept."""
+    it rotates its files: the pieces are then separate records). Everything before the first
+    ``[[trial]]`` (robot, coupling) is kept."""
     src, dst = Path(src), Path(dst)
     man = (src / "campaign.toml").read_text(encoding="utf-8")
     head, trial = man.split("[[trial]]", 1)
@@ -122,10 +135,10 @@ SEGMENTATIONS = {
 
 
 def diagnose_segmentations(src: Path, work: Path, joints, names=None, seed: int = 0) -> dict:
-    """``{segmentation: {joint: (verdict, held-out nominal RMS, n_blocks)}}`` through the CLI's
-    diagnosis of multi-joint records (``ident.cli.commands.diagnose._diagnose``, what
-    ``jointlab diagnose CAMPAIGN`` runs; ``n_segments`` is not a CLI option, so those rows call
-    :func:`ident.model.multijoint.diagnose_records` with it)."""
+    """``{segmentation: {joint: (verdict, held-out nominal RMS, n_blocks, verdict_status)}}``
+    through the CLI's diagnosis of multi-joint records (``ident.cli.commands.diagnose._diagnose``,
+    what ``jointlab diagnose CAMPAIGN`` runs; ``n_segments`` is not a CLI option, so those rows
+    call :func:`ident.model.multijoint.diagnose_records` with it)."""
     from mocap.io.campaign import load_campaign
 
     from ident.cli.commands.diagnose import _diagnose
@@ -144,5 +157,6 @@ def diagnose_segmentations(src: Path, work: Path, joints, names=None, seed: int 
         else:
             rep = diagnose_records(camp, robot, st, joints=list(joints), n_segments=nseg)[0]
         out[name] = {k: (r["verdict"], r["channels"]["torque"]["heldout_rms_nominal"],
-                         r["channels"]["torque"].get("n_blocks")) for k, r in rep.items()}
+                         r["channels"]["torque"].get("n_blocks"), r.get("verdict_status"))
+                     for k, r in rep.items()}
     return out
