@@ -305,8 +305,9 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     folds are the cycles too (``n_segments`` None) or ``n_segments`` groups of consecutive whole
     cycles (each cycle goes to the equal-time segment that holds its first sample; empty
     segments are dropped): a segment boundary never cuts a cycle into two test blocks (measured
-    on the TX40 record before: 20 or 40 equal segments cut its 3-7 cycles per joint into 20-40
-    blocks and turned `none` into `nonlinear_viscous` on joints 1 and 2). Torque channel only.
+    on the TX40 record before: 10, 20 or 40 equal segments cut its 3-7 cycles per joint into
+    11-40 blocks and turned `none` into `load_dependent` on joint 3 (10) and `nonlinear_viscous`
+    on joints 1 and 2 (20, 40); ``benchmarks/segmentation.py``). Torque channel only.
     """
     from types import SimpleNamespace
 
