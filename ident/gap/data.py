@@ -262,17 +262,26 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                      q_hf=cat["q_hf"])
 
 
-def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20) -> np.ndarray:
+def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20,
+                  group: np.ndarray | None = None) -> np.ndarray:
     """Block index of each sample: a new block starts at every second velocity reversal (one
     back-and-forth motion cycle per block). The direction is taken from samples faster than
     ``v_zero`` (slow samples inherit the last direction, so jitter at rest makes no reversal);
-    cycles shorter than ``min_samples`` join the previous block."""
+    cycles shorter than ``min_samples`` join the previous block. With ``group`` (e.g. the trial
+    of each sample), the count starts afresh in every group, so that a group's cycles do not
+    depend on how many reversals the groups before it had."""
     s = np.where(np.abs(qd) >= v_zero, np.sign(qd), 0.0)
-    idx = np.where(s != 0, np.arange(s.shape[0]), 0)
+    start = np.zeros(s.shape[0], bool) if group is None else np.r_[True, group[1:] != group[:-1]]
+    idx = np.where((s != 0) | start, np.arange(s.shape[0]), 0)   # a group inherits no direction
     idx = np.maximum.accumulate(idx)
     s = s[idx]
-    rev = np.r_[False, (s[1:] != s[:-1]) & (s[1:] != 0) & (s[:-1] != 0)]
-    cyc = np.cumsum(rev) // 2
+    rev = np.r_[False, (s[1:] != s[:-1]) & (s[1:] != 0) & (s[:-1] != 0)] & ~start
+    if group is None:
+        cyc = np.cumsum(rev) // 2
+    else:
+        r = np.cumsum(rev)
+        local = (r - r[np.maximum.accumulate(np.where(start, np.arange(r.size), 0))]) // 2
+        cyc = np.cumsum(np.r_[True, start[1:] | (local[1:] != local[:-1])]) - 1
     # merge cycles that are too short into the previous one, then renumber 0..k-1
     counts = np.bincount(cyc)
     ok = counts >= min_samples
@@ -289,11 +298,16 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
 
     The rigid-body torque is pinocchio's inverse dynamics of the whole arm; the nominal's
     corrections are ``[qdd_j, g_j(q), 1]`` (armature, gravity scale, offset) instead of the
-    single-joint ``[qdd, sin q, cos q]``. The record is cut into blocks that serve as held-out
-    folds and as the exchangeable units of the randomisation test: by default (``n_segments``
-    None) the joint's motion cycles (from one velocity reversal to the next but one), chosen from
-    the data so that the verdict does not hang on a free segment count; ``n_segments`` cuts it
-    into that many equal pieces instead. Torque channel only.
+    single-joint ``[qdd, sin q, cos q]``. The exchangeable units of the randomisation test are
+    always the joint's motion cycles (from one velocity reversal to the next but one, of the
+    samples the diagnosis keeps: the blocks :func:`ident.gap.diagnose._motion_blocks` finds),
+    chosen from the data so that the verdict does not hang on a free segment count. The held-out
+    folds are the cycles too (``n_segments`` None) or ``n_segments`` groups of consecutive whole
+    cycles (each cycle goes to the equal-time segment that holds its first sample; empty
+    segments are dropped): a segment boundary never cuts a cycle into two test blocks (measured
+    on the TX40 record before: 10, 20 or 40 equal segments cut its 3-7 cycles per joint into
+    11-40 blocks and turned `none` into `load_dependent` on joint 3 (10) and `nonlinear_viscous`
+    on joints 1 and 2 (20, 40); ``benchmarks/segmentation.py``). Torque channel only.
     """
     from types import SimpleNamespace
 
@@ -303,11 +317,15 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     grav = robot.gravity_torque(q)[:, j0]
     y = tau[:, j0] - arm * qdd[:, j0]
     keep = ~standstill(t, qd[:, j0]) & (np.abs(qd[:, j0]) >= v_zero)
-    if n_segments is None:
-        seg = motion_cycles(qd[:, j0], v_zero)
-        n_segments = int(seg.max()) + 1
-    else:
-        seg = np.minimum((np.arange(t.shape[0]) * n_segments) // t.shape[0], n_segments - 1)
+    seg = np.zeros(t.shape[0], int)
+    if keep.any():
+        cyc = motion_cycles(qd[keep, j0], v_zero)
+        if n_segments is not None:
+            piece = np.minimum((np.flatnonzero(keep) * n_segments) // t.shape[0], n_segments - 1)
+            first = np.r_[True, cyc[1:] != cyc[:-1]]
+            cyc = np.unique(piece[first], return_inverse=True)[1][cyc]
+        seg[keep] = cyc
+    n_segments = int(seg.max()) + 1
     trials = [SimpleNamespace(id=f"segment-{k + 1}", joints=(joint,), load_kg=0.0, vmax_frac=1.0,
                               repetition=k + 1, kind="excitation", extra={}) for k in range(n_segments)]
     k = keep
@@ -321,3 +339,31 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
         tau_max=float(drive.max_torque), trial_m=np.zeros(0, int), e=empty, qd_m=empty, y_m=empty,
         t_m=empty, tau_m=empty, rep=np.arange(1, n_segments + 1), group=np.zeros(n_segments, int),
         fold=np.arange(1, n_segments + 1))
+
+
+def concat_joint_data(parts: list, offsets=None) -> JointData:
+    """One :class:`JointData` from the records ``parts`` of one joint (torque channel, e.g. from
+    :func:`build_joint_data_record` on separate records): their blocks and held-out folds side by
+    side (never across records), times shifted by ``offsets`` onto one clock
+    (:func:`campaign_clock`)."""
+    from types import SimpleNamespace
+
+    if len(parts) == 1:
+        return parts[0]
+    offsets = [0.0] * len(parts) if offsets is None else list(offsets)
+    base = np.cumsum([0] + [p.n_trials for p in parts])
+    fbase = np.cumsum([0] + [int(p.fold.max()) if p.fold.size else 0 for p in parts])
+    trials = [SimpleNamespace(**{**vars(tr), "repetition": int(base[k]) + i + 1})
+              for k, p in enumerate(parts) for i, tr in enumerate(p.trials)]
+    cat = lambda f: np.concatenate([getattr(p, f) for p in parts])  # noqa: E731
+    empty = np.zeros(0)
+    return JointData(
+        joint=parts[0].joint, trials=trials,
+        trial=np.concatenate([p.trial + base[k] for k, p in enumerate(parts)]).astype(int),
+        t=np.concatenate([p.t + off for p, off in zip(parts, offsets)]), t_rel=cat("t_rel"),
+        q=cat("q"), qd=cat("qd"), qdd=cat("qdd"), y=cat("y"), tau_urdf=cat("tau_urdf"),
+        tau_grav=cat("tau_grav"), urdf_regs=cat("urdf_regs"), load=cat("load"),
+        vmax=max(p.vmax for p in parts), tau_max=parts[0].tau_max, trial_m=np.zeros(0, int), e=empty,
+        qd_m=empty, y_m=empty, t_m=empty, tau_m=empty, rep=np.arange(1, int(base[-1]) + 1),
+        group=np.zeros(int(base[-1]), int),
+        fold=np.concatenate([p.fold + fbase[k] for k, p in enumerate(parts)]))

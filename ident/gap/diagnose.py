@@ -86,7 +86,7 @@ def _motion_blocks(trial: np.ndarray, qd: np.ndarray, n_trials: int) -> tuple[np
 
     if trial.size == 0:
         return np.zeros((0, 2), int), np.zeros(0, int)
-    cyc = motion_cycles(qd)
+    cyc = motion_cycles(qd, group=trial)   # counted afresh in each trial
     new = np.r_[True, (trial[1:] != trial[:-1]) | (cyc[1:] != cyc[:-1])]
     starts = np.flatnonzero(new)
     ends = np.r_[starts[1:], trial.size]

@@ -138,36 +138,99 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     return MultiJointFits(fits, pre, secs)
 
 
+def continuous_records(campaign, trials, logs) -> list[list[int]]:
+    """Indices of ``trials`` grouped into continuous records: pieces that move the same joints and
+    whose logs follow each other on one clock, the next starting after the previous one's last
+    sample by no more than a sample step of either (at most three median steps, or the longest
+    step inside them), are one record cut into files (a logger that rotates its files); the
+    pieces of a record are joined in time order. Other trials are records of their own."""
+    order = sorted(range(len(trials)), key=lambda i: float(logs[i].time[0]))
+    groups: list[list[int]] = []
+
+    def step(lg):
+        dt = np.diff(lg.time)
+        return max(3.0 * float(np.median(dt)), float(dt.max())) if dt.size else 0.0
+
+    for i in order:
+        if groups:
+            prev = groups[-1][-1]
+            gap = float(logs[i].time[0] - logs[prev].time[-1])
+            if (tuple(trials[i].joints) == tuple(trials[prev].joints)
+                    and 0.0 < gap <= max(step(logs[i]), step(logs[prev]))):
+                groups[-1].append(i)
+                continue
+        groups.append([i])
+    return groups
+
+
+def _join_logs(logs):
+    """One :class:`mocap.io.robotlog.RobotLog` from consecutive pieces of a record (the columns
+    that every piece has)."""
+    from mocap.io.robotlog import RobotLog
+
+    if len(logs) == 1:
+        return logs[0]
+    keys = [k for k in logs[0].extra if all(k in lg.extra for lg in logs[1:])]
+    return RobotLog(time=np.concatenate([lg.time for lg in logs]),
+                    qm=np.concatenate([lg.qm for lg in logs]),
+                    tau=np.concatenate([lg.tau for lg in logs]),
+                    extra={k: np.concatenate([lg.extra[k] for lg in logs]) for k in keys},
+                    source=logs[0].source)
+
+
 def diagnose_records(campaign, robot, settings, joints=None, record: RecordSettings | None = None,
                      n_segments: int | None = None, progress: bool = False) -> tuple[dict, dict]:
-    """The gap diagnosis of every moving joint of every multi-joint trial, from the CLI: each
-    trial is prepared like `fit` does (:func:`ident.model.record.load_record`: repeated rows,
-    irregular steps, derivatives, coupling, braked-joint check) and handed to
-    ``ident.gap.data.build_joint_data_record`` (torque channel, ``n_segments`` contiguous
-    held-out segments) and ``ident.gap.diagnose_joint``. Returns ``(joints, series)`` keyed
-    ``"<joint>"`` (one multi-joint trial) or ``"<trial>/<joint>"`` (several)."""
+    """The gap diagnosis of every moving joint of the campaign's multi-joint trials, from the
+    CLI. Trials that are pieces of one continuous record (:func:`continuous_records`: a logger
+    that rotated its files) are joined into that record; each record is prepared like `fit` does
+    (:func:`ident.model.record.prepare_record`: repeated rows, irregular steps, derivatives,
+    coupling, braked-joint check) and handed to ``ident.gap.data.build_joint_data_record``
+    (torque channel; blocks = the joint's motion cycles; held-out folds = the cycles, or
+    ``n_segments`` groups of whole cycles); the records of one joint are pooled
+    (``ident.gap.data.concat_joint_data``: blocks and folds never across records) into one
+    ``ident.gap.diagnose_joint``. The verdict is therefore one per joint, whatever the number of
+    files the record was written to. Returns ``(joints, series)`` keyed ``"<joint>"``."""
+    from types import SimpleNamespace
+
     from ident.gap import diagnose_joint
-    from ident.gap.data import build_joint_data_record
+    from ident.gap.data import build_joint_data_record, campaign_clock, concat_joint_data
     from ident.gap.nominal import check_nominal
+    from ident.model.record import coupling_matrix, prepare_record
 
     trials = multijoint_trials(campaign)
     nominal = check_nominal(settings.nominal, [j for tr in trials for j in tr.joints
                                                if not joints or j in joints])
+    logs = [campaign.read_log(tr, robot) for tr in trials]
+    C = coupling_matrix(campaign, robot.n)
+    recs = []
+    for g in continuous_records(campaign, trials, logs):
+        tr = trials[g[0]]
+        rid = tr.id if len(g) == 1 else "+".join(trials[i].id for i in g)
+        recs.append((g, prepare_record(_join_logs([logs[i] for i in g]),
+                                       SimpleNamespace(id=rid, joints=tuple(tr.joints)), robot.n, C,
+                                       record)))
+    offsets = campaign_clock([SimpleNamespace(time=rec.t) for _, rec in recs])
     reports, series = {}, {}
-    for tr in trials:
-        rec = load_record(campaign, tr, robot, record)
-        for j in tr.joints:
-            if joints and j not in joints:
-                continue
-            d = build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
-            res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
-            rep = res.to_dict()
-            rep["nominal"] = nominal.describe(d)
-            folds = ("leave-one-block-out over the joint's motion cycles (blocks chosen from the data)"
-                     if n_segments is None else
-                     f"leave-one-segment-out ({n_segments} contiguous segments)")
-            rep["record"] = {"trial": tr.id, "preprocessing": rec.preprocessing, "folds": folds}
-            key = str(j) if len(trials) == 1 else f"{tr.id}/{j}"
-            series[key] = res.series
-            reports[key] = rep
+    moving = sorted({j for g, rec in recs for j in rec.moving})
+    for j in moving:
+        if joints and j not in joints:
+            continue
+        mine = [(k, g, rec) for k, (g, rec) in enumerate(recs) if j in rec.moving]
+        parts = [build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
+                 for _, _, rec in mine]
+        d = concat_joint_data(parts, [offsets[k] for k, _, _ in mine])
+        res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
+        rep = res.to_dict()
+        rep["nominal"] = nominal.describe(d)
+        folds = ("leave-one-block-out over the joint's motion cycles (blocks chosen from the data)"
+                 if n_segments is None else
+                 f"leave-one-segment-out ({d.n_trials} segments of whole motion cycles, "
+                 f"{n_segments} asked)")
+        rep["record"] = {"trial": " | ".join(rec.trial_id for _, _, rec in mine),
+                         "pieces": [[trials[i].id for i in g] for _, g, _ in mine],
+                         "preprocessing": (mine[0][2].preprocessing if len(mine) == 1 else
+                                           {rec.trial_id: rec.preprocessing for _, _, rec in mine}),
+                         "folds": folds}
+        series[str(j)] = res.series
+        reports[str(j)] = rep
     return reports, series
