@@ -44,7 +44,7 @@ from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
 
-__all__ = ["CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
+__all__ = ["Flex", "CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
            "interval_velocity"]
 
 
@@ -110,6 +110,17 @@ def interval_velocity(t, q):
     t = np.asarray(t, float)
     q = np.asarray(q, float)
     return 0.5 * (t[1:] + t[:-1]), np.diff(q) / np.diff(t)
+
+
+@dataclass(frozen=True)
+class Flex:
+    """A flexible transmission as the drive declares it (FORMAT.md, link side): nominal
+    ``stiffness`` K (N m/rad), ``motor_inertia`` and ``motor_viscous``. The motor encoder sees
+    the link angle plus the spring's deflection, which changes when the drive is cut."""
+
+    stiffness: float
+    motor_inertia: float
+    motor_viscous: float
 
 
 # -- segmentation --------------------------------------------------------------------------
@@ -252,12 +263,14 @@ class AngleCoastResult:
     cov: np.ndarray = field(repr=False, default=None)
     notes: tuple = ()
     x: np.ndarray = field(repr=False, default=None)     # all fitted parameters (restarts)
+    transmission: str = "rigid"     # or "flexible": the declared stiffness's deflection modelled
 
     def to_dict(self) -> dict:
         return {"Kc": self.Kc, "Kv": self.Kv, "J": self.J, "stderr": dict(self.stderr),
                 "corr_Kc_Kv": self.corr, "separable": self.separable, "sigma_q": self.sigma_q,
                 "rms": self.rms, "n_samples": self.n_samples, "converged": self.converged,
-                "coasts": [dict(c) for c in self.coasts], "notes": list(self.notes)}
+                "coasts": [dict(c) for c in self.coasts], "notes": list(self.notes),
+                "transmission": self.transmission}
 
 
 class AngleCoastFit:
@@ -281,19 +294,39 @@ class AngleCoastFit:
         with total inertia ``J``."""
         return self.fit_records([(t, qm, windows, J)])
 
-    def fit_records(self, records, starts=None) -> AngleCoastResult:
+    def fit_records(self, records, starts=None, kv_fixed: float | None = None,
+                    flexible: bool | None = None) -> AngleCoastResult:
         """Fit shared ``Kc``, ``Kv`` to the coasts of several records ``[(t, qm, windows, J),
-        ...]`` (e.g. every coast-down trial of one joint; ``J`` may differ per record).
-        ``starts``: optional fits of the same records one by one (:class:`AngleCoastResult`
-        each, in order): the pooled fit starts from them (one start, sparse Jacobian)."""
+        ...]`` or ``[(t, qm, windows, J, flex), ...]`` (e.g. every coast-down trial of one
+        joint; ``J`` may differ per record; ``flex`` a :class:`Flex` or None for a rigid
+        transmission). ``starts``: optional fits of the same records one by one
+        (:class:`AngleCoastResult` each, in order): the pooled fit starts from them (one
+        start, sparse Jacobian). ``kv_fixed``: hold ``Kv`` at this value and fit ``Kc`` alone
+        (its standard error is then conditional on ``Kv``; ``stderr["Kv"]`` is 0).
+
+        ``flexible``: True uses the declared stiffness (the deflection term of the model), False
+        treats the transmission as rigid, None (default, where a record declares one) fits both
+        and keeps the one with the smaller angle residual: a declared nominal stiffness may be
+        far softer than the joint (then its deflection is not in the record), and the two
+        models have the same parameters. ``transmission`` in the result says which."""
         from ident.signals.smoothing import one_blas_thread
 
+        recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
+        rigid = [r[:4] + (None,) for r in recs]
+        declared = any(r[4] is not None for r in recs)
         with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
-            return self._fit_records(records, starts)
+            if not declared or flexible is False:
+                return self._fit_records(rigid, starts, kv_fixed)
+            if flexible:
+                return self._fit_records(recs, starts, kv_fixed)
+            a = self._fit_records(rigid, starts, kv_fixed)
+            b = self._fit_records(recs, starts, kv_fixed)
+            return b if b.rms < a.rms else a
 
-    def _fit_records(self, records, starts) -> AngleCoastResult:
-        parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J))
-                 for t, q, ws, J in records for w in ws]
+    def _fit_records(self, records, starts, kv_fixed=None) -> AngleCoastResult:
+        recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
+        parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J), fx)
+                 for t, q, ws, J, fx in recs for w in ws]
         if not parts:
             raise InputError("coastdown: no coast to fit")
         K = len(parts)
@@ -304,6 +337,11 @@ class AngleCoastFit:
         ys = np.concatenate([p[1][i] for p, i in zip(parts, idx)])
         Jk = np.array([p[3] for p in parts])
         Jkk = Jk[kk]
+        # flexible transmission (declared stiffness): compliance 1/K, link inertia, motor viscous
+        cK = np.array([0.0 if p[4] is None else 1.0 / p[4].stiffness for p in parts])
+        Il = np.array([0.0 if p[4] is None else max(p[3] - p[4].motor_inertia, 0.0) for p in parts])
+        Bm = np.array([0.0 if p[4] is None else p[4].motor_viscous for p in parts])
+        flexible = bool(np.any(cK > 0))
         t_r = np.array([p[0][w.on] for p, w in zip(parts, windows)])
         h = np.array([p[0][w.on + 1] - p[0][w.on] for p, w in zip(parts, windows)])
         sgn = np.array([w.direction for w in windows], float)
@@ -313,7 +351,7 @@ class AngleCoastFit:
         tau_pre = ts - t_r[kk]
         # starting values per coast: quadratic through the pre window, cut mid-interval
         p_init = np.zeros((K, 3))
-        for k, (tk, qk, w, _) in enumerate(parts):  # loop over coasts
+        for k, (tk, qk, w, _, _) in enumerate(parts):  # loop over coasts
             sel = np.arange(w.pre, w.on + 1)
             deg = 2 if sel.size >= 4 else 1
             c = np.polyfit(tk[sel] - t_r[k], qk[sel] - q_on[k], deg)[::-1]
@@ -327,6 +365,11 @@ class AngleCoastFit:
         kc0 = float(np.median(Jk * v_c0 ** 2 / (2.0 * d0) + sgn * u_bar))
         kc0 = max(kc0, 1e-6)
         vbar = float(np.mean(v_c0))
+
+        fixed = kv_fixed is not None
+
+        def full(x):
+            return np.insert(x, 1, float(kv_fixed)) if fixed else x
 
         def unpack(x):
             Kc, Kv = x[0], x[1]
@@ -345,10 +388,27 @@ class AngleCoastFit:
             pre = p0[kk] + p1[kk] * tp + 0.5 * p2[kk] * tp * tp
             after = tp > tc_rel[kk]
             x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
+            if flexible:
+                x_c = x_c + deflection(tp - tc_rel[kk], Kv, kce, w, sgn * p2)
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
 
-        def resid(x, sig_q):
+        def deflection(tau, Kv, kce, w, a0):
+            """Change of the transmission deflection along the motion since the cut, as the
+            motor encoder sees it (quasi-static spring): ``(I_link (a - a0) + b_link (w - w0))
+            / K`` with ``a = -(Kc' + Kv w) / J`` the coast's deceleration, ``a0`` the
+            acceleration before the cut and ``b_link = Kv - motor_viscous`` the link-side share
+            of the viscous friction; frozen at the stop (the motor sticks)."""
+            tau_s = coast_stop(Jk, Kv, kce, w)[kk]
+            tt = np.clip(tau, 0.0, tau_s)
+            ws = coast_speed(tt, Jkk, Kv, kce[kk], w[kk])
+            ws = np.where(tau >= tau_s, 0.0, ws)
+            acc = -(kce[kk] + Kv * ws) / Jkk
+            bl = np.maximum(Kv - Bm[kk], 0.0)
+            return cK[kk] * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
+
+        def resid(xr, sig_q):
+            x = full(xr)
             qhat, _ = model(x)
             r_q = (ys - qhat) / sig_q
             r_u = (x[2:].reshape(K, 5)[:, 4] - u_bar) / u_se
@@ -381,25 +441,35 @@ class AngleCoastFit:
                                   + [x[2:] for x in xs])]
         else:
             x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base]) for ks in self.kv_starts]
+        keep = np.ones(2 + 5 * K, bool)
+        if fixed:   # Kv held: drop its column
+            keep[1] = False
+            x0s = x0s[:1]
+            opts["bounds"] = (lb[keep], ub[keep])
+            opts["x_scale"] = scale[keep]
+            if "jac_sparsity" in opts:
+                opts["jac_sparsity"] = opts["jac_sparsity"][:, keep]
         best = None
         for x0 in x0s:  # a few starts
-            x0 = np.clip(x0, lb, ub)
+            x0 = np.clip(x0, lb, ub)[keep]
             sol = least_squares(resid, x0, args=(sig_q,), **opts)
             if best is None or sol.cost < best.cost:
                 best = sol
         n_ang = ys.size
-        p_ang = 2 + 4 * K
-        r_ang = (ys - model(best.x)[0])
+        p_ang = 2 + 4 * K - int(fixed)
+        r_ang = (ys - model(full(best.x))[0])
         s_hat = float(np.sqrt(np.sum(r_ang ** 2) / max(n_ang - p_ang, 1)))
         sig_q = max(s_hat, sig_floor)
         best = least_squares(resid, best.x, args=(sig_q,), **opts)
-        x = best.x
+        x = full(best.x)
         r_ang = ys - model(x)[0]
         G = best.jac.toarray() if hasattr(best.jac, "toarray") else np.asarray(best.jac)
         try:
-            cov = np.linalg.pinv(G.T @ G)
+            cov_r = np.linalg.pinv(G.T @ G)
         except np.linalg.LinAlgError:
-            cov = np.full((x.size, x.size), np.nan)
+            cov_r = np.full((G.shape[1], G.shape[1]), np.nan)
+        cov = np.zeros((x.size, x.size))
+        cov[np.ix_(keep, keep)] = cov_r
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         Kc, Kv, P = unpack(x)
         corr = float(cov[0, 1] / (se[0] * se[1])) if se[0] > 0 and se[1] > 0 else float("nan")
@@ -407,7 +477,9 @@ class AngleCoastFit:
         separable = bool(np.isfinite(se[1]) and se[1] * v_top <= self.sep_rel * Kc
                          and se[0] <= self.sep_rel * Kc)
         notes = []
-        if not separable:
+        if fixed:
+            notes.append(f"Kv held at {Kv:.4g} N m s/rad; stderr(Kc) conditional on it")
+        elif not separable:
             notes.append(f"the record cannot separate Kc from Kv: stderr(Kv) = {se[1]:.3g} N m s/rad "
                          f"against Kv = {Kv:.3g} (corr(Kc, Kv) = {corr:+.2f}); coasts from several "
                          "speeds, or longer coasts, separate them")
@@ -416,7 +488,7 @@ class AngleCoastFit:
         _, (qc, vc, kce, w) = model(x)
         tau_s = coast_stop(Jk, Kv, kce, w)
         coasts = []
-        for k, (tk, _, wd, _) in enumerate(parts):  # loop over coasts (report only)
+        for k, (tk, _, wd, _, _) in enumerate(parts):  # loop over coasts (report only)
             rk = r_ang[kk == k]
             x_s = coast_angle(tau_s[k], Jk[k], Kv, kce[k], w[k])[0] if np.isfinite(tau_s[k]) else np.inf
             coasts.append({"t_cut": float(t_r[k] + P[k, 3] * h[k]), "v_cut": float(vc[k]),
@@ -431,4 +503,5 @@ class AngleCoastFit:
                                 separable=separable, sigma_q=sig_q,
                                 rms=float(np.sqrt(np.mean(r_ang ** 2))), n_samples=int(n_ang),
                                 converged=bool(best.success), coasts=tuple(coasts),
-                                cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy())
+                                cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy(),
+                                transmission="flexible" if flexible else "rigid")
