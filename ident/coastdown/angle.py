@@ -394,18 +394,21 @@ class AngleCoastFit:
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
 
         def deflection(tau, Kv, kce, w, a0):
-            """Change of the transmission deflection along the motion since the cut, as the
-            motor encoder sees it (quasi-static spring): ``(I_link (a - a0) + b_link (w - w0))
-            / K`` with ``a = -(Kc' + Kv w) / J`` the coast's deceleration, ``a0`` the
-            acceleration before the cut and ``b_link = Kv - motor_viscous`` the link-side share
-            of the viscous friction; frozen at the stop (the motor sticks)."""
+            """What the motor encoder sees of the transmission's deflection change since the
+            cut (quasi-static spring). The coast model moves the centre of inertia
+            ``X = (I_link q + J_m q_m) / J``; the motor angle is ``q_m = X + (I_link / J) delta``
+            with the deflection ``K delta = I_link a + b_link w - g`` (link equation), so it
+            adds ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) / K`` with ``a = -(Kc' + Kv
+            w) / J`` the coast's deceleration, ``a0`` the acceleration before the cut and
+            ``b_link = Kv - motor_viscous`` the link-side share of the viscous friction; frozen
+            at the stop (the motor sticks). The spring's oscillation about it is noise here."""
             tau_s = coast_stop(Jk, Kv, kce, w)[kk]
             tt = np.clip(tau, 0.0, tau_s)
             ws = coast_speed(tt, Jkk, Kv, kce[kk], w[kk])
             ws = np.where(tau >= tau_s, 0.0, ws)
             acc = -(kce[kk] + Kv * ws) / Jkk
             bl = np.maximum(Kv - Bm[kk], 0.0)
-            return cK[kk] * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
+            return cK[kk] * Il[kk] / Jkk * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
 
         def resid(xr, sig_q):
             x = full(xr)
