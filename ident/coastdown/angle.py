@@ -342,6 +342,9 @@ class AngleCoastFit:
         Il = np.array([0.0 if p[4] is None else max(p[3] - p[4].motor_inertia, 0.0) for p in parts])
         Bm = np.array([0.0 if p[4] is None else p[4].motor_viscous for p in parts])
         flexible = bool(np.any(cK > 0))
+        Jmot = np.array([1.0 if p[4] is None else max(p[4].motor_inertia, 1e-12) for p in parts])
+        wn = np.sqrt(np.where(cK > 0, 1.0 / np.where(cK > 0, cK, 1.0), 0.0)
+                     * (1.0 / np.maximum(Il, 1e-12) + 1.0 / Jmot))
         t_r = np.array([p[0][w.on] for p, w in zip(parts, windows)])
         h = np.array([p[0][w.on + 1] - p[0][w.on] for p, w in zip(parts, windows)])
         sgn = np.array([w.direction for w in windows], float)
@@ -373,7 +376,7 @@ class AngleCoastFit:
 
         def unpack(x):
             Kc, Kv = x[0], x[1]
-            P = x[2:].reshape(K, 5)
+            P = x[2: 2 + 5 * K].reshape(K, 5)
             return Kc, Kv, P
 
         def model(x):
@@ -389,11 +392,11 @@ class AngleCoastFit:
             after = tp > tc_rel[kk]
             x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
             if flexible:
-                x_c = x_c + deflection(tp - tc_rel[kk], Kv, kce, w, sgn * p2)
+                x_c = x_c + deflection(tp - tc_rel[kk], Kv, kce, w, sgn * p2, x[-1])
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
 
-        def deflection(tau, Kv, kce, w, a0):
+        def deflection(tau, Kv, kce, w, a0, zeta):
             """What the motor encoder sees of the transmission's deflection change since the
             cut (quasi-static spring). The coast model moves the centre of inertia
             ``X = (I_link q + J_m q_m) / J``; the motor angle is ``q_m = X + (I_link / J) delta``
@@ -401,29 +404,39 @@ class AngleCoastFit:
             adds ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) / K`` with ``a = -(Kc' + Kv
             w) / J`` the coast's deceleration, ``a0`` the acceleration before the cut and
             ``b_link = Kv - motor_viscous`` the link-side share of the viscous friction; frozen
-            at the stop (the motor sticks). The spring's oscillation about it is noise here."""
+            at the stop (the motor sticks). At the cut the deflection cannot jump: it
+            oscillates about that quasi-static value from where it was, at the two-mass
+            frequency ``w_n = sqrt(K (1/I_link + 1/J_m))`` with damping ratio ``zeta`` (fitted,
+            shared), ``e(tau) = -D(0+) exp(-zeta w_n tau) (cos w_d tau + zeta w_n / w_d sin
+            w_d tau)``."""
             tau_s = coast_stop(Jk, Kv, kce, w)[kk]
             tt = np.clip(tau, 0.0, tau_s)
             ws = coast_speed(tt, Jkk, Kv, kce[kk], w[kk])
             ws = np.where(tau >= tau_s, 0.0, ws)
             acc = -(kce[kk] + Kv * ws) / Jkk
             bl = np.maximum(Kv - Bm[kk], 0.0)
-            return cK[kk] * Il[kk] / Jkk * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
+            D = cK[kk] * Il[kk] / Jkk * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
+            D0 = cK * Il / Jk * (Il * (-(kce + Kv * w) / Jk - a0) + 0.0)
+            wd = wn * np.sqrt(1.0 - zeta * zeta)
+            e = np.exp(-zeta * wn[kk] * tt) * (np.cos(wd[kk] * tt) + zeta * wn[kk] / wd[kk] * np.sin(wd[kk] * tt))
+            return D - D0[kk] * e
 
         def resid(xr, sig_q):
             x = full(xr)
             qhat, _ = model(x)
             r_q = (ys - qhat) / sig_q
-            r_u = (x[2:].reshape(K, 5)[:, 4] - u_bar) / u_se
+            r_u = (x[2: 2 + 5 * K].reshape(K, 5)[:, 4] - u_bar) / u_se
             return np.concatenate([r_q, r_u])
 
-        lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, 0.0, -np.inf], K)])
+        nz = int(flexible)     # the spring's damping ratio, last parameter, where flexible
+        lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, 0.0, -np.inf], K), [0.0] * nz])
         # the cut lies after the last drive-on sample; an amplifier's current lag can carry the
         # torque a little past the first sample that logs the cut
-        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K)])
+        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K), [0.9] * nz])
         base = np.column_stack([p_init, np.full(K, 0.5), u_bar]).ravel()
         scale = np.concatenate([[kc0, kc0 / max(vbar, 1e-6)],
-                                np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K)])
+                                np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K),
+                                [0.1] * nz])
         scale[6::5] = np.maximum(u_se * 3, 1e-6)
         sig_q = max(sig_floor, 1e-9)
         opts = dict(bounds=(lb, ub), x_scale=scale, method="trf", max_nfev=self.max_nfev,
@@ -431,8 +444,9 @@ class AngleCoastFit:
         if K > 12:   # many coasts: each coast's parameters touch only its own rows
             from scipy.sparse import lil_matrix
 
-            sp = lil_matrix((ys.size + K, 2 + 5 * K), dtype=np.int8)
+            sp = lil_matrix((ys.size + K, 2 + 5 * K + nz), dtype=np.int8)
             sp[: ys.size, :2] = 1
+            sp[: ys.size, 2 + 5 * K:] = 1
             for k in range(K):  # loop over coasts
                 rows = np.flatnonzero(kk == k)
                 sp[rows[0]: rows[-1] + 1, 2 + 5 * k: 7 + 5 * k] = 1
@@ -441,10 +455,13 @@ class AngleCoastFit:
         if starts is not None:
             xs = [np.asarray(r.x, float) for r in starts]
             x0s = [np.concatenate([[np.median([x[0] for x in xs]), np.median([x[1] for x in xs])]]
-                                  + [x[2:] for x in xs])]
+                                  + [x[2: 2 + 5 * K0] for x, K0 in zip(xs, (len(r.coasts) for r in starts))]
+                                  + [[np.median([x[-1] if r.transmission == "flexible" else 0.1
+                                                 for x, r in zip(xs, starts)])]] * nz)]
         else:
-            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base]) for ks in self.kv_starts]
-        keep = np.ones(2 + 5 * K, bool)
+            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base, [0.1] * nz])
+                   for ks in self.kv_starts]
+        keep = np.ones(2 + 5 * K + nz, bool)
         if fixed:   # Kv held: drop its column
             keep[1] = False
             x0s = x0s[:1]
@@ -459,7 +476,7 @@ class AngleCoastFit:
             if best is None or sol.cost < best.cost:
                 best = sol
         n_ang = ys.size
-        p_ang = 2 + 4 * K - int(fixed)
+        p_ang = 2 + 4 * K + nz - int(fixed)
         r_ang = (ys - model(full(best.x))[0])
         s_hat = float(np.sqrt(np.sum(r_ang ** 2) / max(n_ang - p_ang, 1)))
         sig_q = max(s_hat, sig_floor)
