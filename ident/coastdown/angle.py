@@ -306,7 +306,8 @@ class AngleCoastFit:
 
         ``flexible``: True uses the declared stiffness (the deflection term of the model), False
         treats the transmission as rigid, None (default, where a record declares one) fits both
-        and keeps the one with the smaller angle residual: a declared nominal stiffness may be
+        and keeps the one Schwarz's criterion prefers (the flexible one has one parameter more,
+        the spring's damping ratio): a declared nominal stiffness may be
         far softer than the joint (then its deflection is not in the record), and the two
         models have the same parameters. ``transmission`` in the result says which."""
         from ident.signals.smoothing import one_blas_thread
@@ -321,7 +322,11 @@ class AngleCoastFit:
                 return self._fit_records(recs, starts, kv_fixed)
             a = self._fit_records(rigid, starts, kv_fixed)
             b = self._fit_records(recs, starts, kv_fixed)
-            return b if b.rms < a.rms else a
+            # Schwarz's criterion: the flexible model has one more parameter (the damping)
+            n = a.n_samples
+            bic_a = n * np.log(max(a.rms, 1e-300) ** 2)
+            bic_b = n * np.log(max(b.rms, 1e-300) ** 2) + np.log(n)
+            return b if bic_b < bic_a else a
 
     def _fit_records(self, records, starts, kv_fixed=None) -> AngleCoastResult:
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
