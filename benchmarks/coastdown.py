@@ -212,12 +212,14 @@ def _summarise(name, rows, pooled=()):
     tdm_kc = a[:, 6][np.isfinite(a[:, 6])]
     line = (f"{name:>28} | {a.shape[0]:3d} {int(a[:, 7].sum()):3d} | {100 * np.median(np.abs(a[:, 0])):6.2f} "
             f"{100 * np.median(np.abs(a[:, 5])):7.2f} {100 * np.median(np.abs(a[:, 1])):6.2f} | "
-            f"{np.mean(a[:, 4]):5.2f} | {np.mean(np.abs(a[:, 2]) < 1.96):5.2f} {np.mean(np.abs(a[:, 3]) < 1.96):5.2f} | "
+            f"{np.mean(a[:, 4]):5.2f} | {np.mean(np.abs(a[:, 2]) < 1.96):5.2f} {np.mean(np.abs(a[:, 3]) < 1.96):5.2f} "
+            f"{np.sqrt(np.mean(a[:, 2] ** 2)):5.2f} {np.sqrt(np.mean(a[:, 3] ** 2)):5.2f} | "
             f"{100 * np.median(np.abs(tdm_kc)) if tdm_kc.size else float('nan'):6.2f}")
     if len(pooled):
         p = np.array(pooled, float)
         line += (f" | {p.shape[0]:2d} {100 * np.median(np.abs(p[:, 0])):6.2f} {100 * np.median(np.abs(p[:, 1])):6.2f} "
-                 f"{np.mean(np.abs(p[:, 2]) < 1.96):5.2f} {np.mean(np.abs(p[:, 3]) < 1.96):5.2f}")
+                 f"{np.mean(np.abs(p[:, 2]) < 1.96):5.2f} {np.mean(np.abs(p[:, 3]) < 1.96):5.2f} "
+                 f"{np.sqrt(np.mean(p[:, 2] ** 2)):5.2f} {np.sqrt(np.mean(p[:, 3] ** 2)):5.2f}")
     print(line)
     return a
 
@@ -238,11 +240,12 @@ def campaign_part(seeds, synth_seeds, synth_rates):
     print("per (trial, joint): n = results, pkv = of them reported at the joint's pooled Kv (method "
           "ml-pooled-kv: the trial alone cannot separate Kc from Kv);\n|eKc| = median |Kc error| of the "
           "reported Kc (ML = the trial-only ML fit), |eKv| likewise; Kv ok = share within 3 reported "
-          "standard errors or 20 %;\ncov = share of |error| < 1.96 reported standard errors (nominal 0.95); "
+          "standard errors or 20 %;\ncov = share of |error| < 1.96 reported standard errors (nominal 0.95), z = RMS of "
+          "error / reported standard error (1 for honest standard errors); "
           "TDM = the paper's method on the same coasts (coasts long enough);\npooled = the joint's fit "
-          "over all its coast-down trials, one per campaign (n campaigns, |eKc| |eKv| cov Kc cov Kv)")
+          "over all its coast-down trials, one per campaign (n campaigns, |eKc| |eKv| cov Kc cov Kv z Kc z Kv)")
     hdr = (f"{'setting':>28} | {'n':>3} {'pkv':>3} | {'|eKc|%':>6} {'ML|eKc|':>7} {'|eKv|%':>6} | {'Kv ok':>5} | "
-           f"{'covKc':>5} {'covKv':>5} | {'TDM%':>6} | pooled")
+           f"{'covKc':>5} {'covKv':>5} {'zKc':>5} {'zKv':>5} | {'TDM%':>6} | pooled")
     print(hdr)
     print("-" * len(hdr))
     tmp = Path(tempfile.mkdtemp(prefix="cdbench-"))

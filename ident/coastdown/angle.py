@@ -276,14 +276,18 @@ class AngleCoastResult:
 class AngleCoastFit:
     """Maximum-likelihood coast-down fit on the encoder angle (module docstring).
 
-    ``resolution``: encoder step (rad, link side; 0 if unknown); ``kv_starts``: starting
+    ``resolution``: encoder step (rad, link side; 0 if unknown); ``cut_lead``: the cut may
+    lie this many log intervals before the last sample whose torque shows the drive on (-1: a
+    log whose torque is an interval mean, or lags the angle, shows an intermediate torque
+    after the cut; the fit finds the cut from the angle); ``kv_starts``: starting
     values of ``Kv`` as multiples of ``Kc / mean speed`` (multi-start, least cost kept);
     ``sep_rel``: the record separates ``Kc`` from ``Kv`` when the standard error of ``Kc``
     and that of the viscous torque ``Kv v`` at the fastest cut are both within ``sep_rel``
     times ``Kc``."""
 
     def __init__(self, resolution: float = 0.0, kv_starts=(0.05, 0.5, 2.0), sep_rel: float = 0.2,
-                 max_nfev: int = 400):
+                 max_nfev: int = 400, cut_lead: float = -1.0):
+        self.cut_lead = float(cut_lead)
         self.resolution = float(resolution)
         self.kv_starts = tuple(kv_starts)
         self.sep_rel = float(sep_rel)
@@ -434,9 +438,10 @@ class AngleCoastFit:
             return np.concatenate([r_q, r_u])
 
         nz = int(flexible)     # the spring's damping ratio, last parameter, where flexible
-        lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, 0.0, -np.inf], K), [0.0] * nz])
-        # the cut lies after the last drive-on sample; an amplifier's current lag can carry the
-        # torque a little past the first sample that logs the cut
+        lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, self.cut_lead, -np.inf], K), [0.0] * nz])
+        # the cut lies near the last drive-on sample: up to one interval before it (a torque
+        # logged as an interval mean or with a lag), up to 1.5 after (an amplifier's current
+        # lag can carry the torque a little past the first sample that logs the cut)
         ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K), [0.9] * nz])
         base = np.column_stack([p_init, np.full(K, 0.5), u_bar]).ravel()
         scale = np.concatenate([[kc0, kc0 / max(vbar, 1e-6)],
