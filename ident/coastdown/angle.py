@@ -27,6 +27,14 @@ for a controller that keeps one) minus the URDF gravity torque. It is measured (
 coast and the first rest samples, standard error from their scatter) and enters the fit as a
 parameter with that prior, so its uncertainty reaches the standard error of ``Kc``.
 
+A flexible transmission (the drive's declared nominal ``stiffness`` K, FORMAT.md): the
+coast moves the centre of inertia; the motor encoder sees in addition ``I_link / J`` of the
+deflection's change, quasi-static ``(I_link (a - a0) + b_link (w - w0)) / K`` (``a`` the
+deceleration, ``b_link = Kv - motor_viscous``), about which the spring rings from the cut on at
+the two-mass frequency with a fitted damping ratio (:meth:`AngleCoastFit.fit_records`). The
+fit keeps the rigid or the flexible model by Schwarz's criterion (a declared stiffness may be
+far below the joint's).
+
 All coasts of a record share ``Kc`` and ``Kv`` (the total viscous coefficient, link and motor
 side); each has its own ``(q, v, a)`` before the cut, its cut instant and its ``u``. The fit
 is maximum likelihood under white angle noise (nonlinear least squares, numerical Jacobian,

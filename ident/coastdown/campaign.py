@@ -19,6 +19,11 @@ For every coast-down trial (one joint at a time) and its joint:
 
 Per joint, all coasts of all its coast-down trials are also fitted together (``joints`` in
 ``coastdown.json``): several speeds separate ``Kc`` from ``Kv`` where one short record cannot.
+A trial that cannot separate them alone (short coasts at a controller rate, one speed) is
+reported at the joint's pooled ``Kv`` (``method = "ml-pooled-kv"``: its ``Kc`` fitted with
+``Kv`` held there, the standard error including the pooled ``Kv``'s; the trial's own fit under
+``trial_only``). The drive's declared ``stiffness`` enters the angle model
+(:class:`ident.coastdown.angle.Flex`).
 Outputs (:func:`write_coastdown`): ``coastdown.json`` (FORMAT.md keys plus diagnostics),
 ``coastdown.md`` with a decay-curve figure per trial (``plots/``), and a rerun view.
 """
