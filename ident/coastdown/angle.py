@@ -171,7 +171,8 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
     within 5 noise levels (or a quarter of the drive's level) of ``L``. It is a coast when the drive-on torque differs from ``L`` by at least that much and
     the speed over the last interval before the cut is at least ``v_min``, and is a coast's
     (not a controlled stop's): the drive torque pushes along the motion, the joint is not
-    already slowing down (speed at the cut >= 0.7 x the largest speed of the pre-cut window),
+    already slowing down (speed at the cut >= 0.7 x the largest speed of the pre-cut window;
+    speeds over as many intervals as span 3 encoder steps),
     and it comes to rest within 3 times the distance ``J v^2 / (2 |drive torque|)`` that the
     friction the drive was overcoming would stop it in (a friction that falls with speed
     gives at most twice that), which must be at least one encoder step. ``gravity`` (a
@@ -216,7 +217,15 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
         # while it coasts the torque keeps the level (a gravity compensation may drift a little)
         if s > on + 1 and float(np.max(dev[on + 1 - lo:])) > max(5.0 * sig, 0.25 * D):
             continue
-        speed = (qm[on] - qm[on - 1]) / (t[on] - t[on - 1])
+        # speeds over k intervals spanning a few encoder steps (a slow joint at a fast log
+        # moves about one step per sample: one-interval differences are mostly quantisation)
+        n_pre = max(min_pre, int(round(pre_s / dt)))
+        k0 = max(0, on - n_pre)
+        v_est = abs(qm[on] - qm[k0]) / max(t[on] - t[k0], 1e-12)
+        k = int(np.clip(np.ceil(3.0 * resolution / max(v_est * dt, 1e-12)), 1, max(1, (on - k0) // 3)))
+        if on - k < 0:
+            continue
+        speed = (qm[on] - qm[on - k]) / (t[on] - t[on - k])
         if abs(speed) < v_min:
             continue
         direction = 1 if speed > 0 else -1
@@ -227,14 +236,14 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
         d_act = abs(qm[s] - qm[on])
         if d_exp < resolution or d_act > 3.0 * d_exp + 2.0 * resolution:
             continue
-        # pre-cut window: the drive on and the joint moving the same way
-        k0 = max(0, on - max(min_pre, int(round(pre_s / dt))))
-        mv = direction * np.diff(qm[k0: on + 1]) > 0
+        # pre-cut window: the drive on and the joint moving the same way (over k intervals)
+        seg = qm[k0: on + 1]
+        mv = direction * (seg[k:] - seg[:-k]) > 0
         bad = np.flatnonzero(~mv)
         pre = k0 + (int(bad[-1]) + 1 if bad.size else 0)
-        if on - pre + 1 < min_pre:
+        if on - pre + 1 < max(min_pre, k + 1):
             continue
-        v_pre = np.abs(np.diff(qm[pre: on + 1]) / np.diff(t[pre: on + 1]))
+        v_pre = np.abs((qm[pre + k: on + 1] - qm[pre: on + 1 - k]) / (t[pre + k: on + 1] - t[pre: on + 1 - k]))
         if abs(speed) < 0.7 * float(v_pre.max()):
             continue
         idx = np.arange(on + 1, min(n, s + m + 1))
