@@ -168,8 +168,9 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
     samples, its noise the scaled MAD; walking back from ``s``, the last sample whose torque
     differs from ``L`` by more than half the drive's level before it (and by ``jump_sigmas``
     noise levels) is the drive's last sample ``on``; the coasting samples after it must stay
-    within 5 noise levels (or a quarter of the drive's level) of ``L``. It is a coast when the drive-on torque differs from ``L`` by at least that much and
-    the speed over the last interval before the cut is at least ``v_min``, and is a coast's
+    within 5 noise levels (or a quarter of the drive's level) of ``L``. It is a coast when the
+    drive-on torque differs from ``L`` by at least that much and the speed before the cut is at
+    least ``v_min``, and is a coast's
     (not a controlled stop's): the drive torque pushes along the motion, the joint is not
     already slowing down (speed at the cut >= 0.7 x the largest speed of the pre-cut window;
     speeds over as many intervals as span 3 encoder steps),
