@@ -59,16 +59,24 @@ def test_stiff_joint_estimates_cover_the_truth(tmp_path, f_log):
     assert np.max(np.abs(z)) < 3.0, z
 
 
-def test_flexible_joint_within_acceptance(tmp_path):
-    """The world's visibly flexible joint (0.06-0.1 deg at max torque) at 500 Hz: the motor
-    angle is not the rigid coast's, which biases Kv by a few percent (more than its standard
-    error: see the report); Kc within 2 %, Kv within 20 % or 3 standard errors."""
-    for seed in (0, 1):
+@pytest.mark.parametrize("f_log", [200.0, 500.0])
+def test_flexible_joint_deflection_is_modelled(tmp_path, f_log):
+    """The world's visibly flexible joint (0.06-0.1 deg at max torque, motor-side friction,
+    lightly damped spring): the motor encoder sees the deflection change at the cut and the
+    spring's ringing, which bias a rigid fit's Kv by 1-3 % (3-4 of its standard errors at
+    500 Hz). With the declared stiffness the fit keeps the flexible transmission, Kc within
+    1 %, Kv within 3 %, and both within 2.5 reported standard errors of the truth."""
+    z = []
+    for seed in (0, 2):
         root = tmp_path / f"f{seed}"
-        truth = write_campaign(root, seed, f_log=500.0)
-        ml = _ml(root)[0].ml
-        assert abs(ml.Kc / truth["Kc"] - 1) < 0.02, ml.to_dict()
-        assert abs(ml.Kv - truth["Kv"]) < max(3 * ml.stderr["Kv"], 0.2 * truth["Kv"]), ml.to_dict()
+        truth = write_campaign(root, seed, f_log=f_log)
+        r = _ml(root)[0]
+        ml = r.ml
+        assert ml.transmission == "flexible" and r.method == "ml", ml.to_dict()
+        assert abs(ml.Kc / truth["Kc"] - 1) < 0.01, ml.to_dict()
+        assert abs(ml.Kv / truth["Kv"] - 1) < 0.03, ml.to_dict()
+        z += [(ml.Kc - truth["Kc"]) / ml.stderr["Kc"], (ml.Kv - truth["Kv"]) / ml.stderr["Kv"]]
+    assert np.max(np.abs(z)) < 2.5, z
 
 
 def test_cli_writes_format_outputs_and_paper_methods(tmp_path, capsys):
@@ -81,7 +89,7 @@ def test_cli_writes_format_outputs_and_paper_methods(tmp_path, capsys):
     assert d["format"] == 1 and e["method"] == "ml"
     for k in ("Kc", "Kv", "J", "stderr", "methods"):
         assert k in e
-    assert set(e["methods"]) == {"tdm", "fdm"}
+    assert set(e["methods"]) == {"ml", "tdm", "fdm"}
     assert abs(e["Kc"] / truth["Kc"] - 1) < 0.02 and abs(e["J"] / truth["J"] - 1) < 1e-6
     # at 1 kHz the coasts are long enough for the paper's methods: TDM close to the truth
     assert e["methods"]["tdm"]["n_coasts"] == 6
@@ -104,27 +112,51 @@ def test_campaign_without_coastdown_trials_is_one_line_exit_2(tmp_path, capsys):
     assert len(err) == 1 and "coastdown" in err[0] and "campaign.toml" in err[0], err
 
 
-def test_synth_coastdown_trial(tmp_path):
-    """``jointlab synth`` coast-down trials (PA10 joint 5, link-side friction, gravity
-    compensated while coasting, 200 Hz log; the coasts last 1-10 samples): each trial's Kc
-    within 5 % and Kv within 3 standard errors or 20 %; the two trials pooled separate Kc
-    from Kv."""
+def _synth(tmp_path, loads, vmax, seed):
     from ident.sim.campaign import CampaignSynth, SynthConfig
 
     out = tmp_path / "cd"
-    cfg = SynthConfig(joints=(5,), loads=(3.373,), vmax=(0.6, 1.0), reps=1, kinds=("coastdown",), seed=4)
+    cfg = SynthConfig(joints=(5,), loads=loads, vmax=vmax, reps=1, kinds=("coastdown",), seed=seed)
     CampaignSynth(cfg).write(out, progress=False)
     truth = json.loads((tmp_path / "cd.truth.json").read_text())
     kc = truth["joints"]["5"]["plant"]["c_pos"]
     kv = truth["joints"]["5"]["plant"]["v"] + truth["joints"]["5"]["B"]
+    return out, truth, kc, kv
+
+
+def test_synth_coastdown_trial(tmp_path):
+    """``jointlab synth`` coast-down trials (PA10 joint 5, link-side friction, gravity
+    compensated while coasting, 200 Hz log; the coasts last 2-10 samples): each trial's Kc
+    within 5 % and Kv within 3 standard errors or 20 %; the two trials pooled separate Kc
+    from Kv."""
+    out, truth, kc, kv = _synth(tmp_path, (3.373,), (0.6, 1.0), 4)
     rep = analyse_campaign(load_campaign(out))
     for r in rep.trials:
-        ml = r.ml
-        assert len(ml.coasts) == len(truth["trials"][r.trial]["coastdown_releases"])
-        assert abs(ml.Kc / kc - 1) < 0.05, ml.to_dict()
-        assert abs(ml.Kv - kv) < max(3 * ml.stderr["Kv"], 0.2 * kv), ml.to_dict()
+        assert len(r.ml.coasts) == len(truth["trials"][r.trial]["coastdown_releases"])
+        assert abs(r.Kc / kc - 1) < 0.05, r.to_format()
+        assert abs(r.Kv - kv) < max(3 * r.stderr["Kv"], 0.2 * kv), r.to_format()
     pooled = rep.joints[5]
     assert pooled.separable and abs(pooled.Kc / kc - 1) < 0.03 and abs(pooled.Kv / kv - 1) < 0.2
+
+
+def test_synth_short_coasts_use_the_pooled_kv(tmp_path):
+    """A 200 Hz trial cut at 10-25 % of max speed (coasts of 1-2 samples) cannot separate Kc
+    from Kv alone (its own ML Kc is off by tens of percent, with a standard error that says
+    so); it is reported at the joint's pooled Kv: Kc within 5 % and 3 standard errors, and
+    coastdown.json says how (method, trial_only, pooled_kv)."""
+    out, truth, kc, kv = _synth(tmp_path, (0.0,), (0.25, 1.0), 4)
+    rep = analyse_campaign(load_campaign(out))
+    slow = next(r for r in rep.trials if r.vmax_frac == 0.25)
+    assert max(c["samples_coasting"] for c in slow.ml.coasts) <= 3
+    assert not slow.ml.separable and slow.method == "ml-pooled-kv"
+    assert slow.Kv == rep.joints[5].Kv and rep.joints[5].separable
+    assert abs(slow.Kc / kc - 1) < 0.05 and abs(slow.Kc - kc) < 3 * slow.stderr["Kc"], slow.to_format()
+    assert slow.stderr["Kc"] >= slow.pooled_kv["stderr_Kc_given_Kv"]
+    d = slow.to_format()
+    assert d["method"] == "ml-pooled-kv" and d["trial_only"]["Kc"] == slow.ml.Kc
+    assert d["pooled_kv"]["n_coasts_pooled"] == len(rep.joints[5].coasts)
+    fast = next(r for r in rep.trials if r.vmax_frac == 1.0)
+    assert fast.method == "ml" and abs(fast.Kc / kc - 1) < 0.05
 
 
 def test_study_runs_the_coastdown_stage_and_resumes(tmp_path):

@@ -27,6 +27,14 @@ for a controller that keeps one) minus the URDF gravity torque. It is measured (
 coast and the first rest samples, standard error from their scatter) and enters the fit as a
 parameter with that prior, so its uncertainty reaches the standard error of ``Kc``.
 
+A flexible transmission (the drive's declared nominal ``stiffness`` K, FORMAT.md): the
+coast moves the centre of inertia; the motor encoder sees in addition ``I_link / J`` of the
+deflection's change, quasi-static ``(I_link (a - a0) + b_link (w - w0)) / K`` (``a`` the
+deceleration, ``b_link = Kv - motor_viscous``), about which the spring rings from the cut on at
+the two-mass frequency with a fitted damping ratio (:meth:`AngleCoastFit.fit_records`). The
+fit keeps the rigid or the flexible model by Schwarz's criterion (a declared stiffness may be
+far below the joint's).
+
 All coasts of a record share ``Kc`` and ``Kv`` (the total viscous coefficient, link and motor
 side); each has its own ``(q, v, a)`` before the cut, its cut instant and its ``u``. The fit
 is maximum likelihood under white angle noise (nonlinear least squares, numerical Jacobian,
@@ -44,7 +52,7 @@ from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
 
-__all__ = ["CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
+__all__ = ["Flex", "CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
            "interval_velocity"]
 
 
@@ -112,6 +120,17 @@ def interval_velocity(t, q):
     return 0.5 * (t[1:] + t[:-1]), np.diff(q) / np.diff(t)
 
 
+@dataclass(frozen=True)
+class Flex:
+    """A flexible transmission as the drive declares it (FORMAT.md, link side): nominal
+    ``stiffness`` K (N m/rad), ``motor_inertia`` and ``motor_viscous``. The motor encoder sees
+    the link angle plus the spring's deflection, which changes when the drive is cut."""
+
+    stiffness: float
+    motor_inertia: float
+    motor_viscous: float
+
+
 # -- segmentation --------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CoastWindow:
@@ -149,10 +168,12 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
     samples, its noise the scaled MAD; walking back from ``s``, the last sample whose torque
     differs from ``L`` by more than half the drive's level before it (and by ``jump_sigmas``
     noise levels) is the drive's last sample ``on``; the coasting samples after it must stay
-    within 5 noise levels (or a quarter of the drive's level) of ``L``. It is a coast when the drive-on torque differs from ``L`` by at least that much and
-    the speed over the last interval before the cut is at least ``v_min``, and is a coast's
+    within 5 noise levels (or a quarter of the drive's level) of ``L``. It is a coast when the
+    drive-on torque differs from ``L`` by at least that much and the speed before the cut is at
+    least ``v_min``, and is a coast's
     (not a controlled stop's): the drive torque pushes along the motion, the joint is not
-    already slowing down (speed at the cut >= 0.7 x the largest speed of the pre-cut window),
+    already slowing down (speed at the cut >= 0.7 x the largest speed of the pre-cut window;
+    speeds over as many intervals as span 3 encoder steps),
     and it comes to rest within 3 times the distance ``J v^2 / (2 |drive torque|)`` that the
     friction the drive was overcoming would stop it in (a friction that falls with speed
     gives at most twice that), which must be at least one encoder step. ``gravity`` (a
@@ -197,7 +218,15 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
         # while it coasts the torque keeps the level (a gravity compensation may drift a little)
         if s > on + 1 and float(np.max(dev[on + 1 - lo:])) > max(5.0 * sig, 0.25 * D):
             continue
-        speed = (qm[on] - qm[on - 1]) / (t[on] - t[on - 1])
+        # speeds over k intervals spanning a few encoder steps (a slow joint at a fast log
+        # moves about one step per sample: one-interval differences are mostly quantisation)
+        n_pre = max(min_pre, int(round(pre_s / dt)))
+        k0 = max(0, on - n_pre)
+        v_est = abs(qm[on] - qm[k0]) / max(t[on] - t[k0], 1e-12)
+        k = int(np.clip(np.ceil(3.0 * resolution / max(v_est * dt, 1e-12)), 1, max(1, (on - k0) // 3)))
+        if on - k < 0:
+            continue
+        speed = (qm[on] - qm[on - k]) / (t[on] - t[on - k])
         if abs(speed) < v_min:
             continue
         direction = 1 if speed > 0 else -1
@@ -208,14 +237,14 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
         d_act = abs(qm[s] - qm[on])
         if d_exp < resolution or d_act > 3.0 * d_exp + 2.0 * resolution:
             continue
-        # pre-cut window: the drive on and the joint moving the same way
-        k0 = max(0, on - max(min_pre, int(round(pre_s / dt))))
-        mv = direction * np.diff(qm[k0: on + 1]) > 0
+        # pre-cut window: the drive on and the joint moving the same way (over k intervals)
+        seg = qm[k0: on + 1]
+        mv = direction * (seg[k:] - seg[:-k]) > 0
         bad = np.flatnonzero(~mv)
         pre = k0 + (int(bad[-1]) + 1 if bad.size else 0)
-        if on - pre + 1 < min_pre:
+        if on - pre + 1 < max(min_pre, k + 1):
             continue
-        v_pre = np.abs(np.diff(qm[pre: on + 1]) / np.diff(t[pre: on + 1]))
+        v_pre = np.abs((qm[pre + k: on + 1] - qm[pre: on + 1 - k]) / (t[pre + k: on + 1] - t[pre: on + 1 - k]))
         if abs(speed) < 0.7 * float(v_pre.max()):
             continue
         idx = np.arange(on + 1, min(n, s + m + 1))
@@ -252,25 +281,31 @@ class AngleCoastResult:
     cov: np.ndarray = field(repr=False, default=None)
     notes: tuple = ()
     x: np.ndarray = field(repr=False, default=None)     # all fitted parameters (restarts)
+    transmission: str = "rigid"     # or "flexible": the declared stiffness's deflection modelled
 
     def to_dict(self) -> dict:
         return {"Kc": self.Kc, "Kv": self.Kv, "J": self.J, "stderr": dict(self.stderr),
                 "corr_Kc_Kv": self.corr, "separable": self.separable, "sigma_q": self.sigma_q,
                 "rms": self.rms, "n_samples": self.n_samples, "converged": self.converged,
-                "coasts": [dict(c) for c in self.coasts], "notes": list(self.notes)}
+                "coasts": [dict(c) for c in self.coasts], "notes": list(self.notes),
+                "transmission": self.transmission}
 
 
 class AngleCoastFit:
     """Maximum-likelihood coast-down fit on the encoder angle (module docstring).
 
-    ``resolution``: encoder step (rad, link side; 0 if unknown); ``kv_starts``: starting
+    ``resolution``: encoder step (rad, link side; 0 if unknown); ``cut_lead``: the cut may
+    lie this many log intervals before the last sample whose torque shows the drive on (-1: a
+    log whose torque is an interval mean, or lags the angle, shows an intermediate torque
+    after the cut; the fit finds the cut from the angle); ``kv_starts``: starting
     values of ``Kv`` as multiples of ``Kc / mean speed`` (multi-start, least cost kept);
     ``sep_rel``: the record separates ``Kc`` from ``Kv`` when the standard error of ``Kc``
     and that of the viscous torque ``Kv v`` at the fastest cut are both within ``sep_rel``
     times ``Kc``."""
 
     def __init__(self, resolution: float = 0.0, kv_starts=(0.05, 0.5, 2.0), sep_rel: float = 0.2,
-                 max_nfev: int = 400):
+                 max_nfev: int = 400, cut_lead: float = -1.0):
+        self.cut_lead = float(cut_lead)
         self.resolution = float(resolution)
         self.kv_starts = tuple(kv_starts)
         self.sep_rel = float(sep_rel)
@@ -281,19 +316,44 @@ class AngleCoastFit:
         with total inertia ``J``."""
         return self.fit_records([(t, qm, windows, J)])
 
-    def fit_records(self, records, starts=None) -> AngleCoastResult:
+    def fit_records(self, records, starts=None, kv_fixed: float | None = None,
+                    flexible: bool | None = None) -> AngleCoastResult:
         """Fit shared ``Kc``, ``Kv`` to the coasts of several records ``[(t, qm, windows, J),
-        ...]`` (e.g. every coast-down trial of one joint; ``J`` may differ per record).
-        ``starts``: optional fits of the same records one by one (:class:`AngleCoastResult`
-        each, in order): the pooled fit starts from them (one start, sparse Jacobian)."""
+        ...]`` or ``[(t, qm, windows, J, flex), ...]`` (e.g. every coast-down trial of one
+        joint; ``J`` may differ per record; ``flex`` a :class:`Flex` or None for a rigid
+        transmission). ``starts``: optional fits of the same records one by one
+        (:class:`AngleCoastResult` each, in order): the pooled fit starts from them (one
+        start, sparse Jacobian). ``kv_fixed``: hold ``Kv`` at this value and fit ``Kc`` alone
+        (its standard error is then conditional on ``Kv``; ``stderr["Kv"]`` is 0).
+
+        ``flexible``: True uses the declared stiffness (the deflection term of the model), False
+        treats the transmission as rigid, None (default, where a record declares one) fits both
+        and keeps the one Schwarz's criterion prefers (the flexible one has one parameter more,
+        the spring's damping ratio): a declared nominal stiffness may be
+        far softer than the joint (then its deflection is not in the record), and the two
+        models have the same parameters. ``transmission`` in the result says which."""
         from ident.signals.smoothing import one_blas_thread
 
+        recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
+        rigid = [r[:4] + (None,) for r in recs]
+        declared = any(r[4] is not None for r in recs)
         with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
-            return self._fit_records(records, starts)
+            if not declared or flexible is False:
+                return self._fit_records(rigid, starts, kv_fixed)
+            if flexible:
+                return self._fit_records(recs, starts, kv_fixed)
+            a = self._fit_records(rigid, starts, kv_fixed)
+            b = self._fit_records(recs, starts, kv_fixed)
+            # Schwarz's criterion: the flexible model has one more parameter (the damping)
+            n = a.n_samples
+            bic_a = n * np.log(max(a.rms, 1e-300) ** 2)
+            bic_b = n * np.log(max(b.rms, 1e-300) ** 2) + np.log(n)
+            return b if bic_b < bic_a else a
 
-    def _fit_records(self, records, starts) -> AngleCoastResult:
-        parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J))
-                 for t, q, ws, J in records for w in ws]
+    def _fit_records(self, records, starts, kv_fixed=None) -> AngleCoastResult:
+        recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
+        parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J), fx)
+                 for t, q, ws, J, fx in recs for w in ws]
         if not parts:
             raise InputError("coastdown: no coast to fit")
         K = len(parts)
@@ -304,6 +364,14 @@ class AngleCoastFit:
         ys = np.concatenate([p[1][i] for p, i in zip(parts, idx)])
         Jk = np.array([p[3] for p in parts])
         Jkk = Jk[kk]
+        # flexible transmission (declared stiffness): compliance 1/K, link inertia, motor viscous
+        cK = np.array([0.0 if p[4] is None else 1.0 / p[4].stiffness for p in parts])
+        Il = np.array([0.0 if p[4] is None else max(p[3] - p[4].motor_inertia, 0.0) for p in parts])
+        Bm = np.array([0.0 if p[4] is None else p[4].motor_viscous for p in parts])
+        flexible = bool(np.any(cK > 0))
+        Jmot = np.array([1.0 if p[4] is None else max(p[4].motor_inertia, 1e-12) for p in parts])
+        wn = np.sqrt(np.where(cK > 0, 1.0 / np.where(cK > 0, cK, 1.0), 0.0)
+                     * (1.0 / np.maximum(Il, 1e-12) + 1.0 / Jmot))
         t_r = np.array([p[0][w.on] for p, w in zip(parts, windows)])
         h = np.array([p[0][w.on + 1] - p[0][w.on] for p, w in zip(parts, windows)])
         sgn = np.array([w.direction for w in windows], float)
@@ -313,7 +381,7 @@ class AngleCoastFit:
         tau_pre = ts - t_r[kk]
         # starting values per coast: quadratic through the pre window, cut mid-interval
         p_init = np.zeros((K, 3))
-        for k, (tk, qk, w, _) in enumerate(parts):  # loop over coasts
+        for k, (tk, qk, w, _, _) in enumerate(parts):  # loop over coasts
             sel = np.arange(w.pre, w.on + 1)
             deg = 2 if sel.size >= 4 else 1
             c = np.polyfit(tk[sel] - t_r[k], qk[sel] - q_on[k], deg)[::-1]
@@ -328,9 +396,14 @@ class AngleCoastFit:
         kc0 = max(kc0, 1e-6)
         vbar = float(np.mean(v_c0))
 
+        fixed = kv_fixed is not None
+
+        def full(x):
+            return np.insert(x, 1, float(kv_fixed)) if fixed else x
+
         def unpack(x):
             Kc, Kv = x[0], x[1]
-            P = x[2:].reshape(K, 5)
+            P = x[2: 2 + 5 * K].reshape(K, 5)
             return Kc, Kv, P
 
         def model(x):
@@ -345,22 +418,53 @@ class AngleCoastFit:
             pre = p0[kk] + p1[kk] * tp + 0.5 * p2[kk] * tp * tp
             after = tp > tc_rel[kk]
             x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
+            if flexible:
+                x_c = x_c + deflection(tp - tc_rel[kk], Kv, kce, w, sgn * p2, x[-1])
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
 
-        def resid(x, sig_q):
+        def deflection(tau, Kv, kce, w, a0, zeta):
+            """What the motor encoder sees of the transmission's deflection change since the
+            cut (quasi-static spring). The coast model moves the centre of inertia
+            ``X = (I_link q + J_m q_m) / J``; the motor angle is ``q_m = X + (I_link / J) delta``
+            with the deflection ``K delta = I_link a + b_link w - g`` (link equation), so it
+            adds ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) / K`` with ``a = -(Kc' + Kv
+            w) / J`` the coast's deceleration, ``a0`` the acceleration before the cut and
+            ``b_link = Kv - motor_viscous`` the link-side share of the viscous friction; frozen
+            at the stop (the motor sticks). At the cut the deflection cannot jump: it
+            oscillates about that quasi-static value from where it was, at the two-mass
+            frequency ``w_n = sqrt(K (1/I_link + 1/J_m))`` with damping ratio ``zeta`` (fitted,
+            shared), ``e(tau) = -D(0+) exp(-zeta w_n tau) (cos w_d tau + zeta w_n / w_d sin
+            w_d tau)``."""
+            tau_s = coast_stop(Jk, Kv, kce, w)[kk]
+            tt = np.clip(tau, 0.0, tau_s)
+            ws = coast_speed(tt, Jkk, Kv, kce[kk], w[kk])
+            ws = np.where(tau >= tau_s, 0.0, ws)
+            acc = -(kce[kk] + Kv * ws) / Jkk
+            bl = np.maximum(Kv - Bm[kk], 0.0)
+            D = cK[kk] * Il[kk] / Jkk * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
+            D0 = cK * Il / Jk * (Il * (-(kce + Kv * w) / Jk - a0) + 0.0)
+            wd = wn * np.sqrt(1.0 - zeta * zeta)
+            e = np.exp(-zeta * wn[kk] * tt) * (np.cos(wd[kk] * tt) + zeta * wn[kk] / wd[kk] * np.sin(wd[kk] * tt))
+            return D - D0[kk] * e
+
+        def resid(xr, sig_q):
+            x = full(xr)
             qhat, _ = model(x)
             r_q = (ys - qhat) / sig_q
-            r_u = (x[2:].reshape(K, 5)[:, 4] - u_bar) / u_se
+            r_u = (x[2: 2 + 5 * K].reshape(K, 5)[:, 4] - u_bar) / u_se
             return np.concatenate([r_q, r_u])
 
-        lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, 0.0, -np.inf], K)])
-        # the cut lies after the last drive-on sample; an amplifier's current lag can carry the
-        # torque a little past the first sample that logs the cut
-        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K)])
+        nz = int(flexible)     # the spring's damping ratio, last parameter, where flexible
+        lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, self.cut_lead, -np.inf], K), [0.0] * nz])
+        # the cut lies near the last drive-on sample: up to one interval before it (a torque
+        # logged as an interval mean or with a lag), up to 1.5 after (an amplifier's current
+        # lag can carry the torque a little past the first sample that logs the cut)
+        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K), [0.9] * nz])
         base = np.column_stack([p_init, np.full(K, 0.5), u_bar]).ravel()
         scale = np.concatenate([[kc0, kc0 / max(vbar, 1e-6)],
-                                np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K)])
+                                np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K),
+                                [0.1] * nz])
         scale[6::5] = np.maximum(u_se * 3, 1e-6)
         sig_q = max(sig_floor, 1e-9)
         opts = dict(bounds=(lb, ub), x_scale=scale, method="trf", max_nfev=self.max_nfev,
@@ -368,8 +472,9 @@ class AngleCoastFit:
         if K > 12:   # many coasts: each coast's parameters touch only its own rows
             from scipy.sparse import lil_matrix
 
-            sp = lil_matrix((ys.size + K, 2 + 5 * K), dtype=np.int8)
+            sp = lil_matrix((ys.size + K, 2 + 5 * K + nz), dtype=np.int8)
             sp[: ys.size, :2] = 1
+            sp[: ys.size, 2 + 5 * K:] = 1
             for k in range(K):  # loop over coasts
                 rows = np.flatnonzero(kk == k)
                 sp[rows[0]: rows[-1] + 1, 2 + 5 * k: 7 + 5 * k] = 1
@@ -378,28 +483,41 @@ class AngleCoastFit:
         if starts is not None:
             xs = [np.asarray(r.x, float) for r in starts]
             x0s = [np.concatenate([[np.median([x[0] for x in xs]), np.median([x[1] for x in xs])]]
-                                  + [x[2:] for x in xs])]
+                                  + [x[2: 2 + 5 * K0] for x, K0 in zip(xs, (len(r.coasts) for r in starts))]
+                                  + [[np.median([x[-1] if r.transmission == "flexible" else 0.1
+                                                 for x, r in zip(xs, starts)])]] * nz)]
         else:
-            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base]) for ks in self.kv_starts]
+            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base, [0.1] * nz])
+                   for ks in self.kv_starts]
+        keep = np.ones(2 + 5 * K + nz, bool)
+        if fixed:   # Kv held: drop its column
+            keep[1] = False
+            x0s = x0s[:1]
+            opts["bounds"] = (lb[keep], ub[keep])
+            opts["x_scale"] = scale[keep]
+            if "jac_sparsity" in opts:
+                opts["jac_sparsity"] = opts["jac_sparsity"][:, keep]
         best = None
         for x0 in x0s:  # a few starts
-            x0 = np.clip(x0, lb, ub)
+            x0 = np.clip(x0, lb, ub)[keep]
             sol = least_squares(resid, x0, args=(sig_q,), **opts)
             if best is None or sol.cost < best.cost:
                 best = sol
         n_ang = ys.size
-        p_ang = 2 + 4 * K
-        r_ang = (ys - model(best.x)[0])
+        p_ang = 2 + 4 * K + nz - int(fixed)
+        r_ang = (ys - model(full(best.x))[0])
         s_hat = float(np.sqrt(np.sum(r_ang ** 2) / max(n_ang - p_ang, 1)))
         sig_q = max(s_hat, sig_floor)
         best = least_squares(resid, best.x, args=(sig_q,), **opts)
-        x = best.x
+        x = full(best.x)
         r_ang = ys - model(x)[0]
         G = best.jac.toarray() if hasattr(best.jac, "toarray") else np.asarray(best.jac)
         try:
-            cov = np.linalg.pinv(G.T @ G)
+            cov_r = np.linalg.pinv(G.T @ G)
         except np.linalg.LinAlgError:
-            cov = np.full((x.size, x.size), np.nan)
+            cov_r = np.full((G.shape[1], G.shape[1]), np.nan)
+        cov = np.zeros((x.size, x.size))
+        cov[np.ix_(keep, keep)] = cov_r
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         Kc, Kv, P = unpack(x)
         corr = float(cov[0, 1] / (se[0] * se[1])) if se[0] > 0 and se[1] > 0 else float("nan")
@@ -407,7 +525,9 @@ class AngleCoastFit:
         separable = bool(np.isfinite(se[1]) and se[1] * v_top <= self.sep_rel * Kc
                          and se[0] <= self.sep_rel * Kc)
         notes = []
-        if not separable:
+        if fixed:
+            notes.append(f"Kv held at {Kv:.4g} N m s/rad; stderr(Kc) conditional on it")
+        elif not separable:
             notes.append(f"the record cannot separate Kc from Kv: stderr(Kv) = {se[1]:.3g} N m s/rad "
                          f"against Kv = {Kv:.3g} (corr(Kc, Kv) = {corr:+.2f}); coasts from several "
                          "speeds, or longer coasts, separate them")
@@ -416,7 +536,7 @@ class AngleCoastFit:
         _, (qc, vc, kce, w) = model(x)
         tau_s = coast_stop(Jk, Kv, kce, w)
         coasts = []
-        for k, (tk, _, wd, _) in enumerate(parts):  # loop over coasts (report only)
+        for k, (tk, _, wd, _, _) in enumerate(parts):  # loop over coasts (report only)
             rk = r_ang[kk == k]
             x_s = coast_angle(tau_s[k], Jk[k], Kv, kce[k], w[k])[0] if np.isfinite(tau_s[k]) else np.inf
             coasts.append({"t_cut": float(t_r[k] + P[k, 3] * h[k]), "v_cut": float(vc[k]),
@@ -431,4 +551,5 @@ class AngleCoastFit:
                                 separable=separable, sigma_q=sig_q,
                                 rms=float(np.sqrt(np.mean(r_ang ** 2))), n_samples=int(n_ang),
                                 converged=bool(best.success), coasts=tuple(coasts),
-                                cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy())
+                                cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy(),
+                                transmission="flexible" if flexible else "rigid")

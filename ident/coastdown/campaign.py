@@ -19,6 +19,11 @@ For every coast-down trial (one joint at a time) and its joint:
 
 Per joint, all coasts of all its coast-down trials are also fitted together (``joints`` in
 ``coastdown.json``): several speeds separate ``Kc`` from ``Kv`` where one short record cannot.
+A trial that cannot separate them alone (short coasts at a controller rate, one speed) is
+reported at the joint's pooled ``Kv`` (``method = "ml-pooled-kv"``: its ``Kc`` fitted with
+``Kv`` held there, the standard error including the pooled ``Kv``'s; the trial's own fit under
+``trial_only``). The drive's declared ``stiffness`` enters the angle model
+(:class:`ident.coastdown.angle.Flex`).
 Outputs (:func:`write_coastdown`): ``coastdown.json`` (FORMAT.md keys plus diagnostics),
 ``coastdown.md`` with a decay-curve figure per trial (``plots/``), and a rerun view.
 """
@@ -31,7 +36,7 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
-from ident.coastdown.angle import (AngleCoastFit, AngleCoastResult, coast_speed, find_coasts,
+from ident.coastdown.angle import (AngleCoastFit, AngleCoastResult, Flex, coast_speed, find_coasts,
                                    interval_velocity)
 from ident.coastdown.estimators import fdm, tdm
 
@@ -74,19 +79,50 @@ class TrialCoastdown:
     fdm: dict
     notes: tuple = ()
     series: dict = field(default_factory=dict, repr=False, compare=False)
+    pooled_kv: dict | None = None
+
+    @property
+    def Kc(self):
+        """The reported Coulomb level: the trial's own ML fit, or, where the trial cannot
+        separate Kc from Kv, its Kc at the joint's pooled Kv (``pooled_kv``)."""
+        if self.pooled_kv is not None:
+            return self.pooled_kv["Kc"]
+        return None if self.ml is None else self.ml.Kc
+
+    @property
+    def Kv(self):
+        if self.pooled_kv is not None:
+            return self.pooled_kv["Kv"]
+        return None if self.ml is None else self.ml.Kv
+
+    @property
+    def stderr(self) -> dict:
+        if self.pooled_kv is not None:
+            return {"Kc": self.pooled_kv["stderr"]["Kc"], "Kv": self.pooled_kv["stderr"]["Kv"]}
+        return {"Kc": None, "Kv": None} if self.ml is None else dict(self.ml.stderr)
+
+    @property
+    def method(self) -> str:
+        return "ml" if self.pooled_kv is None else "ml-pooled-kv"
 
     def to_format(self) -> dict:
         """The FORMAT.md entry (``Kc``, ``Kv``, ``J``, ``stderr``, ``method``, ``methods``)
-        plus diagnostics."""
+        plus diagnostics. ``method = "ml"``: the trial's own ML fit; ``"ml-pooled-kv"``: the
+        trial cannot separate Kc from Kv, so ``Kv`` is the joint's pooled value and ``Kc`` the
+        trial's at that ``Kv`` (its standard error includes the pooled Kv's); the trial's own
+        fit is under ``trial_only``."""
         ml = self.ml
-        d = {"Kc": None if ml is None else ml.Kc, "Kv": None if ml is None else ml.Kv, "J": self.J,
-             "stderr": {"Kc": None, "Kv": None} if ml is None else dict(ml.stderr), "method": "ml",
+        d = {"Kc": self.Kc, "Kv": self.Kv, "J": self.J, "stderr": self.stderr, "method": self.method,
              "methods": {"tdm": {"Kc": self.tdm.get("Kc"), "Kv": self.tdm.get("Kv"),
                                  "n_coasts": self.tdm.get("n", 0), "coasts": self.tdm.get("coasts", [])},
                          "fdm": {"Kc": self.fdm.get("Kc"), "Kv": self.fdm.get("Kv"),
                                  "n_coasts": self.fdm.get("n", 0), "coasts": self.fdm.get("coasts", [])}},
              "load_kg": self.load_kg, "vmax_frac": self.vmax_frac, "notes": list(self.notes)}
         if ml is not None:
+            d["methods"]["ml"] = {"Kc": ml.Kc, "Kv": ml.Kv, "stderr": dict(ml.stderr)}
+            if self.pooled_kv is not None:
+                d["trial_only"] = {"Kc": ml.Kc, "Kv": ml.Kv, "stderr": dict(ml.stderr)}
+                d["pooled_kv"] = dict(self.pooled_kv)
             d.update({"corr_Kc_Kv": ml.corr, "separable": ml.separable, "n_coasts": len(ml.coasts),
                       "sigma_q": ml.sigma_q, "rms": ml.rms, "converged": ml.converged,
                       "coasts": [dict(c) for c in ml.coasts]})
@@ -119,6 +155,14 @@ class CoastdownReport:
 def coastdown_trials(campaign) -> list:
     """The campaign's ``kind = "coastdown"`` trials."""
     return [tr for tr in campaign.trials if tr.kind == "coastdown"]
+
+
+def _flex(drive) -> Flex | None:
+    """The drive's declared transmission (FORMAT.md ``stiffness``), None for a rigid one."""
+    k = drive.extra.get("stiffness")
+    if k is None:
+        return None
+    return Flex(float(k), float(drive.motor_inertia), float(drive.motor_viscous))
 
 
 def _trial_dynamics(trial, robot, j0: int, qm_all):
@@ -201,12 +245,13 @@ def analyse_trial(trial, robot, settings: CoastdownSettings | None = None, log=N
             out.append(TrialCoastdown(trial.id, j, J, trial.load_kg, trial.vmax_frac, None, {}, {},
                                       tuple(notes)))
             continue
-        ml = AngleCoastFit(res, sep_rel=s.sep_rel).fit(t, q, windows, J)
+        flex = _flex(dr)
+        ml = AngleCoastFit(res, sep_rel=s.sep_rel).fit_records([(t, q, windows, J, flex)])
         td, fd, note = _paper_methods(ml, t, q, windows, J, s.min_samples)
         out.append(TrialCoastdown(trial.id, j, J, trial.load_kg, trial.vmax_frac, ml, td, fd,
                                   tuple(notes) + note,
                                   series={"t": t, "q": q, "tau": tau, "windows": windows,
-                                          "resolution": res}))
+                                          "resolution": res, "flex": flex}))
     return out
 
 
@@ -236,10 +281,49 @@ def analyse_campaign(campaign, robot=None, settings: CoastdownSettings | None = 
     for j in sorted({r.joint for r in rows}):  # loop over joints: pooled fit
         mine = [r for r in rows if r.joint == j and r.ml is not None]
         if mine:
-            recs = [(r.series["t"], r.series["q"], r.series["windows"], r.J) for r in mine]
-            res = min(float(r.series["resolution"]) for r in mine)
-            joints[j] = AngleCoastFit(res, sep_rel=s.sep_rel).fit_records(recs, starts=[r.ml for r in mine])
+            joints[j] = AngleCoastFit(min(float(r.series["resolution"]) for r in mine),
+                                      sep_rel=s.sep_rel).fit_records([_record(r) for r in mine],
+                                                                     starts=[r.ml for r in mine])
+    rows = [_with_pooled_kv(r, joints.get(r.joint), s) for r in rows]
     return CoastdownReport(campaign.name, tuple(rows), joints, skipped, s)
+
+
+def _record(r: TrialCoastdown) -> tuple:
+    return (r.series["t"], r.series["q"], r.series["windows"], r.J, r.series.get("flex"))
+
+
+def _with_pooled_kv(r: TrialCoastdown, pooled: AngleCoastResult | None, s: CoastdownSettings):
+    """A trial that cannot separate Kc from Kv gets its Kc at the joint's pooled Kv (when the
+    pool separates them and holds more coasts than the trial): ``Kc(Kv_pool)`` from the trial's
+    fit with Kv held, its standard error ``sqrt(se_cond^2 + (dKc/dKv)^2 se(Kv_pool)^2)`` with
+    the slope from the fits at ``Kv_pool +- se(Kv_pool)``. The trial's coasts are part of the
+    pool, so the two are not independent; with a few trials per joint the pooled Kv is
+    dominated by the separable ones."""
+    import dataclasses
+
+    if (r.ml is None or r.ml.separable or pooled is None or not pooled.separable
+            or len(pooled.coasts) <= len(r.ml.coasts)):
+        return r
+    fit = AngleCoastFit(float(r.series["resolution"]), sep_rel=s.sep_rel)
+    rec = [_record(r)]
+    kv, se_kv = pooled.Kv, pooled.stderr["Kv"]
+    try:
+        flx = r.ml.transmission == "flexible"
+        mid = fit.fit_records(rec, kv_fixed=kv, flexible=flx)
+        hi = fit.fit_records(rec, kv_fixed=kv + se_kv, flexible=flx)
+        lo = fit.fit_records(rec, kv_fixed=max(kv - se_kv, 0.0), flexible=flx)
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return r
+    slope = (hi.Kc - lo.Kc) / max(hi.Kv - lo.Kv, 1e-300)
+    se_kc = float(np.hypot(mid.stderr["Kc"], slope * se_kv))
+    pk = {"Kc": float(mid.Kc), "Kv": float(kv), "stderr": {"Kc": se_kc, "Kv": float(se_kv)},
+          "stderr_Kc_given_Kv": float(mid.stderr["Kc"]), "dKc_dKv": float(slope),
+          "n_coasts_pooled": len(pooled.coasts)}
+    note = (f"the trial alone cannot separate Kc from Kv: Kc = {mid.Kc:.4g} ± {se_kc:.2g} N m at the "
+            f"joint's pooled Kv = {kv:.4g} ± {se_kv:.2g} N m s/rad ({len(pooled.coasts)} coasts); the "
+            f"trial's own fit: Kc = {r.ml.Kc:.4g} ± {r.ml.stderr['Kc']:.2g}, Kv = {r.ml.Kv:.4g} ± "
+            f"{r.ml.stderr['Kv']:.2g}")
+    return dataclasses.replace(r, pooled_kv=pk, notes=tuple(r.notes) + (note,))
 
 
 # -- reports -----------------------------------------------------------------------------
@@ -259,15 +343,20 @@ def coastdown_table(report: CoastdownReport) -> str:
     for j, r in sorted(report.joints.items()):
         lines.append(f"| {j} | {len(r.coasts)} | {_fmt(r.Kc, r.stderr['Kc'])} | {_fmt(r.Kv, r.stderr['Kv'])} "
                      f"| {r.corr:+.2f} | {'yes' if r.separable else '**no**'} |")
-    lines += ["", "| trial | joint | load kg | coasts | J (kg m²) | Kc ML | Kv ML | separable | Kc TDM | Kv TDM "
-              "| Kc FDM | Kv FDM |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines += ["", "Per trial: `ml` = the trial's own fit; `ml-pooled-kv` = the trial alone cannot separate "
+              "Kc from Kv, so Kv is the joint's pooled value and Kc the trial's at it (the trial's own "
+              "fit in brackets).", "",
+              "| trial | joint | load kg | coasts | J (kg m²) | Kc | Kv | method | separable | Kc TDM | Kv TDM "
+              "| Kc FDM | Kv FDM |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in report.trials:
         ml = r.ml
         if ml is None:
-            lines.append(f"| {r.trial} | {r.joint} | {r.load_kg:g} | 0 | {r.J:.4g} | - | - | - | - | - | - | - |")
+            lines.append(f"| {r.trial} | {r.joint} | {r.load_kg:g} | 0 | {r.J:.4g} | - | - | - | - | - | - | - | - |")
             continue
+        own = "" if r.pooled_kv is None else f" ({_fmt(ml.Kc, ml.stderr['Kc'])})"
+        own_v = "" if r.pooled_kv is None else f" ({_fmt(ml.Kv, ml.stderr['Kv'])})"
         lines.append(f"| {r.trial} | {r.joint} | {r.load_kg:g} | {len(ml.coasts)} | {r.J:.4g} "
-                     f"| {_fmt(ml.Kc, ml.stderr['Kc'])} | {_fmt(ml.Kv, ml.stderr['Kv'])} "
+                     f"| {_fmt(r.Kc, r.stderr['Kc'])}{own} | {_fmt(r.Kv, r.stderr['Kv'])}{own_v} | {r.method} "
                      f"| {'yes' if ml.separable else '**no**'} "
                      f"| {_fmt(r.tdm.get('Kc'))} | {_fmt(r.tdm.get('Kv'))} | {_fmt(r.fdm.get('Kc'))} "
                      f"| {_fmt(r.fdm.get('Kv'))} |")

@@ -34,7 +34,7 @@ def run(args) -> int:
         d = report.to_dict()
         print(json.dumps({"out": str(out), "joints": d["joints"] and {
             j: {k: v[k] for k in ("Kc", "Kv", "stderr", "separable")} for j, v in d["joints"].items()},
-            "trials": {tid: {j: {k: e[k] for k in ("Kc", "Kv", "J", "stderr")} for j, e in js.items()}
+            "trials": {tid: {j: {k: e[k] for k in ("Kc", "Kv", "J", "stderr", "method")} for j, e in js.items()}
                        for tid, js in d["trials"].items()}}, indent=1))
     else:
         for j, r in sorted(report.joints.items()):
