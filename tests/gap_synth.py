@@ -133,7 +133,8 @@ def make_world(tmp_path, effect="none", magnitude=1.0, seed=0, joint=2, loads=(0
                 logs.append(RobotLog(tcamp, qm_all, tau_all))
                 angles[f"t{k}"] = (tmk + clock, ql)
                 trials.append(SimpleNamespace(id=f"t{k}", joints=(joint,), load_kg=load, vmax_frac=vf,
-                                              repetition=r, kind="excitation"))
+                                              repetition=r, kind="excitation",
+                                              extra={"payload_com": [0.0, 0.0, 0.0]}))
                 clock += duration + 5.0
                 k += 1
     return rb, trials, logs, angles, {"c": c, "v": v}
