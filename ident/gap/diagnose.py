@@ -10,9 +10,11 @@ Protocol (per joint, per channel):
 4. Significance: a sign-flip randomisation test on the held-out SSE reductions of the motion
    cycles of each trial (blocks chosen from the data; autocorrelation within a cycle is
    respected), Holm correction over candidates, an effect-size floor relative to the gap above
-   the white-noise floor, and a floor on the variance removed relative to the channel's noise
-   variance (one scale for both channels; the verdict takes the channel whose first selection is
-   the larger on it).
+   the white-noise floor (at later steps: the gap left), and a floor on the variance removed
+   relative to the channel's noise variance (one scale for both channels). The verdict is the
+   transmission channel's first selection when it has one, else the torque channel's.
+   Nuisance columns of the nominal: per-trial offsets and a motor-angle gain in the transmission
+   channel; free rigid-body corrections of a payload whose COM is not declared, in both.
 5. Forward stepwise selection (the selected effect joins the model, the rest are re-tested),
    bootstrap over trials for the stability of the verdict and confidence intervals.
 """
