@@ -48,7 +48,7 @@ class DiagnosisSettings:
     #                                    (10, two robots, URDF errors, undeclared payload COM, coloured
     #                                    noise): the best physical candidate removed at most 0.042 of the
     #                                    floor in the torque channel (share of the gap up to 0.16) and
-    #                                    0.088 in the transmission channel
+    #                                    0.062 in the transmission channel (ind6, coloured noise)
     max_effects: int = 3             # stepwise steps
     n_perm: int = 20000
     n_boot: int = 300
