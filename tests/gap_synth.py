@@ -66,8 +66,9 @@ def _reference(rng, vmax_frac, vmax, period, duration, t):
 
 def make_world(tmp_path, effect="none", magnitude=1.0, seed=0, joint=2, loads=(0.0, 2.0),
                vmaxs=(0.3, 0.6, 1.0), reps=3, duration=10.0, rate=200.0, marker_rate=100.0,
-               torque_noise=0.05, angle_noise=3e-4):
-    """Returns (robot, trials, logs, angles, truth)."""
+               torque_noise=0.05, angle_noise=3e-4, payload_com=(0.0, 0.0, 0.0), declare_com=True):
+    """Returns (robot, trials, logs, angles, truth). The payload sits at ``payload_com`` (flange
+    frame); the trials declare it unless ``declare_com`` is False."""
     rb = robot(tmp_path)
     j0 = joint - 1
     rng = np.random.default_rng(seed)
@@ -82,7 +83,7 @@ def make_world(tmp_path, effect="none", magnitude=1.0, seed=0, joint=2, loads=(0
     refs = {vf: ref_rng.integers(1 << 30) for vf in vmaxs}
     k = 0
     for load in loads:
-        rbl = rb.with_payload(load) if load > 0 else rb
+        rbl = rb.with_payload(load, tuple(payload_com)) if load > 0 else rb
         I, a, b = rbl.single_joint_dynamics(j0, np.zeros(rb.n))
         for vf in vmaxs:
             for r in range(1, reps + 1):
@@ -133,7 +134,9 @@ def make_world(tmp_path, effect="none", magnitude=1.0, seed=0, joint=2, loads=(0
                 logs.append(RobotLog(tcamp, qm_all, tau_all))
                 angles[f"t{k}"] = (tmk + clock, ql)
                 trials.append(SimpleNamespace(id=f"t{k}", joints=(joint,), load_kg=load, vmax_frac=vf,
-                                              repetition=r, kind="excitation"))
+                                              repetition=r, kind="excitation",
+                                              extra={"payload_com": [float(x) for x in payload_com]}
+                                              if declare_com else {}))
                 clock += duration + 5.0
                 k += 1
     return rb, trials, logs, angles, {"c": c, "v": v}

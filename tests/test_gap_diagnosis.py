@@ -31,6 +31,19 @@ def test_verdict_names_the_withheld_effect(worlds, effect):
                                       for e in rep["effects"][:4]]
 
 
+def test_undeclared_payload_com_is_not_read_as_a_torque_scale(tmp_path):
+    """A payload whose COM is 8 cm off the flange origin and not declared (FORMAT.md's default
+    puts it at the origin): the rigid-body error it leaves on the loaded trials is not an effect,
+    and no torque scale is read into it (a constant gain, whose only lever is the payload's torque,
+    is not identifiable; without the payload's free corrections the verdict was torque_scale)."""
+    rb, trials, logs, angles, _ = make_world(tmp_path, "none", seed=3, payload_com=(0.05, -0.04, 0.05),
+                                             declare_com=False)
+    rep = diagnose_joint(build_joint_data(2, trials, logs, rb, angles), SETTINGS).to_dict()
+    assert rep["verdict"] == "none", [(e["effect"], e.get("reduction")) for e in rep["effects"][:3]]
+    row = next(e for e in rep["effects"] if e["effect"] == "torque_scale")
+    assert not row["significant"]
+
+
 @pytest.mark.parametrize("effect", ["stribeck", "position_ripple", "compliance", "time_offset"])
 def test_heldout_reduction_is_reported_and_large(worlds, effect):
     rep = worlds(effect)

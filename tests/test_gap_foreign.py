@@ -100,6 +100,20 @@ def test_verdict_names_the_withheld_effect(diagnosed, effect):
     assert nom - eff >= 0.5 * (nom - ref.rms_true), (score, ref.to_dict())
 
 
+@pytest.mark.parametrize("effect", ("backlash", "time_offset"))
+def test_transmission_effect_is_named_from_the_link_angle(diagnosed, effect):
+    """Effects that leave the motor torque alone (a Hertz-contact dead band or a clock shift,
+    by the seed's draw): the truth shows them in the link-motor deflection or the marker clock,
+    and the diagnosis names them from the transmission channel (link angle from the markers)."""
+    camp, rep = diagnosed(effect)
+    ref = F.truth_reference(camp, 2)
+    assert max(ref.deflection_gap_rms_deg, ref.marker_clock_error_rms_deg) > 0.05, ref.to_dict()
+    score = F.score_diagnosis(_args(effect), rep)
+    assert score["verdict"] == effect, f"{camp.name}: verdict {score['verdict']}, ranked {score['ranked']}"
+    row = next(e for e in rep["joints"]["2"]["effects"] if e["effect"] == effect)
+    assert row["channel"] == "transmission" and row["significant"] and row["physical"]
+
+
 def test_truth_reference_recovers_the_true_structure(diagnosed):
     """The reference model is checked against the truth it is built from: on the control its
     held-out RMS is the logged torque noise; with an effect the fitted gain of the true effect

@@ -227,11 +227,26 @@ _THERMAL_GRID = (tuple(("time", float(x)) for x in np.geomspace(20, 5000, 10)) +
 
 
 # --- torque scale ----------------------------------------------------------------------------
+def _motor_torque(d) -> np.ndarray:
+    """The torque the gear passes: rigid-body torque plus the joint's Coulomb + viscous friction
+    (a three-parameter least-squares fit of the logged torque, smooth, so the torque noise does not
+    enter the regressor)."""
+    X = np.column_stack([d.tau_urdf, _sg(d), d.qd])
+    th = np.linalg.lstsq(X, d.y, rcond=None)[0]
+    return d.tau_urdf + X[:, 1:] @ th[1:]
+
+
 def _scale(d, hp):
+    """A constant gain on the rigid-body torque (a torque-constant error; its friction part is
+    the nominal's), or a direction-dependent efficiency of the gear: the whole torque it passes
+    (load and friction) scaled differently when motoring and when back-driven. The efficiency
+    acts on the motor torque, friction included, where load-dependent friction grows with the
+    transmitted (link-side) torque alone: the two differ where friction is a fair part of it."""
     if hp == "gain":
         return d.tau_urdf[:, None]
-    motoring = (d.tau_urdf * d.qd) > 0
-    return np.column_stack([d.tau_urdf * motoring, d.tau_urdf * ~motoring])
+    tau = _motor_torque(d)
+    motoring = (tau * d.qd) > 0
+    return np.column_stack([tau * motoring, tau * ~motoring])
 
 
 # --- asymmetry, nonlinear viscous ------------------------------------------------------------
@@ -259,28 +274,43 @@ def _torque_m(d, src):
 
 
 def _compliance(d, hp):
+    """Deflection beyond the declared stiffness, growing with the transmitted torque: linear (a
+    softer spring) or hardening (a finite stiffness at zero load that grows with the deflection:
+    the deflection's cubic term in the torque bends it back at high load)."""
     src, kind = hp
     tau = _torque_m(d, src)
     if kind == "linear":
         return tau[:, None]
     T = _tref(tau)
-    return np.column_stack([tau, tau * np.abs(tau / T) ** (-1.0 / 3.0)])  # hardening: ~ tau^(2/3) near 0
+    return np.column_stack([tau, tau * (tau / T) ** 2])
 
 
 def _compliance_physical(hp, th):
-    """A softer joint lags more: q_link - q_motor = -tau / K, the extra coefficient is negative."""
-    return th.shape[0] > 0 and (th[0] + (th[1] if th.shape[0] > 1 else 0.0)) < 0
+    """A softer joint lags more: q_link - q_motor = -tau / K, the extra compliance at zero load
+    (the linear coefficient) is negative; a hardening spring's cubic term may not make the
+    deflection turn back within the torque range (the deflection stays monotone up to 95 % of it)."""
+    if th.shape[0] == 0 or th[0] >= 0:
+        return False
+    return th.shape[0] < 2 or th[0] + 3.0 * th[1] < 0
 
 
 def _backlash(d, hp):
+    """Lost motion that switches with the torque (or motion) direction, independent of the load:
+    a dead band entered over a small torque width (``tanh`` step), or a smooth contact whose
+    deflection grows as a power below one of the torque (Hertz point contact: 2/3; a contact's
+    deflection has no finite stiffness at zero load, unlike a spring's)."""
     kind, src, width = hp
     if kind == "motion":
         return np.tanh(d.qd_m / (width * max(_tref(d.qd_m), 1e-9)))[:, None]
     tau = _torque_m(d, src)
-    return np.tanh(tau / (width * _tref(tau)))[:, None]
+    T = _tref(tau)
+    if kind == "contact":
+        return (np.sign(tau) * np.abs(tau / T) ** width)[:, None]
+    return np.tanh(tau / (width * T))[:, None]
 
 
 _BACKLASH_GRID = (tuple(("torque", src, w) for src in ("rigid", "motor") for w in (0.002, 0.005, 0.02, 0.05))
+                  + tuple(("contact", "rigid", p) for p in (0.4, 0.5, 2.0 / 3.0))
                   + tuple(("motion", "", w) for w in (0.002, 0.01)))
 
 
@@ -330,7 +360,8 @@ FAMILIES = {
                    _compliance, lambda hp: f"{hp[1]} deflection with the {'transmitted' if hp[0] == 'rigid' else 'motor'} torque",
                    _compliance_physical),
     "backlash": ("transmission", lambda g: _BACKLASH_GRID, _backlash,
-                 lambda hp: f"lost motion switching with the {hp[0] if hp[0] == 'motion' else hp[1] + ' torque'} sign",
+                 lambda hp: (f"smooth contact, deflection ~ |transmitted torque|^{hp[2]:.2g}" if hp[0] == "contact" else
+                             f"lost motion switching with the {hp[0] if hp[0] == 'motion' else hp[1] + ' torque'} sign"),
                  _neg()),
     "time_offset": ("transmission", lambda g: ("offset", "skew"), _time_offset,
                     lambda hp: "marker clock shifted: q_link(t) = q(t + dt)" if hp == "offset"

@@ -80,10 +80,28 @@ class CVResult:
     theta_per_fold: dict = field(default_factory=dict)  # fold -> theta fitted without it
 
 
+MIN_SUPPORT = 0.2  # a column's share of its energy on the training blocks, over their share of samples
+
+
+def _supported(gr: Grams, mask: np.ndarray) -> bool:
+    """Whether every column has a fair part of its energy on the ``mask`` blocks: at least
+    :data:`MIN_SUPPORT` times their share of the samples. A shape that lives on the held-out
+    blocks alone (a warm-up faster than the first trial, fitted on later trials where its column
+    is nearly zero) is an extrapolation whose amplitude the training data does not determine."""
+    e = np.einsum("nii->ni", gr.G)              # (blocks, columns) column energy per block
+    tot = e.sum(axis=0)
+    frac_n = gr.n[mask].sum() / max(gr.n.sum(), 1)
+    ok = tot <= 0
+    ok |= e[mask].sum(axis=0) >= MIN_SUPPORT * frac_n * tot
+    return bool(ok.all())
+
+
 def _best_fit(grams_by_hp: dict, mask: np.ndarray):
-    """(training SSE, hp, theta) of the shape parameter with the least SSE on ``mask`` trials."""
+    """(training SSE, hp, theta) of the shape parameter with the least SSE on ``mask`` trials,
+    among the shapes the training blocks support (:func:`_supported`; all when none is)."""
+    cands = {hp: gr for hp, gr in grams_by_hp.items() if _supported(gr, mask)} if not mask.all() else grams_by_hp
     best = None
-    for hp, gr in grams_by_hp.items():
+    for hp, gr in (cands or grams_by_hp).items():
         Gs, bs = gr.G[mask].sum(0), gr.b[mask].sum(0)
         th = _solve(Gs, bs)
         sse = gr.yy[mask].sum() - 2 * bs @ th + th @ Gs @ th

@@ -23,6 +23,7 @@ class EffectTest:
     reduction: float | None = None          # 1 - RMS_effect / RMS_nominal, held out
     reduction_step: float | None = None     # same against the model of the current step
     explained_share: float | None = None    # share of the excess over the noise floor removed
+    share_step: float | None = None         # ... of the excess the model of the current step leaves
     p_value: float | None = None
     p_adjusted: float | None = None         # Holm over the candidates of the step
     p_min_attainable: float | None = None   # smallest p the test can give with these blocks
