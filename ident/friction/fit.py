@@ -173,14 +173,15 @@ def _design(model, qd, qdd, dt):
     return model.regressor(qd), np.zeros(qd.shape)          # CoulombViscous (all linear)
 
 
-def _wlstsq(A, y, sw):
+def _wlstsq(A, y, sw=None):
     """Weighted linear least squares: column-scaled normal equations (fast for the few columns
-    here), falling back to an SVD solve when they are ill conditioned."""
+    here), falling back to an SVD solve when they are ill conditioned. ``sw``: square roots of
+    the weights (None: unweighted)."""
     if A.shape[1] == 0:
         return np.zeros(0)
-    Aw = A * sw[:, None]
-    yw = y * sw
-    nrm = np.linalg.norm(Aw, axis=0)
+    Aw = A if sw is None else A * sw[:, None]
+    yw = y if sw is None else y * sw
+    nrm = np.sqrt(np.einsum("ij,ij->j", Aw, Aw))
     if np.all(nrm > 0):
         As = Aw / nrm
         G = As.T @ As
@@ -188,6 +189,128 @@ def _wlstsq(A, y, sw):
         if ev[0] > 1e-10 * ev[-1]:
             return np.linalg.solve(G, As.T @ yw) / nrm
     return np.linalg.lstsq(Aw, yw, rcond=None)[0]
+
+
+def _gram_pinv(A) -> np.ndarray:
+    """``(A^T A)^+`` of a tall ``A`` of few columns, column-scaled; directions with eigenvalues
+    under 1e-10 of the largest (of the scaled Gram matrix) are dropped, like an SVD solve."""
+    nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
+    nrm = np.where(nrm > 0, nrm, 1.0)
+    As = A / nrm
+    w, V = np.linalg.eigh(As.T @ As)
+    keep = w > 1e-10 * max(w[-1], 1e-300)
+    Gi = (V[:, keep] / w[keep]) @ V[:, keep].T
+    return Gi / np.outer(nrm, nrm)
+
+
+class _Projector:
+    """The orthogonal complement of the (weighted) extra columns: ``P(A) = A - Q Q^T A``.
+
+    Projecting the extras out once per fit leaves each variable-projection evaluation a solve
+    over the model's few linear columns; its residual equals that of the joint weighted least
+    squares over ``[X, Phi]`` (the spans are the same)."""
+
+    def __init__(self, X, sw):
+        Xw = X * sw[:, None]
+        if Xw.shape[1] == 0:
+            self.Q = np.zeros((X.shape[0], 0))
+        else:
+            U, s, _ = np.linalg.svd(Xw, full_matrices=False)
+            self.Q = U[:, s > s[0] * 1e-12] if s[0] > 0 else U[:, :0]
+
+    def __call__(self, A):
+        return A - self.Q @ (self.Q.T @ A) if self.Q.shape[1] else A
+
+
+def _profile_rss(Br, yr, S) -> np.ndarray:
+    """Variable-projection residual sum of squares of every grid point at once: the design of
+    point k is ``Br @ S_k`` (extras already projected out of ``Br`` and ``yr``; ``S`` sparse as
+    in ``vp_grid``), so its normal equations are ``S_k^T (Br^T Br) S_k``, built from one Gram
+    matrix. Rank-deficient points
+    (e.g. a Stribeck hump that vanishes on the grid) get the residual of their column span, as
+    an SVD solve would."""
+    G = Br.T @ Br
+    h = Br.T @ yr
+    yy = float(yr @ yr)
+    cols, coefs = S
+    # Gk[k, a, b] = sum_pq coefs[k,a,p] coefs[k,b,q] G[cols[k,a,p], cols[k,b,q]]
+    Gk = np.einsum("kap,kbq,kabpq->kab", coefs, coefs,
+                   G[cols[:, :, None, :, None], cols[:, None, :, None, :]])
+    hk = np.einsum("kap,kap->ka", coefs, h[cols])
+    d = np.sqrt(np.maximum(np.einsum("kaa->ka", Gk), 0.0))
+    d = np.where(d > 0, d, 1.0)
+    w, V = np.linalg.eigh(Gk / (d[:, :, None] * d[:, None, :]))
+    keep = w > 1e-10 * w[:, -1:]
+    pr = np.einsum("kam,ka->km", V, hk / d)
+    explained = np.sum(np.where(keep, pr ** 2 / np.where(keep, w, 1.0), 0.0), axis=1)
+    return np.maximum(yy - explained, 0.0)
+
+
+def _grid_local_minima(U, rss) -> np.ndarray:
+    """Indices of the grid points (rows of ``U``, a full or partial tensor grid) whose profiled
+    residual is no larger than any neighbour's (one step in each coordinate, diagonals too)."""
+    from scipy.ndimage import minimum_filter
+
+    idx = tuple(np.unique(U[:, j], return_inverse=True)[1].ravel() for j in range(U.shape[1]))
+    C = np.full([int(i.max()) + 1 for i in idx], np.inf)
+    C[idx] = rss
+    mf = minimum_filter(C, size=3, mode="constant", cval=np.inf)
+    return np.flatnonzero(rss <= mf[idx])
+
+
+class _VarPro:
+    """The variable-projection residual over the nonlinear parameters ``u`` (transformed
+    coordinates) of a model with ``design_grad`` and zero offset, and its analytic Jacobian
+    (Golub & Pereyra 1973: ``dr/du_j = -(P_perp dA_j b + A^+T dA_j^T r)``), the extras projected
+    out once. The Jacobian reuses the pieces of the last residual evaluation at the same u."""
+
+    def __init__(self, model_cls, nl, tr, qd, tau, sw, proj):
+        self.cls, self.nl, self.tr, self.qd, self.proj = model_cls, nl, tr, qd, proj
+        self.sw = None if np.all(sw == 1.0) else sw
+        self.yr = proj(tau if self.sw is None else sw * tau)
+        self._state = None
+
+    def resid(self, u):
+        u = np.asarray(u, float)
+        x = self.tr.to_x(u)
+        Phi, dPhi = self.cls.design_grad(self.qd, dict(zip(self.nl, x)))
+        T, m = Phi.shape
+        A = np.concatenate([Phi, dPhi.transpose(1, 0, 2).reshape(T, -1)], axis=1)
+        if self.sw is not None:
+            A = A * self.sw[:, None]
+        A = self.proj(A)
+        Pr = A[:, :m]
+        Gi = _gram_pinv(Pr)
+        b = Gi @ (Pr.T @ self.yr)
+        r = self.yr - Pr @ b
+        dxdu = np.where(self.tr.log, x, 1.0)
+        dA = A[:, m:].reshape(T, len(self.nl), m) * dxdu[None, :, None]
+        self._state = (u.copy(), Pr, dA, Gi, b, r)
+        return r
+
+    def jac(self, u):
+        u = np.asarray(u, float)
+        if self._state is None or not np.array_equal(self._state[0], u):
+            self.resid(u)
+        _, Pr, dA, Gi, b, r = self._state
+        t1 = np.einsum("tja,a->tj", dA, b)                   # dA_j b, (T, n_nl)
+        c = np.einsum("tja,t->aj", dA, r)                    # dA_j^T r, (m, n_nl)
+        return -(t1 + Pr @ (Gi @ (c - Pr.T @ t1)))
+
+
+def _distinct_best(costs, U, span, n: int, sep: float = 0.1) -> list:
+    """Indices of the ``n`` lowest costs whose points differ from each other by more than
+    ``sep`` of the search span in some coordinate (distinct basins, not one basin twice)."""
+    order = np.argsort(costs, kind="stable")
+    out = []
+    for i in order:  # loop over candidates until n are found (stops early)
+        if not np.isfinite(costs[i]):
+            break
+        if all(np.max(np.abs(U[i] - U[j]) / span) > sep for j in out):
+            out.append(int(i))
+            if len(out) == n:
+                break
+    return out
 
 
 def _build(model_cls, values: dict, settings: dict):
@@ -322,13 +445,13 @@ def _one_blas_thread(fn):
 
 
 @_one_blas_thread
-def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int):
+def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int, jac="2-point"):
     """Bounded ``least_squares`` from every start; (best result, total nfev, cost per start).
     A start that fails numerically counts as infinite cost; all failing is an error."""
     best, nfev, costs, last_error = None, 0, [], None
     for x0 in starts:  # loop over starts (a handful)
         try:
-            r = least_squares(resid, x0, bounds=bounds, method="trf", x_scale=x_scale,
+            r = least_squares(resid, x0, jac=jac, bounds=bounds, method="trf", x_scale=x_scale,
                               ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=max_nfev)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             costs.append(np.inf)
@@ -343,9 +466,10 @@ def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int):
     return best, nfev, costs
 
 
+@_one_blas_thread
 def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, dt=None,
                  bounds=None, x0=None, n_starts: int = 8, seed: int = 0, weights=None,
-                 settings=None) -> FrictionFit:
+                 settings=None, n_refine: int = 4) -> FrictionFit:
     """Fit ``tau ~ X_extra @ beta + model_cls(theta, **settings).torque(qd, qdd, dt)``.
 
     ``bounds``: {name: (lo, hi)} overriding the model's data-scaled defaults; ``x0``: {name:
@@ -445,7 +569,33 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
         b = _wlstsq(A, tau - off, sw)
         return A, off, b
 
-    if not joint:
+    grid = (model_cls.vp_grid(qd, nl_bounds) if hasattr(model_cls, "vp_grid") else None)
+    if not joint and grid is not None:
+        # score the starts and a grid over the nonlinear parameters by their profiled (variable
+        # projection) residual in array operations, then refine the best few distinct local
+        # minima with an analytic Jacobian
+        proj = _Projector(X, sw)
+        vp = _VarPro(model_cls, nl, tr, qd, tau, sw, proj)
+        B, Ug, S = grid
+        grid_rss = _profile_rss(proj(B * sw[:, None]), vp.yr, S)
+        loc = _grid_local_minima(Ug, grid_rss)
+        start_rss = np.array([float(np.sum(vp.resid(u) ** 2)) for u in starts])   # a handful
+        cand = np.vstack([np.array(starts), tr.to_u(Ug[loc])])
+        rss = np.concatenate([start_rss, grid_rss[loc]])
+        ulo, uhi = tr.ubounds()
+        pick = _distinct_best(rss, cand, uhi - ulo, max(1, min(n_refine, n_starts)))
+        best, nfev, refined = _multistart(model_cls.name, vp.resid,
+                                          [tr.clip_inside(cand[i]) for i in pick], tr.ubounds(),
+                                          x_scale=1.0, max_nfev=400, jac=vp.jac)
+        nfev += len(starts)
+        costs = [float(0.5 * c) for c in start_rss]
+        u_best = best.x
+        _, _, b = vp_solve(u_best)
+        beta_extra, linvals = b[:e], b[e:]
+        method = "variable projection: grid-scored starts, bounded least squares from the best"
+        diagnostics.update({"grid_size": int(grid_rss.size), "grid_local_minima": int(loc.size),
+                            "n_refined": len(pick), "refined_costs": refined})
+    elif not joint:
         def resid(u):
             A, off, b = vp_solve(u)
             return sw * (tau - off - A @ b)
