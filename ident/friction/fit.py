@@ -268,14 +268,15 @@ class _VarPro:
         self.cls, self.nl, self.tr, self.qd, self.proj = model_cls, nl, tr, qd, proj
         self.sw = None if np.all(sw == 1.0) else sw
         self.yr = proj(tau if self.sw is None else sw * tau)
+        self.all_log = bool(np.all(tr.log))
         self._state = None
 
     def resid(self, u):
         u = np.asarray(u, float)
-        x = self.tr.to_x(u)
-        Phi, dPhi = self.cls.design_grad(self.qd, dict(zip(self.nl, x)))
-        T, m = Phi.shape
-        A = np.concatenate([Phi, dPhi.transpose(1, 0, 2).reshape(T, -1)], axis=1)
+        x = np.exp(u) if self.all_log else self.tr.to_x(u)
+        Phi, dPhi, cols = self.cls.design_grad(self.qd, dict(zip(self.nl, x)))
+        m = Phi.shape[1]
+        A = np.concatenate([Phi, dPhi], axis=1)
         if self.sw is not None:
             A = A * self.sw[:, None]
         A = self.proj(A)
@@ -283,18 +284,19 @@ class _VarPro:
         Gi = _gram_pinv(Pr)
         b = Gi @ (Pr.T @ self.yr)
         r = self.yr - Pr @ b
-        dxdu = np.where(self.tr.log, x, 1.0)
-        dA = A[:, m:].reshape(T, len(self.nl), m) * dxdu[None, :, None]
-        self._state = (u.copy(), Pr, dA, Gi, b, r)
+        dxdu = x if self.all_log else np.where(self.tr.log, x, 1.0)
+        dA = A[:, m:] * dxdu                                  # d(column cols[j]) / du_j
+        self._state = (u.copy(), Pr, dA, cols, Gi, b, r)
         return r
 
     def jac(self, u):
         u = np.asarray(u, float)
         if self._state is None or not np.array_equal(self._state[0], u):
             self.resid(u)
-        _, Pr, dA, Gi, b, r = self._state
-        t1 = np.einsum("tja,a->tj", dA, b)                   # dA_j b, (T, n_nl)
-        c = np.einsum("tja,t->aj", dA, r)                    # dA_j^T r, (m, n_nl)
+        _, Pr, dA, cols, Gi, b, r = self._state
+        t1 = dA * b[cols]                                     # dA_j b, (T, n_nl)
+        c = np.zeros((Pr.shape[1], dA.shape[1]))              # dA_j^T r, (m, n_nl)
+        c[cols, np.arange(dA.shape[1])] = r @ dA
         return -(t1 + Pr @ (Gi @ (c - Pr.T @ t1)))
 
 
@@ -445,14 +447,23 @@ def _one_blas_thread(fn):
 
 
 @_one_blas_thread
-def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int, jac="2-point"):
+def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int, jac="2-point",
+                probe_nfev: int | None = None):
     """Bounded ``least_squares`` from every start; (best result, total nfev, cost per start).
-    A start that fails numerically counts as infinite cost; all failing is an error."""
+    A start that fails numerically counts as infinite cost; all failing is an error.
+    ``probe_nfev``: the starts after the first (ranked best) get this many evaluations; one
+    that has not converged by then is continued to ``max_nfev`` only if it is already below
+    the best so far (a start crawling along a flat valley above the best stops early)."""
     best, nfev, costs, last_error = None, 0, [], None
-    for x0 in starts:  # loop over starts (a handful)
+    opts = dict(jac=jac, bounds=bounds, method="trf", x_scale=x_scale,
+                ftol=1e-12, xtol=1e-12, gtol=1e-12)
+    for i, x0 in enumerate(starts):  # loop over starts (a handful)
+        cap = max_nfev if (i == 0 or probe_nfev is None) else min(probe_nfev, max_nfev)
         try:
-            r = least_squares(resid, x0, jac=jac, bounds=bounds, method="trf", x_scale=x_scale,
-                              ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=max_nfev)
+            r = least_squares(resid, x0, max_nfev=cap, **opts)
+            if r.status == 0 and cap < max_nfev and (best is None or r.cost < best.cost):
+                nfev += r.nfev
+                r = least_squares(resid, r.x, max_nfev=max_nfev - r.nfev, **opts)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             costs.append(np.inf)
             last_error = exc
@@ -586,7 +597,7 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
         pick = _distinct_best(rss, cand, uhi - ulo, max(1, min(n_refine, n_starts)))
         best, nfev, refined = _multistart(model_cls.name, vp.resid,
                                           [tr.clip_inside(cand[i]) for i in pick], tr.ubounds(),
-                                          x_scale=1.0, max_nfev=400, jac=vp.jac)
+                                          x_scale=1.0, max_nfev=400, jac=vp.jac, probe_nfev=100)
         nfev += len(starts)
         costs = [float(0.5 * c) for c in start_rss]
         u_best = best.x

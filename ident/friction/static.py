@@ -42,6 +42,10 @@ def _grid_values(lo: float, hi: float, n: int):
     return np.linspace(lo, hi, n + 2)[1:-1]
 
 
+_STRIBECK_GRAD_COLS = np.array([2])          # Vc -> the drop column
+_HYPERBOLIC_GRAD_COLS = np.array([0, 0, 1])   # g2, g3 -> the hump; g5 -> the Coulomb column
+
+
 class _StaticModel(FrictionModel):
     """Shared helpers of the static models."""
 
@@ -76,9 +80,11 @@ class _StaticModel(FrictionModel):
 
     @classmethod
     def design_grad(cls, qd, nl: dict):
-        """``(Phi (T, n_linear), dPhi (n_nonlinear, T, n_linear))``: the linear design for the
-        nonlinear values ``nl`` and its derivatives with respect to them (``nonlinear_names``
-        order), for an analytic variable-projection Jacobian; None: not available."""
+        """``(Phi (T, n_linear), dPhi (T, n_nonlinear), cols (n_nonlinear,))``: the linear
+        design for the nonlinear values ``nl`` and its derivatives with respect to them
+        (``nonlinear_names`` order), each nonlinear parameter entering one column of ``Phi``
+        (column ``cols[j]`` of the design has derivative ``dPhi[:, j]``, the other columns
+        none), for an analytic variable-projection Jacobian; None: not available."""
         return None
 
     @classmethod
@@ -151,11 +157,11 @@ class Stribeck(_StaticModel):
         Vc = float(nl["Vc"])
         qd = np.asarray(qd, float)
         Phi = cls.regressor(qd, Vc)
-        d = np.zeros((1,) + Phi.shape)
+        d = np.zeros((qd.size, 1))
         if Vc > 0:                                          # Vc = 0: the limit, derivative 0
             a = np.abs(qd)
-            d[0, :, 2] = np.sign(qd) * np.exp(-a / Vc) * a / (Vc * Vc)   # d/dVc of the drop
-        return Phi, d
+            d[:, 0] = np.sign(qd) * np.exp(-a / Vc) * a / (Vc * Vc)   # d/dVc of the drop
+        return Phi, d, _STRIBECK_GRAD_COLS
 
     @classmethod
     def vp_grid(cls, qd, bounds, n=None):
@@ -247,13 +253,14 @@ class Hyperbolic(_StaticModel):
     @classmethod
     def design_grad(cls, qd, nl):
         qd = np.asarray(qd, float)
-        t2, t3, t5 = (np.tanh(nl[k] * qd) for k in ("g2", "g3", "g5"))
-        Phi = np.stack([t2 - t3, t5, qd], axis=-1)
-        d = np.zeros((3,) + Phi.shape)
-        d[0, :, 0] = qd * (1.0 - t2 * t2)                   # d tanh(g qd)/dg = qd sech^2
-        d[1, :, 0] = -qd * (1.0 - t3 * t3)
-        d[2, :, 1] = qd * (1.0 - t5 * t5)
-        return Phi, d
+        t = np.tanh(np.multiply.outer(qd, [nl["g2"], nl["g3"], nl["g5"]]))     # (T, 3)
+        Phi = np.empty((qd.size, 3))
+        Phi[:, 0] = t[:, 0] - t[:, 1]
+        Phi[:, 1] = t[:, 2]
+        Phi[:, 2] = qd
+        d = qd[:, None] * (1.0 - t * t)                     # d tanh(g qd)/dg = qd sech^2
+        d[:, 1] *= -1.0
+        return Phi, d, _HYPERBOLIC_GRAD_COLS
 
     @classmethod
     def vp_grid(cls, qd, bounds, n=None):
