@@ -191,16 +191,17 @@ def _wlstsq(A, y, sw=None):
     return np.linalg.lstsq(Aw, yw, rcond=None)[0]
 
 
-def _gram_pinv(A) -> np.ndarray:
-    """``(A^T A)^+`` of a tall ``A`` of few columns, column-scaled; directions with eigenvalues
-    under 1e-10 of the largest (of the scaled Gram matrix) are dropped, like an SVD solve."""
+def _ls_svd(A, y):
+    """Least squares ``A b ~ y`` for a tall ``A`` of few columns through the SVD of the
+    column-scaled ``A`` (singular values under machine precision times the size dropped, as
+    lstsq): ``(b, U, s, V, nrm)`` with ``A = U diag(s) V^T diag(nrm)`` on the kept span. The
+    orthonormal ``U`` keeps projections accurate when the design is nearly rank deficient."""
     nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
     nrm = np.where(nrm > 0, nrm, 1.0)
-    As = A / nrm
-    w, V = np.linalg.eigh(As.T @ As)
-    keep = w > 1e-10 * max(w[-1], 1e-300)
-    Gi = (V[:, keep] / w[keep]) @ V[:, keep].T
-    return Gi / np.outer(nrm, nrm)
+    U, sv, Vt = np.linalg.svd(A / nrm, full_matrices=False)
+    keep = sv > sv[0] * np.finfo(float).eps * max(A.shape) if sv[0] > 0 else sv > 0
+    U, sv, V = U[:, keep], sv[keep], Vt[keep].T
+    return (V @ ((U.T @ y) / sv)) / nrm, U, sv, V, nrm
 
 
 class _Projector:
@@ -281,23 +282,23 @@ class _VarPro:
             A = A * self.sw[:, None]
         A = self.proj(A)
         Pr = A[:, :m]
-        Gi = _gram_pinv(Pr)
-        b = Gi @ (Pr.T @ self.yr)
+        b, U, sv, V, nrm = _ls_svd(Pr, self.yr)
         r = self.yr - Pr @ b
         dxdu = x if self.all_log else np.where(self.tr.log, x, 1.0)
         dA = A[:, m:] * dxdu                                  # d(column cols[j]) / du_j
-        self._state = (u.copy(), Pr, dA, cols, Gi, b, r)
+        self._state = (u.copy(), U, sv, V, nrm, dA, cols, b, r)
         return r
 
     def jac(self, u):
         u = np.asarray(u, float)
         if self._state is None or not np.array_equal(self._state[0], u):
             self.resid(u)
-        _, Pr, dA, cols, Gi, b, r = self._state
+        _, U, sv, V, nrm, dA, cols, b, r = self._state
         t1 = dA * b[cols]                                     # dA_j b, (T, n_nl)
-        c = np.zeros((Pr.shape[1], dA.shape[1]))              # dA_j^T r, (m, n_nl)
+        c = np.zeros((nrm.size, dA.shape[1]))                 # dA_j^T r, (m, n_nl)
         c[cols, np.arange(dA.shape[1])] = r @ dA
-        return -(t1 + Pr @ (Gi @ (c - Pr.T @ t1)))
+        # P_perp dA_j b + A^+T dA_j^T r with A^+T = U diag(1/s) V^T diag(1/nrm)
+        return -(t1 - U @ (U.T @ t1) + U @ ((V.T @ (c / nrm[:, None])) / sv[:, None]))
 
 
 def _distinct_best(costs, U, span, n: int, sep: float = 0.1) -> list:
