@@ -281,13 +281,23 @@ def test_grid_profile_equals_per_point_least_squares(cls):
     rng = np.random.default_rng(21)
     tau = 3.0 * np.tanh(qd / 0.05) + 0.8 * qd + X @ BETA + rng.normal(size=qd.size) * 0.1
     _, hb = cls.fit_hints(qd, {})
-    B, U, S = cls.vp_grid(qd, hb)
+    B, U, S, *blocks = cls.vp_grid(qd, hb)
+    blocks = blocks[0] if blocks else np.zeros(U.shape[0], int)
     P = _Projector(X, np.ones(qd.size))
     rss = _profile_rss(P(B), P(tau), S)
     assert rss.shape == (U.shape[0],)
     n_checked = 0
-    for k in rng.choice(U.shape[0], size=min(60, U.shape[0]), replace=False):
-        A = np.column_stack([X, cls.regressor(qd, *U[k])])
+    picks = np.concatenate([rng.choice(np.flatnonzero(blocks == k), size=min(60, np.sum(blocks == k)),
+                                       replace=False) for k in np.unique(blocks)])
+    for k in picks:
+        if blocks[k] == 0:
+            Phi = cls.regressor(qd, *U[k])
+        else:        # the hyperbolic hump's limit g3 -> g2: shape qd sech^2(g2 qd)
+            g2, _, g5 = U[k]
+            with np.errstate(over="ignore"):                 # cosh -> inf: sech^2 = 0
+                sech2 = 1.0 / np.cosh(g2 * qd) ** 2
+            Phi = np.column_stack([qd * sech2, np.tanh(g5 * qd), qd])
+        A = np.column_stack([X, Phi])
         ref = _lstsq_rss(A, tau)
         assert rss[k] >= ref * (1 - 1e-6)            # a (near) rank-deficient point: its span's RSS
         if np.linalg.cond(A / np.linalg.norm(A, axis=0)) < 1e4:

@@ -588,9 +588,11 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
         # minima with an analytic Jacobian
         proj = _Projector(X, sw)
         vp = _VarPro(model_cls, nl, tr, qd, tau, sw, proj)
-        B, Ug, S = grid
+        B, Ug, S, *blocks = grid
         grid_rss = _profile_rss(proj(B * sw[:, None]), vp.yr, S)
-        loc = _grid_local_minima(Ug, grid_rss)
+        blocks = blocks[0] if blocks else np.zeros(Ug.shape[0], int)
+        loc = np.concatenate([np.flatnonzero(blocks == k)[_grid_local_minima(
+            Ug[blocks == k], grid_rss[blocks == k])] for k in np.unique(blocks)])
         start_rss = np.array([float(np.sum(vp.resid(u) ** 2)) for u in starts])   # a handful
         cand = np.vstack([np.array(starts), tr.to_u(Ug[loc])])
         rss = np.concatenate([start_rss, grid_rss[loc]])

@@ -44,6 +44,7 @@ def _grid_values(lo: float, hi: float, n: int):
 
 _STRIBECK_GRAD_COLS = np.array([2])          # Vc -> the drop column
 _HYPERBOLIC_GRAD_COLS = np.array([0, 0, 1])   # g2, g3 -> the hump; g5 -> the Coulomb column
+LIMIT_RATIO = 1.02                            # g2 / g3 of the hyperbolic grid's limit-hump starts
 
 
 class _StaticModel(FrictionModel):
@@ -96,8 +97,10 @@ class _StaticModel(FrictionModel):
         order) and ``S`` the combination with design ``Phi_k = B @ S_k`` (offset 0). The
         estimator scores all K points from the (nb, nb) Gram matrix of ``B`` (no pass over the
         samples per point). ``S`` is given sparse, as ``(cols, coefs)``, both (K, n_linear, p):
-        ``Phi_k[:, a] = sum_p coefs[k, a, p] * B[:, cols[k, a, p]]``. ``bounds``: {name: (lo,
-        hi)}; None: no grid (infinite bounds, or a model without one)."""
+        ``Phi_k[:, a] = sum_p coefs[k, a, p] * B[:, cols[k, a, p]]``. An optional fourth item,
+        (K,) integers, splits the points into blocks, each a (partial) tensor grid of its own
+        (for the local minima). ``bounds``: {name: (lo, hi)}; None: no grid (infinite bounds,
+        or a model without one)."""
         return None
 
     def degeneracy(self, qd, fit_scale: float) -> str | None:
@@ -282,7 +285,26 @@ class Hyperbolic(_StaticModel):
         cols[:, 0, 0], cols[:, 0, 1], coefs[:, 0] = ia[i], ib[j], (1.0, -1.0)   # hump
         cols[:, 1, 0], coefs[:, 1, 0] = ic[k], 1.0                             # Coulomb
         cols[:, 2, 0], coefs[:, 2, 0] = gs.size, 1.0                           # viscous
-        return B, np.column_stack([a[i], b[j], c[k]]), (cols, coefs)
+        U = np.column_stack([a[i], b[j], c[k]])
+        # second block: the limit g3 -> g2 of the hump with g1 (g2 - g3) fixed, a hump of shape
+        # qd sech^2(g2 qd) that no finite grid point reaches (scored by the limit column,
+        # started at g3 = g2 / 1.02)
+        lo3, hi3 = bounds["g3"]
+        al = a[(a / LIMIT_RATIO > lo3) & (a / LIMIT_RATIO < hi3)]
+        if al.size:
+            ta = np.tanh(np.multiply.outer(qd, al))
+            B = np.column_stack([B, qd[:, None] * (1.0 - ta * ta)])
+            il, kl = (x.ravel() for x in np.meshgrid(np.arange(al.size), np.arange(c.size),
+                                                     indexing="ij"))
+            cl = np.zeros((il.size, 3, 2), int)
+            fl = np.zeros((il.size, 3, 2))
+            cl[:, 0, 0], fl[:, 0, 0] = gs.size + 1 + il, 1.0
+            cl[:, 1, 0], fl[:, 1, 0] = ic[kl], 1.0
+            cl[:, 2, 0], fl[:, 2, 0] = gs.size, 1.0
+            cols, coefs = np.concatenate([cols, cl]), np.concatenate([coefs, fl])
+            U = np.vstack([U, np.column_stack([al[il], al[il] / LIMIT_RATIO, c[kl]])])
+        blocks = np.repeat([0, 1], [K, U.shape[0] - K])
+        return B, U, (cols, coefs), blocks
 
     def violations(self, form=None):
         """Thesis eq. 2-7 signs: the Coulomb term ``g4 >= 0``, the viscous ``g6 >= 0``, and a
