@@ -44,7 +44,7 @@ def _grid_values(lo: float, hi: float, n: int):
 
 _STRIBECK_GRAD_COLS = np.array([2])          # Vc -> the drop column
 _HYPERBOLIC_GRAD_COLS = np.array([0, 0, 1])   # g2, g3 -> the hump; g5 -> the Coulomb column
-LIMIT_RATIO = 1.02                            # g2 / g3 of the hyperbolic grid's limit-hump starts
+LIMIT_RATIO = 1.0001                          # g2 / g3 of the hyperbolic grid's limit-hump starts
 
 
 class _StaticModel(FrictionModel):
@@ -288,7 +288,7 @@ class Hyperbolic(_StaticModel):
         U = np.column_stack([a[i], b[j], c[k]])
         # second block: the limit g3 -> g2 of the hump with g1 (g2 - g3) fixed, a hump of shape
         # qd sech^2(g2 qd) that no finite grid point reaches (scored by the limit column,
-        # started at g3 = g2 / 1.02)
+        # started at g3 = g2 / LIMIT_RATIO, next to the limit)
         lo3, hi3 = bounds["g3"]
         al = a[(a / LIMIT_RATIO > lo3) & (a / LIMIT_RATIO < hi3)]
         if al.size:
