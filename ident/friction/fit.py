@@ -13,6 +13,14 @@ inverse dynamics, eq. 25-26, and pass no extra columns).
   searched in log coordinates; seeded multi-start (start 0 at the model's data-scaled hint or
   ``x0``, the others uniform in the (log) bounds). If ``bounds`` constrain a linear parameter
   or an extra column, all parameters are fitted jointly instead;
+* static models with a ``vp_grid`` and ``design_grad`` (Stribeck, hyperbolic; issue 13's speed
+  work): the extra columns are projected out once; the starts and a grid over the nonlinear
+  parameters (48 values of ``Vc``; 20^3 of ``g2 > g3, g5`` plus the hump's limit
+  ``g3 -> g2``) are scored by their profiled residual in array operations (every grid point
+  from one Gram matrix of shared basis columns); only the ``n_refine`` (4) best distinct
+  candidates among the starts and the grid's local minima are refined, with the analytic
+  variable-projection Jacobian (Golub & Pereyra; through the SVD of the scaled design), the
+  later ones with a 100-evaluation probe that continues only when below the best so far;
 * ``arctan`` (Indri & Trapani eq. 1-2): the delta grid search of eq. 27-28, :func:`fit_arctan`.
 
 Uncertainty: the Jacobian of the prediction with respect to every parameter and extra at the
@@ -490,7 +498,9 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
     arctan, which may also carry ``delta_grid``; ``static``/``damping``/``z0`` for dm1;
     ``static``/``accel_ratio`` for dm2). Dynamic models without a ``static`` setting get an
     arctan model fitted to the same data first (step 1 of Indri & Trapani); dm2 without
-    ``accel_ratio`` takes a_max/v_max from ``qd``/``qdd``. See the module docstring.
+    ``accel_ratio`` takes a_max/v_max from ``qd``/``qdd``. ``n_refine``: how many of the
+    grid-scored candidates are refined (models with a ``vp_grid``; at most ``n_starts``; the
+    others refine every start). See the module docstring.
     """
     settings = dict(settings or {})
     qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
