@@ -36,10 +36,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from threadpoolctl import threadpool_limits
 
 from ident.friction.base import CoulombViscous, FrictionModel
 from ident.friction.static import Arctan, _2_PI, s0
+from ident.signals.blas import one_blas_thread
 
 DELTA_GRID_STEP = 0.1
 COND_DEGENERATE = 1e10
@@ -450,7 +450,7 @@ def _one_blas_thread(fn):
     threads only add overhead (DESIGN.md measured 2-10x on 2-core machines; here 4x)."""
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        with threadpool_limits(1, user_api="blas"):
+        with one_blas_thread():
             return fn(*args, **kwargs)
     return wrapper
 

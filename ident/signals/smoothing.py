@@ -50,14 +50,11 @@ __all__ = ["SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundament
 
 def one_blas_thread():
     """Context: BLAS limited to one thread (DESIGN.md: 2-10x faster for these small solves on
-    shared 2-core machines). A no-op context when threadpoolctl is absent."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover
-        import contextlib
+    shared 2-core machines); see :mod:`ident.signals.blas` (built once per process, nested
+    contexts free). A no-op context when threadpoolctl is absent."""
+    from ident.signals.blas import one_blas_thread as _obt
 
-        return contextlib.nullcontext()
-    return threadpool_limits(1, "blas")
+    return _obt()
 
 
 # ---------------------------------------------------------------------------------------------
