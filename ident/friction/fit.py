@@ -222,13 +222,19 @@ class _Projector:
     def __init__(self, X, sw):
         Xw = X * sw[:, None]
         if Xw.shape[1] == 0:
-            self.Q = np.zeros((X.shape[0], 0))
+            self.Q, self.s, self.V = np.zeros((X.shape[0], 0)), np.zeros(0), np.zeros((0, 0))
         else:
-            U, s, _ = np.linalg.svd(Xw, full_matrices=False)
-            self.Q = U[:, s > s[0] * 1e-12] if s[0] > 0 else U[:, :0]
+            U, s, Vt = np.linalg.svd(Xw, full_matrices=False)
+            keep = s > s[0] * 1e-12 if s[0] > 0 else s > 0
+            self.Q, self.s, self.V = U[:, keep], s[keep], Vt[keep].T
 
     def __call__(self, A):
         return A - self.Q @ (self.Q.T @ A) if self.Q.shape[1] else A
+
+    def coefficients(self, rw):
+        """Least-squares coefficients of the (weighted) extra columns for the weighted target
+        ``rw`` (minimum norm when they are rank deficient)."""
+        return self.V @ ((self.Q.T @ rw) / self.s) if self.Q.shape[1] else np.zeros(self.V.shape[0])
 
 
 def _profile_rss(Br, yr, S) -> np.ndarray:
@@ -255,6 +261,24 @@ def _profile_rss(Br, yr, S) -> np.ndarray:
     return np.maximum(yy - explained, 0.0)
 
 
+EXACT_GRID_MAX = 256     # grids this small are scored by an SVD solve per point
+
+
+def _grid_rss_exact(Br, yr, S) -> np.ndarray:
+    """:func:`_profile_rss` by one SVD least-squares solve per grid point (small grids): it
+    also resolves columns that differ by less than the Gram matrix can (a Stribeck drop whose
+    ``Vc`` is far below the slowest sampled speed is the sign column to 1e-9; the fit may still
+    use that difference, and so did the per-start search before the grid)."""
+    cols, coefs = S
+    out = np.empty(cols.shape[0])
+    for k in range(cols.shape[0]):  # loop over grid points (at most EXACT_GRID_MAX)
+        A = np.einsum("tap,ap->ta", Br[:, cols[k]], coefs[k])
+        b = _ls_svd(A, yr)[0]
+        r = yr - A @ b
+        out[k] = float(r @ r)
+    return out
+
+
 def _grid_local_minima(U, rss) -> np.ndarray:
     """Indices of the grid points (rows of ``U``, a full or partial tensor grid) whose profiled
     residual is no larger than any neighbour's (one step in each coordinate, diagonals too)."""
@@ -274,7 +298,7 @@ class _VarPro:
     out once. The Jacobian reuses the pieces of the last residual evaluation at the same u."""
 
     def __init__(self, model_cls, nl, tr, qd, tau, sw, proj):
-        self.cls, self.nl, self.tr, self.qd, self.proj = model_cls, nl, tr, qd, proj
+        self.cls, self.nl, self.tr, self.qd, self.proj, self.tau = model_cls, nl, tr, qd, proj, tau
         self.sw = None if np.all(sw == 1.0) else sw
         self.yr = proj(tau if self.sw is None else sw * tau)
         self.all_log = bool(np.all(tr.log))
@@ -296,6 +320,16 @@ class _VarPro:
         dA = A[:, m:] * dxdu                                  # d(column cols[j]) / du_j
         self._state = (u.copy(), U, sv, V, nrm, dA, cols, b, r)
         return r
+
+    def solution(self, u):
+        """``(extra coefficients, linear parameters)`` at ``u``: the same least-squares
+        solution the residual used (the extras from the target minus the model's columns)."""
+        u = np.asarray(u, float)
+        self.resid(u)
+        b = self._state[7]
+        Phi = self.cls.design_grad(self.qd, dict(zip(self.nl, self.tr.to_x(u))))[0]
+        rw = self.tau - Phi @ b
+        return self.proj.coefficients(rw if self.sw is None else self.sw * rw), b
 
     def jac(self, u):
         u = np.asarray(u, float)
@@ -599,7 +633,9 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
         proj = _Projector(X, sw)
         vp = _VarPro(model_cls, nl, tr, qd, tau, sw, proj)
         B, Ug, S, *blocks = grid
-        grid_rss = _profile_rss(proj(B * sw[:, None]), vp.yr, S)
+        Br = proj(B * sw[:, None])
+        grid_rss = (_profile_rss(Br, vp.yr, S) if Ug.shape[0] > EXACT_GRID_MAX
+                    else _grid_rss_exact(Br, vp.yr, S))
         blocks = blocks[0] if blocks else np.zeros(Ug.shape[0], int)
         loc = np.concatenate([np.flatnonzero(blocks == k)[_grid_local_minima(
             Ug[blocks == k], grid_rss[blocks == k])] for k in np.unique(blocks)])
@@ -614,8 +650,7 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
         nfev += len(starts)
         costs = [float(0.5 * c) for c in start_rss]
         u_best = best.x
-        _, _, b = vp_solve(u_best)
-        beta_extra, linvals = b[:e], b[e:]
+        beta_extra, linvals = vp.solution(u_best)
         method = "variable projection: grid-scored starts, bounded least squares from the best"
         diagnostics.update({"grid_size": int(grid_rss.size), "grid_local_minima": int(loc.size),
                             "n_refined": len(pick), "refined_costs": refined})
