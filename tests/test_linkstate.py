@@ -126,3 +126,16 @@ def test_flagged_fits_stay_out_of_condition_means(tmp_path):
     md = (tmp_path / "tables.md").read_text()
     assert "r9" in md and "Excluded" in md and "-13.2" not in md.split("Excluded")[0]
     assert paths
+
+
+def test_cosine_basis_equals_the_direct_formula():
+    from ident.signals.linkstate import _cosine_basis
+
+    t = np.linspace(2.0, 27.0, 3001)
+    t0, D, M = 2.0, 25.0, 160
+    w = np.pi * np.arange(1, M + 1) / D
+    ph = np.multiply.outer(t - t0, w)
+    for order, ref in ((0, np.cos(ph)), (1, -np.sin(ph) * w), (2, -np.cos(ph) * w ** 2)):
+        np.testing.assert_allclose(_cosine_basis(t, t0, D, M, order), ref, rtol=0,
+                                   atol=1e-11 * np.max(np.abs(ref)))
+    assert _cosine_basis(t, t0, D, 0).shape == (t.size, 0)

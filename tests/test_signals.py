@@ -124,3 +124,35 @@ def test_rests_before_and_after_are_trimmed():
     assert fit.t_start > 0.45 and fit.t_end < 20.55       # the holds left out
     inner = (t > fit.t_start) & (t < fit.t_end)
     assert np.max(np.abs(fit.evaluate(t[inner])[1] - s0.evaluate(tm[inner])[1])) < 2e-3
+
+
+# ---------------------------------------------------------------------------------------------
+# fast paths (issue 13): the same values as the direct computations
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("w", [5, 13, 41, 81])
+def test_cached_savgol_equals_scipy_savgol_filter(w):
+    from scipy.signal import savgol_filter
+
+    from ident.signals.smoothing import _savgol
+
+    rng = np.random.default_rng(31)
+    x = np.cumsum(rng.normal(size=1500)) * 0.01 + np.sin(np.arange(1500) * 0.02)
+    for deriv in (0, 1, 2):
+        ref = savgol_filter(x, w, 3, deriv=deriv, delta=0.005, mode="interp")
+        np.testing.assert_allclose(_savgol(x, w, 3, deriv, 0.005), ref, rtol=0,
+                                   atol=1e-10 * np.max(np.abs(ref)))
+
+
+def test_rss_by_harmonics_equals_least_squares_per_N():
+    from ident.signals.fourier import design_matrix
+    from ident.signals.smoothing import _rss_by_harmonics
+
+    rng = np.random.default_rng(32)
+    t = 3.0 + np.arange(0, 17.3, 0.01)
+    q = SERIES.evaluate(t)[0] + 0.01 * np.sin(0.37 * t) + rng.normal(0, 1e-3, t.size)
+    wf = 2 * np.pi / 9.7                     # off the true fundamental: every N leaves residual
+    rss = _rss_by_harmonics(t, q, wf, 12)
+    for n in range(1, 13):
+        X = design_matrix(t, wf, n)
+        r = q - X @ np.linalg.lstsq(X, q, rcond=None)[0]
+        assert rss[n - 1] == pytest.approx(float(r @ r), rel=1e-6), n

@@ -13,6 +13,14 @@ inverse dynamics, eq. 25-26, and pass no extra columns).
   searched in log coordinates; seeded multi-start (start 0 at the model's data-scaled hint or
   ``x0``, the others uniform in the (log) bounds). If ``bounds`` constrain a linear parameter
   or an extra column, all parameters are fitted jointly instead;
+* static models with a ``vp_grid`` and ``design_grad`` (Stribeck, hyperbolic; issue 13's speed
+  work): the extra columns are projected out once; the starts and a grid over the nonlinear
+  parameters (48 values of ``Vc``; 20^3 of ``g2 > g3, g5`` plus the hump's limit
+  ``g3 -> g2``) are scored by their profiled residual in array operations (every grid point
+  from one Gram matrix of shared basis columns); only the ``n_refine`` (4) best distinct
+  candidates among the starts and the grid's local minima are refined, with the analytic
+  variable-projection Jacobian (Golub & Pereyra; through the SVD of the scaled design), the
+  later ones with a 100-evaluation probe that continues only when below the best so far;
 * ``arctan`` (Indri & Trapani eq. 1-2): the delta grid search of eq. 27-28, :func:`fit_arctan`.
 
 Uncertainty: the Jacobian of the prediction with respect to every parameter and extra at the
@@ -28,10 +36,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
-from threadpoolctl import threadpool_limits
 
 from ident.friction.base import CoulombViscous, FrictionModel
 from ident.friction.static import Arctan, _2_PI, s0
+from ident.signals.blas import one_blas_thread
 
 DELTA_GRID_STEP = 0.1
 COND_DEGENERATE = 1e10
@@ -173,14 +181,15 @@ def _design(model, qd, qdd, dt):
     return model.regressor(qd), np.zeros(qd.shape)          # CoulombViscous (all linear)
 
 
-def _wlstsq(A, y, sw):
+def _wlstsq(A, y, sw=None):
     """Weighted linear least squares: column-scaled normal equations (fast for the few columns
-    here), falling back to an SVD solve when they are ill conditioned."""
+    here), falling back to an SVD solve when they are ill conditioned. ``sw``: square roots of
+    the weights (None: unweighted)."""
     if A.shape[1] == 0:
         return np.zeros(0)
-    Aw = A * sw[:, None]
-    yw = y * sw
-    nrm = np.linalg.norm(Aw, axis=0)
+    Aw = A if sw is None else A * sw[:, None]
+    yw = y if sw is None else y * sw
+    nrm = np.sqrt(np.einsum("ij,ij->j", Aw, Aw))
     if np.all(nrm > 0):
         As = Aw / nrm
         G = As.T @ As
@@ -188,6 +197,165 @@ def _wlstsq(A, y, sw):
         if ev[0] > 1e-10 * ev[-1]:
             return np.linalg.solve(G, As.T @ yw) / nrm
     return np.linalg.lstsq(Aw, yw, rcond=None)[0]
+
+
+def _ls_svd(A, y):
+    """Least squares ``A b ~ y`` for a tall ``A`` of few columns through the SVD of the
+    column-scaled ``A`` (singular values under machine precision times the size dropped, as
+    lstsq): ``(b, U, s, V, nrm)`` with ``A = U diag(s) V^T diag(nrm)`` on the kept span. The
+    orthonormal ``U`` keeps projections accurate when the design is nearly rank deficient."""
+    nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
+    nrm = np.where(nrm > 0, nrm, 1.0)
+    U, sv, Vt = np.linalg.svd(A / nrm, full_matrices=False)
+    keep = sv > sv[0] * np.finfo(float).eps * max(A.shape) if sv[0] > 0 else sv > 0
+    U, sv, V = U[:, keep], sv[keep], Vt[keep].T
+    return (V @ ((U.T @ y) / sv)) / nrm, U, sv, V, nrm
+
+
+class _Projector:
+    """The orthogonal complement of the (weighted) extra columns: ``P(A) = A - Q Q^T A``.
+
+    Projecting the extras out once per fit leaves each variable-projection evaluation a solve
+    over the model's few linear columns; its residual equals that of the joint weighted least
+    squares over ``[X, Phi]`` (the spans are the same)."""
+
+    def __init__(self, X, sw):
+        Xw = X * sw[:, None]
+        if Xw.shape[1] == 0:
+            self.Q, self.s, self.V = np.zeros((X.shape[0], 0)), np.zeros(0), np.zeros((0, 0))
+        else:
+            U, s, Vt = np.linalg.svd(Xw, full_matrices=False)
+            keep = s > s[0] * 1e-12 if s[0] > 0 else s > 0
+            self.Q, self.s, self.V = U[:, keep], s[keep], Vt[keep].T
+
+    def __call__(self, A):
+        return A - self.Q @ (self.Q.T @ A) if self.Q.shape[1] else A
+
+    def coefficients(self, rw):
+        """Least-squares coefficients of the (weighted) extra columns for the weighted target
+        ``rw`` (minimum norm when they are rank deficient)."""
+        return self.V @ ((self.Q.T @ rw) / self.s) if self.Q.shape[1] else np.zeros(self.V.shape[0])
+
+
+def _profile_rss(Br, yr, S) -> np.ndarray:
+    """Variable-projection residual sum of squares of every grid point at once: the design of
+    point k is ``Br @ S_k`` (extras already projected out of ``Br`` and ``yr``; ``S`` sparse as
+    in ``vp_grid``), so its normal equations are ``S_k^T (Br^T Br) S_k``, built from one Gram
+    matrix. Rank-deficient points
+    (e.g. a Stribeck hump that vanishes on the grid) get the residual of their column span, as
+    an SVD solve would."""
+    G = Br.T @ Br
+    h = Br.T @ yr
+    yy = float(yr @ yr)
+    cols, coefs = S
+    # Gk[k, a, b] = sum_pq coefs[k,a,p] coefs[k,b,q] G[cols[k,a,p], cols[k,b,q]]
+    Gk = np.einsum("kap,kbq,kabpq->kab", coefs, coefs,
+                   G[cols[:, :, None, :, None], cols[:, None, :, None, :]])
+    hk = np.einsum("kap,kap->ka", coefs, h[cols])
+    d = np.sqrt(np.maximum(np.einsum("kaa->ka", Gk), 0.0))
+    d = np.where(d > 0, d, 1.0)
+    w, V = np.linalg.eigh(Gk / (d[:, :, None] * d[:, None, :]))
+    keep = w > 1e-10 * w[:, -1:]
+    pr = np.einsum("kam,ka->km", V, hk / d)
+    explained = np.sum(np.where(keep, pr ** 2 / np.where(keep, w, 1.0), 0.0), axis=1)
+    return np.maximum(yy - explained, 0.0)
+
+
+EXACT_GRID_MAX = 256     # grids this small are scored by an SVD solve per point
+
+
+def _grid_rss_exact(Br, yr, S) -> np.ndarray:
+    """:func:`_profile_rss` by one SVD least-squares solve per grid point (small grids): it
+    also resolves columns that differ by less than the Gram matrix can (a Stribeck drop whose
+    ``Vc`` is far below the slowest sampled speed is the sign column to 1e-9; the fit may still
+    use that difference, and so did the per-start search before the grid)."""
+    cols, coefs = S
+    out = np.empty(cols.shape[0])
+    for k in range(cols.shape[0]):  # loop over grid points (at most EXACT_GRID_MAX)
+        A = np.einsum("tap,ap->ta", Br[:, cols[k]], coefs[k])
+        b = _ls_svd(A, yr)[0]
+        r = yr - A @ b
+        out[k] = float(r @ r)
+    return out
+
+
+def _grid_local_minima(U, rss) -> np.ndarray:
+    """Indices of the grid points (rows of ``U``, a full or partial tensor grid) whose profiled
+    residual is no larger than any neighbour's (one step in each coordinate, diagonals too)."""
+    from scipy.ndimage import minimum_filter
+
+    idx = tuple(np.unique(U[:, j], return_inverse=True)[1].ravel() for j in range(U.shape[1]))
+    C = np.full([int(i.max()) + 1 for i in idx], np.inf)
+    C[idx] = rss
+    mf = minimum_filter(C, size=3, mode="constant", cval=np.inf)
+    return np.flatnonzero(rss <= mf[idx])
+
+
+class _VarPro:
+    """The variable-projection residual over the nonlinear parameters ``u`` (transformed
+    coordinates) of a model with ``design_grad`` and zero offset, and its analytic Jacobian
+    (Golub & Pereyra 1973: ``dr/du_j = -(P_perp dA_j b + A^+T dA_j^T r)``), the extras projected
+    out once. The Jacobian reuses the pieces of the last residual evaluation at the same u."""
+
+    def __init__(self, model_cls, nl, tr, qd, tau, sw, proj):
+        self.cls, self.nl, self.tr, self.qd, self.proj, self.tau = model_cls, nl, tr, qd, proj, tau
+        self.sw = None if np.all(sw == 1.0) else sw
+        self.yr = proj(tau if self.sw is None else sw * tau)
+        self.all_log = bool(np.all(tr.log))
+        self._state = None
+
+    def resid(self, u):
+        u = np.asarray(u, float)
+        x = np.exp(u) if self.all_log else self.tr.to_x(u)
+        Phi, dPhi, cols = self.cls.design_grad(self.qd, dict(zip(self.nl, x)))
+        m = Phi.shape[1]
+        A = np.concatenate([Phi, dPhi], axis=1)
+        if self.sw is not None:
+            A = A * self.sw[:, None]
+        A = self.proj(A)
+        Pr = A[:, :m]
+        b, U, sv, V, nrm = _ls_svd(Pr, self.yr)
+        r = self.yr - Pr @ b
+        dxdu = x if self.all_log else np.where(self.tr.log, x, 1.0)
+        dA = A[:, m:] * dxdu                                  # d(column cols[j]) / du_j
+        self._state = (u.copy(), U, sv, V, nrm, dA, cols, b, r)
+        return r
+
+    def solution(self, u):
+        """``(extra coefficients, linear parameters)`` at ``u``: the same least-squares
+        solution the residual used (the extras from the target minus the model's columns)."""
+        u = np.asarray(u, float)
+        self.resid(u)
+        b = self._state[7]
+        Phi = self.cls.design_grad(self.qd, dict(zip(self.nl, self.tr.to_x(u))))[0]
+        rw = self.tau - Phi @ b
+        return self.proj.coefficients(rw if self.sw is None else self.sw * rw), b
+
+    def jac(self, u):
+        u = np.asarray(u, float)
+        if self._state is None or not np.array_equal(self._state[0], u):
+            self.resid(u)
+        _, U, sv, V, nrm, dA, cols, b, r = self._state
+        t1 = dA * b[cols]                                     # dA_j b, (T, n_nl)
+        c = np.zeros((nrm.size, dA.shape[1]))                 # dA_j^T r, (m, n_nl)
+        c[cols, np.arange(dA.shape[1])] = r @ dA
+        # P_perp dA_j b + A^+T dA_j^T r with A^+T = U diag(1/s) V^T diag(1/nrm)
+        return -(t1 - U @ (U.T @ t1) + U @ ((V.T @ (c / nrm[:, None])) / sv[:, None]))
+
+
+def _distinct_best(costs, U, span, n: int, sep: float = 0.1) -> list:
+    """Indices of the ``n`` lowest costs whose points differ from each other by more than
+    ``sep`` of the search span in some coordinate (distinct basins, not one basin twice)."""
+    order = np.argsort(costs, kind="stable")
+    out = []
+    for i in order:  # loop over candidates until n are found (stops early)
+        if not np.isfinite(costs[i]):
+            break
+        if all(np.max(np.abs(U[i] - U[j]) / span) > sep for j in out):
+            out.append(int(i))
+            if len(out) == n:
+                break
+    return out
 
 
 def _build(model_cls, values: dict, settings: dict):
@@ -316,20 +484,29 @@ def _one_blas_thread(fn):
     threads only add overhead (DESIGN.md measured 2-10x on 2-core machines; here 4x)."""
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        with threadpool_limits(1, user_api="blas"):
+        with one_blas_thread():
             return fn(*args, **kwargs)
     return wrapper
 
 
 @_one_blas_thread
-def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int):
+def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int, jac="2-point",
+                probe_nfev: int | None = None):
     """Bounded ``least_squares`` from every start; (best result, total nfev, cost per start).
-    A start that fails numerically counts as infinite cost; all failing is an error."""
+    A start that fails numerically counts as infinite cost; all failing is an error.
+    ``probe_nfev``: the starts after the first (ranked best) get this many evaluations; one
+    that has not converged by then is continued to ``max_nfev`` only if it is already below
+    the best so far (a start crawling along a flat valley above the best stops early)."""
     best, nfev, costs, last_error = None, 0, [], None
-    for x0 in starts:  # loop over starts (a handful)
+    opts = dict(jac=jac, bounds=bounds, method="trf", x_scale=x_scale,
+                ftol=1e-12, xtol=1e-12, gtol=1e-12)
+    for i, x0 in enumerate(starts):  # loop over starts (a handful)
+        cap = max_nfev if (i == 0 or probe_nfev is None) else min(probe_nfev, max_nfev)
         try:
-            r = least_squares(resid, x0, bounds=bounds, method="trf", x_scale=x_scale,
-                              ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=max_nfev)
+            r = least_squares(resid, x0, max_nfev=cap, **opts)
+            if r.status == 0 and cap < max_nfev and (best is None or r.cost < best.cost):
+                nfev += r.nfev
+                r = least_squares(resid, r.x, max_nfev=max_nfev - r.nfev, **opts)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
             costs.append(np.inf)
             last_error = exc
@@ -343,9 +520,10 @@ def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int):
     return best, nfev, costs
 
 
+@_one_blas_thread
 def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, dt=None,
                  bounds=None, x0=None, n_starts: int = 8, seed: int = 0, weights=None,
-                 settings=None) -> FrictionFit:
+                 settings=None, n_refine: int = 4) -> FrictionFit:
     """Fit ``tau ~ X_extra @ beta + model_cls(theta, **settings).torque(qd, qdd, dt)``.
 
     ``bounds``: {name: (lo, hi)} overriding the model's data-scaled defaults; ``x0``: {name:
@@ -354,7 +532,9 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
     arctan, which may also carry ``delta_grid``; ``static``/``damping``/``z0`` for dm1;
     ``static``/``accel_ratio`` for dm2). Dynamic models without a ``static`` setting get an
     arctan model fitted to the same data first (step 1 of Indri & Trapani); dm2 without
-    ``accel_ratio`` takes a_max/v_max from ``qd``/``qdd``. See the module docstring.
+    ``accel_ratio`` takes a_max/v_max from ``qd``/``qdd``. ``n_refine``: how many of the
+    grid-scored candidates are refined (models with a ``vp_grid``; at most ``n_starts``; the
+    others refine every start). See the module docstring.
     """
     settings = dict(settings or {})
     qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
@@ -445,7 +625,36 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
         b = _wlstsq(A, tau - off, sw)
         return A, off, b
 
-    if not joint:
+    grid = (model_cls.vp_grid(qd, nl_bounds) if hasattr(model_cls, "vp_grid") else None)
+    if not joint and grid is not None:
+        # score the starts and a grid over the nonlinear parameters by their profiled (variable
+        # projection) residual in array operations, then refine the best few distinct local
+        # minima with an analytic Jacobian
+        proj = _Projector(X, sw)
+        vp = _VarPro(model_cls, nl, tr, qd, tau, sw, proj)
+        B, Ug, S, *blocks = grid
+        Br = proj(B * sw[:, None])
+        grid_rss = (_profile_rss(Br, vp.yr, S) if Ug.shape[0] > EXACT_GRID_MAX
+                    else _grid_rss_exact(Br, vp.yr, S))
+        blocks = blocks[0] if blocks else np.zeros(Ug.shape[0], int)
+        loc = np.concatenate([np.flatnonzero(blocks == k)[_grid_local_minima(
+            Ug[blocks == k], grid_rss[blocks == k])] for k in np.unique(blocks)])
+        start_rss = np.array([float(np.sum(vp.resid(u) ** 2)) for u in starts])   # a handful
+        cand = np.vstack([np.array(starts), tr.to_u(Ug[loc])])
+        rss = np.concatenate([start_rss, grid_rss[loc]])
+        ulo, uhi = tr.ubounds()
+        pick = _distinct_best(rss, cand, uhi - ulo, max(1, min(n_refine, n_starts)))
+        best, nfev, refined = _multistart(model_cls.name, vp.resid,
+                                          [tr.clip_inside(cand[i]) for i in pick], tr.ubounds(),
+                                          x_scale=1.0, max_nfev=400, jac=vp.jac, probe_nfev=100)
+        nfev += len(starts)
+        costs = [float(0.5 * c) for c in start_rss]
+        u_best = best.x
+        beta_extra, linvals = vp.solution(u_best)
+        method = "variable projection: grid-scored starts, bounded least squares from the best"
+        diagnostics.update({"grid_size": int(grid_rss.size), "grid_local_minima": int(loc.size),
+                            "n_refined": len(pick), "refined_costs": refined})
+    elif not joint:
         def resid(u):
             A, off, b = vp_solve(u)
             return sw * (tau - off - A @ b)

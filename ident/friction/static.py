@@ -31,6 +31,22 @@ def s1(v, Kv: float = 1000.0) -> np.ndarray:
     return s0(v, Kv) * v
 
 
+def _grid_values(lo: float, hi: float, n: int):
+    """``n`` grid values strictly inside (lo, hi): log-spaced for lo > 0, else linear; None for
+    an infinite bound."""
+    lo, hi = float(lo), float(hi)
+    if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi) or n < 1:
+        return None
+    if lo > 0:
+        return np.exp(np.linspace(np.log(lo), np.log(hi), n + 2)[1:-1])
+    return np.linspace(lo, hi, n + 2)[1:-1]
+
+
+_STRIBECK_GRAD_COLS = np.array([2])          # Vc -> the drop column
+_HYPERBOLIC_GRAD_COLS = np.array([0, 0, 1])   # g2, g3 -> the hump; g5 -> the Coulomb column
+LIMIT_RATIO = 1.0001                          # g2 / g3 of the hyperbolic grid's limit-hump starts
+
+
 class _StaticModel(FrictionModel):
     """Shared helpers of the static models."""
 
@@ -62,6 +78,30 @@ class _StaticModel(FrictionModel):
     def canonical(cls, params: dict) -> dict:
         """The representative of parameter sets that give the same torque (identity here)."""
         return dict(params)
+
+    @classmethod
+    def design_grad(cls, qd, nl: dict):
+        """``(Phi (T, n_linear), dPhi (T, n_nonlinear), cols (n_nonlinear,))``: the linear
+        design for the nonlinear values ``nl`` and its derivatives with respect to them
+        (``nonlinear_names`` order), each nonlinear parameter entering one column of ``Phi``
+        (column ``cols[j]`` of the design has derivative ``dPhi[:, j]``, the other columns
+        none), for an analytic variable-projection Jacobian; None: not available."""
+        return None
+
+    @classmethod
+    def vp_grid(cls, qd, bounds: dict, n: int | None = None):
+        """A grid over the nonlinear parameters for the variable-projection search of
+        :func:`ident.friction.fit.fit_friction`, factored so that every grid point's design is a
+        combination of a few shared columns: ``(B, U, S)`` with ``B`` (T, nb) basis columns,
+        ``U`` (K, n_nonlinear) the nonlinear values of each grid point (in ``param_names``
+        order) and ``S`` the combination with design ``Phi_k = B @ S_k`` (offset 0). The
+        estimator scores all K points from the (nb, nb) Gram matrix of ``B`` (no pass over the
+        samples per point). ``S`` is given sparse, as ``(cols, coefs)``, both (K, n_linear, p):
+        ``Phi_k[:, a] = sum_p coefs[k, a, p] * B[:, cols[k, a, p]]``. An optional fourth item,
+        (K,) integers, splits the points into blocks, each a (partial) tensor grid of its own
+        (for the local minima). ``bounds``: {name: (lo, hi)}; None: no grid (infinite bounds,
+        or a model without one)."""
+        return None
 
     def degeneracy(self, qd, fit_scale: float) -> str | None:
         """A sentence naming the degenerate form these parameters take on ``qd``, or None.
@@ -114,6 +154,32 @@ class Stribeck(_StaticModel):
     def fit_hints(cls, qd, settings):
         vmax = float(np.max(np.abs(qd)))
         return {"Vc": 0.05 * vmax}, {"Vc": (1e-4 * vmax, 10.0 * vmax)}
+
+    @classmethod
+    def design_grad(cls, qd, nl):
+        Vc = float(nl["Vc"])
+        qd = np.asarray(qd, float)
+        Phi = cls.regressor(qd, Vc)
+        d = np.zeros((qd.size, 1))
+        if Vc > 0:                                          # Vc = 0: the limit, derivative 0
+            a = np.abs(qd)
+            d[:, 0] = np.sign(qd) * np.exp(-a / Vc) * a / (Vc * Vc)   # d/dVc of the drop
+        return Phi, d, _STRIBECK_GRAD_COLS
+
+    @classmethod
+    def vp_grid(cls, qd, bounds, n=None):
+        vals = _grid_values(*bounds["Vc"], 48 if n is None else n)
+        if vals is None:
+            return None
+        qd = np.asarray(qd, float)
+        sgn = np.sign(qd)
+        drops = sgn[:, None] * np.expm1(-np.abs(qd)[:, None] / vals)      # (T, n): -sgn (1 - e)
+        B = np.column_stack([sgn, qd, drops])
+        K = vals.size
+        cols = np.zeros((K, 3, 1), int)
+        cols[:, 1, 0] = 1
+        cols[:, 2, 0] = 2 + np.arange(K)
+        return B, vals[:, None], (cols, np.ones((K, 3, 1)))
 
     def violations(self, form=None):
         """Thesis eq. 2-6 physics: static level ``Fk >= 0``, Coulomb level at speed
@@ -186,6 +252,59 @@ class Hyperbolic(_StaticModel):
         vmax = float(np.max(np.abs(qd)))
         b = (1e-3 / vmax, 1e4 / vmax)
         return {"g2": 50.0 / vmax, "g3": 5.0 / vmax, "g5": 20.0 / vmax}, {"g2": b, "g3": b, "g5": b}
+
+    @classmethod
+    def design_grad(cls, qd, nl):
+        qd = np.asarray(qd, float)
+        t = np.tanh(np.multiply.outer(qd, [nl["g2"], nl["g3"], nl["g5"]]))     # (T, 3)
+        Phi = np.empty((qd.size, 3))
+        Phi[:, 0] = t[:, 0] - t[:, 1]
+        Phi[:, 1] = t[:, 2]
+        Phi[:, 2] = qd
+        d = qd[:, None] * (1.0 - t * t)                     # d tanh(g qd)/dg = qd sech^2
+        d[:, 1] *= -1.0
+        return Phi, d, _HYPERBOLIC_GRAD_COLS
+
+    @classmethod
+    def vp_grid(cls, qd, bounds, n=None):
+        n = 20 if n is None else n
+        a, b, c = (_grid_values(*bounds[k], n) for k in ("g2", "g3", "g5"))
+        if a is None or b is None or c is None:
+            return None
+        qd = np.asarray(qd, float)
+        gs, inv = np.unique(np.concatenate([a, b, c]), return_inverse=True)
+        ia, ib, ic = inv[:a.size], inv[a.size:a.size + b.size], inv[a.size + b.size:]
+        B = np.column_stack([np.tanh(np.multiply.outer(qd, gs)), qd])
+        i, j, k = (x.ravel() for x in np.meshgrid(np.arange(a.size), np.arange(b.size),
+                                                   np.arange(c.size), indexing="ij"))
+        keep = a[i] > b[j]                          # the canonical representative, g2 > g3
+        i, j, k = i[keep], j[keep], k[keep]
+        K = i.size
+        cols = np.zeros((K, 3, 2), int)
+        coefs = np.zeros((K, 3, 2))
+        cols[:, 0, 0], cols[:, 0, 1], coefs[:, 0] = ia[i], ib[j], (1.0, -1.0)   # hump
+        cols[:, 1, 0], coefs[:, 1, 0] = ic[k], 1.0                             # Coulomb
+        cols[:, 2, 0], coefs[:, 2, 0] = gs.size, 1.0                           # viscous
+        U = np.column_stack([a[i], b[j], c[k]])
+        # second block: the limit g3 -> g2 of the hump with g1 (g2 - g3) fixed, a hump of shape
+        # qd sech^2(g2 qd) that no finite grid point reaches (scored by the limit column,
+        # started at g3 = g2 / LIMIT_RATIO, next to the limit)
+        lo3, hi3 = bounds["g3"]
+        al = a[(a / LIMIT_RATIO > lo3) & (a / LIMIT_RATIO < hi3)]
+        if al.size:
+            ta = np.tanh(np.multiply.outer(qd, al))
+            B = np.column_stack([B, qd[:, None] * (1.0 - ta * ta)])
+            il, kl = (x.ravel() for x in np.meshgrid(np.arange(al.size), np.arange(c.size),
+                                                     indexing="ij"))
+            cl = np.zeros((il.size, 3, 2), int)
+            fl = np.zeros((il.size, 3, 2))
+            cl[:, 0, 0], fl[:, 0, 0] = gs.size + 1 + il, 1.0
+            cl[:, 1, 0], fl[:, 1, 0] = ic[kl], 1.0
+            cl[:, 2, 0], fl[:, 2, 0] = gs.size, 1.0
+            cols, coefs = np.concatenate([cols, cl]), np.concatenate([coefs, fl])
+            U = np.vstack([U, np.column_stack([al[il], al[il] / LIMIT_RATIO, c[kl]])])
+        blocks = np.repeat([0, 1], [K, U.shape[0] - K])
+        return B, U, (cols, coefs), blocks
 
     def violations(self, form=None):
         """Thesis eq. 2-7 signs: the Coulomb term ``g4 >= 0``, the viscous ``g6 >= 0``, and a

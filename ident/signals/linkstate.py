@@ -43,16 +43,25 @@ __all__ = ["DeflectionFit", "LinkState", "LinkStateEstimator"]
 
 
 def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
-    """``cos(pi m (t - t0) / D)``, m = 1..M, and its ``order``-th time derivative, (T, M)."""
+    """``cos(pi m (t - t0) / D)``, m = 1..M, and its ``order``-th time derivative, (T, M).
+    Built from the powers of ``exp(i pi (t - t0) / D)`` (one complex exponential and M
+    products over the samples instead of M cosines; the same values to rounding)."""
+    if order not in (0, 1, 2):
+        raise ValueError("order must be 0, 1 or 2")
+    x = np.asarray(t, float) - t0
+    if M == 0:
+        return np.zeros((x.size, 0))
     w = np.pi * np.arange(1, M + 1) / D
-    ph = np.multiply.outer(np.asarray(t, float) - t0, w)
+    e = np.exp(1j * (np.pi / D) * x)
+    E = np.empty((M, x.size), complex)
+    E[0] = e
+    for m in range(1, M):  # loop over the terms (up to a few hundred), vectorised over samples
+        np.multiply(E[m - 1], e, out=E[m])
     if order == 0:
-        return np.cos(ph)
+        return E.real.T
     if order == 1:
-        return -np.sin(ph) * w
-    if order == 2:
-        return -np.cos(ph) * w ** 2
-    raise ValueError("order must be 0, 1 or 2")
+        return (-E.imag * w[:, None]).T
+    return (-E.real * (w ** 2)[:, None]).T
 
 
 def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
@@ -280,10 +289,12 @@ class LinkStateEstimator:
         fixed = [np.ones_like(tm)] + ([dn_m] if use_gain else [])
         target = d_meas - (0.0 if use_gain else dn_m)
         X = np.column_stack(fixed + [_cosine_basis(tm, t0, D, cands[-1])])
-        # all candidate sizes from one QR (columns ordered by frequency)
-        Q, R = np.linalg.qr(X)
-        proj = (Q.T @ target) ** 2
-        ok_cols = np.abs(np.diag(R)) > 1e-10 * np.max(np.abs(np.diag(R)))
+        # all candidate sizes from one QR (columns ordered by frequency) of the design with the
+        # target appended: the last column of R is Q^T target (Q is never formed)
+        p = X.shape[1]
+        R = np.linalg.qr(np.column_stack([X, target]), mode="r")
+        proj = R[:p, p] ** 2
+        ok_cols = np.abs(np.diag(R)[:p]) > 1e-10 * np.max(np.abs(np.diag(R)[:p]))
         proj = np.where(ok_cols, proj, 0.0)
         cum = np.cumsum(proj)
         total = float(target @ target)
@@ -310,7 +321,7 @@ class LinkStateEstimator:
             Xe = np.column_stack(cols)
             val = Xe @ coef + (0.0 if use_gain else dn[k])
             parts.append(val)
-            sds.append(float(np.sqrt(np.mean(np.einsum("ij,jk,ik->i", Xe, cov, Xe)))))
+            sds.append(float(np.sqrt(np.mean(np.sum((Xe @ cov) * Xe, axis=1)))))
         fixed_gain = 1.0 if nominal is not None else float("nan")
         defl = DeflectionFit(offset, gain if use_gain else fixed_gain, gain_se if use_gain else 0.0 * fixed_gain,
                              np.asarray(c, float), cov, t0, D, sigma, int(n),

@@ -29,12 +29,15 @@ estimated with :func:`estimate_time_offset`).
 from __future__ import annotations
 
 import dataclasses
+import functools
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.linalg import lapack
 from scipy.optimize import minimize_scalar
-from scipy.signal import savgol_coeffs, savgol_filter
+from scipy.signal import savgol_coeffs
 
 from mocap.io.errors import InputError
 
@@ -47,14 +50,11 @@ __all__ = ["SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundament
 
 def one_blas_thread():
     """Context: BLAS limited to one thread (DESIGN.md: 2-10x faster for these small solves on
-    shared 2-core machines). A no-op context when threadpoolctl is absent."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover
-        import contextlib
+    shared 2-core machines); see :mod:`ident.signals.blas` (built once per process, nested
+    contexts free). A no-op context when threadpoolctl is absent."""
+    from ident.signals.blas import one_blas_thread as _obt
 
-        return contextlib.nullcontext()
-    return threadpool_limits(1, "blas")
+    return _obt()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -138,6 +138,53 @@ class SmoothFit:
 # ---------------------------------------------------------------------------------------------
 # Savitzky-Golay smoother (non-periodic fallback)
 # ---------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=512)
+def _savgol_plan(w: int, p: int, deriv: int, delta: float):
+    """Cached linear maps of a Savitzky-Golay filter (``scipy.signal.savgol_filter``'s, mode
+    ``"interp"``): the interior coefficients (``savgol_coeffs``, dot order) and the matrices
+    that evaluate the polynomial fitted to the first / last ``w`` samples (or its ``deriv``-th
+    derivative) at the first / last ``w // 2`` positions."""
+    c = savgol_coeffs(w, p, deriv=deriv, delta=delta, use="dot")
+    h = w // 2
+    mid = (w - 1) / 2.0
+    k = np.arange(p + 1)
+    V = ((np.arange(w) - mid) / max(h, 1))[:, None] ** k          # scaled positions in [-1, 1]
+    P = np.linalg.pinv(V)                                           # samples -> poly coefficients
+    fac = np.array([math.perm(int(j), deriv) for j in k], float)   # d^deriv u^j = j!/(j-deriv)! u^(j-deriv)
+
+    def at(pos):
+        u = (pos - mid) / max(h, 1)
+        pw = np.where(k >= deriv, u[:, None] ** np.maximum(k - deriv, 0), 0.0) * fac
+        return pw @ P / (max(h, 1) * delta) ** deriv
+
+    return c, at(np.arange(h, dtype=float)), at(np.arange(w - h, w, dtype=float))
+
+
+def _savgol(x, w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    """``scipy.signal.savgol_filter(x, w, p, deriv, delta, mode="interp")`` (the same values to
+    rounding) from cached coefficients: a valid correlation in the interior and the edge
+    polynomials as two small matrix products."""
+    x = np.asarray(x, float)
+    n = x.size
+    if w > n:
+        raise ValueError(f"window {w} is longer than the {n} samples")
+    c, Ms, Me = _savgol_plan(int(w), int(p), int(deriv), float(delta))
+    h = w // 2
+    y = np.empty(n)
+    y[h:n - h] = np.correlate(x, c, mode="valid")
+    y[:h] = Ms @ x[:w]
+    y[n - h:] = Me @ x[n - w:]
+    return y
+
+
+@functools.lru_cache(maxsize=512)
+def _savgol_coeffs(w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    """``savgol_coeffs`` cached (read-only)."""
+    c = savgol_coeffs(w, p, deriv=deriv, delta=delta)
+    c.setflags(write=False)
+    return c
+
+
 class SavGolSmoother:
     """Savitzky-Golay smoothing and differentiation on a uniform grid (the fallback for
     non-periodic trials). ``window_s``: window length in seconds, or ``"auto"``: chosen from
@@ -184,9 +231,9 @@ class SavGolSmoother:
         for w in cands:  # a dozen candidate windows, each one vectorised filter
             if w <= self.polyorder:
                 continue
-            g0 = savgol_filter(qu, w, self.polyorder, mode="interp")
+            g0 = _savgol(qu, w, self.polyorder)
             rss = float(np.sum((qu - g0) ** 2))
-            h0 = float(savgol_coeffs(w, self.polyorder)[w // 2])
+            h0 = float(_savgol_coeffs(w, self.polyorder)[w // 2])
             dof = n * (1.0 - h0)
             if dof <= 0:
                 continue
@@ -206,17 +253,14 @@ class SavGolSmoother:
             w, sigma = self._window(dt, tu.size), float("nan")
         if w <= self.polyorder:
             raise InputError(f"{tu.size} samples are too few for a Savitzky-Golay window")
-        kw = dict(window_length=w, polyorder=self.polyorder, delta=dt, mode="interp")
-        g0 = savgol_filter(qu, deriv=0, **kw)
-        g1 = savgol_filter(qu, deriv=1, **kw)
-        g2 = savgol_filter(qu, deriv=2, **kw)
+        g0, g1, g2 = (_savgol(qu, w, self.polyorder, k, dt) for k in (0, 1, 2))
         r = q - np.interp(t, tu, g0)
         rms = float(np.sqrt(np.mean(r ** 2)))
         if not np.isfinite(sigma):
-            h0 = float(savgol_coeffs(w, self.polyorder)[w // 2])
+            h0 = float(_savgol_coeffs(w, self.polyorder)[w // 2])
             sigma = rms / np.sqrt(max(1.0 - h0, 1e-12))
-        h1 = savgol_coeffs(w, self.polyorder, deriv=1, delta=dt)
-        h2 = savgol_coeffs(w, self.polyorder, deriv=2, delta=dt)
+        h1 = _savgol_coeffs(w, self.polyorder, 1, dt)
+        h2 = _savgol_coeffs(w, self.polyorder, 2, dt)
         return SmoothFit("savgol", rms, float(np.max(np.abs(r))), int(t.size), float(t[0]),
                          float(t[-1]), None, float("nan"), rms, (tu, g0, g1, g2), window_s=w * dt,
                          bandwidth_hz=(self.polyorder + 1) / (3.2 * w - 4.6) / dt, sigma=sigma, qd_noise=float(sigma * np.linalg.norm(h1)),
@@ -226,21 +270,52 @@ class SavGolSmoother:
 # ---------------------------------------------------------------------------------------------
 # Fourier: harmonics and fundamental
 # ---------------------------------------------------------------------------------------------
+def _ordered_design_T(t, wf, n, extra=None):
+    """The TRANSPOSED design ``[1, s1, c1, s2, c2, ...]`` (rows; a permutation of the columns
+    of design_matrix) so that the first 2N+1 rows are the model with N harmonics, with
+    ``extra`` appended as a last row. Built from the powers of ``exp(i wf t)`` (one complex
+    exponential and N products over the samples instead of 2N sines and cosines; the same
+    values to rounding). Transposed so that ``.T`` is the Fortran-ordered design LAPACK
+    factorises in place."""
+    t = np.asarray(t, float)
+    wl = wf * np.arange(1, n + 1)
+    e = np.exp(1j * wf * t)
+    E = np.empty((n, t.size), complex)
+    E[0] = e
+    for k in range(1, n):  # loop over harmonics (a few dozen), vectorised over the samples
+        np.multiply(E[k - 1], e, out=E[k])
+    XT = np.empty((2 * n + 1 + (extra is not None), t.size))
+    XT[0] = 1.0
+    XT[1:2 * n + 1:2] = E.imag / wl[:, None]
+    XT[2:2 * n + 1:2] = -E.real / wl[:, None]
+    if extra is not None:
+        XT[-1] = extra
+    return XT
+
+
 def _ordered_design(t, wf, n):
     """Columns [1, s1, c1, s2, c2, ...] (a column permutation of design_matrix) so that the
     first 2N+1 columns are the model with N harmonics."""
-    X = design_matrix(t, wf, n)
-    order = [0] + [c for l in range(n) for c in (1 + l, 1 + n + l)]
-    return X[:, order]
+    return _ordered_design_T(t, wf, n).T
 
 
 def _rss_by_harmonics(t, q, wf, n_max):
-    """RSS of the eq. 3-2 fit for N = 1..n_max harmonics, from one QR factorisation."""
-    X = _ordered_design(t - t[0], wf, n_max)
-    Q, R = np.linalg.qr(X)
-    proj = (Q.T @ q) ** 2
+    """RSS of the eq. 3-2 fit for N = 1..n_max harmonics, from one QR factorisation of the
+    design with ``q`` appended (its last column of R is ``Q^T q``: Q is never formed; LAPACK
+    factorises the freshly built array in place)."""
+    p = 2 * n_max + 1
+    A = _ordered_design_T(t - t[0], wf, n_max, q).T
+    if A.shape[0] <= p:
+        R = np.linalg.qr(A, mode="r")
+    else:
+        qr, _, _, info = lapack.dgeqrf(A, overwrite_a=1)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"QR failed (LAPACK info {info})")
+        R = qr[:p + 1]
+    d = np.abs(np.diag(R)[:p])
+    proj = R[:p, p] ** 2
     # guard against rank loss (a harmonic above Nyquist): drop tiny diagonal entries
-    ok = np.abs(np.diag(R)) > 1e-10 * np.abs(R[0, 0])
+    ok = d > 1e-10 * d[0]
     proj = np.where(ok, proj, 0.0)
     total = float(q @ q)
     cums = np.cumsum(proj)
@@ -360,7 +435,7 @@ class FourierSmoother:
         sigma = float(np.sqrt(r @ r / max(t.size - X.shape[1], 1)))
         C = np.linalg.pinv(X.T @ X)
         D1, D2 = (design_matrix(t, wf, n, k) for k in (1, 2))
-        sd = [sigma * np.sqrt(np.mean(np.einsum("ij,jk,ik->i", D, C, D))) for D in (D1, D2)]
+        sd = [sigma * np.sqrt(np.mean(np.sum((D @ C) * D, axis=1))) for D in (D1, D2)]
         return SmoothFit("fourier", float(np.sqrt(np.mean(r ** 2))), float(np.max(np.abs(r))),
                          int(t.size), float(t[0]), float(t[-1]), series, float(np.linalg.cond(X)),
                          sigma=sigma, qd_noise=float(sd[0]), qdd_noise=float(sd[1]),

@@ -247,7 +247,7 @@ def _run_mocap_job(job: _MocapJob) -> dict:
     """Solve one trial's link angles, write ``angles/<id>.csv`` then the record."""
     from ident.signals.smoothing import one_blas_thread
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         camp, robot = _load(job.manifest)
         with one_blas_thread():
@@ -260,7 +260,8 @@ def _run_mocap_job(job: _MocapJob) -> dict:
         summary = _jsonable(res.to_dict())
         if job.report is not None:
             summary["markers"] = _jsonable(job.report(res.solve))
-        result = {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0}
+        result = {"ok": True, "summary": summary, "seconds": time.perf_counter() - t0,
+                  "cpu_s": time.process_time() - c0}
     except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir), [job.out_csv])
@@ -280,12 +281,13 @@ def _run_fit_job(job: _FitJob) -> dict:
     """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign.fit_trial_joint`)."""
     from ident.thesis.campaign import fit_trial_joint
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         entries = [fit_trial_joint(t) for t in job.tasks]  # loop over the trial's joints
     except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
-    result = {"ok": True, "entries": entries, "seconds": time.perf_counter() - t0}
+    result = {"ok": True, "entries": entries, "seconds": time.perf_counter() - t0,
+              "cpu_s": time.process_time() - c0}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
     return result
 
@@ -306,7 +308,7 @@ def _run_diag_job(job: _DiagJob) -> dict:
     from ident.gap.campaign import diagnose_campaign, load_angles_dir
     from ident.signals.smoothing import one_blas_thread
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     try:
         camp, robot = _load(job.manifest)
         angles = None
@@ -319,7 +321,7 @@ def _run_diag_job(job: _DiagJob) -> dict:
         result = {"ok": True, "report": report["joints"].get(key), "series": series.get(key),
                   "link_angles": bool(report.get("link_angles")),
                   "skipped_trials": report.get("skipped_trials", []),
-                  "seconds": time.perf_counter() - t0}
+                  "seconds": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
     except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
@@ -371,15 +373,17 @@ def _reuse_stage(ctx, stage: str, h: str, path: Path, n: int, t0: float) -> bool
     return True
 
 
-def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0):
+def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0, cpu=0.0):
     """One stage's bookkeeping; ``work_s``: the summed wall time of its computed items as the
-    workers measured them (``work_s / (workers * seconds)`` is the parallel efficiency)."""
+    workers measured them (``work_s / (workers * seconds)`` is the parallel efficiency);
+    ``cpu_s``: their summed CPU (process) time, which other load on the machine barely
+    changes."""
     return {"computed": computed, "reused": reused, "failed": failed, "seconds": round(seconds, 3),
-            "work_s": round(work, 3), "note": note}
+            "work_s": round(work, 3), "cpu_s": round(cpu, 3), "note": note}
 
 
-def _work(jobs, done, key) -> float:
-    return float(sum(done[getattr(j, key)].get("seconds", 0.0) for j in jobs))
+def _work(jobs, done, key, field: str = "seconds") -> float:
+    return float(sum(done[getattr(j, key)].get(field, 0.0) for j in jobs))
 
 
 class Study:
@@ -568,7 +572,8 @@ class Study:
         ctx.paths["mocap"] = ctx.out / "mocap.json"
         ctx.stages["mocap"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
                                          len(done) - len(jobs), len(failed), time.perf_counter() - t0,
-                                         work=_work(jobs, done, "trial"))
+                                         work=_work(jobs, done, "trial"),
+                                         cpu=_work(jobs, done, "trial", "cpu_s"))
         return (angles_dir if items else None), summary, refs
 
     # stage 3: friction fits ------------------------------------------------------------------
@@ -628,7 +633,8 @@ class Study:
         ctx.stages["fits"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
                                         len(done) - len(jobs), len(failed), time.perf_counter() - t0,
                                         f"skipped (coast-down): {', '.join(skipped)}" if skipped else "",
-                                        work=_work(jobs, done, "trial"))
+                                        work=_work(jobs, done, "trial"),
+                                        cpu=_work(jobs, done, "trial", "cpu_s"))
         return result
 
     # stage 3b: multi-joint records ------------------------------------------------------------
@@ -727,7 +733,8 @@ class Study:
             ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
                                              len(done) - len(jobs), len(failed),
-                                             time.perf_counter() - t0, work=_work(jobs, done, "joint"))
+                                             time.perf_counter() - t0, work=_work(jobs, done, "joint"),
+                                             cpu=_work(jobs, done, "joint", "cpu_s"))
         return report, series
 
     def _diagnosis_records(self, ctx, dset, t0):
