@@ -19,7 +19,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable
 
-#: nominal transmission stiffness of jointlab's simulator: deflection below the encoder resolution
+#: rigid-equivalent transmission stiffness of jointlab's simulator, used only for a joint whose
+#: drives.toml declares no ``stiffness`` (FORMAT.md: absent = rigid): the simulator then takes
+#: ``max(K_NOMINAL, 2 tau_max / encoder_resolution)`` (deflection at rated torque under half an
+#: encoder count, :func:`ident.sim.effects.nominal_stiffness`). A declared stiffness is always used.
 K_NOMINAL = 3.0e5   # N m / rad
 
 
@@ -33,6 +36,7 @@ class SimContext:
     vmax: float           # maximum speed
     inertia: float        # link + motor inertia
     campaign_length_s: float = 600.0
+    k0: float = K_NOMINAL  # nominal (declared) transmission stiffness, N m/rad
 
 
 @dataclass(frozen=True)
@@ -54,7 +58,7 @@ class EffectSpec:
 
 
 def _compliance(M, s, ctx):
-    return {"k": 1.0 / (1.0 / K_NOMINAL + M * math.radians(s["deflection_deg"]) / ctx.tau_max)}
+    return {"k": 1.0 / (1.0 / ctx.k0 + M * math.radians(s["deflection_deg"]) / ctx.tau_max)}
 
 
 def _presliding(M, s, ctx):
@@ -70,7 +74,8 @@ def _asymmetry(M, s, ctx):
 
 
 _SPECS = (
-    EffectSpec("none", "none", "no effect: the nominal plant", "rigid joint, Coulomb + viscous", {}),
+    EffectSpec("none", "none", "no effect: the nominal plant",
+               "joint at its declared stiffness (rigid-equivalent if none), Coulomb + viscous", {}),
     EffectSpec(
         "stribeck", "torque",
         "friction above the Coulomb level at low speed, dropping with speed (static > kinetic)",
@@ -120,7 +125,7 @@ _SPECS = (
         "compliance", "transmission",
         "transmission softer than declared: link-motor deflection proportional to (or hardening with) "
         "the transmitted torque",
-        "joint stiffness 1/k = 1/k0 + M delta / tau_max", {"deflection_deg": 0.4},
+        "joint stiffness 1/k = 1/k0 + M delta / tau_max, k0 the declared stiffness", {"deflection_deg": 0.4},
         ("backlash", "time_offset"), "quasi-static trials at several payloads (deflection vs torque)",
         ("compliance",), _compliance),
     EffectSpec(

@@ -197,3 +197,29 @@ def test_measurement_effects_parameters():
     assert p.torque_gain == pytest.approx(1.15)
     p = Effect("time_offset", 0.5).joint_params(C5, V5, TMAX5, VMAX5, 0.05)
     assert p.time_offset == pytest.approx(0.010)
+
+
+def test_nominal_plant_and_compliance_use_the_declared_stiffness():
+    """FORMAT.md: the nominal plant is the joint at its declared stiffness; ``compliance`` is a
+    joint softer than declared (1/k = 1/k_declared + M delta / tau_max)."""
+    from mocap.robot import Drive
+    from ident.sim.effects import nominal_stiffness
+
+    k_decl = 5000.0
+    p0 = Effect("none").joint_params(C5, V5, TMAX5, VMAX5, 0.05, k0=k_decl)
+    assert p0.k == k_decl
+    for M in (0.3, 1.0):
+        p = Effect("compliance", M).joint_params(C5, V5, TMAX5, VMAX5, 0.05, k0=k_decl)
+        assert p.k < k_decl
+        extra = math.degrees(TMAX5 * (1 / p.k - 1 / k_decl))
+        assert extra == pytest.approx(M * 0.4, rel=1e-9)
+    with pytest.raises(ValueError):
+        Effect("none").joint_params(C5, V5, TMAX5, VMAX5, 0.05, k0=0.0)
+    common = dict(gear_ratio=100.0, motor_inertia=0.04, motor_viscous=0.15, max_velocity=2.43,
+                  max_torque=14.5, encoder_resolution=ENC)
+    assert nominal_stiffness(Drive(name="j", extra={"stiffness": 5000}, **common)) == 5000.0
+    # undeclared: rigid to measurement precision (under half an encoder count at rated torque)
+    k_rigid = nominal_stiffness(Drive(name="j", **common))
+    assert common["max_torque"] / k_rigid < 0.5 * ENC
+    big = dict(common, max_torque=232.0)
+    assert 232.0 / nominal_stiffness(Drive(name="j", **big)) <= 0.5 * ENC * (1 + 1e-12)

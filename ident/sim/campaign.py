@@ -7,9 +7,13 @@ A campaign holds a static pose (2 s still), calibration sweeps of joint 1 then j
 recording. All recordings share one controller clock (trials follow each other with pauses,
 so thermal drift shows); marker files run at their own rate and start/stop at other times.
 
-The nominal plant is rigid to measurement precision (k = 3e5 N m/rad, well damped) with the thesis's
-Coulomb + viscous friction per joint (Tables 5-1, A-1..A-9, no load, fastest range); the
-effect is added on the joints under study (see :mod:`ident.sim.effects`).
+The nominal plant is the flexible joint at the stiffness the robot's drives.toml declares (the
+bundled PA10: 40000, 40000, 25000, 5000, 5000, 5000 N m/rad; a joint without a declared
+stiffness is simulated rigid-equivalent and stays undeclared, see
+:func:`ident.sim.effects.nominal_stiffness`), well damped, with the thesis's Coulomb + viscous
+friction per joint (Tables 5-1, A-1..A-9, no load, fastest range); the controller's
+feed-forward uses the same declared stiffness; the effect is added on the joints under study
+(see :mod:`ident.sim.effects`; ``compliance`` is softer than declared).
 """
 from __future__ import annotations
 
@@ -26,7 +30,7 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
-from ident.sim.effects import K_NOMINAL, Effect, truth_models
+from ident.sim.effects import Effect, nominal_stiffness, truth_models
 from ident.sim.plant import (Controller, JointPlant, rest_state, simulate_coastdown, simulate_multi,
                   simulate_single)
 
@@ -322,6 +326,8 @@ class CampaignSynth:
             return payload_robots[load], nominal_payload[load]
 
         joint_truth = {}
+        k0 = {}                      # nominal (declared) stiffness per joint, N m/rad
+        self._k0 = k0
         for j in range(1, nominal.n + 1):
             c, v = PA10_CV[j]
             dr = nominal.drives[j - 1]
@@ -329,8 +335,9 @@ class CampaignSynth:
             eff = effect if studied else Effect("none", 0.0)
             # inertia used only for the damping constants: link at rest pose + motor
             Mrest = nominal.mass_matrix(np.array(REST_POSE))
+            k0[j] = nominal_stiffness(dr)
             fx = eff.joint_params(c, v, dr.max_torque, dr.max_velocity,
-                                  float(Mrest[j - 1, j - 1]) + dr.motor_inertia, campaign_length)
+                                  float(Mrest[j - 1, j - 1]) + dr.motor_inertia, campaign_length, k0[j])
             joint_truth[j] = fx
 
         manifest = {"format": 1, "name": cfg.name or out.name,
@@ -393,6 +400,8 @@ class CampaignSynth:
             "joints": {str(j): {"studied": j in cfg.joints, "nominal": {"cv": {"c": PA10_CV[j][0],
                                                                                "v": PA10_CV[j][1]}},
                                 "true_models": truth_models(fx), "plant": fx.to_dict(),
+                                "k_nominal": k0[j],
+                                "k_declared": "stiffness" in nominal.drives[j - 1].extra,
                                 "J": nominal.drives[j - 1].motor_inertia,
                                 "B": nominal.drives[j - 1].motor_viscous}
                        for j, fx in joint_truth.items()},
@@ -437,7 +446,8 @@ class CampaignSynth:
                                   [nominal.drives[j].motor_viscous for j in moving], rest, p.ref,
                                   ctrl_robot=nom, t0=t0, dt=dt, t_ref=clock0,
                                   c_nom=[PA10_CV[j + 1][0] for j in moving],
-                                  v_nom=[PA10_CV[j + 1][1] for j in moving])
+                                  v_nom=[PA10_CV[j + 1][1] for j in moving],
+                                  k_nom=[self._k0[j + 1] for j in moving])
             time = outm["time"]
             sig_full = {k: outm[k] for k in ("q", "qd", "qm", "qmd", "u", "f", "tau_t")}
             info["reference"] = [r.to_dict() for r in p.ref]
@@ -449,7 +459,7 @@ class CampaignSynth:
             In, an, bn = nom.single_joint_dynamics(j0, rest)
             c, v = PA10_CV[j0 + 1]
             plant = JointPlant(I, a, b, dr.motor_inertia, dr.motor_viscous, fx, t_ref=clock0)
-            ctrl = Controller.tuned(In, an, bn, dr.motor_inertia, dr.motor_viscous, c, v, K_NOMINAL)
+            ctrl = Controller.tuned(In, an, bn, dr.motor_inertia, dr.motor_viscous, c, v, self._k0[j0 + 1])
             info["plant"] = {"I": I, "a": a, "b": b, "I_nominal": In, "a_nominal": an,
                              "b_nominal": bn, "kp": ctrl.kp, "kd": ctrl.kd}
             if p.kind == "coastdown":
@@ -484,7 +494,8 @@ class CampaignSynth:
         for k, j in enumerate(moving):
             Q[:, j] = at(t_log, sig_full["q"][:, k])
             QD[:, j] = at(t_log, sig_full["qd"][:, k])
-            # mean acceleration over one log interval: the joint mode (~800 Hz) averages out
+            # mean acceleration over one log interval: what remains of the (overdamped) joint mode
+            # (~190 Hz on the PA10 wrist at its declared 5000 N m/rad) averages out
             h = 0.5 / cfg.log_rate
             QDD[:, j] = (at(t_log + h, sig_full["qd"][:, k]) - at(t_log - h, sig_full["qd"][:, k])) / (2 * h)
             QM[:, j] = at(t_log, sig_full["qm"][:, k])

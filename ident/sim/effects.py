@@ -23,8 +23,8 @@ load_dependent      ``c_eff = c + mu |tau_g(q)|``, ``tau_g`` the gravity + paylo
                     torque the joint transmits (its static load)
 thermal_drift       ``c, v -> (1 + h exp(-(t - t0)/tau)) (c, v)`` on the campaign   h = 0.30 (20-40 % cold),
                     clock ``t`` (warm-up)                                          tau = campaign length / 3
-compliance          joint stiffness ``1/k = 1/k0 + M delta / tau_max``              delta = 0.4 deg at rated
-                                                                                   torque (0.3-0.5 deg)
+compliance          joint stiffness ``1/k = 1/k0 + M delta / tau_max``, ``k0`` the  delta = 0.4 deg at rated
+                    declared stiffness (softer than declared)                      torque (0.3-0.5 deg)
 backlash            dead band of total width ``2 beta`` in the transmission         2 beta = 0.2 deg (0.1-0.3)
 torque_scale        logged torque ``= (1 + s) u`` (torque constant error)           s = 0.15 (10-20 %)
 asymmetry           ``c+- = c (1 +- a/2)``, ``v+- = v (1 +- a/2)`` by direction     a = 0.25 (+-20-30 %)
@@ -32,8 +32,12 @@ nonlinear_viscous   ``f += w qd |qd|``                                          
 time_offset         marker clock = controller clock + dt_off                       dt_off = 20 ms (10-30 ms)
 ==================  =============================================================  ==========================
 
-The nominal plant (``none``) is rigid to measurement precision (k0 = 3e5 N m/rad, deflection
-below the encoder resolution, well damped) with thesis Coulomb + viscous friction.
+The nominal plant (``none``) is the flexible joint at the robot's DECLARED stiffness ``k0``
+(drives.toml ``stiffness``, FORMAT.md: "the joint's nominal stiffness between motor and link, as
+a simulator of the flexible joint would use it"), well damped, with thesis Coulomb + viscous
+friction. A joint that declares no stiffness is rigid by FORMAT.md; the simulator then uses the
+rigid-equivalent :func:`nominal_stiffness` (deflection at rated torque under half an encoder
+count) and the campaign's drives.toml keeps it undeclared (absent = rigid, consistently).
 """
 from __future__ import annotations
 
@@ -53,6 +57,21 @@ SIZE = {name: dict(sp.size) for name, sp in REGISTRY.items() if sp.size}
 #: the torque: that ringing would itself be an unmodelled effect of the nominal plant
 #: (measured: 0.04 N m RMS against rigid + CV at zeta 0.05, 0.005 N m here, noise 0.08 N m).
 ZETA_JOINT = 1.0
+
+
+def nominal_stiffness(drive) -> float:
+    """The nominal transmission stiffness ``k0`` (N m/rad, link side) of a :class:`mocap.robot.Drive`:
+    its declared ``stiffness``, else the rigid-equivalent ``max(K_NOMINAL, 2 tau_max / resolution)``
+    (the deflection at rated torque stays under half an encoder count: rigid to measurement
+    precision, as FORMAT.md reads an absent stiffness)."""
+    k = drive.extra.get("stiffness") if getattr(drive, "extra", None) else None
+    if k is not None:
+        k = float(k)
+        if not (math.isfinite(k) and k > 0):
+            raise ValueError(f"drive {drive.name!r}: stiffness must be a positive number, got {k!r}")
+        return k
+    res = drive.encoder_resolution or math.radians(0.011)
+    return max(K_NOMINAL, 2.0 * float(drive.max_torque) / float(res))
 
 
 @dataclass(frozen=True)
@@ -116,15 +135,18 @@ class Effect:
         return s
 
     def joint_params(self, c: float, v: float, tau_max: float, vmax: float, inertia: float,
-                     campaign_length_s: float = 600.0) -> JointEffects:
-        """Plant parameters of a joint with nominal ``c``, ``v`` under this effect.
+                     campaign_length_s: float = 600.0, k0: float = K_NOMINAL) -> JointEffects:
+        """Plant parameters of a joint with nominal ``c``, ``v`` and nominal (declared)
+        stiffness ``k0`` (N m/rad, :func:`nominal_stiffness`) under this effect.
 
         ``inertia`` (link + motor, kg m^2) sets the joint damping and the LuGre damping.
         """
+        if not (math.isfinite(k0) and k0 > 0):
+            raise ValueError(f"nominal stiffness k0 must be a positive number, got {k0!r}")
         M = float(self.magnitude) if self.name != "none" else 0.0
         ctx = SimContext(c=c, v=v, tau_max=tau_max, vmax=vmax, inertia=inertia,
-                         campaign_length_s=campaign_length_s)
-        p = dict(c_pos=c, c_neg=c, v=v, k=K_NOMINAL, beta=0.0)
+                         campaign_length_s=campaign_length_s, k0=float(k0))
+        p = dict(c_pos=c, c_neg=c, v=v, k=float(k0), beta=0.0)
         p.update(REGISTRY[self.name].sim_params(M, self.size(), ctx))
         p["d"] = 2.0 * ZETA_JOINT * math.sqrt(p["k"] * inertia)
         return JointEffects(**p)

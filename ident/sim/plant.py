@@ -64,8 +64,8 @@ class JointPlant:
 
 @dataclass(frozen=True)
 class Controller:
-    """Motor-side PD plus feed-forward on the NOMINAL rigid model (thesis: the feed-forward
-    controller of the experiment): ``u = kp (qm_r - qm) + kd (qmd_r - qmd) + u_ff`` with
+    """Motor-side PD plus feed-forward on the NOMINAL model, ``k`` the declared stiffness (thesis:
+    the feed-forward controller of the experiment): ``u = kp (qm_r - qm) + kd (qmd_r - qmd) + u_ff`` with
     ``u_ff = (I + J) qdd_r + B qd_r + a sin q_r + b cos q_r + c sign(qd_r) + v qd_r`` and
     ``qm_r = q_r + (u_ff - J qdd_r - B qd_r) / k``. When disabled (coast-down) the motor only
     compensates the nominal gravity at the motor angle. In the simulator the PD acts on the
@@ -167,13 +167,20 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
     by the energy test). Returns the state AFTER each step; ``time[i] = t0 + (i + 1) dt``.
     """
     fx = plant.fx
-    N = int(np.asarray(q_r).size)
-    u_ff, qm_r, qmd_r = ctrl.feedforward(np.asarray(q_r, float), np.asarray(qd_r, float),
-                                         np.asarray(qdd_r, float))
-    # the implicit PD targets the reference at the END of the step (sample i + 1)
-    ffl = u_ff.tolist()
-    qmrl = qm_r[1:].tolist() + qm_r[-1:].tolist()
-    qmdrl = qmd_r[1:].tolist() + qmd_r[-1:].tolist()
+    q_r, qd_r, qdd_r = (np.asarray(x, float).reshape(-1) for x in (q_r, qd_r, qdd_r))
+    N = int(q_r.size)
+    # the implicit PD targets the reference at the END of the step (sample i + 1); the last
+    # step's target is the reference extrapolated by one step (constant acceleration), not the
+    # last sample repeated: a repeated target brakes the joint for one step before each cut
+    # (coast-down release) by about kp qd dt
+    if N:
+        q_r = np.append(q_r, q_r[-1] + dt * qd_r[-1] + 0.5 * dt * dt * qdd_r[-1])
+        qd_r = np.append(qd_r, qd_r[-1] + dt * qdd_r[-1])
+        qdd_r = np.append(qdd_r, qdd_r[-1])
+    u_ff, qm_r, qmd_r = ctrl.feedforward(q_r, qd_r, qdd_r)
+    ffl = u_ff[:N].tolist()
+    qmrl = qm_r[1:].tolist()
+    qmdrl = qmd_r[1:].tolist()
     enl = [bool(e) for e in np.broadcast_to(np.asarray(enable, bool), (N,))]
     open_loop = input_torque is not None
     uinl = np.asarray(input_torque, float).tolist() if open_loop else None
@@ -373,7 +380,7 @@ def with_effects(plant: JointPlant, fx: JointEffects) -> JointPlant:
 
 def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: float = 0.0,
                    dt: float = 5e-4, bandwidth_hz: float = 15.0, c_nom=None, v_nom=None,
-                   t_ref: float = 0.0):
+                   t_ref: float = 0.0, k_nom=None):
     """Several joints (0-based ``joints``) moving together, the others held at ``q_rest``.
 
     Link dynamics ``M(q) qdd + h(q, qd)`` from pinocchio (crba + nonLinearEffects) each step
@@ -381,7 +388,9 @@ def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: 
     mode, but with the Coulomb friction regularised (``c tanh(qd / 1e-3)``) and linearised
     implicitly. Stribeck, quadratic viscous, ripple, asymmetry, load dependence and thermal
     drift are supported; LuGre and backlash only in the single-joint mode.
-    ``robot`` is the actual plant (with payload); ``ctrl_robot`` the controller's nominal model.
+    ``robot`` is the actual plant (with payload); ``ctrl_robot`` the controller's nominal model,
+    ``c_nom``/``v_nom``/``k_nom`` its friction and (declared) stiffness per moving joint (default:
+    the plant's own, i.e. a controller that knows the effect).
     Returns a dict of full-rate (N, m) arrays. Speed: about 0.4-0.5 ms per step (2x real time,
     see benchmarks/sim.py).
     """
@@ -415,7 +424,8 @@ def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: 
     qd_sel = QDR[:, joints]
     link_ff = tau_link_ff + c_nom * np.sign(qd_sel) + v_nom * qd_sel
     u_ff = link_ff + Jv * QDDR[:, joints] + Bv * qd_sel
-    qm_ref = QR[:, joints] + link_ff / kv
+    k_ff = kv if k_nom is None else np.asarray(k_nom, float)
+    qm_ref = QR[:, joints] + link_ff / k_ff
     cpos = np.array([f.c_pos for f in fxs])
     cneg = np.array([f.c_neg for f in fxs])
     Sv = np.array([f.S for f in fxs])
