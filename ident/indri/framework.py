@@ -46,7 +46,7 @@ import csv
 import io
 import json
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -149,7 +149,8 @@ def residual_torques(robot, q, qd, qdd, tau_m, *, joint: int | None = None,
 
 
 def friction_data_from_signals(sig, robot, q_rest, *, accel: float | None = None,
-                               label: str = "", subtract_motor_viscous: bool = False) -> FrictionData:
+                               label: str = "", subtract_motor_viscous: bool = False,
+                               velocity: str = "motor") -> FrictionData:
     """One trial's joint as :class:`FrictionData` for the framework (eq. 25-26).
 
     ``sig``: an :class:`ident.signals.smoothing.JointSignals` (joint 1-based, link-side q/qd/qdd, motor-side
@@ -157,7 +158,12 @@ def friction_data_from_signals(sig, robot, q_rest, *, accel: float | None = None
     angles of the braked joints. The residual is ``tau - tau_dm - J qmdd`` (the rotor inertia
     ``J`` of the drive belongs to the dynamic model of eq. 26) and, with
     ``subtract_motor_viscous``, ``- B qmd``; the friction velocity ``v`` is the motor velocity
-    (link side), as in the paper."""
+    (link side), as in the paper; ``velocity="link"``: the link velocity and acceleration
+    ``sig.qd``, ``sig.qdd`` instead (a flexible joint whose friction acts on the link: the
+    link state of the encoder plus the declared spring's deflection, see
+    :func:`ident.indri.campaign.joint_dynamic_data`)."""
+    if velocity not in ("motor", "link"):
+        raise ValueError(f"velocity must be 'motor' or 'link', got {velocity!r}")
     j0 = int(sig.joint) - 1
     n = robot.n
     T = np.asarray(sig.time).shape[0]
@@ -174,8 +180,9 @@ def friction_data_from_signals(sig, robot, q_rest, *, accel: float | None = None
     res = res - drive.motor_inertia * np.asarray(sig.qmdd, float)
     if subtract_motor_viscous:
         res = res - drive.motor_viscous * np.asarray(sig.qmd, float)
-    return FrictionData(np.asarray(sig.time, float), np.asarray(sig.qmd, float),
-                        np.asarray(sig.qmdd, float), res, label=label, accel=accel)
+    v, a = (sig.qmd, sig.qmdd) if velocity == "motor" else (sig.qd, sig.qdd)
+    return FrictionData(np.asarray(sig.time, float), np.asarray(v, float),
+                        np.asarray(a, float), res, label=label, accel=accel)
 
 
 # ============================================================================================
@@ -425,6 +432,15 @@ class IndriResult:
     trend_alpha: float | None = None   # eq. 23 over the phase 2-A trend (None: = alpha)
     trend_beta: float | None = None
     refinement: dict | None = None     # phase 2-C (prediction error on every data set)
+    stiffness: float | None = None     # declared transmission stiffness K the data were corrected for
+
+    @property
+    def sigma0_apparent(self) -> float:
+        """The presliding stiffness the motor encoder sees: the bristle in series with the
+        declared spring, ``1/(1/sigma0 + 1/K)`` (= sigma0 without a declared stiffness)."""
+        if self.stiffness is None:
+            return float(self.sigma0)
+        return float(1.0 / (1.0 / self.sigma0 + 1.0 / self.stiffness))
 
     @property
     def sigma1_trend(self) -> tuple:
@@ -450,6 +466,7 @@ class IndriResult:
         dm2 = {"params": self.dm2.params,
                "stderr": {"sigma0": (self.phase2a[self._slowest].fit.stderr["sigma0"]
                                      if self.sigma0 == self.phase2a[self._slowest].sigma0
+                                     and (self.refinement or {}).get("bristle_resolved", True)
                                      else None),
                           "alpha": (self.diagnostics.get("alpha_stderr") if self.refinement is None
                                     else None),
@@ -459,7 +476,10 @@ class IndriResult:
                "rms": self.gamma_rms, "model": "dm2",
                "settings": {"accel_ratio": self.accel_ratio, "accel_floor": self.dm2.accel_floor,
                             "rest_speed": self.dm2.rest_speed,
-                            "static": self.static.model.to_dict()}}
+                            "static": self.static.model.to_dict(),
+                            "velocity": "motor" if self.stiffness is None else "link",
+                            "stiffness": self.stiffness,
+                            "sigma0_apparent": self.sigma0_apparent}}
         return {"arctan": self.static.to_dict(), "dm1": self.dm1.to_dict(), "dm2": _jsonable(dm2)}
 
     @property
@@ -478,6 +498,7 @@ class IndriResult:
                         "beta_stderr": self.diagnostics.get("beta_stderr"),
                         "trend_alpha": self.sigma1_trend[0], "trend_beta": self.sigma1_trend[1]},
             "phase2c": self.refinement,
+            "stiffness": self.stiffness, "sigma0_apparent": self.sigma0_apparent,
             "dm1": self.dm1.to_dict(), "dm2": self.dm2.to_dict(),
             "diagnostics": self.diagnostics})
 
@@ -502,12 +523,15 @@ class IndriTrapani:
     ``S0(v_m) ~ 1``); None: the speed where ``S0 = 0.99``, i.e. ``tan(0.99 pi/2) / Kv``.
     ``refine``: run phase 2-C (:meth:`refine_damping`, jointlab's addition) when
     :meth:`fit` is given the data sets to check on; False: the paper's alpha, beta, gamma.
+    ``select_static``: step 1 chooses between the arctan model and the same without the
+    Stribeck term (:meth:`_select_static`, jointlab's addition); False: the paper's fit alone.
     """
 
     def __init__(self, *, Kv: float = 1000.0, delta_grid=None, deflection_range=(1e-7, 0.3),
                  n_grid: int = 20, gamma_range=(1e-3, 1e3), n_gamma: int = 25,
                  dm1_damping: str = "eq11", static_settle: float = 0.03,
-                 critical_speed: float | None = None, refine: bool = True):
+                 critical_speed: float | None = None, refine: bool = True,
+                 select_static: bool = True):
         if dm1_damping not in LuGreDM1.DAMPING:
             raise ValueError(f"dm1_damping must be one of {LuGreDM1.DAMPING}")
         if not (0 < deflection_range[0] < deflection_range[1]):
@@ -529,6 +553,7 @@ class IndriTrapani:
         self.critical_speed = (float(np.tan(0.99 * np.pi / 2) / self.Kv) if critical_speed is None
                                else float(critical_speed))
         self.refine = bool(refine)
+        self.select_static = bool(select_static)
 
     # ---- step 1 ---------------------------------------------------------------------------
     def fit_static(self, data: FrictionData, mask=None) -> FrictionFit:
@@ -538,8 +563,53 @@ class IndriTrapani:
         if m.sum() < 10:
             raise ValueError(f"step 1: only {int(m.sum())} steady constant-speed samples in "
                              f"{data.label!r}; need constant-speed runs")
-        return fit_arctan(np.asarray(data.qd)[m], np.asarray(data.tau)[m], Kv=self.Kv,
-                          delta_grid=self.delta_grid)
+        qd, tau = np.asarray(data.qd)[m], np.asarray(data.tau)[m]
+        full = fit_arctan(qd, tau, Kv=self.Kv, delta_grid=self.delta_grid)
+        if not self.select_static:
+            return full
+        return self._select_static(full, fit_arctan(qd, tau, Kv=self.Kv, delta_grid=[0.0]))
+
+    @staticmethod
+    def _select_static(full: FrictionFit, plain: FrictionFit) -> FrictionFit:
+        """Step 1's model choice (jointlab's addition to sec. III-A): the paper's arctan model
+        (``full``) or the same without the Stribeck term (``plain``: delta = 0, tau_sc = 0),
+        by Schwarz's criterion ``n ln(RSS/n) + k ln n`` (k = 5 or 3) among the physically
+        possible ones: a negative viscous coefficient ``tau_v`` is not (the viscous friction of
+        the lubricant opposes the motion at every speed). The rejected candidate and the reason
+        go to the diagnostics (``static_choice``); when neither is possible the full fit is
+        kept with a flag.
+
+        Why: ``tau_sc 2/pi arctan(delta v)`` with a small delta is nearly ``tau_sc 2 delta v /
+        pi``, so on a joint without a Stribeck drop tau_sc, tau_v and tau_nlv trade against
+        each other at the noise level; on jointlab synth (Coulomb + viscous 0.99, six speed
+        levels 0.12-2.4 rad/s, level means within 0.005 N m of the truth) the paper's fit
+        chose tau_sc 5.1, delta 0.5, tau_v -0.80, tau_nlv 0.24: the same curve within the
+        noise over the speeds logged, physically impossible, and a different static curve
+        g(v) for the dynamic models."""
+        def bic(f):
+            n = max(f.n, 1)
+            k = 5 if f is full else 3
+            return n * np.log(max(f.rms, 1e-300) ** 2) + k * np.log(n)
+
+        def valid(f):
+            return f.model.params["tau_v"] >= 0
+        cands = [f for f in (full, plain) if valid(f)]
+        if not cands:
+            return replace(full, flags=tuple(full.flags) + (
+                f"tau_v = {full.model.params['tau_v']:.3g} < 0: a negative viscous coefficient "
+                "is physically impossible (with and without the Stribeck term)",),
+                diagnostics={**full.diagnostics, "static_choice": {
+                    "chosen": "full", "reason": "no physically possible candidate",
+                    "bic_full": bic(full), "bic_no_stribeck": bic(plain)}})
+        best = min(cands, key=bic)
+        other = plain if best is full else full
+        why = ("negative viscous coefficient" if not valid(other)
+               else "larger Schwarz criterion")
+        info = {"chosen": "full" if best is full else "no_stribeck",
+                "rejected": "no_stribeck" if best is full else "full",
+                "reason": f"rejected: {why}", "bic_full": bic(full), "bic_no_stribeck": bic(plain),
+                "rejected_params": other.model.params}
+        return replace(best, diagnostics={**best.diagnostics, "static_choice": info})
 
     # ---- phase 2-A --------------------------------------------------------------------------
     def _sigma0_bounds(self, static: Arctan, data: FrictionData):
@@ -653,7 +723,7 @@ class IndriTrapani:
                        counter: _Counter | None = None, rest_times=(np.inf, 0.3, 0.03, 0.003),
                        floor_fracs=(0.0, 0.003, 0.01, 0.03, 0.1),
                        n_gamma: int = 9, max_ratio: float = 1.05,
-                       static_limit_deflection: float = 1e-9) -> dict:
+                       static_limit_deflection: float = 1e-9, identify: bool = True) -> dict:
         """Phase 2-C, jointlab's addition to sec. III-B: alpha, beta >= 0 and gamma of eq. 24,
         the acceleration floor of eq. 24's root, the standstill relaxation of the bristle
         (:mod:`ident.friction.dynamic`, ``rest_speed``) and whether the data support the
@@ -805,7 +875,7 @@ class IndriTrapani:
         best = (float(q_lim.sum()), "static limit", s_lim, np.inf, 0.0, 1e-6, 1.0, (0.0, 0.0),
                 0.0, q_lim, q_lim, zdot_l, y_l)
         table, ident = [], None
-        if sigma0 < s_lim:                                   # phase 2-A's sigma0 and the grid
+        if identify and sigma0 < s_lim:                      # phase 2-A's sigma0 and the grid
             cb = None
             for t_rest in rest_times:                        # loop over the grid (~25 points)
                 vr, zdot, y = states(float(sigma0), t_rest)
@@ -853,7 +923,8 @@ class IndriTrapani:
 
     # ---- everything -------------------------------------------------------------------------
     def fit(self, static_data: FrictionData, reversal_datasets, variable_data: FrictionData,
-            static: FrictionFit | None = None, refine_datasets=None) -> IndriResult:
+            static: FrictionFit | None = None, refine_datasets=None,
+            stiffness: float | None = None) -> IndriResult:
         """Steps 1, 2-A and 2-B (sec. III) plus the DM1 comparison model, and phase 2-C
         (:meth:`refine_damping`) when ``refine`` is set and ``refine_datasets`` are given.
 
@@ -861,7 +932,18 @@ class IndriTrapani:
         ``reversal_datasets``: phase 2-A data sets, one acceleration each (at least two);
         ``variable_data``: the further acquisition with varied speeds and accelerations used to
         identify gamma (phase 2-B iii); ``refine_datasets``: the acquisitions phase 2-C pools
-        (e.g. every constant-velocity, reversal and excitation trial, each whole).
+        (e.g. every constant-velocity, reversal and excitation trial, each whole);
+        ``stiffness``: the declared transmission stiffness K (N m/rad) when the data's velocity
+        is the link velocity (motor encoder minus the spring's deflection,
+        :func:`ident.indri.campaign.nominal_link_state`): sigma0 is then the bristle's own and
+        :attr:`IndriResult.sigma0_apparent` the series stiffness the motor sees.
+
+        A phase 2-A sigma0 at the stiff end of its search (steady deflection at the lower end
+        of ``deflection_range``) is no bristle the data resolve: phase 2-C's choice is then
+        named ``"static limit"`` or ``"stiff bound"`` (never ``"identified"``), with
+        ``bristle_resolved`` False and a note (with a declared spring: the spring alone
+        explains the motor-side compliance at the reversals), and sigma0 has no standard
+        error.
         """
         datasets = list(reversal_datasets)
         if len(datasets) < 2:
@@ -884,7 +966,19 @@ class IndriTrapani:
         trend = (alpha, beta)
         refinement = None
         if self.refine and refine_datasets:
+            s_hi = self._sigma0_bounds(st, datasets[slow])[1]
+            resolved = sigma0 < (1.0 - 1e-3) * s_hi
             refinement = self.refine_damping(st, sigma0, ratio, list(refine_datasets), counter)
+            refinement["bristle_resolved"] = bool(resolved)
+            if not resolved:
+                if refinement["bristle"] == "identified":
+                    refinement["bristle"] = "stiff bound"
+                refinement["note"] = (
+                    f"phase 2-A's sigma0 {sigma0:.3g} is at the stiff end of its search "
+                    f"({s_hi:.3g}: deflection {self.deflection_range[0]:.3g} rad): no bristle"
+                    + ("" if stiffness is None else
+                       f"; the declared spring (K = {stiffness:.4g} N m/rad) alone explains the "
+                       "motor-side compliance at the reversals"))
             refinement["phase2b"] = {"alpha": alpha, "beta": beta, "gamma": gamma,
                                      "sigma0": sigma0}
             alpha, beta, gamma = (refinement["alpha"], refinement["beta"], refinement["gamma"])
@@ -909,7 +1003,8 @@ class IndriTrapani:
                            gamma=gamma, sigma0=sigma0, dm1=dm1, trend_rms=trend_rms, trend_r2=r2,
                            gamma_rms=g_rms, gamma_stderr=g_se, gamma_grid=ggrid,
                            gamma_grid_rss=grss, diagnostics=diag, trend_alpha=trend[0],
-                           trend_beta=trend[1], refinement=refinement)
+                           trend_beta=trend[1], refinement=refinement,
+                           stiffness=None if stiffness is None else float(stiffness))
 
 
 # ============================================================================================
