@@ -202,7 +202,8 @@ def heldout_comparison(campaign_dir, joint: int | None = None, by: str = "rep") 
     data = {k: joint_dynamic_data(c, joint) for k, c in parts.items()}
     d = data["train"]
     res = I.IndriTrapani().fit(d.static, d.reversals, d.variable,
-                               refine_datasets=list(d.trials.values()))
+                               refine_datasets=list(d.trials.values()), stiffness=d.stiffness,
+                               link_datasets=d.link_reversals)
     out = {"joint": joint}
     for k, dk in data.items():
         out[k] = DynamicFits({joint: res}, {joint: dk}, ("arctan", "dm1", "dm2"),
@@ -230,7 +231,8 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
     t1 = time.perf_counter()
     out = {"joint": joint, "n_trials": len(d.trials)}
     for key, est in (("kinds", I.IndriTrapani()), ("paper_kinds", I.IndriTrapani(refine=False))):
-        res = est.fit(d.static, d.reversals, d.variable, refine_datasets=list(d.trials.values()))
+        res = est.fit(d.static, d.reversals, d.variable, refine_datasets=list(d.trials.values()),
+                      stiffness=d.stiffness, link_datasets=d.link_reversals)
         fits = DynamicFits({joint: res}, {joint: d}, ("arctan", "dm1", "dm2"), camp.name)
         out[key] = fits.compare_by_kind(joint)
         if key == "kinds":
@@ -238,6 +240,11 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
                              "gamma": res.gamma, "accel_ratio": res.accel_ratio}
             out["bristle"] = (res.refinement or {}).get("bristle", "identified")
             out["sigma0_phase2a"] = res.phase2a[res._slowest].sigma0
+            out["stiffness"] = d.stiffness
+            out["sigma0_bristle"] = res.sigma0_bristle
+            out["sigma0_series_corrected"] = res.sigma0_series_corrected
+            out["static_choice"] = res.static.diagnostics.get("static_choice", {}).get("chosen")
+            out["tau_v"] = res.static.model.params["tau_v"]
     out["seconds"] = {"data": t1 - t0, "fits": time.perf_counter() - t1}
     out["truth"] = sigma0_truth(campaign_dir, joint)
     return out
@@ -254,6 +261,12 @@ def print_campaign(r: dict, title: str | None = None) -> None:
     p = r["params"]
     print("  dm2: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items())
           + f"; bristle: {r['bristle']} (phase 2-A sigma0 {r['sigma0_phase2a']:.4g})")
+    if r.get("stiffness") is not None:
+        print(f"  declared stiffness K {r['stiffness']:.6g} N m/rad: sigma0 {p['sigma0']:.4g} is the "
+              f"apparent one (motor side, bristle and spring in series); the bristle's own "
+              f"(phase 2-A on the link velocity) {r['sigma0_bristle']:.4g}; the series law "
+              f"1/(1/sigma0 - 1/K) gives {r['sigma0_series_corrected']:.4g}")
+    print(f"  step 1: {r.get('static_choice')} arctan, tau_v {r.get('tau_v', float('nan')):.4g}")
     t = r["truth"]
     if t is not None:
         print(f"  truth ({t['form']}): c {t['c']:.3g} N m, xp {t['xp']:.3g} rad; sigma0 error "
@@ -343,6 +356,8 @@ def run_worlds(quick: bool = False) -> list:
                           if kk in k)
         s0 = (f"  bristle: {r['bristle']}" if r["truth"] is None else
               f"  sigma0 {sigma0_error(r):+.1f} % ({sigma0_error(r, 'c_over_xp'):+.1f} %)")
+        if r.get("stiffness") is not None and r.get("sigma0_bristle") is not None:
+            s0 += f", bristle {r['sigma0_bristle']:.4g} (K {r['stiffness']:.4g})"
         print(f"  {name:46s} {cells}{s0}  [{r['cpu_s']:.1f} s CPU]")
     return out
 

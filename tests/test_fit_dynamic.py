@@ -3,13 +3,16 @@ on a simulated campaign (jointlab synth, withheld effect ``presliding``: LuGre b
 sigma0 = c / 2e-3 rad, constant sigma1), checked against the campaign's ground truth.
 
 The joint is flexible at its declared stiffness (drives.toml, PA10 j5: K = 5000 N m/rad) and
-the bristles act on the link: the friction velocity is the link velocity, the motor encoder's
-minus the spring's nominal deflection (ident.indri.campaign.nominal_link_state).
+the bristles act on the link, behind the spring: the motor encoder sees both in series. The
+DM2 (motor velocity) keeps the apparent sigma0; phase 2-A on the link velocity (the motor
+encoder's minus the spring's nominal deflection rate, ident.indri.campaign.nominal_link_state)
+gives the bristle's own.
 
-Measured (seed 3, declared K): dm2 sigma0 1937 vs 1950 (-0.7 %; on the motor velocity, i.e. the
-bristle in series with the spring: 1605), apparent (series) 1396 vs 1403, static tau_s + tau_sc
-3.92 vs c 3.9, tau_v 0.959 vs v + B 0.99 (step 1 without the Stribeck term: the paper's full
-arctan fit gave tau_v -0.80).
+Measured (seed 3, declared K): bristle sigma0 1937 vs 1950 (-0.7 %), apparent (motor side)
+1543, between the series stiffness 1/(1/1950 + 1/5000) = 1403 and 1950 (the series law
+inverted gives 2232: LuGre's local stiffness runs from 2 sigma0 to 0 over a reversal, the law
+holds at z = 0 only); static tau_s + tau_sc 3.92 vs c 3.9, tau_v 0.960 vs v + B 0.99 (step 1
+without the Stribeck term: the paper's full arctan fit gave tau_v -0.80).
 """
 from __future__ import annotations
 
@@ -83,13 +86,18 @@ def test_parameters_against_the_truth(fitted):
     s1_true = tj["true_models"]["dm1"]["sigma1"]
     c, v, B = tj["plant"]["c_pos"], tj["plant"]["v"], tj["B"]
     m = fits["joints"]["5"]["models"]
-    # phase 2-A/2-B sigma0 (the slowest reversal data set) on the link velocity: measured -0.7 %
-    assert m["dm2"]["params"]["sigma0"] == pytest.approx(s0_true, rel=0.10)
-    # the declared spring the velocity was corrected for, and the series stiffness the motor sees
+    # the bristle's own sigma0: phase 2-A (slowest reversal data set) on the link velocity,
+    # corrected for the declared spring: measured -0.7 %
     st = m["dm2"]["settings"]
     K = tj["k_nominal"]
-    assert tj["k_declared"] and st["velocity"] == "link" and st["stiffness"] == pytest.approx(K)
-    assert st["sigma0_apparent"] == pytest.approx(1.0 / (1.0 / s0_true + 1.0 / K), rel=0.10)
+    assert tj["k_declared"] and st["stiffness"] == pytest.approx(K)
+    assert st["sigma0_bristle"] == pytest.approx(s0_true, rel=0.10)
+    assert st["sigma0_bristle_stderr"] is not None and st["sigma0_bristle_stderr"] > 0
+    # the DM2's (motor velocity) is the apparent one: the bristle in series with the spring,
+    # stiffer than the series law's 1403 at z = 0 and softer than the bristle (measured 1543)
+    s0 = m["dm2"]["params"]["sigma0"]
+    assert st["sigma0_apparent"] == s0
+    assert 0.95 / (1.0 / s0_true + 1.0 / K) < s0 < 0.95 * s0_true
     # the damping (true: a constant sigma1) stays bounded by the truth's: phase 2-C keeps only
     # what lowers the pooled prediction error
     p = m["dm2"]["params"]
@@ -122,12 +130,13 @@ def test_dm2_reduces_to_the_static_model_without_presliding(tmp_path):
     """Issue 13, the other side: a jointlab synth campaign with no effect (friction Coulomb +
     viscous, 200 Hz log, coarse encoder, speeds 0.3/0.6/1.0) on the flexible joint at its
     declared stiffness (5000 N m/rad). On the motor velocity the spring's deflection at the
-    reversals (2c/K = 0.09 deg) was identified as a bristle; on the link velocity (the spring's
-    nominal deflection taken out) phase 2-A's sigma0 is at the stiff end of its search (no
-    bristle resolved: phase 2-C names it "stiff bound"), the motor-side stiffness is the
-    spring's alone, and DM2 is within 5 % of arctan on every trial (measured: 0.96-0.99). (At 3e5 N m/rad,
-    before the declared stiffness: phase 2-A ~9e5, whose plain bristle was 2.33x the static
-    model on the v60 excitation trial.)"""
+    reversals (2c/K = 0.09 deg) looks like a bristle (phase 2-A: 2.35e4), but one stiffer
+    than the spring, which no bristle in series with it can be: phase 2-C's candidate is the
+    spring-only model (sigma0 = K, "declared spring"), no bristle is reported behind the
+    spring, and DM2 is never worse than arctan (measured 0.55-0.90: the spring's compliance
+    seen from the motor is real; before, "identified" with the apparent 2.35e4, 0.67-0.99).
+    (At 3e5 N m/rad, before the declared stiffness: phase 2-A ~9e5, whose plain bristle was
+    2.33x the static model on the v60 excitation trial.)"""
     c = tmp_path / "c"
     assert main(["synth", str(c), "--effect", "none", "--seed", "3", "--kinds",
                  "constant_velocity,reversals,excitation", "--reps", "1", "--loads", "0",
@@ -136,13 +145,13 @@ def test_dm2_reduces_to_the_static_model_without_presliding(tmp_path):
     cmp = res.compare_by_kind(5)
     ratios = {tid: a / b for tid, (a, b) in cmp["all"]["trials"].items()}
     assert len(ratios) == 9
-    assert max(ratios.values()) <= 1.05, ratios
+    assert max(ratios.values()) <= 1.0, ratios
     ref = res[5].refinement
-    assert ref["bristle"] in ("static limit", "stiff bound") and ref["alpha"] == ref["beta"] == 0.0
-    assert ref["bristle_resolved"] is False and "declared spring" in ref["note"]
     K = res.data[5].stiffness
     assert K == pytest.approx(5000.0)
-    assert res[5].sigma0 > 1e3 * K and res[5].sigma0_apparent == pytest.approx(K, rel=1e-3)
+    assert ref["bristle"] == "declared spring" and "declared spring" in ref["note"]
+    assert res[5].sigma0 == K and res[5].sigma0_bristle == np.inf
+    assert ref["phase2b"]["sigma0"] > K                  # the apparent bristle (2.35e4)
     assert res.fits_json()["joints"]["5"]["models"]["dm2"]["stderr"]["sigma0"] is None
 
 

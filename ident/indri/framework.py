@@ -432,15 +432,32 @@ class IndriResult:
     trend_alpha: float | None = None   # eq. 23 over the phase 2-A trend (None: = alpha)
     trend_beta: float | None = None
     refinement: dict | None = None     # phase 2-C (prediction error on every data set)
-    stiffness: float | None = None     # declared transmission stiffness K the data were corrected for
+    stiffness: float | None = None     # declared transmission stiffness K (drives.toml)
+    phase2a_link: tuple = ()           # phase 2-A on the link velocity (K declared)
 
     @property
-    def sigma0_apparent(self) -> float:
-        """The presliding stiffness the motor encoder sees: the bristle in series with the
-        declared spring, ``1/(1/sigma0 + 1/K)`` (= sigma0 without a declared stiffness)."""
+    def sigma0_bristle(self) -> float | None:
+        """The bristle's own stiffness, behind the declared spring: phase 2-A's sigma0 of the
+        slowest data set on the link velocity (inf when it is at the stiff end of its search:
+        no bristle, the spring alone); None without a declared stiffness. ``sigma0`` (the
+        DM2's, on the motor velocity) is the apparent one, the bristle in series with the
+        spring as the motor encoder sees them."""
+        if self.stiffness is None or not self.phase2a_link:
+            return None
+        if (self.refinement or {}).get("bristle") == "declared spring":
+            return float("inf")
+        return float(self.phase2a_link[self._slowest].sigma0)
+
+    @property
+    def sigma0_series_corrected(self) -> float | None:
+        """The motor-side sigma0 corrected by the series law ``1/(1/sigma0 - 1/K)`` (inf when
+        sigma0 >= K); exact only where the bristle's local stiffness is sigma0 (z = 0: LuGre's
+        ``sigma0 (1 - sigma0 z sgn(v)/g)`` runs from 2 sigma0 to 0 over a reversal), so it
+        is reported beside :attr:`sigma0_bristle` as a check, not used."""
         if self.stiffness is None:
-            return float(self.sigma0)
-        return float(1.0 / (1.0 / self.sigma0 + 1.0 / self.stiffness))
+            return None
+        k = 1.0 / self.sigma0 - 1.0 / self.stiffness
+        return float(1.0 / k) if k > 0 else float("inf")
 
     @property
     def sigma1_trend(self) -> tuple:
@@ -477,9 +494,14 @@ class IndriResult:
                "settings": {"accel_ratio": self.accel_ratio, "accel_floor": self.dm2.accel_floor,
                             "rest_speed": self.dm2.rest_speed,
                             "static": self.static.model.to_dict(),
-                            "velocity": "motor" if self.stiffness is None else "link",
                             "stiffness": self.stiffness,
-                            "sigma0_apparent": self.sigma0_apparent}}
+                            "sigma0_apparent": self.sigma0,
+                            "sigma0_bristle": self.sigma0_bristle,
+                            "sigma0_bristle_stderr": (
+                                self.phase2a_link[self._slowest].fit.stderr["sigma0"]
+                                if self.sigma0_bristle is not None
+                                and np.isfinite(self.sigma0_bristle) else None),
+                            "sigma0_series_corrected": self.sigma0_series_corrected}}
         return {"arctan": self.static.to_dict(), "dm1": self.dm1.to_dict(), "dm2": _jsonable(dm2)}
 
     @property
@@ -498,7 +520,9 @@ class IndriResult:
                         "beta_stderr": self.diagnostics.get("beta_stderr"),
                         "trend_alpha": self.sigma1_trend[0], "trend_beta": self.sigma1_trend[1]},
             "phase2c": self.refinement,
-            "stiffness": self.stiffness, "sigma0_apparent": self.sigma0_apparent,
+            "stiffness": self.stiffness, "sigma0_bristle": self.sigma0_bristle,
+            "sigma0_series_corrected": self.sigma0_series_corrected,
+            "phase2a_link": [p.to_dict() for p in self.phase2a_link],
             "dm1": self.dm1.to_dict(), "dm2": self.dm2.to_dict(),
             "diagnostics": self.diagnostics})
 
@@ -924,7 +948,7 @@ class IndriTrapani:
     # ---- everything -------------------------------------------------------------------------
     def fit(self, static_data: FrictionData, reversal_datasets, variable_data: FrictionData,
             static: FrictionFit | None = None, refine_datasets=None,
-            stiffness: float | None = None) -> IndriResult:
+            stiffness: float | None = None, link_datasets=None) -> IndriResult:
         """Steps 1, 2-A and 2-B (sec. III) plus the DM1 comparison model, and phase 2-C
         (:meth:`refine_damping`) when ``refine`` is set and ``refine_datasets`` are given.
 
@@ -933,17 +957,21 @@ class IndriTrapani:
         ``variable_data``: the further acquisition with varied speeds and accelerations used to
         identify gamma (phase 2-B iii); ``refine_datasets``: the acquisitions phase 2-C pools
         (e.g. every constant-velocity, reversal and excitation trial, each whole);
-        ``stiffness``: the declared transmission stiffness K (N m/rad) when the data's velocity
-        is the link velocity (motor encoder minus the spring's deflection,
-        :func:`ident.indri.campaign.nominal_link_state`): sigma0 is then the bristle's own and
-        :attr:`IndriResult.sigma0_apparent` the series stiffness the motor sees.
+        ``stiffness``, ``link_datasets``: the declared transmission stiffness K (N m/rad) and
+        the reversal data sets on the link velocity (the same spans, the motor encoder's
+        velocity minus the spring's nominal deflection rate,
+        :func:`ident.indri.campaign.nominal_link_state`). The bristle acts on the link, behind
+        the spring, so the motor encoder sees both in series: the DM2 (on the motor velocity,
+        the controller's signal) keeps the apparent sigma0, and phase 2-A on the link sets
+        gives the bristle's own (:attr:`IndriResult.sigma0_bristle`). When that one is at the
+        stiff end of its search, no bristle sits behind the spring: the spring alone explains
+        the apparent one, and phase 2-C's candidate is the spring-only model (sigma0 = K,
+        named ``"declared spring"``) instead of phase 2-A's apparent bristle.
 
-        A phase 2-A sigma0 at the stiff end of its search (steady deflection at the lower end
-        of ``deflection_range``) is no bristle the data resolve: phase 2-C's choice is then
-        named ``"static limit"`` or ``"stiff bound"`` (never ``"identified"``), with
-        ``bristle_resolved`` False and a note (with a declared spring: the spring alone
-        explains the motor-side compliance at the reversals), and sigma0 has no standard
-        error.
+        A motor-side phase 2-A sigma0 at the stiff end of its search (steady deflection at the
+        lower end of ``deflection_range``) is no bristle the data resolve: phase 2-C's choice is
+        then named ``"static limit"`` or ``"stiff bound"`` (never ``"identified"``), with
+        ``bristle_resolved`` False and a note, and sigma0 has no standard error.
         """
         datasets = list(reversal_datasets)
         if len(datasets) < 2:
@@ -965,20 +993,39 @@ class IndriTrapani:
                                                          variable_data, counter)
         trend = (alpha, beta)
         refinement = None
+        p2a_link, behind = (), True
+        link = list(link_datasets or ())
+        if stiffness is not None and len(link) == len(datasets):
+            p2a_link = self.phase_2a(st, link, counter)
+            s_hi_l = self._sigma0_bounds(st, link[slow])[1]
+            behind = p2a_link[slow].sigma0 < (1.0 - 1e-3) * s_hi_l
         if self.refine and refine_datasets:
             s_hi = self._sigma0_bounds(st, datasets[slow])[1]
             resolved = sigma0 < (1.0 - 1e-3) * s_hi
-            refinement = self.refine_damping(st, sigma0, ratio, list(refine_datasets), counter)
+            # a bristle in series with the spring is softer than the spring: an apparent
+            # sigma0 >= K, or none on the link side, is the spring's, not a bristle's
+            spring_only = bool(p2a_link) and resolved and (not behind or sigma0 >= stiffness)
+            refinement = self.refine_damping(st, float(stiffness) if spring_only else sigma0,
+                                             ratio, list(refine_datasets), counter)
             refinement["bristle_resolved"] = bool(resolved)
-            if not resolved:
+            refinement["bristle_behind_spring"] = bool(behind)
+            if spring_only:
+                if refinement["bristle"] == "identified":
+                    refinement["bristle"] = "declared spring"
+                why = (f"phase 2-A on the link velocity: sigma0 {p2a_link[slow].sigma0:.3g} at the "
+                       f"stiff end of its search ({s_hi_l:.3g})" if not behind else
+                       f"the apparent sigma0 {sigma0:.3g} is not below K (a bristle in series "
+                       "with the spring is softer than the spring)")
+                refinement["note"] = (
+                    f"{why}: no bristle behind the spring; the declared spring (K = "
+                    f"{stiffness:.4g} N m/rad) explains the apparent bristle of the motor side: "
+                    "phase 2-C's candidate is the spring-only model, sigma0 = K")
+            elif not resolved:
                 if refinement["bristle"] == "identified":
                     refinement["bristle"] = "stiff bound"
                 refinement["note"] = (
                     f"phase 2-A's sigma0 {sigma0:.3g} is at the stiff end of its search "
-                    f"({s_hi:.3g}: deflection {self.deflection_range[0]:.3g} rad): no bristle"
-                    + ("" if stiffness is None else
-                       f"; the declared spring (K = {stiffness:.4g} N m/rad) alone explains the "
-                       "motor-side compliance at the reversals"))
+                    f"({s_hi:.3g}: deflection {self.deflection_range[0]:.3g} rad): no bristle")
             refinement["phase2b"] = {"alpha": alpha, "beta": beta, "gamma": gamma,
                                      "sigma0": sigma0}
             alpha, beta, gamma = (refinement["alpha"], refinement["beta"], refinement["gamma"])
@@ -1004,7 +1051,8 @@ class IndriTrapani:
                            gamma_rms=g_rms, gamma_stderr=g_se, gamma_grid=ggrid,
                            gamma_grid_rss=grss, diagnostics=diag, trend_alpha=trend[0],
                            trend_beta=trend[1], refinement=refinement,
-                           stiffness=None if stiffness is None else float(stiffness))
+                           stiffness=None if stiffness is None else float(stiffness),
+                           phase2a_link=tuple(p2a_link))
 
 
 # ============================================================================================
