@@ -273,12 +273,19 @@ def print_campaign(r: dict, title: str | None = None) -> None:
               f"{sigma0_error(r, 'zero_deflection'):+.1f} % of the zero-deflection stiffness "
               f"{t['zero_deflection']:.4g}, {sigma0_error(r, 'c_over_xp'):+.1f} % of c/xp "
               f"{t['c_over_xp']:.4g}")
+        if r.get("sigma0_bristle") is not None:
+            print(f"  bristle sigma0 (link velocity) error {sigma0_error(r, which='bristle'):+.1f} % "
+                  f"of the zero-deflection stiffness, "
+                  f"{sigma0_error(r, 'c_over_xp', 'bristle'):+.1f} % of c/xp")
 
 
-def sigma0_error(r: dict, key: str = "zero_deflection") -> float:
-    """sigma0 against the truth's ``key`` stiffness, percent (nan without a presliding truth)."""
+def sigma0_error(r: dict, key: str = "zero_deflection", which: str = "dm2") -> float:
+    """sigma0 against the truth's ``key`` stiffness, percent (nan without a presliding truth);
+    ``which``: ``"dm2"`` (the DM2's, motor side) or ``"bristle"`` (phase 2-A on the link
+    velocity, with a declared stiffness; nan without one)."""
     t = r.get("truth")
-    return float("nan") if t is None else 100.0 * (r["params"]["sigma0"] / t[key] - 1.0)
+    s0 = r["params"]["sigma0"] if which == "dm2" else r.get("sigma0_bristle")
+    return float("nan") if t is None or s0 is None else 100.0 * (s0 / t[key] - 1.0)
 
 
 # worlds of --worlds: (name, kind, arguments); "synth": jointlab synth, "foreign": make_world.py
@@ -348,7 +355,8 @@ def run_worlds(quick: bool = False) -> list:
             out.append((name, r))
     print("\nsummary: DM2 / arctan RMS per trial (jointlab's procedure), median / max over the "
           "trials of each kind; sigma0 error against the truth's zero-deflection stiffness "
-          "(c/xp in brackets)")
+          "(c/xp in brackets): the DM2's (motor side, apparent) and, with a declared stiffness "
+          "K, phase 2-A's on the link velocity (the bristle's own)")
     for name, r in out:
         k = r["kinds"]
         cells = "  ".join(f"{kk[:5]} {k[kk]['ratio_median']:.3f}/{k[kk]['ratio_max']:.3f}"
@@ -357,7 +365,11 @@ def run_worlds(quick: bool = False) -> list:
         s0 = (f"  bristle: {r['bristle']}" if r["truth"] is None else
               f"  sigma0 {sigma0_error(r):+.1f} % ({sigma0_error(r, 'c_over_xp'):+.1f} %)")
         if r.get("stiffness") is not None and r.get("sigma0_bristle") is not None:
-            s0 += f", bristle {r['sigma0_bristle']:.4g} (K {r['stiffness']:.4g})"
+            s0 += (f" (sigma0 {r['params']['sigma0']:.4g}, link side {r['sigma0_bristle']:.4g})"
+                   if r["truth"] is None else
+                   f"; link side {sigma0_error(r, which='bristle'):+.1f} % "
+                   f"({sigma0_error(r, 'c_over_xp', 'bristle'):+.1f} %)")
+            s0 += f", K {r['stiffness']:.4g}"
         print(f"  {name:46s} {cells}{s0}  [{r['cpu_s']:.1f} s CPU]")
     return out
 
