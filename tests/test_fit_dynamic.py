@@ -91,7 +91,7 @@ def test_parameters_against_the_truth(fitted):
     st = m["dm2"]["settings"]
     K = tj["k_nominal"]
     assert tj["k_declared"] and st["stiffness"] == pytest.approx(K)
-    assert st["sigma0_bristle"] == pytest.approx(s0_true, rel=0.10)
+    assert st["sigma0_bristle"] == pytest.approx(s0_true, rel=0.10) and st["bristle"] == "identified"
     assert st["sigma0_bristle_stderr"] is not None and st["sigma0_bristle_stderr"] > 0
     # the DM2's (motor velocity) is the apparent one: the bristle in series with the spring,
     # stiffer than the series law's 1403 at z = 0 and softer than the bristle (measured 1543)
@@ -152,7 +152,10 @@ def test_dm2_reduces_to_the_static_model_without_presliding(tmp_path):
     assert ref["bristle"] == "declared spring" and "declared spring" in ref["note"]
     assert res[5].sigma0 == K and res[5].sigma0_bristle == np.inf
     assert ref["phase2b"]["sigma0"] > K                  # the apparent bristle (2.35e4)
-    assert res.fits_json()["joints"]["5"]["models"]["dm2"]["stderr"]["sigma0"] is None
+    dm2 = res.fits_json()["joints"]["5"]["models"]["dm2"]
+    assert dm2["stderr"]["sigma0"] is None and dm2["settings"]["bristle"] == "declared spring"
+    assert dm2["settings"]["sigma0_bristle"] is None                 # inf: no bristle (JSON null)
+    json.dumps(dm2, allow_nan=False)
 
 
 def _foreign_module():

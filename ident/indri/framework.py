@@ -495,6 +495,7 @@ class IndriResult:
                             "rest_speed": self.dm2.rest_speed,
                             "static": self.static.model.to_dict(),
                             "stiffness": self.stiffness,
+                            "bristle": (self.refinement or {}).get("bristle", "identified"),
                             "sigma0_apparent": self.sigma0,
                             "sigma0_bristle": self.sigma0_bristle,
                             "sigma0_bristle_stderr": (
