@@ -774,7 +774,9 @@ class IndriTrapani:
         curve by ``S1/(S1 + rest_speed)`` and doubled the error of excitation trials whose
         static residual is at the noise level).
 
-        Candidates: sigma0 of phase 2-A (the paper's) with the grid below, and the bristle's
+        Candidates: sigma0 of phase 2-A (the paper's; :meth:`fit` passes the declared spring's
+        K instead when the spring explains phase 2-A's apparent bristle: the spring-only
+        model) with the grid below, and the bristle's
         static limit (sigma0 = max g / ``static_limit_deflection``: with the first-order hold
         DM2 is then the static curve ``S0(v) g(v) + tau_fv(v)`` sample by sample), undamped
         and unrelaxed, plus the damping fit. Constraint: no data set may end above
