@@ -202,7 +202,8 @@ def heldout_comparison(campaign_dir, joint: int | None = None, by: str = "rep") 
     data = {k: joint_dynamic_data(c, joint) for k, c in parts.items()}
     d = data["train"]
     res = I.IndriTrapani().fit(d.static, d.reversals, d.variable,
-                               refine_datasets=list(d.trials.values()))
+                               refine_datasets=list(d.trials.values()), stiffness=d.stiffness,
+                               link_datasets=d.link_reversals)
     out = {"joint": joint}
     for k, dk in data.items():
         out[k] = DynamicFits({joint: res}, {joint: dk}, ("arctan", "dm1", "dm2"),
@@ -230,7 +231,8 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
     t1 = time.perf_counter()
     out = {"joint": joint, "n_trials": len(d.trials)}
     for key, est in (("kinds", I.IndriTrapani()), ("paper_kinds", I.IndriTrapani(refine=False))):
-        res = est.fit(d.static, d.reversals, d.variable, refine_datasets=list(d.trials.values()))
+        res = est.fit(d.static, d.reversals, d.variable, refine_datasets=list(d.trials.values()),
+                      stiffness=d.stiffness, link_datasets=d.link_reversals)
         fits = DynamicFits({joint: res}, {joint: d}, ("arctan", "dm1", "dm2"), camp.name)
         out[key] = fits.compare_by_kind(joint)
         if key == "kinds":
@@ -238,6 +240,11 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
                              "gamma": res.gamma, "accel_ratio": res.accel_ratio}
             out["bristle"] = (res.refinement or {}).get("bristle", "identified")
             out["sigma0_phase2a"] = res.phase2a[res._slowest].sigma0
+            out["stiffness"] = d.stiffness
+            out["sigma0_bristle"] = res.sigma0_bristle
+            out["sigma0_series_corrected"] = res.sigma0_series_corrected
+            out["static_choice"] = res.static.diagnostics.get("static_choice", {}).get("chosen")
+            out["tau_v"] = res.static.model.params["tau_v"]
     out["seconds"] = {"data": t1 - t0, "fits": time.perf_counter() - t1}
     out["truth"] = sigma0_truth(campaign_dir, joint)
     return out
@@ -254,18 +261,31 @@ def print_campaign(r: dict, title: str | None = None) -> None:
     p = r["params"]
     print("  dm2: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items())
           + f"; bristle: {r['bristle']} (phase 2-A sigma0 {r['sigma0_phase2a']:.4g})")
+    if r.get("stiffness") is not None:
+        print(f"  declared stiffness K {r['stiffness']:.6g} N m/rad: sigma0 {p['sigma0']:.4g} is the "
+              f"apparent one (motor side, bristle and spring in series); the bristle's own "
+              f"(phase 2-A on the link velocity) {r['sigma0_bristle']:.4g}; the series law "
+              f"1/(1/sigma0 - 1/K) gives {r['sigma0_series_corrected']:.4g}")
+    print(f"  step 1: {r.get('static_choice')} arctan, tau_v {r.get('tau_v', float('nan')):.4g}")
     t = r["truth"]
     if t is not None:
         print(f"  truth ({t['form']}): c {t['c']:.3g} N m, xp {t['xp']:.3g} rad; sigma0 error "
               f"{sigma0_error(r, 'zero_deflection'):+.1f} % of the zero-deflection stiffness "
               f"{t['zero_deflection']:.4g}, {sigma0_error(r, 'c_over_xp'):+.1f} % of c/xp "
               f"{t['c_over_xp']:.4g}")
+        if r.get("sigma0_bristle") is not None:
+            print(f"  bristle sigma0 (link velocity) error {sigma0_error(r, which='bristle'):+.1f} % "
+                  f"of the zero-deflection stiffness, "
+                  f"{sigma0_error(r, 'c_over_xp', 'bristle'):+.1f} % of c/xp")
 
 
-def sigma0_error(r: dict, key: str = "zero_deflection") -> float:
-    """sigma0 against the truth's ``key`` stiffness, percent (nan without a presliding truth)."""
+def sigma0_error(r: dict, key: str = "zero_deflection", which: str = "dm2") -> float:
+    """sigma0 against the truth's ``key`` stiffness, percent (nan without a presliding truth);
+    ``which``: ``"dm2"`` (the DM2's, motor side) or ``"bristle"`` (phase 2-A on the link
+    velocity, with a declared stiffness; nan without one)."""
     t = r.get("truth")
-    return float("nan") if t is None else 100.0 * (r["params"]["sigma0"] / t[key] - 1.0)
+    s0 = r["params"]["sigma0"] if which == "dm2" else r.get("sigma0_bristle")
+    return float("nan") if t is None or s0 is None else 100.0 * (s0 / t[key] - 1.0)
 
 
 # worlds of --worlds: (name, kind, arguments); "synth": jointlab synth, "foreign": make_world.py
@@ -335,7 +355,8 @@ def run_worlds(quick: bool = False) -> list:
             out.append((name, r))
     print("\nsummary: DM2 / arctan RMS per trial (jointlab's procedure), median / max over the "
           "trials of each kind; sigma0 error against the truth's zero-deflection stiffness "
-          "(c/xp in brackets)")
+          "(c/xp in brackets): the DM2's (motor side, apparent) and, with a declared stiffness "
+          "K, phase 2-A's on the link velocity (the bristle's own)")
     for name, r in out:
         k = r["kinds"]
         cells = "  ".join(f"{kk[:5]} {k[kk]['ratio_median']:.3f}/{k[kk]['ratio_max']:.3f}"
@@ -343,6 +364,12 @@ def run_worlds(quick: bool = False) -> list:
                           if kk in k)
         s0 = (f"  bristle: {r['bristle']}" if r["truth"] is None else
               f"  sigma0 {sigma0_error(r):+.1f} % ({sigma0_error(r, 'c_over_xp'):+.1f} %)")
+        if r.get("stiffness") is not None and r.get("sigma0_bristle") is not None:
+            s0 += (f" (sigma0 {r['params']['sigma0']:.4g}, link side {r['sigma0_bristle']:.4g})"
+                   if r["truth"] is None else
+                   f"; link side {sigma0_error(r, which='bristle'):+.1f} % "
+                   f"({sigma0_error(r, 'c_over_xp', 'bristle'):+.1f} %)")
+            s0 += f", K {r['stiffness']:.4g}"
         print(f"  {name:46s} {cells}{s0}  [{r['cpu_s']:.1f} s CPU]")
     return out
 

@@ -469,3 +469,45 @@ def test_table2_layout_per_axis(result, synth):
     assert tab.value("Axis 1", "IN", "CM") > tab.value("Axis 1", "IN", "DM2")
     with pytest.raises(ValueError, match="reference"):
         I.performance_table(models, {}, reference="DM1")
+
+
+def _constant_speed_runs(levels, dt=5e-3, accel=20.0):
+    """+-v runs at each level (0.3 s + 0.6 s cruise, ramps at ``accel``), back to rest between."""
+    kt, kv = [0.0], [0.0]
+    for v in levels:
+        for s in (1, -1):
+            t0 = kt[-1]
+            cruise = max(0.3, 0.3 / v) + 0.6
+            kt += [t0 + v / accel, t0 + v / accel + cruise, t0 + 2 * v / accel + cruise]
+            kv += [s * v, s * v, 0.0]
+    return I.piecewise_linear_velocity(np.array(kt), np.array(kv), dt)
+
+
+def test_step1_drops_a_stribeck_term_the_data_do_not_support():
+    """Step 1's choice (jointlab): on a joint without a Stribeck drop (generator: Coulomb 3.9
+    with a tanh sign, viscous 0.99, six speed levels 0.12-2.4 rad/s, 0.08 N m noise) the
+    paper's arctan fit trades tau_sc, tau_v and tau_nlv at the noise level (measured: tau_sc
+    3.5, delta 0.4, tau_v -0.011: a negative viscous coefficient); without the Stribeck term
+    tau_v is 0.951. A saturating (concave) curve keeps the full model; where no candidate is
+    physically possible the fit carries a flag."""
+    rng = np.random.default_rng(4)
+    t, qd, qdd = _constant_speed_runs([0.12, 0.25, 0.5, 1.0, 1.7, 2.4])
+
+    def fit(f, **kw):
+        tau = f(qd) + 0.08 * rng.standard_normal(qd.size)
+        return I.IndriTrapani(**kw).fit_static(I.FrictionData(t, qd, qdd, tau, label="cv"))
+
+    plain = fit(lambda v: 3.9 * np.tanh(v / 1e-3) + 0.99 * v)
+    ch = plain.diagnostics["static_choice"]
+    assert ch["chosen"] == "no_stribeck" and ch["rejected_params"]["tau_v"] < 0.5
+    assert plain.model.params["tau_sc"] == pytest.approx(0.0, abs=1e-9)
+    assert plain.model.params["tau_v"] == pytest.approx(0.99, rel=0.06)
+    assert plain.model.params["tau_s"] == pytest.approx(3.9, rel=0.02)
+    assert not plain.flags
+    concave = fit(lambda v: np.sign(v) * (3.0 + 2.0 * (1 - np.exp(-np.abs(v) / 0.8))) + 0.2 * v)
+    assert concave.diagnostics["static_choice"]["chosen"] == "full"
+    assert concave.model.params["tau_sc"] > 0.5 and concave.model.params["tau_v"] >= 0
+    drop = fit(lambda v: np.sign(v) * (3.0 + 2.0 * np.exp(-(np.abs(v) / 0.3) ** 2)) + 0.5 * v)
+    assert drop.model.params["tau_v"] >= 0 or any("negative viscous" in f for f in drop.flags)
+    paper = fit(lambda v: 3.9 * np.tanh(v / 1e-3) + 0.99 * v, select_static=False)
+    assert "static_choice" not in paper.diagnostics

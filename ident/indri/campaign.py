@@ -12,9 +12,17 @@ joints are left out with a note: the residual of eq. 25-26 is built for one movi
    ``tau - tau_dm - J qmdd`` (eq. 25-26) with the braked joints at the median of their logged
    motor angles and the trial's payload (``load_kg`` at the optional ``payload_com`` key, flange
    frame, as in :mod:`ident.gap.data`). With an angles folder the link angle comes from
-   ``angles/<trial id>.csv`` (gravity term); the friction velocity is the motor velocity.
+   ``angles/<trial id>.csv`` (gravity term); the friction velocity is the motor velocity. On a
+   drive that declares its ``stiffness`` K (drives.toml, FORMAT.md), without an angles folder,
+   the reversal trials are also kept on the link velocity (:func:`nominal_link_state`: the
+   motor encoder's minus the spring's nominal deflection rate), cut into the same data sets:
+   the bristle acts on the link behind the spring, so phase 2-A there gives the bristle's own
+   sigma0, while the DM2 (motor velocity, what a controller measures) keeps the apparent one
+   (:meth:`ident.indri.framework.IndriTrapani.fit`, ``sigma0_bristle``).
 2. **step 1** (static arctan model, eq. 1-2, 27-28): the ``constant_velocity`` trials, joined
-   end to end (:func:`ident.indri.framework.concat_data`; they start and end at rest);
+   end to end (:func:`ident.indri.framework.concat_data`; they start and end at rest), with
+   or without the Stribeck term by Schwarz's criterion among the physically possible fits
+   (:meth:`ident.indri.framework.IndriTrapani._select_static`);
 3. **phase 2-A** (dm1, eq. 5-9 with constant sigma1): the ``reversals`` trials split into data
    sets of one acceleration each by :func:`split_reversals` (the simulator's reversal trials,
    :func:`ident.excitation.trajectories.reversals`, hold several blocks of reversals, each at one constant
@@ -26,7 +34,9 @@ joints are left out with a note: the residual of eq. 25-26 is built for one movi
    alpha, beta >= 0, gamma, the floor and the standstill relaxation again, by prediction error
    over every trial used (each trial its own state scan, each weighted by its static-model
    residual), with no trial left more than 5 % worse than the static model, and with the
-   bristle's static limit as the fallback where the data do not support the bristle.
+   bristle's static limit as the fallback where the data do not support the bristle; with a
+   declared stiffness whose spring explains the apparent bristle (none behind it on the link
+   side, or an apparent sigma0 not below K), the spring-only model sigma0 = K is the candidate.
 
 What each model needs (an :class:`mocap.io.errors.InputError` names what is missing):
 ``arctan``: constant_velocity trials; ``dm1``: also reversals trials; ``dm2``: also reversals
@@ -270,6 +280,8 @@ class JointDynamicData:
     variable: I.FrictionData | None
     dt: float
     notes: tuple = ()
+    stiffness: float | None = None   # declared K (drives.toml), None: rigid or link angles given
+    link_reversals: tuple = ()       # the reversal data sets on the link velocity (K declared)
 
     def used(self, kinds) -> list[str]:
         return [tid for tid, k in self.kinds.items() if k in kinds]
@@ -300,18 +312,82 @@ def _trial_data(campaign, tr, joint: int, robot, angles_dir,
     p_com = tuple(float(x) for x in tr.extra.get("payload_com", (0.0, 0.0, 0.0)))
     rb = robot.with_payload(tr.load_kg, p_com) if tr.load_kg > 0 else robot
 
+    drive = robot.drives[j0]
+    K = declared_stiffness(drive) if q_link is None else None
+
+    def signals(smoother):
+        return prepare_joint_signals(joint, log.time, qm, tau, t_ang, q_link,
+                                     time_offset=tr.extra.get("time_offset", 0.0),
+                                     smoother=smoother)
+
     def make(smoother):
-        sig = prepare_joint_signals(joint, log.time, qm, tau, t_ang, q_link,
-                                    time_offset=tr.extra.get("time_offset", 0.0),
-                                    smoother=smoother)
-        return I.friction_data_from_signals(sig, rb, rest, label=tr.id)
+        return I.friction_data_from_signals(signals(smoother), rb, rest, label=tr.id)
 
     ok = np.isfinite(log.time) & np.isfinite(qm)
     dt = float(np.median(np.diff(np.asarray(log.time, float)[ok])))
     fd, sm, sc, _ = bandwidth.select(make, dt, tr.kind)
     notes.append(f"trial {tr.id!r}: motor-angle derivatives by {_smoother_label(sm)} "
                  f"(torque-consistent choice, static-regression residual {sc:.3g} N m)")
-    return fd, notes
+    link = None
+    if K is not None and tr.kind == "reversals":
+        try:
+            sig = nominal_link_state(signals(sm), sm, drive.motor_inertia, drive.motor_viscous, K)
+            link = I.friction_data_from_signals(sig, rb, rest, label=tr.id, velocity="link")
+        except (ValueError, InputError) as exc:
+            notes.append(f"trial {tr.id!r}: no link state ({exc})")
+    return fd, notes, link
+
+
+def _same_span(sets, data: I.FrictionData) -> list:
+    """The samples of ``data`` (the same trial on the link side) over the span of each data
+    set of ``sets`` (split on the motor side), with the same acceleration and label."""
+    t = np.asarray(data.time, float)
+    out = []
+    for r in sets:                                        # loop over data sets (few)
+        m = (t >= r.time[0] - 1e-9) & (t <= r.time[-1] + 1e-9)
+        out.append(I.FrictionData(t[m], np.asarray(data.qd, float)[m],
+                                  np.asarray(data.qdd, float)[m], np.asarray(data.tau, float)[m],
+                                  label=r.label + "@link", accel=r.accel))
+    return out
+
+
+def declared_stiffness(drive) -> float | None:
+    """The drive's declared transmission stiffness (drives.toml ``stiffness``, FORMAT.md: the
+    nominal stiffness between motor and link), None when absent (rigid) or not positive."""
+    k = drive.extra.get("stiffness") if drive is not None else None
+    try:
+        k = float(k)
+    except (TypeError, ValueError):
+        return None
+    return k if np.isfinite(k) and k > 0 else None
+
+
+def nominal_link_state(sig, smoother, J: float, B: float, K: float):
+    """``sig`` (:class:`ident.signals.smoothing.JointSignals` with the motor angle as the link
+    angle) with the link state of the flexible joint at its declared stiffness ``K``:
+    ``q = qm - tau_s / K``, ``tau_s = u - J qmdd - B qmd`` the torque the spring transmits
+    (motor equation, thesis eq. 2-2), the deflection smoothed and differentiated by the
+    trial's own ``smoother`` (same bandwidth as the motor angle; the derivative filters give
+    a sample's torque noise no weight in its own velocity).
+
+    Why: the friction (and the presliding bristle of eq. 5) acts on the link, behind the
+    spring; the motor encoder sees the bristle's deflection plus the spring's, so a LuGre fit
+    on the motor velocity identifies the bristle in series with the spring (jointlab synth,
+    PA10 j5 at the declared 5000 N m/rad: sigma0 1543 against 1950; on the link velocity 1937),
+    and on a joint without presliding the spring alone looks like a bristle.
+
+    Used for phase 2-A's bristle only: the link velocity carries the torque's noise through
+    ``tau_s'/K`` and the undeclared transmission damping, and a LuGre state near standstill is
+    sensitive to it (measured on the same campaign: the true LuGre on this velocity leaves
+    0.39-0.65 N m RMS against the true friction), so the DM2 that predicts stays on the motor
+    velocity (DM2/arctan median 0.41 on the link velocity, 0.28 on the motor's)."""
+    t = np.asarray(sig.time, float)
+    y = np.asarray(sig.tau, float) - J * np.asarray(sig.qmdd, float) - B * np.asarray(sig.qmd, float)
+    d0, d1, d2 = smoother.fit(t, -y / K).evaluate(t)
+    if not (np.all(np.isfinite(d1)) and np.all(np.isfinite(d2))):
+        raise ValueError("the nominal deflection could not be differentiated")
+    return replace(sig, q=np.asarray(sig.qm, float) + d0, qd=np.asarray(sig.qmd, float) + d1,
+                   qdd=np.asarray(sig.qmdd, float) + d2, link_source="motor+nominal_deflection")
 
 
 def _needs(models) -> set:
@@ -332,7 +408,7 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
     module docstring); raises InputError naming the missing trial kinds."""
     robot = robot if robot is not None else campaign.load_robot()
     need = _needs(models)
-    trials, kinds, notes = {}, {}, []
+    trials, kinds, notes, links = {}, {}, [], {}
     for tr in campaign.trials:
         if joint not in tr.joints or tr.kind not in need:
             continue
@@ -341,8 +417,10 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
                          "of eq. 25-26 is built for one moving joint)")
             continue
         with one_blas_thread():
-            fd, n = _trial_data(campaign, tr, joint, robot, angles_dir, bandwidth)
+            fd, n, link = _trial_data(campaign, tr, joint, robot, angles_dir, bandwidth)
         trials[tr.id], kinds[tr.id] = fd, tr.kind
+        if link is not None:
+            links[tr.id] = link
         notes += n
     by = {k: [trials[t] for t, kk in kinds.items() if kk == k] for k in need}
     where = f"joint {joint} of campaign {campaign.name!r}"
@@ -351,13 +429,16 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
                          f"constant_velocity trials (step 1, the static arctan model) of {where}; "
                          "none found (jointlab synth --kinds constant_velocity,...)",
                          path=campaign.manifest)
-    rev = []
+    rev, link_rev = [], []
     if "reversals" in need:
         if not by["reversals"]:
             raise InputError(f"{'dm2' if 'dm2' in models else 'dm1'} needs reversals trials of "
                              f"{where}; none found", path=campaign.manifest)
-        for d in by["reversals"]:
-            rev += split_reversals(d)
+        for tid in [t for t, k in kinds.items() if k == "reversals"]:
+            sets = split_reversals(trials[tid])
+            rev += sets
+            if tid in links:
+                link_rev += _same_span(sets, links[tid])
         if not rev:
             raise InputError(f"the reversals trials of {where} hold no velocity reversal",
                              path=campaign.manifest)
@@ -375,8 +456,15 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
     if variable is not None:
         variable = replace(variable, truth=None)
     dts = np.concatenate([d.dt for d in trials.values()]) if trials else np.array([np.nan])
+    K = declared_stiffness(robot.drives[joint - 1]) if angles_dir is None else None
+    if len(link_rev) != len(rev):
+        link_rev = []
+    if K is not None and link_rev:
+        notes.append(f"joint {joint}: declared stiffness {K:.6g} N m/rad: phase 2-A also on the "
+                     "link velocity (motor encoder minus the spring's nominal deflection) for the "
+                     "bristle's own sigma0")
     return JointDynamicData(joint, trials, kinds, static, tuple(rev), variable,
-                            float(np.median(dts)), tuple(notes))
+                            float(np.median(dts)), tuple(notes), K, tuple(link_rev))
 
 
 # ============================================================================================
@@ -595,7 +683,8 @@ def fit_campaign_dynamic(campaign, joints=None, angles_dir=None, sink=None, *,
             try:
                 if "dm2" in models:
                     res = est.fit(d.static, d.reversals, d.variable,
-                                  refine_datasets=list(d.trials.values()))
+                                  refine_datasets=list(d.trials.values()),
+                                  stiffness=d.stiffness, link_datasets=d.link_reversals)
                 else:
                     st = est.fit_static(d.static)
                     dm1 = None

@@ -46,7 +46,7 @@ import csv
 import io
 import json
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -149,7 +149,8 @@ def residual_torques(robot, q, qd, qdd, tau_m, *, joint: int | None = None,
 
 
 def friction_data_from_signals(sig, robot, q_rest, *, accel: float | None = None,
-                               label: str = "", subtract_motor_viscous: bool = False) -> FrictionData:
+                               label: str = "", subtract_motor_viscous: bool = False,
+                               velocity: str = "motor") -> FrictionData:
     """One trial's joint as :class:`FrictionData` for the framework (eq. 25-26).
 
     ``sig``: an :class:`ident.signals.smoothing.JointSignals` (joint 1-based, link-side q/qd/qdd, motor-side
@@ -157,7 +158,12 @@ def friction_data_from_signals(sig, robot, q_rest, *, accel: float | None = None
     angles of the braked joints. The residual is ``tau - tau_dm - J qmdd`` (the rotor inertia
     ``J`` of the drive belongs to the dynamic model of eq. 26) and, with
     ``subtract_motor_viscous``, ``- B qmd``; the friction velocity ``v`` is the motor velocity
-    (link side), as in the paper."""
+    (link side), as in the paper; ``velocity="link"``: the link velocity and acceleration
+    ``sig.qd``, ``sig.qdd`` instead (a flexible joint whose friction acts on the link: the
+    link state of the encoder plus the declared spring's deflection, see
+    :func:`ident.indri.campaign.joint_dynamic_data`)."""
+    if velocity not in ("motor", "link"):
+        raise ValueError(f"velocity must be 'motor' or 'link', got {velocity!r}")
     j0 = int(sig.joint) - 1
     n = robot.n
     T = np.asarray(sig.time).shape[0]
@@ -174,8 +180,9 @@ def friction_data_from_signals(sig, robot, q_rest, *, accel: float | None = None
     res = res - drive.motor_inertia * np.asarray(sig.qmdd, float)
     if subtract_motor_viscous:
         res = res - drive.motor_viscous * np.asarray(sig.qmd, float)
-    return FrictionData(np.asarray(sig.time, float), np.asarray(sig.qmd, float),
-                        np.asarray(sig.qmdd, float), res, label=label, accel=accel)
+    v, a = (sig.qmd, sig.qmdd) if velocity == "motor" else (sig.qd, sig.qdd)
+    return FrictionData(np.asarray(sig.time, float), np.asarray(v, float),
+                        np.asarray(a, float), res, label=label, accel=accel)
 
 
 # ============================================================================================
@@ -425,6 +432,32 @@ class IndriResult:
     trend_alpha: float | None = None   # eq. 23 over the phase 2-A trend (None: = alpha)
     trend_beta: float | None = None
     refinement: dict | None = None     # phase 2-C (prediction error on every data set)
+    stiffness: float | None = None     # declared transmission stiffness K (drives.toml)
+    phase2a_link: tuple = ()           # phase 2-A on the link velocity (K declared)
+
+    @property
+    def sigma0_bristle(self) -> float | None:
+        """The bristle's own stiffness, behind the declared spring: phase 2-A's sigma0 of the
+        slowest data set on the link velocity (inf when it is at the stiff end of its search:
+        no bristle, the spring alone); None without a declared stiffness. ``sigma0`` (the
+        DM2's, on the motor velocity) is the apparent one, the bristle in series with the
+        spring as the motor encoder sees them."""
+        if self.stiffness is None or not self.phase2a_link:
+            return None
+        if (self.refinement or {}).get("bristle") == "declared spring":
+            return float("inf")
+        return float(self.phase2a_link[self._slowest].sigma0)
+
+    @property
+    def sigma0_series_corrected(self) -> float | None:
+        """The motor-side sigma0 corrected by the series law ``1/(1/sigma0 - 1/K)`` (inf when
+        sigma0 >= K); exact only where the bristle's local stiffness is sigma0 (z = 0: LuGre's
+        ``sigma0 (1 - sigma0 z sgn(v)/g)`` runs from 2 sigma0 to 0 over a reversal), so it
+        is reported beside :attr:`sigma0_bristle` as a check, not used."""
+        if self.stiffness is None:
+            return None
+        k = 1.0 / self.sigma0 - 1.0 / self.stiffness
+        return float(1.0 / k) if k > 0 else float("inf")
 
     @property
     def sigma1_trend(self) -> tuple:
@@ -450,6 +483,7 @@ class IndriResult:
         dm2 = {"params": self.dm2.params,
                "stderr": {"sigma0": (self.phase2a[self._slowest].fit.stderr["sigma0"]
                                      if self.sigma0 == self.phase2a[self._slowest].sigma0
+                                     and (self.refinement or {}).get("bristle_resolved", True)
                                      else None),
                           "alpha": (self.diagnostics.get("alpha_stderr") if self.refinement is None
                                     else None),
@@ -459,7 +493,16 @@ class IndriResult:
                "rms": self.gamma_rms, "model": "dm2",
                "settings": {"accel_ratio": self.accel_ratio, "accel_floor": self.dm2.accel_floor,
                             "rest_speed": self.dm2.rest_speed,
-                            "static": self.static.model.to_dict()}}
+                            "static": self.static.model.to_dict(),
+                            "stiffness": self.stiffness,
+                            "bristle": (self.refinement or {}).get("bristle", "identified"),
+                            "sigma0_apparent": self.sigma0,
+                            "sigma0_bristle": self.sigma0_bristle,
+                            "sigma0_bristle_stderr": (
+                                self.phase2a_link[self._slowest].fit.stderr["sigma0"]
+                                if self.sigma0_bristle is not None
+                                and np.isfinite(self.sigma0_bristle) else None),
+                            "sigma0_series_corrected": self.sigma0_series_corrected}}
         return {"arctan": self.static.to_dict(), "dm1": self.dm1.to_dict(), "dm2": _jsonable(dm2)}
 
     @property
@@ -478,6 +521,9 @@ class IndriResult:
                         "beta_stderr": self.diagnostics.get("beta_stderr"),
                         "trend_alpha": self.sigma1_trend[0], "trend_beta": self.sigma1_trend[1]},
             "phase2c": self.refinement,
+            "stiffness": self.stiffness, "sigma0_bristle": self.sigma0_bristle,
+            "sigma0_series_corrected": self.sigma0_series_corrected,
+            "phase2a_link": [p.to_dict() for p in self.phase2a_link],
             "dm1": self.dm1.to_dict(), "dm2": self.dm2.to_dict(),
             "diagnostics": self.diagnostics})
 
@@ -502,12 +548,15 @@ class IndriTrapani:
     ``S0(v_m) ~ 1``); None: the speed where ``S0 = 0.99``, i.e. ``tan(0.99 pi/2) / Kv``.
     ``refine``: run phase 2-C (:meth:`refine_damping`, jointlab's addition) when
     :meth:`fit` is given the data sets to check on; False: the paper's alpha, beta, gamma.
+    ``select_static``: step 1 chooses between the arctan model and the same without the
+    Stribeck term (:meth:`_select_static`, jointlab's addition); False: the paper's fit alone.
     """
 
     def __init__(self, *, Kv: float = 1000.0, delta_grid=None, deflection_range=(1e-7, 0.3),
                  n_grid: int = 20, gamma_range=(1e-3, 1e3), n_gamma: int = 25,
                  dm1_damping: str = "eq11", static_settle: float = 0.03,
-                 critical_speed: float | None = None, refine: bool = True):
+                 critical_speed: float | None = None, refine: bool = True,
+                 select_static: bool = True):
         if dm1_damping not in LuGreDM1.DAMPING:
             raise ValueError(f"dm1_damping must be one of {LuGreDM1.DAMPING}")
         if not (0 < deflection_range[0] < deflection_range[1]):
@@ -529,6 +578,7 @@ class IndriTrapani:
         self.critical_speed = (float(np.tan(0.99 * np.pi / 2) / self.Kv) if critical_speed is None
                                else float(critical_speed))
         self.refine = bool(refine)
+        self.select_static = bool(select_static)
 
     # ---- step 1 ---------------------------------------------------------------------------
     def fit_static(self, data: FrictionData, mask=None) -> FrictionFit:
@@ -538,8 +588,53 @@ class IndriTrapani:
         if m.sum() < 10:
             raise ValueError(f"step 1: only {int(m.sum())} steady constant-speed samples in "
                              f"{data.label!r}; need constant-speed runs")
-        return fit_arctan(np.asarray(data.qd)[m], np.asarray(data.tau)[m], Kv=self.Kv,
-                          delta_grid=self.delta_grid)
+        qd, tau = np.asarray(data.qd)[m], np.asarray(data.tau)[m]
+        full = fit_arctan(qd, tau, Kv=self.Kv, delta_grid=self.delta_grid)
+        if not self.select_static:
+            return full
+        return self._select_static(full, fit_arctan(qd, tau, Kv=self.Kv, delta_grid=[0.0]))
+
+    @staticmethod
+    def _select_static(full: FrictionFit, plain: FrictionFit) -> FrictionFit:
+        """Step 1's model choice (jointlab's addition to sec. III-A): the paper's arctan model
+        (``full``) or the same without the Stribeck term (``plain``: delta = 0, tau_sc = 0),
+        by Schwarz's criterion ``n ln(RSS/n) + k ln n`` (k = 5 or 3) among the physically
+        possible ones: a negative viscous coefficient ``tau_v`` is not (the viscous friction of
+        the lubricant opposes the motion at every speed). The rejected candidate and the reason
+        go to the diagnostics (``static_choice``); when neither is possible the full fit is
+        kept with a flag.
+
+        Why: ``tau_sc 2/pi arctan(delta v)`` with a small delta is nearly ``tau_sc 2 delta v /
+        pi``, so on a joint without a Stribeck drop tau_sc, tau_v and tau_nlv trade against
+        each other at the noise level; on jointlab synth (Coulomb + viscous 0.99, six speed
+        levels 0.12-2.4 rad/s, level means within 0.005 N m of the truth) the paper's fit
+        chose tau_sc 5.1, delta 0.5, tau_v -0.80, tau_nlv 0.24: the same curve within the
+        noise over the speeds logged, physically impossible, and a different static curve
+        g(v) for the dynamic models."""
+        def bic(f):
+            n = max(f.n, 1)
+            k = 5 if f is full else 3
+            return n * np.log(max(f.rms, 1e-300) ** 2) + k * np.log(n)
+
+        def valid(f):
+            return f.model.params["tau_v"] >= 0
+        cands = [f for f in (full, plain) if valid(f)]
+        if not cands:
+            return replace(full, flags=tuple(full.flags) + (
+                f"tau_v = {full.model.params['tau_v']:.3g} < 0: a negative viscous coefficient "
+                "is physically impossible (with and without the Stribeck term)",),
+                diagnostics={**full.diagnostics, "static_choice": {
+                    "chosen": "full", "reason": "no physically possible candidate",
+                    "bic_full": bic(full), "bic_no_stribeck": bic(plain)}})
+        best = min(cands, key=bic)
+        other = plain if best is full else full
+        why = ("negative viscous coefficient" if not valid(other)
+               else "larger Schwarz criterion")
+        info = {"chosen": "full" if best is full else "no_stribeck",
+                "rejected": "no_stribeck" if best is full else "full",
+                "reason": f"rejected: {why}", "bic_full": bic(full), "bic_no_stribeck": bic(plain),
+                "rejected_params": other.model.params}
+        return replace(best, diagnostics={**best.diagnostics, "static_choice": info})
 
     # ---- phase 2-A --------------------------------------------------------------------------
     def _sigma0_bounds(self, static: Arctan, data: FrictionData):
@@ -653,7 +748,7 @@ class IndriTrapani:
                        counter: _Counter | None = None, rest_times=(np.inf, 0.3, 0.03, 0.003),
                        floor_fracs=(0.0, 0.003, 0.01, 0.03, 0.1),
                        n_gamma: int = 9, max_ratio: float = 1.05,
-                       static_limit_deflection: float = 1e-9) -> dict:
+                       static_limit_deflection: float = 1e-9, identify: bool = True) -> dict:
         """Phase 2-C, jointlab's addition to sec. III-B: alpha, beta >= 0 and gamma of eq. 24,
         the acceleration floor of eq. 24's root, the standstill relaxation of the bristle
         (:mod:`ident.friction.dynamic`, ``rest_speed``) and whether the data support the
@@ -679,7 +774,9 @@ class IndriTrapani:
         curve by ``S1/(S1 + rest_speed)`` and doubled the error of excitation trials whose
         static residual is at the noise level).
 
-        Candidates: sigma0 of phase 2-A (the paper's) with the grid below, and the bristle's
+        Candidates: sigma0 of phase 2-A (the paper's; :meth:`fit` passes the declared spring's
+        K instead when the spring explains phase 2-A's apparent bristle: the spring-only
+        model) with the grid below, and the bristle's
         static limit (sigma0 = max g / ``static_limit_deflection``: with the first-order hold
         DM2 is then the static curve ``S0(v) g(v) + tau_fv(v)`` sample by sample), undamped
         and unrelaxed, plus the damping fit. Constraint: no data set may end above
@@ -805,7 +902,7 @@ class IndriTrapani:
         best = (float(q_lim.sum()), "static limit", s_lim, np.inf, 0.0, 1e-6, 1.0, (0.0, 0.0),
                 0.0, q_lim, q_lim, zdot_l, y_l)
         table, ident = [], None
-        if sigma0 < s_lim:                                   # phase 2-A's sigma0 and the grid
+        if identify and sigma0 < s_lim:                      # phase 2-A's sigma0 and the grid
             cb = None
             for t_rest in rest_times:                        # loop over the grid (~25 points)
                 vr, zdot, y = states(float(sigma0), t_rest)
@@ -853,7 +950,8 @@ class IndriTrapani:
 
     # ---- everything -------------------------------------------------------------------------
     def fit(self, static_data: FrictionData, reversal_datasets, variable_data: FrictionData,
-            static: FrictionFit | None = None, refine_datasets=None) -> IndriResult:
+            static: FrictionFit | None = None, refine_datasets=None,
+            stiffness: float | None = None, link_datasets=None) -> IndriResult:
         """Steps 1, 2-A and 2-B (sec. III) plus the DM1 comparison model, and phase 2-C
         (:meth:`refine_damping`) when ``refine`` is set and ``refine_datasets`` are given.
 
@@ -861,7 +959,22 @@ class IndriTrapani:
         ``reversal_datasets``: phase 2-A data sets, one acceleration each (at least two);
         ``variable_data``: the further acquisition with varied speeds and accelerations used to
         identify gamma (phase 2-B iii); ``refine_datasets``: the acquisitions phase 2-C pools
-        (e.g. every constant-velocity, reversal and excitation trial, each whole).
+        (e.g. every constant-velocity, reversal and excitation trial, each whole);
+        ``stiffness``, ``link_datasets``: the declared transmission stiffness K (N m/rad) and
+        the reversal data sets on the link velocity (the same spans, the motor encoder's
+        velocity minus the spring's nominal deflection rate,
+        :func:`ident.indri.campaign.nominal_link_state`). The bristle acts on the link, behind
+        the spring, so the motor encoder sees both in series: the DM2 (on the motor velocity,
+        the controller's signal) keeps the apparent sigma0, and phase 2-A on the link sets
+        gives the bristle's own (:attr:`IndriResult.sigma0_bristle`). When that one is at the
+        stiff end of its search, no bristle sits behind the spring: the spring alone explains
+        the apparent one, and phase 2-C's candidate is the spring-only model (sigma0 = K,
+        named ``"declared spring"``) instead of phase 2-A's apparent bristle.
+
+        A motor-side phase 2-A sigma0 at the stiff end of its search (steady deflection at the
+        lower end of ``deflection_range``) is no bristle the data resolve: phase 2-C's choice is
+        then named ``"static limit"`` or ``"stiff bound"`` (never ``"identified"``), with
+        ``bristle_resolved`` False and a note, and sigma0 has no standard error.
         """
         datasets = list(reversal_datasets)
         if len(datasets) < 2:
@@ -883,8 +996,39 @@ class IndriTrapani:
                                                          variable_data, counter)
         trend = (alpha, beta)
         refinement = None
+        p2a_link, behind = (), True
+        link = list(link_datasets or ())
+        if stiffness is not None and len(link) == len(datasets):
+            p2a_link = self.phase_2a(st, link, counter)
+            s_hi_l = self._sigma0_bounds(st, link[slow])[1]
+            behind = p2a_link[slow].sigma0 < (1.0 - 1e-3) * s_hi_l
         if self.refine and refine_datasets:
-            refinement = self.refine_damping(st, sigma0, ratio, list(refine_datasets), counter)
+            s_hi = self._sigma0_bounds(st, datasets[slow])[1]
+            resolved = sigma0 < (1.0 - 1e-3) * s_hi
+            # a bristle in series with the spring is softer than the spring: an apparent
+            # sigma0 >= K, or none on the link side, is the spring's, not a bristle's
+            spring_only = bool(p2a_link) and resolved and (not behind or sigma0 >= stiffness)
+            refinement = self.refine_damping(st, float(stiffness) if spring_only else sigma0,
+                                             ratio, list(refine_datasets), counter)
+            refinement["bristle_resolved"] = bool(resolved)
+            refinement["bristle_behind_spring"] = bool(behind)
+            if spring_only:
+                if refinement["bristle"] == "identified":
+                    refinement["bristle"] = "declared spring"
+                why = (f"phase 2-A on the link velocity: sigma0 {p2a_link[slow].sigma0:.3g} at the "
+                       f"stiff end of its search ({s_hi_l:.3g})" if not behind else
+                       f"the apparent sigma0 {sigma0:.3g} is not below K (a bristle in series "
+                       "with the spring is softer than the spring)")
+                refinement["note"] = (
+                    f"{why}: no bristle behind the spring; the declared spring (K = "
+                    f"{stiffness:.4g} N m/rad) explains the apparent bristle of the motor side: "
+                    "phase 2-C's candidate is the spring-only model, sigma0 = K")
+            elif not resolved:
+                if refinement["bristle"] == "identified":
+                    refinement["bristle"] = "stiff bound"
+                refinement["note"] = (
+                    f"phase 2-A's sigma0 {sigma0:.3g} is at the stiff end of its search "
+                    f"({s_hi:.3g}: deflection {self.deflection_range[0]:.3g} rad): no bristle")
             refinement["phase2b"] = {"alpha": alpha, "beta": beta, "gamma": gamma,
                                      "sigma0": sigma0}
             alpha, beta, gamma = (refinement["alpha"], refinement["beta"], refinement["gamma"])
@@ -909,7 +1053,9 @@ class IndriTrapani:
                            gamma=gamma, sigma0=sigma0, dm1=dm1, trend_rms=trend_rms, trend_r2=r2,
                            gamma_rms=g_rms, gamma_stderr=g_se, gamma_grid=ggrid,
                            gamma_grid_rss=grss, diagnostics=diag, trend_alpha=trend[0],
-                           trend_beta=trend[1], refinement=refinement)
+                           trend_beta=trend[1], refinement=refinement,
+                           stiffness=None if stiffness is None else float(stiffness),
+                           phase2a_link=tuple(p2a_link))
 
 
 # ============================================================================================
