@@ -31,7 +31,7 @@ quantify the errors-in-variables bias (:mod:`ident.model.onelink`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -206,9 +206,16 @@ class LinkStateEstimator:
         ok = np.isfinite(src)
         if ok.sum() < 32:
             return cands
+        s0 = float(motor_fit.sigma)
         for w in self.encoder_windows_s:
             if w > 1.2 * w0:
-                cands.append(SavGolSmoother(float(w)).fit(t[ok], src[ok]))
+                f = SavGolSmoother(float(w)).fit(t[ok], src[ok])
+                if np.isfinite(s0) and f.sigma > 0:
+                    # the residual of a window wider than GCV's holds the motor's kinks, not
+                    # noise: the encoder noise is GCV's, through this window's filter
+                    r = s0 / f.sigma
+                    f = replace(f, sigma=s0, noise_rms=s0, qd_noise=f.qd_noise * r, qdd_noise=f.qdd_noise * r)
+                cands.append(f)
         return cands
 
     def _nominal_deflection(self, t, qm, qmd, qmdd, y, K, encoders=None):
