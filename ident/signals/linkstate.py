@@ -199,9 +199,10 @@ class LinkStateEstimator:
         ``qm_samples``: the raw encoder angle on ``t`` (else the smoothed values are
         re-smoothed)."""
         cands = [motor_fit]
-        if not str(motor_fit.method).startswith("savgol") or t.size < 32:
+        savgol = str(motor_fit.method).startswith("savgol")
+        if (not savgol and qm_samples is None) or t.size < 32:
             return cands
-        w0 = float(motor_fit.window_s) if np.isfinite(motor_fit.window_s) else 0.0
+        w0 = float(motor_fit.window_s) if savgol and np.isfinite(motor_fit.window_s) else 0.0
         src = np.asarray(qm_samples, float) if qm_samples is not None else motor_fit.evaluate(t, order=0)[0]
         ok = np.isfinite(src)
         if ok.sum() < 32:
