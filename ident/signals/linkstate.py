@@ -11,7 +11,14 @@ marker angle is mostly noise and its noise in ``qd``, ``qdd`` biases the eq. 2-4
 
 * ``qm``: the encoder angle smoothed at a bandwidth chosen from its own data
   (:class:`ident.signals.smoothing.FourierSmoother`: a Fourier fit on the detected periodic
-  window when the record is one, else a Savitzky-Golay window chosen by GCV);
+  window when the record is one, else a Savitzky-Golay window chosen by GCV) or, when the
+  raw encoder samples are given, re-smoothed by Savitzky-Golay at a wider window together
+  with the nominal deflection (one window for ``qm + delta_nom``) where eq. 2-4 says so: on
+  a soft joint the motor keeps turning while the link sticks, so the motor angle kinks at
+  every stick-slip transition while the link angle does not; the encoder's own fit follows
+  the kinks (GCV: a narrow window; Fourier: a smooth curve through them) and its velocity
+  error near zero speed biases the Coulomb + viscous fit (PA10 j5 at the declared
+  5000 N m/rad, half-speed trials: viscous +10..35 %);
 * ``delta_nom = -tau_s / K``: the nominal deflection under the transmitted torque and the
   declared ``stiffness`` ``K`` of drives.toml (spring law ``tau_s = K (qm - q)``):
   ``tau_s = y = u - J qmdd - B qmd`` (the right-hand side of eq. 2-4) when friction acts on the
@@ -162,7 +169,9 @@ class LinkStateEstimator:
     within two standard errors of 1, or one with which eq. 2-4 leaves more residual than with
     the declared stiffness, is fixed at the declared 1); ``nominal_smoother``
     smooths the nominal deflection (default None: the window and the friction side chosen by
-    the eq. 2-4 residual, :meth:`_nominal_deflection`).
+    the eq. 2-4 residual, :meth:`_nominal_deflection`); ``encoder_windows_s``: the
+    Savitzky-Golay windows at which the raw encoder angle is re-smoothed with the nominal
+    deflection (:meth:`_encoder_candidates`; empty: the encoder as ``motor_fit`` smoothed it).
     """
 
     def __init__(self, max_bandwidth_hz: float = 5.0, fit_gain: bool = True, nominal_smoother=None):
@@ -187,8 +196,9 @@ class LinkStateEstimator:
         return float(r @ r), b
 
     def _encoder_candidates(self, t, motor_fit: SmoothFit, qm_samples=None) -> list:
-        """The encoder angle as smoothed by ``motor_fit`` and, when that is a Savitzky-Golay
-        fit, re-smoothed at each wider window of ``encoder_windows_s``. The motor angle's
+        """The encoder angle as smoothed by ``motor_fit`` and re-smoothed by Savitzky-Golay
+        at each window of ``encoder_windows_s`` wider than ``motor_fit``'s (any of them when
+        ``motor_fit`` is a Fourier fit and the raw samples are given). The motor angle's
         own bandwidth (GCV) is set by its sharpest features: on a soft joint the motor keeps
         turning while the link sticks, so the encoder angle kinks at every stick-slip
         transition and GCV keeps a narrow window whose velocity noise, on slow trials
@@ -196,8 +206,9 @@ class LinkStateEstimator:
         in variables near zero speed). The link angle ``qm + delta`` is smoother than either
         part (the deflection takes the kinks up), so its window is chosen with the
         deflection's by the eq. 2-4 residual (:meth:`_nominal_deflection`).
-        ``qm_samples``: the raw encoder angle on ``t`` (else the smoothed values are
-        re-smoothed)."""
+        ``qm_samples``: the raw encoder angle on ``t`` (else a Savitzky-Golay ``motor_fit``'s
+        values are re-smoothed, and a Fourier one is kept). The noise level of a re-smoothed
+        fit is ``motor_fit``'s through the wider filter."""
         cands = [motor_fit]
         savgol = str(motor_fit.method).startswith("savgol")
         if (not savgol and qm_samples is None) or t.size < 32:
