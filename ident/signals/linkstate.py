@@ -196,7 +196,7 @@ class LinkStateEstimator:
         return float(r @ r), b
 
     def _encoder_candidates(self, t, motor_fit: SmoothFit, qm_samples=None) -> list:
-        """[(window, SmoothFit)]: the encoder angle re-smoothed by Savitzky-Golay
+        """The encoder angle as smoothed by ``motor_fit`` and re-smoothed by Savitzky-Golay
         at each window of ``encoder_windows_s`` wider than ``motor_fit``'s (any of them when
         ``motor_fit`` is a Fourier fit and the raw samples are given). The motor angle's
         own bandwidth (GCV) is set by its sharpest features: on a soft joint the motor keeps
@@ -209,7 +209,7 @@ class LinkStateEstimator:
         ``qm_samples``: the raw encoder angle on ``t`` (else a Savitzky-Golay ``motor_fit``'s
         values are re-smoothed, and a Fourier one is kept). The noise level of a re-smoothed
         fit is ``motor_fit``'s through the wider filter."""
-        cands = []
+        cands = [motor_fit]
         savgol = str(motor_fit.method).startswith("savgol")
         if (not savgol and qm_samples is None) or t.size < 32:
             return cands
@@ -227,7 +227,7 @@ class LinkStateEstimator:
                     # noise: the encoder noise is GCV's, through this window's filter
                     r = s0 / f.sigma
                     f = replace(f, sigma=s0, noise_rms=s0, qd_noise=f.qd_noise * r, qdd_noise=f.qdd_noise * r)
-                cands.append((float(w), f))
+                cands.append(f)
         return cands
 
     def _nominal_deflection(self, t, qm, qmd, qmdd, y, K, encoders=None):
@@ -239,7 +239,7 @@ class LinkStateEstimator:
         and the candidate with the smallest residual wins. (The markers cannot see the
         deflection's fast part: 0.001 deg at a 40 Hz transmission resonance, under their noise;
         the dynamics can.) ``encoders``: further smoothings of the encoder angle
-        (:meth:`_encoder_candidates`, (window, SmoothFit) pairs): each is tried with
+        (:meth:`_encoder_candidates`, each a SmoothFit with a window): each is tried with
         the deflection smoothed at its own window (the link angle ``qm + delta`` smoothed as
         one signal) and alone. Returns (SmoothFit of the nominal deflection, side, index of
         the encoder smoothing: 0 the given ``qm``, k the ``encoders[k - 1]``)."""
@@ -255,28 +255,20 @@ class LinkStateEstimator:
         eps = self.rest_frac * peak
         sides = {"link": y, "motor": y - (b0[3] * np.tanh(qmd / eps) + b0[4] * qmd)}
         best = (rss0, None, None, 0)            # no deflection unless one explains eq. 2-4 better
-        smoothed = {}                           # (side, window) -> the nominal deflection smoothed
-
-        def nominal(side, w):
-            key = (side, round(1e6 * float(w)))
-            if key not in smoothed:
-                smoothed[key] = _crossfit_smooth(t, -sides[side] / K, float(w))
-            return smoothed[key]
-
-        for side in sides:                      # 2 sides x a few windows: each one vectorised
+        for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
-                sm = nominal(side, float(w))
+                sm = _crossfit_smooth(t, -ts / K, float(w))
                 d0, d1, d2 = sm.evaluate(t)
                 rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
                 if rss < best[0]:
                     best = (rss, sm, side, 0)
-        for k, (w, enc) in enumerate(encoders or (), start=1):
+        for k, enc in enumerate(encoders or (), start=1):
             em, emd, emdd = enc.evaluate(t)
             rss, _ = rss_of(em, emd, emdd)
             if rss < best[0]:
                 best = (rss, None, None, k)
-            for side in sides:
-                sm = nominal(side, w)
+            for side, ts in sides.items():
+                sm = _crossfit_smooth(t, -ts / K, float(enc.window_s))
                 d0, d1, d2 = sm.evaluate(t)
                 rss, _ = rss_of(em + d0, emd + d1, emdd + d2)
                 if rss < best[0]:
@@ -304,10 +296,9 @@ class LinkStateEstimator:
 
         def nominal_and_encoder():
             """(nominal, side, encoder fit, its q, qd, qdd) chosen by eq. 2-4."""
-            pairs = self._encoder_candidates(t, motor_fit, qm_samples)
-            encs = [f for _, f in pairs]
+            encs = self._encoder_candidates(t, motor_fit, qm_samples)[1:]
             nom, sd, k = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float), float(stiffness),
-                                                  pairs)
+                                                  encs)
             if k == 0:
                 return nom, sd, motor_fit, qm, qmd, qmdd
             return (nom, sd, encs[k - 1]) + tuple(encs[k - 1].evaluate(t))
