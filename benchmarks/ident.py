@@ -139,7 +139,9 @@ def run_world(name, camp: Path, truth: dict, cache: Path, kinds, n_trials, execu
             rows.append({"world": name, "path": path_name, "trial": e.task.trial, "joint": e.task.joint,
                          "kind": e.task.kind, "c_err": f.params["c"] / c0 - 1, "v_err": f.params["v"] / v0 - 1,
                          "motor": f"{e.signals['motor_fit']['method']} {e.signals['motor_fit']['bandwidth_hz']:.0f} Hz",
-                         "link": e.signals["link_fit"]["method"],
+                         "link": e.signals["link_fit"]["method"] + (
+                             f" (encoder {ls['motor_method']} {ls['motor_bandwidth_hz']:.0f} Hz)"
+                             if ls.get("motor_bandwidth_hz") is not None else ""),
                          "side": ls.get("friction_side"),
                          "defl_hz": (ls.get("nominal_bandwidth_hz") or float("nan")),
                          "eiv": bool(f.eiv and f.eiv["exceeds_se"]), "seconds": dt / max(len(entries), 1),

@@ -60,6 +60,29 @@ def test_link_state_beats_the_marker_noise_and_reports_its_errors():
     assert st.deflection.marker_sigma == pytest.approx(1.5e-3, rel=0.1)
 
 
+def test_encoder_window_of_a_kinked_motor_angle_is_chosen_with_the_deflection():
+    """A sharp Coulomb term (eps 2 mrad/s): the motor angle qm = q + y / K steps by 2c/K at each
+    reversal while the link angle stays smooth, so GCV smooths the encoder at a narrow window
+    (its velocity noise then biases the Coulomb + viscous fit by > 10 %). The link state
+    re-smooths the encoder at the window that, with the deflection's, explains eq. 2-4 best."""
+    d = _flexible_joint(0, eps=0.002)
+    fm = SavGolSmoother("auto").fit(d["t"], d["qm"])
+    assert fm.window_s < 0.03                      # the premise: GCV follows the motor's steps
+    inner = (d["t"] > 0.5) & (d["t"] < 11.5)
+    st = LinkStateEstimator().fit(d["t"][inner], fm, d["tm"], d["qk"], d["tau"][inner], d["K"],
+                                  qm_samples=d["qm"][inner])
+    assert st.motor_fit.window_s > 3 * fm.window_s
+    e_qd = np.sqrt(np.mean((st.qd - d["qd"][inner]) ** 2))
+    assert e_qd < 3e-3                             # the GCV window alone: ~5e-2 rad/s
+    assert 0.1 < e_qd / st.errors["qd"] < 10
+    tau = d["tau"][inner]
+    keep = np.abs(st.qd) > 0.01 * np.max(np.abs(st.qd))
+    X = np.hstack([np.column_stack([st.qdd, -np.sin(st.q), np.cos(st.q)]),
+                   np.sign(st.qd)[:, None], st.qd[:, None]])[keep]
+    b, *_ = np.linalg.lstsq(X, tau[keep], rcond=None)
+    assert b[3] == pytest.approx(C, rel=0.02) and b[4] == pytest.approx(V, rel=0.02)
+
+
 def test_softer_than_declared_drive_is_seen_by_the_markers():
     """Declared K = 10x the real stiffness: the markers see a deflection 10x the nominal one.
     (A smooth Coulomb term: on so soft a drive a sharp one would make the motor jump.)"""

@@ -11,7 +11,14 @@ marker angle is mostly noise and its noise in ``qd``, ``qdd`` biases the eq. 2-4
 
 * ``qm``: the encoder angle smoothed at a bandwidth chosen from its own data
   (:class:`ident.signals.smoothing.FourierSmoother`: a Fourier fit on the detected periodic
-  window when the record is one, else a Savitzky-Golay window chosen by GCV);
+  window when the record is one, else a Savitzky-Golay window chosen by GCV) or, when the
+  raw encoder samples are given, re-smoothed by Savitzky-Golay at a wider window together
+  with the nominal deflection (one window for ``qm + delta_nom``) where eq. 2-4 says so: on
+  a soft joint the motor keeps turning while the link sticks, so the motor angle kinks at
+  every stick-slip transition while the link angle does not; the encoder's own fit follows
+  the kinks (GCV: a narrow window; Fourier: a smooth curve through them) and its velocity
+  error near zero speed biases the Coulomb + viscous fit (PA10 j5 at the declared
+  5000 N m/rad, half-speed trials: viscous +10..35 %);
 * ``delta_nom = -tau_s / K``: the nominal deflection under the transmitted torque and the
   declared ``stiffness`` ``K`` of drives.toml (spring law ``tau_s = K (qm - q)``):
   ``tau_s = y = u - J qmdd - B qmd`` (the right-hand side of eq. 2-4) when friction acts on the
@@ -31,7 +38,7 @@ quantify the errors-in-variables bias (:mod:`ident.model.onelink`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -171,7 +178,9 @@ class LinkStateEstimator:
     within two standard errors of 1, or one with which eq. 2-4 leaves more residual than with
     the declared stiffness, is fixed at the declared 1); ``nominal_smoother``
     smooths the nominal deflection (default None: the window and the friction side chosen by
-    the eq. 2-4 residual, :meth:`_nominal_deflection`).
+    the eq. 2-4 residual, :meth:`_nominal_deflection`); ``encoder_windows_s``: the
+    Savitzky-Golay windows at which the raw encoder angle is re-smoothed with the nominal
+    deflection (:meth:`_encoder_candidates`; empty: the encoder as ``motor_fit`` smoothed it).
     """
 
     def __init__(self, max_bandwidth_hz: float = 5.0, fit_gain: bool = True, nominal_smoother=None):
@@ -181,6 +190,7 @@ class LinkStateEstimator:
         self.fit_gain = bool(fit_gain)
         self.nominal_smoother = nominal_smoother
         self.windows_s = tuple(np.geomspace(0.004, 0.128, 11))
+        self.encoder_windows_s = tuple(np.geomspace(0.032, 0.256, 7))
         self.rest_frac = 0.01
 
     @staticmethod
@@ -194,7 +204,42 @@ class LinkStateEstimator:
         r = y[keep] - X @ b
         return float(r @ r), b
 
-    def _nominal_deflection(self, t, qm, qmd, qmdd, y, K):
+    def _encoder_candidates(self, t, motor_fit: SmoothFit, qm_samples=None) -> list:
+        """The encoder angle as smoothed by ``motor_fit`` and re-smoothed by Savitzky-Golay
+        at each window of ``encoder_windows_s`` wider than ``motor_fit``'s (any of them when
+        ``motor_fit`` is a Fourier fit and the raw samples are given). The motor angle's
+        own bandwidth (GCV) is set by its sharpest features: on a soft joint the motor keeps
+        turning while the link sticks, so the encoder angle kinks at every stick-slip
+        transition and GCV keeps a narrow window whose velocity noise, on slow trials
+        comparable to the speed itself, biases the Coulomb + viscous fit of eq. 2-4 (errors
+        in variables near zero speed). The link angle ``qm + delta`` is smoother than either
+        part (the deflection takes the kinks up), so its window is chosen with the
+        deflection's by the eq. 2-4 residual (:meth:`_nominal_deflection`).
+        ``qm_samples``: the raw encoder angle on ``t`` (else a Savitzky-Golay ``motor_fit``'s
+        values are re-smoothed, and a Fourier one is kept). The noise level of a re-smoothed
+        fit is ``motor_fit``'s through the wider filter."""
+        cands = [motor_fit]
+        savgol = str(motor_fit.method).startswith("savgol")
+        if (not savgol and qm_samples is None) or t.size < 32:
+            return cands
+        w0 = float(motor_fit.window_s) if savgol and np.isfinite(motor_fit.window_s) else 0.0
+        src = np.asarray(qm_samples, float) if qm_samples is not None else motor_fit.evaluate(t, order=0)[0]
+        ok = np.isfinite(src)
+        if ok.sum() < 32:
+            return cands
+        s0 = float(motor_fit.sigma)
+        for w in self.encoder_windows_s:
+            if w > 1.2 * w0:
+                f = SavGolSmoother(float(w)).fit(t[ok], src[ok])
+                if np.isfinite(s0) and f.sigma > 0:
+                    # the residual of a window wider than GCV's holds the motor's kinks, not
+                    # noise: the encoder noise is GCV's, through this window's filter
+                    r = s0 / f.sigma
+                    f = replace(f, sigma=s0, noise_rms=s0, qd_noise=f.qd_noise * r, qdd_noise=f.qdd_noise * r)
+                cands.append(f)
+        return cands
+
+    def _nominal_deflection(self, t, qm, qmd, qmdd, y, K, encoders=None):
         """The nominal deflection ``-tau_s / K`` smoothed at the window (and with the friction
         on the side of the spring) that best explains eq. 2-4: the transmitted torque is
         ``tau_s = y`` when the friction acts on the link (thesis eq. 2-1..2-3) and
@@ -202,11 +247,15 @@ class LinkStateEstimator:
         ``qmdd + delta''`` of each candidate enters the Coulomb + viscous regression of eq. 2-4
         and the candidate with the smallest residual wins. (The markers cannot see the
         deflection's fast part: 0.001 deg at a 40 Hz transmission resonance, under their noise;
-        the dynamics can.) Returns (SmoothFit of the nominal deflection, side)."""
+        the dynamics can.) ``encoders``: further smoothings of the encoder angle
+        (:meth:`_encoder_candidates`, each a SmoothFit with a window): each is tried with
+        the deflection smoothed at its own window (the link angle ``qm + delta`` smoothed as
+        one signal) and alone. Returns (SmoothFit of the nominal deflection, side, index of
+        the encoder smoothing: 0 the given ``qm``, k the ``encoders[k - 1]``)."""
         peak = float(np.max(np.abs(qmd))) if qmd.size else 0.0
         keep = np.abs(qmd) >= self.rest_frac * peak
         if keep.sum() < 16 or peak <= 0:
-            return SavGolSmoother("auto").fit(t, -y / K), "link"
+            return SavGolSmoother("auto").fit(t, -y / K), "link", 0
 
         def rss_of(q, qd, qdd):
             return self._eq24_rss(q, qd, qdd, y, keep)
@@ -214,38 +263,62 @@ class LinkStateEstimator:
         rss0, b0 = rss_of(qm, qmd, qmdd)
         eps = self.rest_frac * peak
         sides = {"link": y, "motor": y - (b0[3] * np.tanh(qmd / eps) + b0[4] * qmd)}
-        best = (rss0, None, None)               # no deflection unless one explains eq. 2-4 better
+        best = (rss0, None, None, 0)            # no deflection unless one explains eq. 2-4 better
         for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
                 sm = _crossfit_smooth(t, -ts / K, float(w))
                 d0, d1, d2 = sm.evaluate(t)
                 rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
                 if rss < best[0]:
-                    best = (rss, sm, side)
+                    best = (rss, sm, side, 0)
+        for k, enc in enumerate(encoders or (), start=1):
+            em, emd, emdd = enc.evaluate(t)
+            rss, _ = rss_of(em, emd, emdd)
+            if rss < best[0]:
+                best = (rss, None, None, k)
+            for side, ts in sides.items():
+                sm = _crossfit_smooth(t, -ts / K, float(enc.window_s))
+                d0, d1, d2 = sm.evaluate(t)
+                rss, _ = rss_of(em + d0, emd + d1, emdd + d2)
+                if rss < best[0]:
+                    best = (rss, sm, side, k)
         if best[1] is None:
             zero = np.zeros_like(t)
             return SmoothFit("none", 0.0, 0.0, int(t.size), float(t[0]), float(t[-1]), None, float("nan"),
                              0.0, (t, zero, zero, zero), sigma=0.0, qd_noise=0.0, qdd_noise=0.0,
-                             bandwidth_hz=0.0), None
-        return best[1], best[2]
+                             bandwidth_hz=0.0), None, best[3]
+        return best[1], best[2], best[3]
 
     def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
-            stiffness: float | None = None, _nominal=None) -> LinkState:
+            stiffness: float | None = None, _nominal=None, qm_samples=None) -> LinkState:
         """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
         ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
         ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
-        the declared K (N m/rad); without them the deflection is offset + slow part only."""
+        the declared K (N m/rad); without them the deflection is offset + slow part only.
+        ``qm_samples``: the raw encoder angle on ``time`` (optional): with ``y`` and
+        ``stiffness`` the encoder is re-smoothed at the window that, with the deflection's,
+        best explains eq. 2-4 (:meth:`_encoder_candidates`); the state's ``motor_fit`` is the
+        smoothing used."""
         t = np.asarray(time, float)
         qm, qmd, qmdd = motor_fit.evaluate(t)
         mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
+
+        def nominal_and_encoder():
+            """(nominal, side, encoder fit, its q, qd, qdd) chosen by eq. 2-4."""
+            encs = self._encoder_candidates(t, motor_fit, qm_samples)[1:]
+            nom, sd, k = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float), float(stiffness),
+                                                  encs)
+            if k == 0:
+                return nom, sd, motor_fit, qm, qmd, qmdd
+            return (nom, sd, encs[k - 1]) + tuple(encs[k - 1].evaluate(t))
         if q_marker is None:
             if y is None or stiffness is None or not stiffness > 0:
                 errs = {"q": float(mq), "qd": float(mqd), "qdd": float(mqdd)}
                 return LinkState(t, qm, qmd, qmdd, "encoder", motor_fit, None, errs)
             # no markers: the encoder plus the nominal deflection (declared stiffness, gain 1)
             if self.nominal_smoother is None:
-                nominal, side = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float),
-                                                         float(stiffness))
+                nominal, side, motor_fit, qm, qmd, qmdd = nominal_and_encoder()
+                mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
             else:
                 nominal, side = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness)), None
             d = nominal.evaluate(t)
@@ -266,8 +339,8 @@ class LinkStateEstimator:
             if _nominal is not None:
                 nominal, side = _nominal
             elif self.nominal_smoother is None:
-                nominal, side = self._nominal_deflection(t, qm, qmd, qmdd, np.asarray(y, float),
-                                                         float(stiffness))
+                nominal, side, motor_fit, qm, qmd, qmdd = nominal_and_encoder()
+                mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
             else:
                 nominal = self.nominal_smoother.fit(t, -np.asarray(y, float) / float(stiffness))
             if nominal.method == "none" and use_gain:

@@ -625,7 +625,7 @@ def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, dr
         y = tau[keep] - J * qmdd - B * qmd
         K = K if np.isfinite(K) and K > 0 else None
     est = estimator if estimator is not None else LinkStateEstimator()
-    st = est.fit(t, fm, ta, ql, y if K is not None else None, K)
+    st = est.fit(t, fm, ta, ql, y if K is not None else None, K, qm_samples=qm[keep])
     return JointSignals(joint, t, st.q, st.qd, st.qdd, qms, qmd, qmdd, tau[keep], st.as_smooth_fit(), fm,
                         "mocap" if ql is not None else "motor", offset, st.to_dict())
 
