@@ -19,13 +19,6 @@ def demo_report(tmp_path_factory):
     return out, json.loads((out / "diagnosis.json").read_text())
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'KNOWN FAILURE, estimator (ident/gap/data.py torque channel): its nominal is a rigid joint,'
-    ' the Coulomb sign and J qdd taken from the motor encoder, although drives.toml declares K '
-    '= 5000 N m/rad on j5 and the simulator now uses it; the link reverses up to 15 ms after '
-    'the motor (sign(qmd) != sign(qd) on 1.4 % of moving samples, 4.7 % with Stribeck): held-'
-    'out nominal RMS 0.75 N m (none) / 1.02 N m (demo), 99 % at reversals, verdict presliding. '
-    'Remove this mark when the diagnosis uses the declared stiffness.'))
 def test_demo_verdict_is_the_withheld_effect(demo_report):
     _, rep = demo_report
     truth = json.loads((DEMO.parent / "demo-truth" / "demo.truth.json").read_text())
@@ -48,13 +41,6 @@ def test_diagnosis_json_has_the_fixed_keys(demo_report):
     assert f"verdict **{j['verdict']}**" in md and (out / "joint5_localisation.png").is_file()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'KNOWN FAILURE, estimator (ident/gap/data.py torque channel): its nominal is a rigid joint,'
-    ' the Coulomb sign and J qdd taken from the motor encoder, although drives.toml declares K '
-    '= 5000 N m/rad on j5 and the simulator now uses it; the link reverses up to 15 ms after '
-    'the motor (sign(qmd) != sign(qd) on 1.4 % of moving samples, 4.7 % with Stribeck): held-'
-    'out nominal RMS 0.75 N m (none) / 1.02 N m (demo), 99 % at reversals, verdict presliding. '
-    'Remove this mark when the diagnosis uses the declared stiffness.'))
 def test_effect_free_campaign_gives_none(tmp_path):
     camp = tmp_path / "camp"
     assert main(["synth", str(camp), "--effect", "none", "--seed", "7", "--reps", "3", "--duration", "6",

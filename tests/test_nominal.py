@@ -42,13 +42,6 @@ def _row(j, effect):
     return next(e for e in j["effects"] if e["effect"] == effect)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'KNOWN FAILURE, estimator (ident/gap/data.py torque channel): its nominal is a rigid joint,'
-    ' the Coulomb sign and J qdd taken from the motor encoder, although drives.toml declares K '
-    '= 5000 N m/rad on j5 and the simulator now uses it; the link reverses up to 15 ms after '
-    'the motor (sign(qmd) != sign(qd) on 1.4 % of moving samples, 4.7 % with Stribeck): held-'
-    'out nominal RMS 0.75 N m (none) / 1.02 N m (demo), 99 % at reversals, verdict presliding. '
-    'Remove this mark when the diagnosis uses the declared stiffness.'))
 def test_registry_nominal_absorbs_the_effect_it_contains(stribeck_campaign, capsys):
     root, camp, truth = stribeck_campaign
     _, cv, _ = _diagnose(root, camp, "cv", "cv")
@@ -70,13 +63,6 @@ def test_registry_nominal_absorbs_the_effect_it_contains(stribeck_campaign, caps
     capsys.readouterr()
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'KNOWN FAILURE, estimator (ident/gap/data.py torque channel): its nominal is a rigid joint,'
-    ' the Coulomb sign and J qdd taken from the motor encoder, although drives.toml declares K '
-    '= 5000 N m/rad on j5 and the simulator now uses it; the link reverses up to 15 ms after '
-    'the motor (sign(qmd) != sign(qd) on 1.4 % of moving samples, 4.7 % with Stribeck): held-'
-    'out nominal RMS 0.75 N m (none) / 1.02 N m (demo), 99 % at reversals, verdict presliding. '
-    'Remove this mark when the diagnosis uses the declared stiffness.'))
 def test_fits_json_nominal_is_fixed_and_reported(stribeck_campaign, capsys):
     root, camp, truth = stribeck_campaign
     fits = root / "published_fits.json"

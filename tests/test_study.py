@@ -106,13 +106,9 @@ def test_study_fits_match_truth(tiny, serial_run):
         assert p["v"] == pytest.approx(cv_true["v"], rel=0.08), tid
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'KNOWN FAILURE, estimator (ident/gap torque channel rigid) on the declared 5000 N m/rad j5:'
-    ' diagnosis verdict presliding instead of none (before, at 3e5, none). Remove this mark when'
-    ' fixed.'))
-def test_study_verdict_matches_truth(tiny, serial_run):
-    out, res = serial_run
-    # no withheld effect: the diagnosis finds none
+def test_study_verdict_matches_truth(serial_run):
+    _, res = serial_run
+    # no withheld effect: the diagnosis (nominal on the declared 5000 N m/rad j5) finds none
     assert res.verdicts == {"5": "none"}
 
 

@@ -72,6 +72,14 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
         rep = res.to_dict()
         rep["nominal"] = nominal.describe(d)
+        k = float(robot.drives[j - 1].extra.get("stiffness", 0.0) or 0.0)
+        rep["nominal"]["joint_model"] = (
+            {"kind": "rigid", "text": "no stiffness declared: rigid joint, everything on the motor state"}
+            if d.friction_side == "rigid" else
+            {"kind": "flexible", "stiffness": k, "friction_side": d.friction_side,
+             "text": f"flexible joint at the declared stiffness {k:g} N m/rad (thesis eq. 2-1, 2-2): "
+                     f"rigid-body terms on the link state, friction at the {d.friction_side} side of the "
+                     "spring (chosen by the held-out nominal RMS)"})
         if not d.has_transmission:
             rep["note_transmission"] = "no link angles: transmission channel (compliance, backlash, time_offset) not diagnosed"
         series[str(j)] = res.series

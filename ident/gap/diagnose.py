@@ -2,8 +2,11 @@
 
 Protocol (per joint, per channel):
 
-1. Nominal model = what a plain simulator has: rigid joint, URDF rigid-body dynamics for the
-   trial's payload (with small base-parameter corrections), Coulomb + viscous friction.
+1. Nominal model = what a plain simulator has: the declared joint (rigid, or the flexible joint
+   of thesis eq. 2-1, 2-2 at the drive's declared ``stiffness``: rigid-body terms on the link
+   state, friction at the motor or the link side of the spring, :mod:`ident.gap.data`), URDF
+   rigid-body dynamics for the trial's payload (with small base-parameter corrections),
+   Coulomb + viscous friction.
 2. Held-out residuals by leave-one-repetition-out (or leave-one-trial-out) cross-validation.
 3. Each candidate effect augments the nominal model in its channel; its shape parameter is
    chosen on the training folds only. Held-out SSE per trial, before and after.

@@ -50,7 +50,8 @@ def _nominal_params(jp: dict) -> str:
 def markdown(report: dict, plots: dict) -> str:
     L = [f"# Sim-to-real gap diagnosis: {report['campaign']}", ""]
     nom = report.get("nominal") or {}
-    L.append("Nominal model: rigid joint, URDF rigid-body dynamics with small corrections, "
+    L.append("Nominal model: the declared joint (rigid, or flexible at its declared stiffness), "
+             "URDF rigid-body dynamics with small corrections, "
              + (nom.get("text") or "Coulomb + viscous friction") + "; its free parameters "
              "identified on the training folds; every figure below is on held-out folds "
              "(each joint's folds are named in diagnosis.json).")
@@ -62,6 +63,9 @@ def markdown(report: dict, plots: dict) -> str:
         if "note" in rep:
             L += [rep["note"], ""]
             continue
+        jm = (rep.get("nominal") or {}).get("joint_model")
+        if jm:
+            L += ["Joint model: " + jm["text"] + ".", ""]
         jp = (rep.get("nominal") or {}).get("joint_parameters")
         if jp:
             L += ["Nominal friction of this joint: " + _nominal_params(jp), ""]
