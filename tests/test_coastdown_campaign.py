@@ -124,11 +124,6 @@ def _synth(tmp_path, loads, vmax, seed):
     return out, truth, kc, kv
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'KNOWN FAILURE, estimator (ident/coastdown angle fit) on the declared 5000 N m/rad j5 '
-    '(heavy motor J = 0.04, link 0.004, transmission damping 29.7 N m s/rad, mode overdamped): '
-    'pooled Kc +3.19 % (limit 3 %), Kv -6 %; trials Kc +4.3 % / +2.3 %, Kv 0.63 / 0.85 vs 0.99,'
-    ' kept rigid by BIC. Remove this mark when fixed.'))
 def test_synth_coastdown_trial(tmp_path):
     """``jointlab synth`` coast-down trials (PA10 joint 5, link-side friction, gravity
     compensated while coasting, 200 Hz log; the coasts last 2-10 samples): each trial's Kc
@@ -146,9 +141,10 @@ def test_synth_coastdown_trial(tmp_path):
 
 @pytest.mark.xfail(strict=True, reason=(
     'KNOWN FAILURE, estimator (ident/coastdown angle fit) on the declared 5000 N m/rad j5, no '
-    'load: the encoder sees the motor settle after the link sticks, coasts now 2-4 samples at '
-    'v25 (limit 3) and 4-7 at v100; pooled Kc +31 %, Kv -93 %, v25 Kc +262 % (kept rigid by '
-    'BIC). Remove this mark when fixed.'))
+    'load: with the motor settling on the stuck link modelled, pooled Kc +4.9 %, Kv -18 %, v25 '
+    'Kc +9.4 % at the pooled Kv (limit 5 %), coasts 2-4 samples at v25 (limit 3); the '
+    'deflection is taken quasi-static while coasting, and its relaxation (d/K = 6 ms) lasts a '
+    'third of a 16 ms coast. Remove this mark when fixed.'))
 def test_synth_short_coasts_use_the_pooled_kv(tmp_path):
     """A 200 Hz trial cut at 10-25 % of max speed (coasts of 1-2 samples) cannot separate Kc
     from Kv alone (its own ML Kc is off by tens of percent, with a standard error that says

@@ -78,6 +78,26 @@ def _log1p_over(y):
     return np.where(small, 1.0 - y / 2.0 + y * y / 3.0, np.log1p(ys) / ys)
 
 
+def free_response(tau, omega, zeta):
+    """Free response ``x(tau)`` of ``x'' + 2 zeta omega x' + omega^2 x = 0`` from ``x(0) = 1``,
+    ``x'(0) = 0`` (0 for ``tau < 0``), exact in every regime: ``exp(-zeta omega tau) (cosh(b tau) +
+    zeta omega sinh(b tau) / b)`` with ``b = omega sqrt(zeta^2 - 1)`` (imaginary when
+    underdamped: the ringing; real when overdamped: two exponential relaxations; the limit
+    ``b -> 0`` at critical damping). Written with exponents <= 0 (no overflow). Broadcasts."""
+    tau = np.asarray(tau, float)
+    tt = np.maximum(tau, 0.0)
+    sg = zeta * omega
+    b = omega * np.sqrt((np.asarray(zeta, float) ** 2 - 1.0).astype(complex))
+    ep = np.exp((b - sg) * tt)
+    em = np.exp((-b - sg) * tt)
+    bt = np.abs(b) * tt
+    small = bt < 1e-6
+    bs = np.where(np.abs(b) > 0, b, 1.0)
+    sinh_b = np.where(small, tt * np.exp(-sg * tt), (ep - em) / (2.0 * bs))
+    x = np.real(0.5 * (ep + em) + sg * sinh_b)
+    return np.where(tau < 0, 1.0, x)
+
+
 def coast_stop(J, Kv, Kc_eff, w):
     """Stop time ``tau_s = (J/Kv) ln(1 + Kv w / Kc_eff)`` (inf where ``Kc_eff <= 0``)."""
     Kc_eff = np.asarray(Kc_eff, float)
@@ -282,13 +302,14 @@ class AngleCoastResult:
     notes: tuple = ()
     x: np.ndarray = field(repr=False, default=None)     # all fitted parameters (restarts)
     transmission: str = "rigid"     # or "flexible": the declared stiffness's deflection modelled
+    stick: str = ""                 # flexible: the side that sticks at the stop ("motor" or "link")
 
     def to_dict(self) -> dict:
         return {"Kc": self.Kc, "Kv": self.Kv, "J": self.J, "stderr": dict(self.stderr),
                 "corr_Kc_Kv": self.corr, "separable": self.separable, "sigma_q": self.sigma_q,
                 "rms": self.rms, "n_samples": self.n_samples, "converged": self.converged,
                 "coasts": [dict(c) for c in self.coasts], "notes": list(self.notes),
-                "transmission": self.transmission}
+                "transmission": self.transmission, "stick": self.stick}
 
 
 class AngleCoastFit:
@@ -317,7 +338,7 @@ class AngleCoastFit:
         return self.fit_records([(t, qm, windows, J)])
 
     def fit_records(self, records, starts=None, kv_fixed: float | None = None,
-                    flexible: bool | None = None) -> AngleCoastResult:
+                    flexible: bool | None = None, stick: str | None = None) -> AngleCoastResult:
         """Fit shared ``Kc``, ``Kv`` to the coasts of several records ``[(t, qm, windows, J),
         ...]`` or ``[(t, qm, windows, J, flex), ...]`` (e.g. every coast-down trial of one
         joint; ``J`` may differ per record; ``flex`` a :class:`Flex` or None for a rigid
@@ -327,30 +348,33 @@ class AngleCoastFit:
         (its standard error is then conditional on ``Kv``; ``stderr["Kv"]`` is 0).
 
         ``flexible``: True uses the declared stiffness (the deflection term of the model), False
-        treats the transmission as rigid, None (default, where a record declares one) fits both
-        and keeps the one Schwarz's criterion prefers (the flexible one has one parameter more,
-        the spring's damping ratio): a declared nominal stiffness may be
-        far softer than the joint (then its deflection is not in the record), and the two
-        models have the same parameters. ``transmission`` in the result says which."""
+        treats the transmission as rigid, None (default, where a record declares one) fits the
+        rigid and the flexible models and keeps the one Schwarz's criterion prefers (the
+        flexible one has one parameter more, the internal damping ``d``): a declared nominal
+        stiffness may be far softer than the joint (then its deflection is not in the record).
+        ``stick``: the side whose Coulomb friction holds the joint at the stop, ``"motor"`` or
+        ``"link"``; None fits both (same parameters) and keeps the better. ``transmission``
+        and ``stick`` in the result say which."""
         from ident.signals.smoothing import one_blas_thread
 
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
         rigid = [r[:4] + (None,) for r in recs]
         declared = any(r[4] is not None for r in recs)
+        sticks = ("motor", "link") if stick is None else (stick,)
         with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
             if not declared or flexible is False:
                 return self._fit_records(rigid, starts, kv_fixed)
-            if flexible:
-                return self._fit_records(recs, starts, kv_fixed)
-            a = self._fit_records(rigid, starts, kv_fixed)
-            b = self._fit_records(recs, starts, kv_fixed)
-            # Schwarz's criterion: the flexible model has one more parameter (the damping)
-            n = a.n_samples
-            bic_a = n * np.log(max(a.rms, 1e-300) ** 2)
-            bic_b = n * np.log(max(b.rms, 1e-300) ** 2) + np.log(n)
-            return b if bic_b < bic_a else a
+            fits = [] if flexible else [self._fit_records(rigid, starts, kv_fixed)]
+            fits += [self._fit_records(recs, starts, kv_fixed, stick=sk) for sk in sticks]
+            # Schwarz's criterion: the flexible models have one more parameter (the damping)
+            n = fits[0].n_samples
+            bic = [n * np.log(max(f.rms, 1e-300) ** 2) + (np.log(n) if f.transmission == "flexible" else 0.0)
+                   for f in fits]
+            return fits[int(np.argmin(bic))]
 
-    def _fit_records(self, records, starts, kv_fixed=None) -> AngleCoastResult:
+    def _fit_records(self, records, starts, kv_fixed=None, stick: str = "motor") -> AngleCoastResult:
+        if stick not in ("motor", "link"):
+            raise ValueError(f"stick must be 'motor' or 'link', not {stick!r}")
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
         parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J), fx)
                  for t, q, ws, J, fx in recs for w in ws]
@@ -370,8 +394,13 @@ class AngleCoastFit:
         Bm = np.array([0.0 if p[4] is None else p[4].motor_viscous for p in parts])
         flexible = bool(np.any(cK > 0))
         Jmot = np.array([1.0 if p[4] is None else max(p[4].motor_inertia, 1e-12) for p in parts])
-        wn = np.sqrt(np.where(cK > 0, 1.0 / np.where(cK > 0, cK, 1.0), 0.0)
-                     * (1.0 / np.maximum(Il, 1e-12) + 1.0 / Jmot))
+        Kst = np.where(cK > 0, 1.0 / np.where(cK > 0, cK, 1.0), 0.0)
+        # the two-mass mode (both moving): reduced inertia mu = I_link J_m / J
+        mu = np.maximum(Il, 1e-12) * Jmot / (np.maximum(Il, 1e-12) + Jmot)
+        wn = np.sqrt(Kst / mu)
+        # the motor on the stuck link (link-side Coulomb friction holds the link at the stop)
+        wm = np.sqrt(Kst / Jmot)
+        d_scale = float(np.median(2.0 * np.sqrt(np.maximum(Kst * mu, 1e-12)))) if flexible else 1.0
         t_r = np.array([p[0][w.on] for p, w in zip(parts, windows)])
         h = np.array([p[0][w.on + 1] - p[0][w.on] for p, w in zip(parts, windows)])
         sgn = np.array([w.direction for w in windows], float)
@@ -423,19 +452,26 @@ class AngleCoastFit:
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
 
-        def deflection(tau, Kv, kce, w, a0, zeta):
+        def deflection(tau, Kv, kce, w, a0, d):
             """What the motor encoder sees of the transmission's deflection change since the
-            cut (quasi-static spring). The coast model moves the centre of inertia
-            ``X = (I_link q + J_m q_m) / J``; the motor angle is ``q_m = X + (I_link / J) delta``
-            with the deflection ``K delta = I_link a + b_link w - g`` (link equation), so it
-            adds ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) / K`` with ``a = -(Kc' + Kv
-            w) / J`` the coast's deceleration, ``a0`` the acceleration before the cut and
-            ``b_link = Kv - motor_viscous`` the link-side share of the viscous friction; frozen
-            at the stop (the motor sticks). At the cut the deflection cannot jump: it
-            oscillates about that quasi-static value from where it was, at the two-mass
-            frequency ``w_n = sqrt(K (1/I_link + 1/J_m))`` with damping ratio ``zeta`` (fitted,
-            shared), ``e(tau) = -D(0+) exp(-zeta w_n tau) (cos w_d tau + zeta w_n / w_d sin
-            w_d tau)``."""
+            cut. The coast model moves the centre of inertia ``X = (I_link q + J_m q_m) / J``;
+            the motor angle is ``q_m = X + (I_link / J) delta`` while both move. The deflection's
+            quasi-static value follows the link equation ``K delta = I_link a + b_link w + ..``,
+            so the encoder sees in addition ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) /
+            K`` with ``a = -(Kc' + Kv w) / J`` the coast's deceleration, ``a0`` the acceleration
+            before the cut and ``b_link = Kv - motor_viscous``. The deflection cannot jump at the
+            cut: it moves from where it was to that value along the two-mass mode ``mu delta'' + d
+            delta' + K delta`` (``mu = I_link J_m / J``, internal damping ``d`` fitted, shared):
+            :func:`free_response`, which rings when underdamped and relaxes along two
+            exponentials when overdamped.
+
+            At the stop: with the Coulomb friction on the motor side (``stick = "motor"``) the
+            motor sticks and the encoder holds its angle. With it on the link side (``stick =
+            "link"``) the link sticks and the motor, pushed by the spring, settles on the held
+            link: ``J_m delta'' + (motor_viscous + d) delta' + K delta = u`` from the deflection
+            at the stop, ``K delta_s = I_link a_s + s Kc`` with ``a_s = -s Kc' / J``, to
+            ``delta = u / K``, i.e. the encoder moves back by ``(J_m / J) Kc' / K`` along the
+            coast (:func:`free_response` of the motor-on-link mode, any damping)."""
             tau_s = coast_stop(Jk, Kv, kce, w)[kk]
             tt = np.clip(tau, 0.0, tau_s)
             ws = coast_speed(tt, Jkk, Kv, kce[kk], w[kk])
@@ -444,9 +480,15 @@ class AngleCoastFit:
             bl = np.maximum(Kv - Bm[kk], 0.0)
             D = cK[kk] * Il[kk] / Jkk * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
             D0 = cK * Il / Jk * (Il * (-(kce + Kv * w) / Jk - a0) + 0.0)
-            wd = wn * np.sqrt(1.0 - zeta * zeta)
-            e = np.exp(-zeta * wn[kk] * tt) * (np.cos(wd[kk] * tt) + zeta * wn[kk] / wd[kk] * np.sin(wd[kk] * tt))
-            return D - D0[kk] * e
+            zc = d / (2.0 * np.sqrt(np.maximum(Kst * mu, 1e-300)))
+            e = free_response(tt, wn[kk], zc[kk])
+            out = D - D0[kk] * e
+            if stick == "link":
+                zm = (Bm + d) / (2.0 * np.sqrt(np.maximum(Kst * Jmot, 1e-300)))
+                R = -Jmot / Jk * cK * kce
+                after = tau - tau_s
+                out = out + np.where(after > 0, R[kk] * (1.0 - free_response(after, wm[kk], zm[kk])), 0.0)
+            return out
 
         def resid(xr, sig_q):
             x = full(xr)
@@ -455,16 +497,17 @@ class AngleCoastFit:
             r_u = (x[2: 2 + 5 * K].reshape(K, 5)[:, 4] - u_bar) / u_se
             return np.concatenate([r_q, r_u])
 
-        nz = int(flexible)     # the spring's damping ratio, last parameter, where flexible
+        nz = int(flexible)     # the transmission's internal damping d, last parameter, where flexible
+        d0 = d_scale * (1.0 if stick == "link" else 0.1)   # start: mode damping ratio 0.5 / 0.05
         lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, self.cut_lead, -np.inf], K), [0.0] * nz])
         # the cut lies near the last drive-on sample: up to one interval before it (a torque
         # logged as an interval mean or with a lag), up to 1.5 after (an amplifier's current
         # lag can carry the torque a little past the first sample that logs the cut)
-        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K), [0.9] * nz])
+        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K), [np.inf] * nz])
         base = np.column_stack([p_init, np.full(K, 0.5), u_bar]).ravel()
         scale = np.concatenate([[kc0, kc0 / max(vbar, 1e-6)],
                                 np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K),
-                                [0.1] * nz])
+                                [d_scale] * nz])
         scale[6::5] = np.maximum(u_se * 3, 1e-6)
         sig_q = max(sig_floor, 1e-9)
         opts = dict(bounds=(lb, ub), x_scale=scale, method="trf", max_nfev=self.max_nfev,
@@ -484,10 +527,10 @@ class AngleCoastFit:
             xs = [np.asarray(r.x, float) for r in starts]
             x0s = [np.concatenate([[np.median([x[0] for x in xs]), np.median([x[1] for x in xs])]]
                                   + [x[2: 2 + 5 * K0] for x, K0 in zip(xs, (len(r.coasts) for r in starts))]
-                                  + [[np.median([x[-1] if r.transmission == "flexible" else 0.1
+                                  + [[np.median([x[-1] if r.transmission == "flexible" else d0
                                                  for x, r in zip(xs, starts)])]] * nz)]
         else:
-            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base, [0.1] * nz])
+            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base, [d0] * nz])
                    for ks in self.kv_starts]
         keep = np.ones(2 + 5 * K + nz, bool)
         if fixed:   # Kv held: drop its column
@@ -552,4 +595,5 @@ class AngleCoastFit:
                                 rms=float(np.sqrt(np.mean(r_ang ** 2))), n_samples=int(n_ang),
                                 converged=bool(best.success), coasts=tuple(coasts),
                                 cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy(),
-                                transmission="flexible" if flexible else "rigid")
+                                transmission="flexible" if flexible else "rigid",
+                                stick=stick if flexible else "")
