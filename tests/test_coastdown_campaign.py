@@ -141,10 +141,10 @@ def test_synth_coastdown_trial(tmp_path):
 
 @pytest.mark.xfail(strict=True, reason=(
     'KNOWN FAILURE, estimator (ident/coastdown angle fit) on the declared 5000 N m/rad j5, no '
-    'load: with the motor settling on the stuck link modelled, pooled Kc +4.9 %, Kv -18 %, v25 '
-    'Kc +9.4 % at the pooled Kv (limit 5 %), coasts 2-4 samples at v25 (limit 3); the '
-    'deflection is taken quasi-static while coasting, and its relaxation (d/K = 6 ms) lasts a '
-    'third of a 16 ms coast. Remove this mark when fixed.'))
+    'load, 200 Hz: exact two-mass coast (link sticks, motor settles), residuals at the '
+    'quantisation level (0.2-0.3 step); v25 Kc +7.5 % at the pooled Kv (limit 5 %; its '
+    'standard error is 7.6 %, so 1 sigma), pooled Kc +4.35 % (se 2.4 %), Kv -17 %; coasts 2-4 '
+    'samples at v25 (limit 3). Remove this mark when fixed.'))
 def test_synth_short_coasts_use_the_pooled_kv(tmp_path):
     """A 200 Hz trial cut at 10-25 % of max speed (coasts of 1-2 samples) cannot separate Kc
     from Kv alone (its own ML Kc is off by tens of percent, with a standard error that says

@@ -98,6 +98,104 @@ def free_response(tau, omega, zeta):
     return np.where(tau < 0, 1.0, x)
 
 
+def _free_response_v(tau, omega, zeta):
+    """Free response of ``x'' + 2 zeta omega x' + omega^2 x = 0`` from ``x(0) = 0``,
+    ``x'(0) = 1``: ``exp(-zeta omega tau) sinh(b tau) / b`` (see :func:`free_response`)."""
+    tt = np.maximum(np.asarray(tau, float), 0.0)
+    sg = zeta * omega
+    b = omega * np.sqrt((np.asarray(zeta, float) ** 2 - 1.0).astype(complex))
+    ep = np.exp((b - sg) * tt)
+    em = np.exp((-b - sg) * tt)
+    small = np.abs(b) * tt < 1e-6
+    bs = np.where(np.abs(b) > 0, b, 1.0)
+    return np.real(np.where(small, tt * np.exp(-sg * tt), (ep - em) / (2.0 * bs)))
+
+
+def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=None, n_grid: int = 256):
+    """Motor-angle displacement along the coast (rad) of a flexible joint whose Coulomb
+    friction acts on the LINK, at times ``tau`` (n,) after the cut of coast ``kk`` (n,) (the
+    per-coast arguments are (K,) arrays, or scalars; ``kk`` None: one coast per sample, all
+    arrays (n,)). Exact for the linear two-mass dynamics with a
+    constant Coulomb torque while the link moves (direction coordinates, external torque on
+    the motor, ``Kc_eff = Kc - s u``)::
+
+        I q''   = K delta + d delta' - Kc - b_l q'           (b_l = Kv - B_m)
+        J_m m'' = s u - B_m m' - K delta - d delta'          (delta = m - q)
+
+    in the centre of inertia ``X`` and the deflection: ``v = (X', delta, delta')`` obeys
+    ``v' = A v + b`` (3 x 3, eigen-decomposition per coast, complex roots where the spring
+    rings, real where it is overdamped), from the quasi-static state before the cut (``K
+    delta0 = I a0 + Kc + b_l w``, ``delta0' = 0``, ``X' = w``). The link stops at the first
+    zero of ``q' = X' - (J_m / J) delta'`` (grid of ``n_grid`` points over ``[0, tau.max()]``,
+    linear interpolation); then it sticks and the motor settles on it (``J_m delta'' + (B_m +
+    d) delta' + K delta = s u`` from the deflection and speed at the stop). Returns ``(m,
+    tau_stop)`` with ``m(0) = 0`` and ``tau_stop`` (n,) (inf where the link does not stop)."""
+    tau = np.asarray(tau, float)
+    kk = np.arange(tau.size) if kk is None else np.asarray(kk)
+    n = int(kk.max()) + 1 if kk.size else 0
+    J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0 = (
+        np.broadcast_to(np.asarray(x, float), (n,)) for x in (J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0))
+    bl = np.maximum(Kv - B_m, 0.0)
+    mu = I_link * J_m / J
+    Kv_e = np.maximum(Kv, 1e-6 * J)      # keeps A invertible at Kv = 0 (1e-6 of J per second)
+    A = np.zeros((n, 3, 3))
+    A[:, 0, 0] = -Kv_e / J
+    A[:, 0, 2] = -(B_m * I_link - bl * J_m) / (J * J)
+    A[:, 1, 2] = 1.0
+    A[:, 2, 0] = -B_m / J_m + bl / I_link
+    A[:, 2, 1] = -K / mu
+    A[:, 2, 2] = -d / mu - B_m * I_link / (J * J_m) - bl * J_m / (I_link * J)
+    su = Kc - Kc_eff                     # s u, the external torque (on the motor)
+    b = np.stack([-Kc_eff / J, np.zeros(n), su / J_m + Kc / I_link], axis=1)
+    lam, V = np.linalg.eig(A)
+    v_inf = -np.linalg.solve(A, b[..., None])[..., 0]
+    v0 = np.stack([w, (I_link * a0 + Kc + bl * w) / K, np.zeros(n)], axis=1)
+    c = np.linalg.solve(V, (v0 - v_inf).astype(complex)[..., None])[..., 0]   # (n, 3)
+    lam_s = np.where(np.abs(lam) > 0, lam, 1.0)
+
+    cvs = V * c[:, None, :]                                             # (K, 3 comp, 3 modes)
+
+    def state(tt, ix):
+        """(X - X0, delta, delta', X') of coasts ix (r,) at times tt (r, m)."""
+        la = lam[ix][:, None, :]
+        e = np.exp(la * tt[..., None])                                  # (r, m, 3)
+        ie = np.where(np.abs(la) > 0, np.expm1(la * tt[..., None]) / lam_s[ix][:, None, :], tt[..., None])
+        cv = cvs[ix][:, None, :, :]                                     # (r, 1, 3 comp, 3 modes)
+        vi = v_inf[ix]
+        X = vi[:, 0, None] * tt + np.real(np.sum(cv[..., 0, :] * ie, axis=-1))
+        dl = vi[:, 1, None] + np.real(np.sum(cv[..., 1, :] * e, axis=-1))
+        dd = vi[:, 2, None] + np.real(np.sum(cv[..., 2, :] * e, axis=-1))
+        Xd = vi[:, 0, None] + np.real(np.sum(cv[..., 0, :] * e, axis=-1))
+        return X, dl, dd, Xd
+
+    # the link's stop: first zero of q' on a grid per coast (the same grid for all rows)
+    T = max(float(np.max(tau)), 1e-9)
+    g = np.linspace(0.0, T, n_grid)[None, :] * np.ones((n, 1))
+    _, _, ddg, Xdg = state(g, np.arange(n))
+    qd = Xdg - (J_m / J)[:, None] * ddg
+    neg = qd <= 0
+    first = np.where(neg.any(axis=1), np.argmax(neg, axis=1), -1)
+    i1 = np.maximum(first, 1)
+    q0, q1 = qd[np.arange(n), i1 - 1], qd[np.arange(n), i1]
+    t0, t1 = g[np.arange(n), i1 - 1], g[np.arange(n), i1]
+    ts = np.where(first > 0, t0 + (t1 - t0) * q0 / np.where(q0 - q1 > 0, q0 - q1, 1.0), np.inf)
+    ts = np.where(first == 0, 0.0, ts)
+    tsk = ts[kk]
+    tt = np.clip(tau, 0.0, tsk)
+    X, dl, dd, _ = state(tt[:, None], kk)
+    X, dl, dd = X[:, 0], dl[:, 0], dd[:, 0]
+    r = I_link[kk] / J[kk]
+    m = X + r * (dl - v0[kk, 1])
+    # after the stop: the link holds, the motor settles on it
+    om = np.sqrt(K / J_m)[kk]
+    zm = ((B_m + d) / (2.0 * np.sqrt(K * J_m)))[kk]
+    after = np.maximum(tau - tsk, 0.0)
+    d_inf = (su / K)[kk]
+    dl_after = d_inf + (dl - d_inf) * free_response(after, om, zm) + dd * _free_response_v(after, om, zm)
+    m_after = X - (J_m[kk] / J[kk]) * dl + dl_after - r * v0[kk, 1]
+    return np.where(tau > tsk, m_after, m), ts
+
+
 def coast_stop(J, Kv, Kc_eff, w):
     """Stop time ``tau_s = (J/Kv) ln(1 + Kv w / Kc_eff)`` (inf where ``Kc_eff <= 0``)."""
     Kc_eff = np.asarray(Kc_eff, float)
@@ -446,8 +544,12 @@ class AngleCoastFit:
             tp = tau_pre
             pre = p0[kk] + p1[kk] * tp + 0.5 * p2[kk] * tp * tp
             after = tp > tc_rel[kk]
-            x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
-            if flexible:
+            if flexible and stick == "link":     # exact two-mass coast, the link sticks
+                x_c, _ = two_mass_coast(tp - tc_rel[kk], Jk, Il, Jmot, Kst, Bm, x[-1], Kc, Kv, kce, w,
+                                        sgn * p2, kk=kk)
+            else:
+                x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
+            if flexible and stick == "motor":
                 x_c = x_c + deflection(tp - tc_rel[kk], Kv, kce, w, sgn * p2, x[-1])
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
