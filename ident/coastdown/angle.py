@@ -27,13 +27,24 @@ for a controller that keeps one) minus the URDF gravity torque. It is measured (
 coast and the first rest samples, standard error from their scatter) and enters the fit as a
 parameter with that prior, so its uncertainty reaches the standard error of ``Kc``.
 
-A flexible transmission (the drive's declared nominal ``stiffness`` K, FORMAT.md): the
-coast moves the centre of inertia; the motor encoder sees in addition ``I_link / J`` of the
-deflection's change, quasi-static ``(I_link (a - a0) + b_link (w - w0)) / K`` (``a`` the
-deceleration, ``b_link = Kv - motor_viscous``), about which the spring rings from the cut on at
-the two-mass frequency with a fitted damping ratio (:meth:`AngleCoastFit.fit_records`). The
-fit keeps the rigid or the flexible model by Schwarz's criterion (a declared stiffness may be
-far below the joint's).
+A flexible transmission (the drive's declared nominal ``stiffness`` K, FORMAT.md; link
+inertia from the URDF, motor inertia and viscous from the drive; the internal damping ``d``
+fitted, so the spring may ring or be overdamped): the encoder is on the motor, and what it
+shows at the stop depends on the side whose Coulomb friction holds the joint.
+
+- Link side (``stick = "link"``, :func:`two_mass_coast`): the coast is the exact solution of
+  the linear two-mass dynamics with a constant Coulomb torque from the quasi-static deflection
+  before the cut (modal, 3 x 3 per coast, complex or real roots); the link stops where its
+  speed is 0 and sticks, and the motor then settles on it (the deflection relaxes to the
+  external torque's), moving back by about ``(J_m / J) Kc' / K``.
+- Motor side (``stick = "motor"``): the coast moves the centre of inertia; the encoder sees in
+  addition ``I_link / J`` of the deflection's change, quasi-static ``(I_link (a - a0) +
+  b_link (w - w0)) / K`` (``a`` the deceleration, ``b_link = Kv - motor_viscous``), reached
+  from the cut along the two-mass mode (:func:`free_response`); the motor sticks at the stop.
+
+The fit keeps the rigid or a flexible model by Schwarz's criterion (a declared stiffness may
+be far below the joint's; the two flexible ones have the same parameters)
+(:meth:`AngleCoastFit.fit_records`).
 
 All coasts of a record share ``Kc`` and ``Kv`` (the total viscous coefficient, link and motor
 side); each has its own ``(q, v, a)`` before the cut, its cut instant and its ``u``. The fit
@@ -53,6 +64,7 @@ from scipy.optimize import least_squares
 from mocap.io.errors import InputError
 
 __all__ = ["Flex", "CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
+           "free_response", "two_mass_coast",
            "interval_velocity"]
 
 
