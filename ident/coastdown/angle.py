@@ -167,23 +167,25 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
 
     cvs = V * c[:, None, :]                                             # (K, 3 comp, 3 modes)
 
-    def state(tt, ix):
-        """(X - X0, delta, delta', X') of coasts ix (r,) at times tt (r, m)."""
+    def state(tt, ix, speeds_only=False):
+        """(X - X0, delta, delta') of coasts ix (r,) at times tt (r, m); (X', delta') with
+        ``speeds_only``."""
         la = lam[ix][:, None, :]
         e = np.exp(la * tt[..., None])                                  # (r, m, 3)
-        ie = np.where(np.abs(la) > 0, np.expm1(la * tt[..., None]) / lam_s[ix][:, None, :], tt[..., None])
         cv = cvs[ix][:, None, :, :]                                     # (r, 1, 3 comp, 3 modes)
         vi = v_inf[ix]
+        dd = vi[:, 2, None] + np.real(np.sum(cv[..., 2, :] * e, axis=-1))
+        if speeds_only:
+            return vi[:, 0, None] + np.real(np.sum(cv[..., 0, :] * e, axis=-1)), dd
+        ie = np.where(np.abs(la) > 0, np.expm1(la * tt[..., None]) / lam_s[ix][:, None, :], tt[..., None])
         X = vi[:, 0, None] * tt + np.real(np.sum(cv[..., 0, :] * ie, axis=-1))
         dl = vi[:, 1, None] + np.real(np.sum(cv[..., 1, :] * e, axis=-1))
-        dd = vi[:, 2, None] + np.real(np.sum(cv[..., 2, :] * e, axis=-1))
-        Xd = vi[:, 0, None] + np.real(np.sum(cv[..., 0, :] * e, axis=-1))
-        return X, dl, dd, Xd
+        return X, dl, dd
 
     # the link's stop: first zero of q' on a grid per coast (the same grid for all rows)
     T = max(float(np.max(tau)), 1e-9)
     g = np.linspace(0.0, T, n_grid)[None, :] * np.ones((n, 1))
-    _, _, ddg, Xdg = state(g, np.arange(n))
+    Xdg, ddg = state(g, np.arange(n), speeds_only=True)
     qd = Xdg - (J_m / J)[:, None] * ddg
     neg = qd <= 0
     first = np.where(neg.any(axis=1), np.argmax(neg, axis=1), -1)
@@ -194,7 +196,7 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
     ts = np.where(first == 0, 0.0, ts)
     tsk = ts[kk]
     tt = np.clip(tau, 0.0, tsk)
-    X, dl, dd, _ = state(tt[:, None], kk)
+    X, dl, dd = state(tt[:, None], kk)
     X, dl, dd = X[:, 0], dl[:, 0], dd[:, 0]
     r = I_link[kk] / J[kk]
     m = X + r * (dl - v0[kk, 1])
