@@ -42,8 +42,8 @@ shows at the stop depends on the side whose Coulomb friction holds the joint.
   b_link (w - w0)) / K`` (``a`` the deceleration, ``b_link = Kv - motor_viscous``), reached
   from the cut along the two-mass mode (:func:`free_response`); the motor sticks at the stop.
 
-The fit keeps the rigid or a flexible model by Schwarz's criterion (a declared stiffness may
-be far below the joint's; the two flexible ones have the same parameters)
+With a declared stiffness the fit keeps the flexible model (of the two sides, the one with
+the smaller residual; they have the same parameters) unless the rigid one fits better
 (:meth:`AngleCoastFit.fit_records`).
 
 All coasts of a record share ``Kc`` and ``Kv`` (the total viscous coefficient, link and motor
@@ -123,7 +123,8 @@ def _free_response_v(tau, omega, zeta):
     return np.real(np.where(small, tt * np.exp(-sg * tt), (ep - em) / (2.0 * bs)))
 
 
-def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=None, n_grid: int = 256):
+def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=None, n_grid: int = 256,
+                   side: str = "link"):
     """Motor-angle displacement along the coast (rad) of a flexible joint whose Coulomb
     friction acts on the LINK, at times ``tau`` (n,) after the cut of coast ``kk`` (n,) (the
     per-coast arguments are (K,) arrays, or scalars; ``kk`` None: one coast per sample, all
@@ -141,7 +142,12 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
     zero of ``q' = X' - (J_m / J) delta'`` (grid of ``n_grid`` points over ``[0, tau.max()]``,
     linear interpolation); then it sticks and the motor settles on it (``J_m delta'' + (B_m +
     d) delta' + K delta = s u`` from the deflection and speed at the stop). Returns ``(m,
-    tau_stop)`` with ``m(0) = 0`` and ``tau_stop`` (n,) (inf where the link does not stop)."""
+    tau_stop)`` with ``m(0) = 0`` and ``tau_stop`` (n,) (inf where the link does not stop).
+
+    ``side = "motor"``: the Coulomb friction acts on the motor instead (``J_m m'' = s u - Kc -
+    ..``, ``K delta0 = I a0 + b_l w``); the coast ends where the MOTOR's speed ``X' + (I_link /
+    J) delta'`` is 0, and the motor sticks (the encoder holds its angle; the link may still
+    move on the spring)."""
     tau = np.asarray(tau, float)
     kk = np.arange(tau.size) if kk is None else np.asarray(kk)
     n = int(kk.max()) + 1 if kk.size else 0
@@ -158,10 +164,11 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
     A[:, 2, 1] = -K / mu
     A[:, 2, 2] = -d / mu - B_m * I_link / (J * J_m) - bl * J_m / (I_link * J)
     su = Kc - Kc_eff                     # s u, the external torque (on the motor)
-    b = np.stack([-Kc_eff / J, np.zeros(n), su / J_m + Kc / I_link], axis=1)
+    motor = side == "motor"
+    b = np.stack([-Kc_eff / J, np.zeros(n), (su - Kc) / J_m if motor else su / J_m + Kc / I_link], axis=1)
     lam, V = np.linalg.eig(A)
     v_inf = -np.linalg.solve(A, b[..., None])[..., 0]
-    v0 = np.stack([w, (I_link * a0 + Kc + bl * w) / K, np.zeros(n)], axis=1)
+    v0 = np.stack([w, (I_link * a0 + (0.0 if motor else Kc) + bl * w) / K, np.zeros(n)], axis=1)
     c = np.linalg.solve(V, (v0 - v_inf).astype(complex)[..., None])[..., 0]   # (n, 3)
     lam_s = np.where(np.abs(lam) > 0, lam, 1.0)
 
@@ -186,7 +193,7 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
     T = max(float(np.max(tau)), 1e-9)
     g = np.linspace(0.0, T, n_grid)[None, :] * np.ones((n, 1))
     Xdg, ddg = state(g, np.arange(n), speeds_only=True)
-    qd = Xdg - (J_m / J)[:, None] * ddg
+    qd = Xdg + (I_link / J)[:, None] * ddg if motor else Xdg - (J_m / J)[:, None] * ddg
     neg = qd <= 0
     first = np.where(neg.any(axis=1), np.argmax(neg, axis=1), -1)
     i1 = np.maximum(first, 1)
@@ -200,6 +207,8 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
     X, dl, dd = X[:, 0], dl[:, 0], dd[:, 0]
     r = I_link[kk] / J[kk]
     m = X + r * (dl - v0[kk, 1])
+    if motor:   # the motor sticks: the encoder holds the angle it stopped at
+        return m, ts
     # after the stop: the link holds, the motor settles on it
     om = np.sqrt(K / J_m)[kk]
     zm = ((B_m + d) / (2.0 * np.sqrt(K * J_m)))[kk]
@@ -459,11 +468,13 @@ class AngleCoastFit:
         start, sparse Jacobian). ``kv_fixed``: hold ``Kv`` at this value and fit ``Kc`` alone
         (its standard error is then conditional on ``Kv``; ``stderr["Kv"]`` is 0).
 
-        ``flexible``: True uses the declared stiffness (the deflection term of the model), False
-        treats the transmission as rigid, None (default, where a record declares one) fits the
-        rigid and the flexible models and keeps the one Schwarz's criterion prefers (the
-        flexible one has one parameter more, the internal damping ``d``): a declared nominal
-        stiffness may be far softer than the joint (then its deflection is not in the record).
+        ``flexible``: True uses the declared stiffness, False treats the transmission as
+        rigid, None (default, where a record declares one) fits both and keeps the flexible one
+        unless its residual ends above the rigid one's: the flexible model holds the rigid one
+        (a large internal damping ``d`` locks the spring, so a declared stiffness far softer
+        than the joint costs nothing but ``d``), and a Schwarz criterion kept the rigid model
+        on records whose deflection is a fraction of an encoder step, where it biases ``Kv`` by
+        3-4 standard errors (an overdamped transmission).
         ``stick``: the side whose Coulomb friction holds the joint at the stop, ``"motor"`` or
         ``"link"``; None fits both (same parameters) and keeps the better. ``transmission``
         and ``stick`` in the result say which."""
@@ -476,13 +487,14 @@ class AngleCoastFit:
         with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
             if not declared or flexible is False:
                 return self._fit_records(rigid, starts, kv_fixed)
-            fits = [] if flexible else [self._fit_records(rigid, starts, kv_fixed)]
-            fits += [self._fit_records(recs, starts, kv_fixed, stick=sk) for sk in sticks]
-            # Schwarz's criterion: the flexible models have one more parameter (the damping)
-            n = fits[0].n_samples
-            bic = [n * np.log(max(f.rms, 1e-300) ** 2) + (np.log(n) if f.transmission == "flexible" else 0.0)
-                   for f in fits]
-            return fits[int(np.argmin(bic))]
+            flex = [self._fit_records(recs, starts, kv_fixed, stick=sk) for sk in sticks]
+            best = flex[int(np.argmin([f.rms for f in flex]))]
+            if flexible:
+                return best
+            # the flexible model holds the rigid one (d -> inf locks the spring): it is kept
+            # unless its fit ends worse than the rigid one's (a start that did not converge)
+            a = self._fit_records(rigid, starts, kv_fixed)
+            return best if best.rms <= a.rms * (1.0 + 1e-6) else a
 
     def _fit_records(self, records, starts, kv_fixed=None, stick: str = "motor") -> AngleCoastResult:
         if stick not in ("motor", "link"):
@@ -558,13 +570,11 @@ class AngleCoastFit:
             tp = tau_pre
             pre = p0[kk] + p1[kk] * tp + 0.5 * p2[kk] * tp * tp
             after = tp > tc_rel[kk]
-            if flexible and stick == "link":     # exact two-mass coast, the link sticks
+            if flexible:     # exact two-mass coast, the link or the motor sticks
                 x_c, _ = two_mass_coast(tp - tc_rel[kk], Jk, Il, Jmot, Kst, Bm, x[-1], Kc, Kv, kce, w,
-                                        sgn * p2, kk=kk)
+                                        sgn * p2, kk=kk, side=stick)
             else:
                 x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
-            if flexible and stick == "motor":
-                x_c = x_c + deflection(tp - tc_rel[kk], Kv, kce, w, sgn * p2, x[-1])
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
 
