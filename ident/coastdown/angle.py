@@ -470,7 +470,9 @@ class AngleCoastFit:
 
         ``flexible``: True uses the declared stiffness, False treats the transmission as
         rigid, None (default, where a record declares one) fits both and keeps the flexible one
-        unless its residual ends above the rigid one's: the flexible model holds the rigid one
+        unless its residual ends above the rigid one's, or the friction torque's deflection
+        ``(Kc + Kv v_max) / K`` of the rigid fit is under 0.2 of the angle noise (a stiff
+        spring: the rigid fit is kept, no flexible one is tried). The flexible model holds the rigid one
         (a large internal damping ``d`` locks the spring, so a declared stiffness far softer
         than the joint costs nothing but ``d``), and a Schwarz criterion kept the rigid model
         on records whose deflection is a fraction of an encoder step, where it biases ``Kv`` by
@@ -487,13 +489,20 @@ class AngleCoastFit:
         with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
             if not declared or flexible is False:
                 return self._fit_records(rigid, starts, kv_fixed)
+            if not flexible:
+                a = self._fit_records(rigid, starts, kv_fixed)
+                # the friction torque's deflection, (Kc + Kv v) / K, under a fifth of the angle
+                # noise: the spring is invisible (the flexible model would only fit d)
+                v_top = max(abs(c["v_cut"]) for c in a.coasts)
+                k_min = min(r[4].stiffness for r in recs if r[4] is not None)
+                if (a.Kc + a.Kv * v_top) / k_min < 0.2 * a.sigma_q:
+                    return a
             flex = [self._fit_records(recs, starts, kv_fixed, stick=sk) for sk in sticks]
             best = flex[int(np.argmin([f.rms for f in flex]))]
             if flexible:
                 return best
             # the flexible model holds the rigid one (d -> inf locks the spring): it is kept
             # unless its fit ends worse than the rigid one's (a start that did not converge)
-            a = self._fit_records(rigid, starts, kv_fixed)
             return best if best.rms <= a.rms * (1.0 + 1e-6) else a
 
     def _fit_records(self, records, starts, kv_fixed=None, stick: str = "motor") -> AngleCoastResult:
