@@ -35,8 +35,10 @@ URDF = """<?xml version="1.0"?>
 """
 
 
-def draw_joint(rng: np.random.Generator, stiffness_scale: float = 1.0) -> dict:
-    """Random joint constants (SI, link side); ``stiffness_scale`` multiplies the spring."""
+def draw_joint(rng: np.random.Generator, stiffness_scale: float = 1.0, damping_ratio=None) -> dict:
+    """Random joint constants (SI, link side); ``stiffness_scale`` multiplies the spring;
+    ``damping_ratio`` (optional) replaces the drawn 0.05-0.15 of the two-mass mode (e.g. 3:
+    an overdamped transmission, whose deflection relaxes instead of ringing)."""
     m, r = rng.uniform(2.0, 8.0), rng.uniform(0.1, 0.3)
     izz = rng.uniform(0.01, 0.05)
     I = izz + m * r * r
@@ -46,6 +48,8 @@ def draw_joint(rng: np.random.Generator, stiffness_scale: float = 1.0) -> dict:
     tmax = 4.0 * (Fc + (B + b_link) * 2.0)
     k = stiffness_scale * tmax / np.radians(rng.uniform(0.06, 0.10))   # 0.06-0.1 deg at max torque
     zeta = rng.uniform(0.05, 0.15)
+    if damping_ratio is not None:
+        zeta = float(damping_ratio)
     mu = I * Jm / (I + Jm)
     return {"m": m, "r": r, "izz": izz, "I": I, "Jm": Jm, "Fc": Fc, "B": B, "b_link": b_link,
             "k": k, "d": 2.0 * zeta * np.sqrt(k * mu), "vmax": 2.0, "tmax": tmax,
@@ -144,11 +148,12 @@ def _write_trc(path: Path, t, q_link, r: float) -> None:
 
 
 def write_campaign(root: Path, seed: int, f_log: float = 500.0, f_ctrl: float = 1000.0,
-                   speed_fracs=(0.3, 0.6, 1.0), trials: int = 1, stiffness_scale: float = 1.0) -> dict:
+                   speed_fracs=(0.3, 0.6, 1.0), trials: int = 1, stiffness_scale: float = 1.0,
+                   damping_ratio=None) -> dict:
     """A robot-only FORMAT v1 campaign with ``trials`` coast-down trials of joint 1 (each with
     a coast at every speed fraction, both directions); returns the truth."""
     rng = np.random.default_rng([seed, 424242])
-    p = draw_joint(rng, stiffness_scale)
+    p = draw_joint(rng, stiffness_scale, damping_ratio)
     root = Path(root)
     (root / "robot").mkdir(parents=True)
     (root / "trials").mkdir()

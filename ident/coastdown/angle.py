@@ -27,13 +27,24 @@ for a controller that keeps one) minus the URDF gravity torque. It is measured (
 coast and the first rest samples, standard error from their scatter) and enters the fit as a
 parameter with that prior, so its uncertainty reaches the standard error of ``Kc``.
 
-A flexible transmission (the drive's declared nominal ``stiffness`` K, FORMAT.md): the
-coast moves the centre of inertia; the motor encoder sees in addition ``I_link / J`` of the
-deflection's change, quasi-static ``(I_link (a - a0) + b_link (w - w0)) / K`` (``a`` the
-deceleration, ``b_link = Kv - motor_viscous``), about which the spring rings from the cut on at
-the two-mass frequency with a fitted damping ratio (:meth:`AngleCoastFit.fit_records`). The
-fit keeps the rigid or the flexible model by Schwarz's criterion (a declared stiffness may be
-far below the joint's).
+A flexible transmission (the drive's declared nominal ``stiffness`` K, FORMAT.md; link
+inertia from the URDF, motor inertia and viscous from the drive; the internal damping ``d``
+fitted, so the spring may ring or be overdamped): the encoder is on the motor, and what it
+shows at the stop depends on the side whose Coulomb friction holds the joint.
+
+- Link side (``stick = "link"``, :func:`two_mass_coast`): the coast is the exact solution of
+  the linear two-mass dynamics with a constant Coulomb torque from the quasi-static deflection
+  before the cut (modal, 3 x 3 per coast, complex or real roots); the link stops where its
+  speed is 0 and sticks, and the motor then settles on it (the deflection relaxes to the
+  external torque's), moving back by about ``(J_m / J) Kc' / K``.
+- Motor side (``stick = "motor"``): the coast moves the centre of inertia; the encoder sees in
+  addition ``I_link / J`` of the deflection's change, quasi-static ``(I_link (a - a0) +
+  b_link (w - w0)) / K`` (``a`` the deceleration, ``b_link = Kv - motor_viscous``), reached
+  from the cut along the two-mass mode (:func:`free_response`); the motor sticks at the stop.
+
+With a declared stiffness the fit keeps the flexible model (of the two sides, the one with
+the smaller residual; they have the same parameters) unless the rigid one fits better
+(:meth:`AngleCoastFit.fit_records`).
 
 All coasts of a record share ``Kc`` and ``Kv`` (the total viscous coefficient, link and motor
 side); each has its own ``(q, v, a)`` before the cut, its cut instant and its ``u``. The fit
@@ -53,6 +64,7 @@ from scipy.optimize import least_squares
 from mocap.io.errors import InputError
 
 __all__ = ["Flex", "CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
+           "free_response", "two_mass_coast",
            "interval_velocity"]
 
 
@@ -76,6 +88,135 @@ def _log1p_over(y):
     small = np.abs(y) < 1e-6
     ys = np.where(small, 1.0, y)
     return np.where(small, 1.0 - y / 2.0 + y * y / 3.0, np.log1p(ys) / ys)
+
+
+def free_response(tau, omega, zeta):
+    """Free response ``x(tau)`` of ``x'' + 2 zeta omega x' + omega^2 x = 0`` from ``x(0) = 1``,
+    ``x'(0) = 0`` (0 for ``tau < 0``), exact in every regime: ``exp(-zeta omega tau) (cosh(b tau) +
+    zeta omega sinh(b tau) / b)`` with ``b = omega sqrt(zeta^2 - 1)`` (imaginary when
+    underdamped: the ringing; real when overdamped: two exponential relaxations; the limit
+    ``b -> 0`` at critical damping). Written with exponents <= 0 (no overflow). Broadcasts."""
+    tau = np.asarray(tau, float)
+    tt = np.maximum(tau, 0.0)
+    sg = zeta * omega
+    b = omega * np.sqrt((np.asarray(zeta, float) ** 2 - 1.0).astype(complex))
+    ep = np.exp((b - sg) * tt)
+    em = np.exp((-b - sg) * tt)
+    bt = np.abs(b) * tt
+    small = bt < 1e-6
+    bs = np.where(np.abs(b) > 0, b, 1.0)
+    sinh_b = np.where(small, tt * np.exp(-sg * tt), (ep - em) / (2.0 * bs))
+    x = np.real(0.5 * (ep + em) + sg * sinh_b)
+    return np.where(tau < 0, 1.0, x)
+
+
+def _free_response_v(tau, omega, zeta):
+    """Free response of ``x'' + 2 zeta omega x' + omega^2 x = 0`` from ``x(0) = 0``,
+    ``x'(0) = 1``: ``exp(-zeta omega tau) sinh(b tau) / b`` (see :func:`free_response`)."""
+    tt = np.maximum(np.asarray(tau, float), 0.0)
+    sg = zeta * omega
+    b = omega * np.sqrt((np.asarray(zeta, float) ** 2 - 1.0).astype(complex))
+    ep = np.exp((b - sg) * tt)
+    em = np.exp((-b - sg) * tt)
+    small = np.abs(b) * tt < 1e-6
+    bs = np.where(np.abs(b) > 0, b, 1.0)
+    return np.real(np.where(small, tt * np.exp(-sg * tt), (ep - em) / (2.0 * bs)))
+
+
+def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=None, n_grid: int = 256,
+                   side: str = "link"):
+    """Motor-angle displacement along the coast (rad) of a flexible joint whose Coulomb
+    friction acts on the LINK, at times ``tau`` (n,) after the cut of coast ``kk`` (n,) (the
+    per-coast arguments are (K,) arrays, or scalars; ``kk`` None: one coast per sample, all
+    arrays (n,)). Exact for the linear two-mass dynamics with a
+    constant Coulomb torque while the link moves (direction coordinates, external torque on
+    the motor, ``Kc_eff = Kc - s u``)::
+
+        I q''   = K delta + d delta' - Kc - b_l q'           (b_l = Kv - B_m)
+        J_m m'' = s u - B_m m' - K delta - d delta'          (delta = m - q)
+
+    in the centre of inertia ``X`` and the deflection: ``v = (X', delta, delta')`` obeys
+    ``v' = A v + b`` (3 x 3, eigen-decomposition per coast, complex roots where the spring
+    rings, real where it is overdamped), from the quasi-static state before the cut (``K
+    delta0 = I a0 + Kc + b_l w``, ``delta0' = 0``, ``X' = w``). The link stops at the first
+    zero of ``q' = X' - (J_m / J) delta'`` (grid of ``n_grid`` points over ``[0, tau.max()]``,
+    linear interpolation); then it sticks and the motor settles on it (``J_m delta'' + (B_m +
+    d) delta' + K delta = s u`` from the deflection and speed at the stop). Returns ``(m,
+    tau_stop)`` with ``m(0) = 0`` and ``tau_stop`` (n,) (inf where the link does not stop).
+
+    ``side = "motor"``: the Coulomb friction acts on the motor instead (``J_m m'' = s u - Kc -
+    ..``, ``K delta0 = I a0 + b_l w``); the coast ends where the MOTOR's speed ``X' + (I_link /
+    J) delta'`` is 0, and the motor sticks (the encoder holds its angle; the link may still
+    move on the spring)."""
+    tau = np.asarray(tau, float)
+    kk = np.arange(tau.size) if kk is None else np.asarray(kk)
+    n = int(kk.max()) + 1 if kk.size else 0
+    J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0 = (
+        np.broadcast_to(np.asarray(x, float), (n,)) for x in (J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0))
+    bl = np.maximum(Kv - B_m, 0.0)
+    mu = I_link * J_m / J
+    Kv_e = np.maximum(Kv, 1e-6 * J)      # keeps A invertible at Kv = 0 (1e-6 of J per second)
+    A = np.zeros((n, 3, 3))
+    A[:, 0, 0] = -Kv_e / J
+    A[:, 0, 2] = -(B_m * I_link - bl * J_m) / (J * J)
+    A[:, 1, 2] = 1.0
+    A[:, 2, 0] = -B_m / J_m + bl / I_link
+    A[:, 2, 1] = -K / mu
+    A[:, 2, 2] = -d / mu - B_m * I_link / (J * J_m) - bl * J_m / (I_link * J)
+    su = Kc - Kc_eff                     # s u, the external torque (on the motor)
+    motor = side == "motor"
+    b = np.stack([-Kc_eff / J, np.zeros(n), (su - Kc) / J_m if motor else su / J_m + Kc / I_link], axis=1)
+    lam, V = np.linalg.eig(A)
+    v_inf = -np.linalg.solve(A, b[..., None])[..., 0]
+    v0 = np.stack([w, (I_link * a0 + (0.0 if motor else Kc) + bl * w) / K, np.zeros(n)], axis=1)
+    c = np.linalg.solve(V, (v0 - v_inf).astype(complex)[..., None])[..., 0]   # (n, 3)
+    lam_s = np.where(np.abs(lam) > 0, lam, 1.0)
+
+    cvs = V * c[:, None, :]                                             # (K, 3 comp, 3 modes)
+
+    def state(tt, ix, speeds_only=False):
+        """(X - X0, delta, delta') of coasts ix (r,) at times tt (r, m); (X', delta') with
+        ``speeds_only``."""
+        la = lam[ix][:, None, :]
+        e = np.exp(la * tt[..., None])                                  # (r, m, 3)
+        cv = cvs[ix][:, None, :, :]                                     # (r, 1, 3 comp, 3 modes)
+        vi = v_inf[ix]
+        dd = vi[:, 2, None] + np.real(np.sum(cv[..., 2, :] * e, axis=-1))
+        if speeds_only:
+            return vi[:, 0, None] + np.real(np.sum(cv[..., 0, :] * e, axis=-1)), dd
+        ie = np.where(np.abs(la) > 0, np.expm1(la * tt[..., None]) / lam_s[ix][:, None, :], tt[..., None])
+        X = vi[:, 0, None] * tt + np.real(np.sum(cv[..., 0, :] * ie, axis=-1))
+        dl = vi[:, 1, None] + np.real(np.sum(cv[..., 1, :] * e, axis=-1))
+        return X, dl, dd
+
+    # the link's stop: first zero of q' on a grid per coast (the same grid for all rows)
+    T = max(float(np.max(tau)), 1e-9)
+    g = np.linspace(0.0, T, n_grid)[None, :] * np.ones((n, 1))
+    Xdg, ddg = state(g, np.arange(n), speeds_only=True)
+    qd = Xdg + (I_link / J)[:, None] * ddg if motor else Xdg - (J_m / J)[:, None] * ddg
+    neg = qd <= 0
+    first = np.where(neg.any(axis=1), np.argmax(neg, axis=1), -1)
+    i1 = np.maximum(first, 1)
+    q0, q1 = qd[np.arange(n), i1 - 1], qd[np.arange(n), i1]
+    t0, t1 = g[np.arange(n), i1 - 1], g[np.arange(n), i1]
+    ts = np.where(first > 0, t0 + (t1 - t0) * q0 / np.where(q0 - q1 > 0, q0 - q1, 1.0), np.inf)
+    ts = np.where(first == 0, 0.0, ts)
+    tsk = ts[kk]
+    tt = np.clip(tau, 0.0, tsk)
+    X, dl, dd = state(tt[:, None], kk)
+    X, dl, dd = X[:, 0], dl[:, 0], dd[:, 0]
+    r = I_link[kk] / J[kk]
+    m = X + r * (dl - v0[kk, 1])
+    if motor:   # the motor sticks: the encoder holds the angle it stopped at
+        return m, ts
+    # after the stop: the link holds, the motor settles on it
+    om = np.sqrt(K / J_m)[kk]
+    zm = ((B_m + d) / (2.0 * np.sqrt(K * J_m)))[kk]
+    after = np.maximum(tau - tsk, 0.0)
+    d_inf = (su / K)[kk]
+    dl_after = d_inf + (dl - d_inf) * free_response(after, om, zm) + dd * _free_response_v(after, om, zm)
+    m_after = X - (J_m[kk] / J[kk]) * dl + dl_after - r * v0[kk, 1]
+    return np.where(tau > tsk, m_after, m), ts
 
 
 def coast_stop(J, Kv, Kc_eff, w):
@@ -282,13 +423,14 @@ class AngleCoastResult:
     notes: tuple = ()
     x: np.ndarray = field(repr=False, default=None)     # all fitted parameters (restarts)
     transmission: str = "rigid"     # or "flexible": the declared stiffness's deflection modelled
+    stick: str = ""                 # flexible: the side that sticks at the stop ("motor" or "link")
 
     def to_dict(self) -> dict:
         return {"Kc": self.Kc, "Kv": self.Kv, "J": self.J, "stderr": dict(self.stderr),
                 "corr_Kc_Kv": self.corr, "separable": self.separable, "sigma_q": self.sigma_q,
                 "rms": self.rms, "n_samples": self.n_samples, "converged": self.converged,
                 "coasts": [dict(c) for c in self.coasts], "notes": list(self.notes),
-                "transmission": self.transmission}
+                "transmission": self.transmission, "stick": self.stick}
 
 
 class AngleCoastFit:
@@ -317,7 +459,7 @@ class AngleCoastFit:
         return self.fit_records([(t, qm, windows, J)])
 
     def fit_records(self, records, starts=None, kv_fixed: float | None = None,
-                    flexible: bool | None = None) -> AngleCoastResult:
+                    flexible: bool | None = None, stick: str | None = None) -> AngleCoastResult:
         """Fit shared ``Kc``, ``Kv`` to the coasts of several records ``[(t, qm, windows, J),
         ...]`` or ``[(t, qm, windows, J, flex), ...]`` (e.g. every coast-down trial of one
         joint; ``J`` may differ per record; ``flex`` a :class:`Flex` or None for a rigid
@@ -326,31 +468,46 @@ class AngleCoastFit:
         start, sparse Jacobian). ``kv_fixed``: hold ``Kv`` at this value and fit ``Kc`` alone
         (its standard error is then conditional on ``Kv``; ``stderr["Kv"]`` is 0).
 
-        ``flexible``: True uses the declared stiffness (the deflection term of the model), False
-        treats the transmission as rigid, None (default, where a record declares one) fits both
-        and keeps the one Schwarz's criterion prefers (the flexible one has one parameter more,
-        the spring's damping ratio): a declared nominal stiffness may be
-        far softer than the joint (then its deflection is not in the record), and the two
-        models have the same parameters. ``transmission`` in the result says which."""
+        ``flexible``: True uses the declared stiffness, False treats the transmission as
+        rigid, None (default, where a record declares one) fits both and keeps the flexible one
+        unless its residual ends above the rigid one's, or the friction torque's deflection
+        ``(Kc + Kv v_max) / K`` of the rigid fit is under 0.2 of the angle noise (a stiff
+        spring: the rigid fit is kept, no flexible one is tried). The flexible model holds the rigid one
+        (a large internal damping ``d`` locks the spring, so a declared stiffness far softer
+        than the joint costs nothing but ``d``), and a Schwarz criterion kept the rigid model
+        on records whose deflection is a fraction of an encoder step, where it biases ``Kv`` by
+        3-4 standard errors (an overdamped transmission).
+        ``stick``: the side whose Coulomb friction holds the joint at the stop, ``"motor"`` or
+        ``"link"``; None fits both (same parameters) and keeps the better. ``transmission``
+        and ``stick`` in the result say which."""
         from ident.signals.smoothing import one_blas_thread
 
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
         rigid = [r[:4] + (None,) for r in recs]
         declared = any(r[4] is not None for r in recs)
+        sticks = ("motor", "link") if stick is None else (stick,)
         with one_blas_thread():   # small dense solves: one BLAS thread is several times faster
             if not declared or flexible is False:
                 return self._fit_records(rigid, starts, kv_fixed)
+            if not flexible:
+                a = self._fit_records(rigid, starts, kv_fixed)
+                # the friction torque's deflection, (Kc + Kv v) / K, under a fifth of the angle
+                # noise: the spring is invisible (the flexible model would only fit d)
+                v_top = max(abs(c["v_cut"]) for c in a.coasts)
+                k_min = min(r[4].stiffness for r in recs if r[4] is not None)
+                if (a.Kc + a.Kv * v_top) / k_min < 0.2 * a.sigma_q:
+                    return a
+            flex = [self._fit_records(recs, starts, kv_fixed, stick=sk) for sk in sticks]
+            best = flex[int(np.argmin([f.rms for f in flex]))]
             if flexible:
-                return self._fit_records(recs, starts, kv_fixed)
-            a = self._fit_records(rigid, starts, kv_fixed)
-            b = self._fit_records(recs, starts, kv_fixed)
-            # Schwarz's criterion: the flexible model has one more parameter (the damping)
-            n = a.n_samples
-            bic_a = n * np.log(max(a.rms, 1e-300) ** 2)
-            bic_b = n * np.log(max(b.rms, 1e-300) ** 2) + np.log(n)
-            return b if bic_b < bic_a else a
+                return best
+            # the flexible model holds the rigid one (d -> inf locks the spring): it is kept
+            # unless its fit ends worse than the rigid one's (a start that did not converge)
+            return best if best.rms <= a.rms * (1.0 + 1e-6) else a
 
-    def _fit_records(self, records, starts, kv_fixed=None) -> AngleCoastResult:
+    def _fit_records(self, records, starts, kv_fixed=None, stick: str = "motor") -> AngleCoastResult:
+        if stick not in ("motor", "link"):
+            raise ValueError(f"stick must be 'motor' or 'link', not {stick!r}")
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
         parts = [(np.asarray(t, float), np.asarray(q, float), w, float(J), fx)
                  for t, q, ws, J, fx in recs for w in ws]
@@ -370,8 +527,13 @@ class AngleCoastFit:
         Bm = np.array([0.0 if p[4] is None else p[4].motor_viscous for p in parts])
         flexible = bool(np.any(cK > 0))
         Jmot = np.array([1.0 if p[4] is None else max(p[4].motor_inertia, 1e-12) for p in parts])
-        wn = np.sqrt(np.where(cK > 0, 1.0 / np.where(cK > 0, cK, 1.0), 0.0)
-                     * (1.0 / np.maximum(Il, 1e-12) + 1.0 / Jmot))
+        Kst = np.where(cK > 0, 1.0 / np.where(cK > 0, cK, 1.0), 0.0)
+        # the two-mass mode (both moving): reduced inertia mu = I_link J_m / J
+        mu = np.maximum(Il, 1e-12) * Jmot / (np.maximum(Il, 1e-12) + Jmot)
+        wn = np.sqrt(Kst / mu)
+        # the motor on the stuck link (link-side Coulomb friction holds the link at the stop)
+        wm = np.sqrt(Kst / Jmot)
+        d_scale = float(np.median(2.0 * np.sqrt(np.maximum(Kst * mu, 1e-12)))) if flexible else 1.0
         t_r = np.array([p[0][w.on] for p, w in zip(parts, windows)])
         h = np.array([p[0][w.on + 1] - p[0][w.on] for p, w in zip(parts, windows)])
         sgn = np.array([w.direction for w in windows], float)
@@ -417,25 +579,34 @@ class AngleCoastFit:
             tp = tau_pre
             pre = p0[kk] + p1[kk] * tp + 0.5 * p2[kk] * tp * tp
             after = tp > tc_rel[kk]
-            x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
-            if flexible:
-                x_c = x_c + deflection(tp - tc_rel[kk], Kv, kce, w, sgn * p2, x[-1])
+            if flexible:     # exact two-mass coast, the link or the motor sticks
+                x_c, _ = two_mass_coast(tp - tc_rel[kk], Jk, Il, Jmot, Kst, Bm, x[-1], Kc, Kv, kce, w,
+                                        sgn * p2, kk=kk, side=stick)
+            else:
+                x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
 
-        def deflection(tau, Kv, kce, w, a0, zeta):
+        def deflection(tau, Kv, kce, w, a0, d):
             """What the motor encoder sees of the transmission's deflection change since the
-            cut (quasi-static spring). The coast model moves the centre of inertia
-            ``X = (I_link q + J_m q_m) / J``; the motor angle is ``q_m = X + (I_link / J) delta``
-            with the deflection ``K delta = I_link a + b_link w - g`` (link equation), so it
-            adds ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) / K`` with ``a = -(Kc' + Kv
-            w) / J`` the coast's deceleration, ``a0`` the acceleration before the cut and
-            ``b_link = Kv - motor_viscous`` the link-side share of the viscous friction; frozen
-            at the stop (the motor sticks). At the cut the deflection cannot jump: it
-            oscillates about that quasi-static value from where it was, at the two-mass
-            frequency ``w_n = sqrt(K (1/I_link + 1/J_m))`` with damping ratio ``zeta`` (fitted,
-            shared), ``e(tau) = -D(0+) exp(-zeta w_n tau) (cos w_d tau + zeta w_n / w_d sin
-            w_d tau)``."""
+            cut. The coast model moves the centre of inertia ``X = (I_link q + J_m q_m) / J``;
+            the motor angle is ``q_m = X + (I_link / J) delta`` while both move. The deflection's
+            quasi-static value follows the link equation ``K delta = I_link a + b_link w + ..``,
+            so the encoder sees in addition ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) /
+            K`` with ``a = -(Kc' + Kv w) / J`` the coast's deceleration, ``a0`` the acceleration
+            before the cut and ``b_link = Kv - motor_viscous``. The deflection cannot jump at the
+            cut: it moves from where it was to that value along the two-mass mode ``mu delta'' + d
+            delta' + K delta`` (``mu = I_link J_m / J``, internal damping ``d`` fitted, shared):
+            :func:`free_response`, which rings when underdamped and relaxes along two
+            exponentials when overdamped.
+
+            At the stop: with the Coulomb friction on the motor side (``stick = "motor"``) the
+            motor sticks and the encoder holds its angle. With it on the link side (``stick =
+            "link"``) the link sticks and the motor, pushed by the spring, settles on the held
+            link: ``J_m delta'' + (motor_viscous + d) delta' + K delta = u`` from the deflection
+            at the stop, ``K delta_s = I_link a_s + s Kc`` with ``a_s = -s Kc' / J``, to
+            ``delta = u / K``, i.e. the encoder moves back by ``(J_m / J) Kc' / K`` along the
+            coast (:func:`free_response` of the motor-on-link mode, any damping)."""
             tau_s = coast_stop(Jk, Kv, kce, w)[kk]
             tt = np.clip(tau, 0.0, tau_s)
             ws = coast_speed(tt, Jkk, Kv, kce[kk], w[kk])
@@ -444,9 +615,15 @@ class AngleCoastFit:
             bl = np.maximum(Kv - Bm[kk], 0.0)
             D = cK[kk] * Il[kk] / Jkk * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
             D0 = cK * Il / Jk * (Il * (-(kce + Kv * w) / Jk - a0) + 0.0)
-            wd = wn * np.sqrt(1.0 - zeta * zeta)
-            e = np.exp(-zeta * wn[kk] * tt) * (np.cos(wd[kk] * tt) + zeta * wn[kk] / wd[kk] * np.sin(wd[kk] * tt))
-            return D - D0[kk] * e
+            zc = d / (2.0 * np.sqrt(np.maximum(Kst * mu, 1e-300)))
+            e = free_response(tt, wn[kk], zc[kk])
+            out = D - D0[kk] * e
+            if stick == "link":
+                zm = (Bm + d) / (2.0 * np.sqrt(np.maximum(Kst * Jmot, 1e-300)))
+                R = -Jmot / Jk * cK * kce
+                after = tau - tau_s
+                out = out + np.where(after > 0, R[kk] * (1.0 - free_response(after, wm[kk], zm[kk])), 0.0)
+            return out
 
         def resid(xr, sig_q):
             x = full(xr)
@@ -455,16 +632,17 @@ class AngleCoastFit:
             r_u = (x[2: 2 + 5 * K].reshape(K, 5)[:, 4] - u_bar) / u_se
             return np.concatenate([r_q, r_u])
 
-        nz = int(flexible)     # the spring's damping ratio, last parameter, where flexible
+        nz = int(flexible)     # the transmission's internal damping d, last parameter, where flexible
+        d0 = d_scale * (1.0 if stick == "link" else 0.1)   # start: mode damping ratio 0.5 / 0.05
         lb = np.concatenate([[0.0, 0.0], np.tile([-np.inf, -np.inf, -np.inf, self.cut_lead, -np.inf], K), [0.0] * nz])
         # the cut lies near the last drive-on sample: up to one interval before it (a torque
         # logged as an interval mean or with a lag), up to 1.5 after (an amplifier's current
         # lag can carry the torque a little past the first sample that logs the cut)
-        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K), [0.9] * nz])
+        ub = np.concatenate([[np.inf, np.inf], np.tile([np.inf, np.inf, np.inf, 1.5, np.inf], K), [np.inf] * nz])
         base = np.column_stack([p_init, np.full(K, 0.5), u_bar]).ravel()
         scale = np.concatenate([[kc0, kc0 / max(vbar, 1e-6)],
                                 np.tile([max(self.resolution, 1e-6), max(vbar, 1e-3), 1.0, 1.0, 1.0], K),
-                                [0.1] * nz])
+                                [d_scale] * nz])
         scale[6::5] = np.maximum(u_se * 3, 1e-6)
         sig_q = max(sig_floor, 1e-9)
         opts = dict(bounds=(lb, ub), x_scale=scale, method="trf", max_nfev=self.max_nfev,
@@ -484,10 +662,10 @@ class AngleCoastFit:
             xs = [np.asarray(r.x, float) for r in starts]
             x0s = [np.concatenate([[np.median([x[0] for x in xs]), np.median([x[1] for x in xs])]]
                                   + [x[2: 2 + 5 * K0] for x, K0 in zip(xs, (len(r.coasts) for r in starts))]
-                                  + [[np.median([x[-1] if r.transmission == "flexible" else 0.1
+                                  + [[np.median([x[-1] if r.transmission == "flexible" else d0
                                                  for x, r in zip(xs, starts)])]] * nz)]
         else:
-            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base, [0.1] * nz])
+            x0s = [np.concatenate([[kc0, ks * kc0 / max(vbar, 1e-6)], base, [d0] * nz])
                    for ks in self.kv_starts]
         keep = np.ones(2 + 5 * K + nz, bool)
         if fixed:   # Kv held: drop its column
@@ -552,4 +730,5 @@ class AngleCoastFit:
                                 rms=float(np.sqrt(np.mean(r_ang ** 2))), n_samples=int(n_ang),
                                 converged=bool(best.success), coasts=tuple(coasts),
                                 cov=cov[:2, :2].copy(), notes=tuple(notes), x=x.copy(),
-                                transmission="flexible" if flexible else "rigid")
+                                transmission="flexible" if flexible else "rigid",
+                                stick=stick if flexible else "")

@@ -309,9 +309,10 @@ def _with_pooled_kv(r: TrialCoastdown, pooled: AngleCoastResult | None, s: Coast
     kv, se_kv = pooled.Kv, pooled.stderr["Kv"]
     try:
         flx = r.ml.transmission == "flexible"
-        mid = fit.fit_records(rec, kv_fixed=kv, flexible=flx)
-        hi = fit.fit_records(rec, kv_fixed=kv + se_kv, flexible=flx)
-        lo = fit.fit_records(rec, kv_fixed=max(kv - se_kv, 0.0), flexible=flx)
+        sk = (r.ml.stick or None) if flx else None
+        mid = fit.fit_records(rec, kv_fixed=kv, flexible=flx, stick=sk)
+        hi = fit.fit_records(rec, kv_fixed=kv + se_kv, flexible=flx, stick=sk)
+        lo = fit.fit_records(rec, kv_fixed=max(kv - se_kv, 0.0), flexible=flx, stick=sk)
     except (InputError, ValueError, np.linalg.LinAlgError):
         return r
     slope = (hi.Kc - lo.Kc) / max(hi.Kv - lo.Kv, 1e-300)
