@@ -9,7 +9,7 @@ without 0.1 s of samples lost at each cut; cropped by a few seconds at the start
 
 * the real Staubli TX40 record (``fixtures/real/tx40``, 9 s, six joints moving together);
 * a 7-joint record of ``fixtures/arm7`` made with pinocchio (30 s), without a withheld effect,
-  with a Lorentzian Stribeck drop on joint 2, and with a hyperbolic presliding deficit on
+  with a squared-secant Stribeck drop on joint 2, and with a hyperbolic presliding deficit on
   joint 2 (forms written in ``tests/segmentation_world.py``, not taken from the candidates).
 
 Prints, per record, a table joint x segmentation: verdict (``*``: insufficient data), held-out
@@ -75,7 +75,7 @@ def main(argv=None) -> int:
         tmp = Path(tmp)
         runs = [("TX40 (real, fixtures/real/tx40)", TX40, range(1, 7))]
         for label, kw in (("arm7, no withheld effect", dict(effect_joint=None)),
-                          ("arm7, Lorentzian Stribeck on joint 2", dict(effect_joint=2, effect="stribeck")),
+                          ("arm7, squared-secant Stribeck on joint 2", dict(effect_joint=2, effect="stribeck")),
                           ("arm7, hyperbolic presliding on joint 2",
                            dict(effect_joint=2, effect="presliding"))):
             src = tmp / label.split(",")[1].strip().split()[0] / "src"

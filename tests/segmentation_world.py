@@ -5,7 +5,8 @@ record does not change between any two reasonable segmentations").
   (``fixtures/arm7/arm7.urdf``) in which all joints move together: rigid-body torques from
   pinocchio's own ``rnea`` (per sample; no code shared with jointlab), Coulomb + viscous + offset
   per joint, and optionally, on one joint, a withheld effect written here in a form of its own:
-  ``stribeck``, a friction drop at low speed of Lorentzian shape ``Fs sgn(v) / (1 + (v / vs)^2)``,
+  ``stribeck``, a friction drop at low speed of squared-secant shape ``Fs sgn(v) / cosh(v / vs)^2`` (outside
+  the diagnosis's exponential and rational Stribeck families),
   or ``presliding``, a friction deficit after each velocity reversal that recovers
   hyperbolically with the displacement ``s`` since the reversal, ``-Fs sgn(v) s0 / (s0 + s)``;
   torque noise and encoder quantisation.
@@ -54,7 +55,7 @@ def arm7_campaign(root: Path, duration: float = 30.0, rate: float = 250.0, effec
     tau += C_TRUE * np.sign(qd) + V_TRUE * qd + OFF_TRUE
     if effect_joint is not None and effect == "stribeck":
         v = qd[:, effect_joint - 1]
-        tau[:, effect_joint - 1] += fs * np.sign(v) / (1.0 + (v / vs) ** 2)
+        tau[:, effect_joint - 1] += fs * np.sign(v) / np.cosh(v / vs) ** 2
     elif effect_joint is not None and effect == "presliding":
         x, v = q[:, effect_joint - 1], qd[:, effect_joint - 1]
         turn = np.r_[True, np.sign(v[1:]) != np.sign(v[:-1])]
