@@ -163,9 +163,9 @@ def base_parameters(chain: ChainDynamics, lower=None, upper=None, n_states: int 
     (positions within ``lower``/``upper`` or +-pi, velocities and accelerations standard normal).
     One BLAS thread: the matrices are small (200 n rows), where threads only add overhead (and on
     a loaded 2-core machine made this step take seconds)."""
-    from threadpoolctl import threadpool_limits
+    from ident.signals.blas import one_blas_thread
 
-    with threadpool_limits(1, "blas"):
+    with one_blas_thread():
         return _base_parameters(chain, lower, upper, n_states, seed, tol)
 
 

@@ -174,9 +174,9 @@ class RigidBodyIdentifier:
 
     # ---- fit -------------------------------------------------------------------------------
     def fit(self, rec) -> RigidBodyFit:
-        from threadpoolctl import threadpool_limits
+        from ident.signals.blas import one_blas_thread
 
-        with threadpool_limits(1, "blas"):
+        with one_blas_thread():
             return self._fit(rec)
 
     def _prepared(self, rec):
