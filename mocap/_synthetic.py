@@ -19,15 +19,22 @@ from mocap.synth import MarkerSet, add_noise, marker_positions
 PA10_DIR = Path(__file__).resolve().parents[1] / "fixtures" / "robots" / "pa10"
 
 
-def pa10_robot(folder: str | Path):
+def pa10_robot(folder: str | Path, stiffness: bool = False):
     """The fixture PA10 (URDF and drives copied into ``folder``, which a campaign may use as its
-    ``robot/`` folder), loaded as a :class:`mocap.robot.Robot`."""
+    ``robot/`` folder), loaded as a :class:`mocap.robot.Robot`. These synthetic worlds are
+    kinematic (held joints do not give, logged torques are zero), so the drives declare no
+    ``stiffness`` (FORMAT.md: absent = rigid) unless ``stiffness``."""
+    import re
+
     from mocap.robot import Robot
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copy(PA10_DIR / "pa10.urdf", folder / "arm.urdf")
-    shutil.copy(PA10_DIR / "drives.toml", folder / "drives.toml")
+    text = (PA10_DIR / "drives.toml").read_text()
+    if not stiffness:
+        text = re.sub(r"(?m)^stiffness\s*=.*\n", "", text)
+    (folder / "drives.toml").write_text(text)
     return Robot.from_urdf(folder / "arm.urdf", folder / "drives.toml")
 
 

@@ -19,7 +19,7 @@ angle equals the encoder angle there (joint flexibility ignored, as in the thesi
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -327,6 +327,11 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
         log = campaign.read_log(st, robot)
         poses.append(read_static_pose(rec, log, labels, still_tol_rad,
                                       source=str(Path(st.markers).relative_to(campaign.root))))
+    # a braked joint's link gives under gravity at its declared stiffness (FORMAT.md): the
+    # references are placed at the link angles, as the trials' held joints are (solve.held_placement)
+    if (robot.stiffness > 0).any():
+        poses = [replace(p, q=p.q + robot.held_deflection(p.q)) if np.all(np.isfinite(p.q)) else p
+                 for p in poses]
     seen = np.array([p.n_frames for p in poses]).sum(axis=0)
     if (seen == 0).any():
         lb = labels[int(np.flatnonzero(seen == 0)[0])]

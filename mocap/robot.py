@@ -282,6 +282,30 @@ class Robot:
         out = np.atleast_2d(self.rnea(q, z, z))
         return out if out.shape[0] > 1 else out[0]
 
+    @property
+    def stiffness(self) -> np.ndarray:
+        """Declared transmission stiffness per joint (``drives.toml`` ``stiffness``, N m/rad,
+        FORMAT.md); 0 where none is declared (a rigid joint)."""
+        return np.array([float(d.extra.get("stiffness", 0.0) or 0.0) for d in self.drives])
+
+    def held_deflection(self, q, qd=None, qdd=None, moving=()) -> np.ndarray:
+        """Deflection ``q_link - q_motor = -tau / K`` of the joints *not* in ``moving`` (0-based)
+        at their declared stiffness (FORMAT.md: a braked joint's motor is held, its link gives
+        under the torque it carries: gravity and the coupling from the moving joints, by RNEA).
+        (T, n) or (n,); zeros for moving joints and joints without a declared stiffness."""
+        k = self.stiffness
+        single = np.ndim(q) == 1
+        q = np.atleast_2d(np.asarray(q, float))
+        held = (k > 0) & ~np.isin(np.arange(self.n), list(moving))
+        out = np.zeros_like(q)
+        if held.any() and q.size:
+            z = np.zeros_like(q)
+            qd = z if qd is None else np.atleast_2d(np.asarray(qd, float))
+            qdd = z if qdd is None else np.atleast_2d(np.asarray(qdd, float))
+            tau = np.atleast_2d(self.rnea(q, qd, qdd))
+            out[:, held] = -tau[:, held] / k[held]
+        return out[0] if single else out
+
     def single_joint_dynamics(self, j: int, q_rest) -> tuple[float, float, float]:
         """For joint ``j`` (0-based) moving alone with the others held at ``q_rest``:
         the constants ``(I, a, b)`` with ``tau_j = I qdd + a sin(q_j) + b cos(q_j)`` exactly

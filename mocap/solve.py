@@ -634,6 +634,44 @@ def motor_guess(log, time: np.ndarray, moving) -> np.ndarray:
     return q
 
 
+def held_placement(robot, trial, log, time: np.ndarray, q_guess: np.ndarray, moving) -> np.ndarray:
+    """``q_guess`` with the braked joints at their nominal *link* angle: the encoder angle less
+    the deflection of the declared stiffness under the torque each joint carries (gravity and the
+    coupling from the moving joints, payload included; :meth:`mocap.robot.Robot.held_deflection`).
+    A braked joint's motor is held but its link gives (FORMAT.md ``stiffness``); placing its
+    markers at the encoder angle puts that deflection into the solved angle of a moving joint
+    whose axis is parallel (measured on the foreign world, ind6 joint 3 with joint 2 braked:
+    0.1 mrad that switches with the torque, the size of a dead band). Unchanged when no joint
+    declares a stiffness."""
+    from scipy.signal import savgol_filter
+
+    if robot is None or not (robot.stiffness > 0).any() or time.size == 0:
+        return q_guess
+    moving = list(moving)
+    T, n = q_guess.shape
+    qd, qdd = np.zeros((T, n)), np.zeros((T, n))
+    lt = log.time
+    dt = float(np.median(np.diff(lt))) if lt.size > 1 else 0.0
+    for j in moving:  # loop over moving joints, vectorised over samples
+        ok = np.isfinite(log.qm[:, j])
+        if dt <= 0 or ok.sum() < 7:
+            continue
+        x = np.interp(lt, lt[ok], log.qm[ok, j])
+        w = max(int(round(0.04 / dt)) | 1, 7)
+        if w > x.size:
+            w = x.size if x.size % 2 else x.size - 1
+        qd[:, j] = np.interp(time, lt, savgol_filter(x, w, 3, deriv=1, delta=dt))
+        qdd[:, j] = np.interp(time, lt, savgol_filter(x, w, 3, deriv=2, delta=dt))
+    load = float(getattr(trial, "load_kg", 0.0) or 0.0)
+    com = tuple(float(c) for c in (getattr(trial, "extra", None) or {}).get("payload_com", (0.0, 0.0, 0.0)))
+    rb = robot.with_payload(load, com) if load > 0 else robot
+    ok = np.all(np.isfinite(q_guess), axis=1)
+    out = q_guess.copy()
+    if ok.any():
+        out[ok] = q_guess[ok] + rb.held_deflection(q_guess[ok], qd[ok], qdd[ok], moving)
+    return out
+
+
 def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robot=None,
                 refine: bool = False, refine_geometry: bool = False,
                 **solver_settings) -> AnglesResult:
@@ -682,6 +720,7 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     # FORMAT.md: t_robot = t_marker + time_offset (the trial's key, 0 by default)
     offset = float(getattr(trial, "extra", {}).get("time_offset", 0.0))
     q_guess = motor_guess(log, rec.time + offset, joints0)
+    q_guess = held_placement(robot, trial, log, rec.time + offset, q_guess, joints0)
     deepest = max(chain.frames[link_of[lb]][0] for lb in used)
     lost = [j for j in range(deepest + 1) if not np.isfinite(log.qm[:, j]).any()]
     if lost:   # a braked joint without angles would flag every frame

@@ -103,6 +103,33 @@ def test_single_joint_dynamics_reproduces_rnea(pa10):
         assert I > 0
 
 
+def test_held_deflection_is_the_carried_torque_over_the_declared_stiffness(pa10):
+    """A held joint's link gives by tau / K (FORMAT.md ``stiffness``): with the arm horizontal, a
+    payload adds m g lever to the shoulder's and elbow's torque (levers by hand, as below), so
+    their link angles drop by m g lever / K; moving joints and joints without a declared
+    stiffness do not give."""
+    q = np.array([0.0, np.pi / 2, 0.0, 0.0, 0.0, 0.0])  # arm horizontal along +x
+    m = 3.373
+    K = pa10.stiffness
+    assert np.all(K > 1e3)
+    d0 = pa10.held_deflection(q)
+    d1 = pa10.with_payload(m).held_deflection(q)
+    lever = np.array([0.0, 0.45 + 0.48 + 0.07, 0.48 + 0.07, 0.0, 0.07, 0.0])
+    np.testing.assert_allclose(np.abs(d1 - d0), m * G * lever / K, rtol=1e-6, atol=1e-12)
+    # sign: a link pulled down by gravity sits below its motor (q_link - q_motor = -tau / K)
+    assert d0[1] * pa10.gravity_torque(q)[1] < 0
+    # moving joints do not give here (their deflection is the flexible-joint model's)
+    Q = np.tile(q, (4, 1))
+    QD, QDD = np.zeros_like(Q), np.zeros_like(Q)
+    QDD[:, 4] = [0.0, 5.0, -5.0, 10.0]
+    d = pa10.held_deflection(Q, QD, QDD, moving=(4,))
+    assert np.all(d[:, 4] == 0.0) and d.shape == (4, 6)
+    # the wrist's acceleration loads the held elbow (coupling by RNEA), linearly
+    assert abs(d[1, 2] - d[0, 2]) > 0 and np.isclose(d[3, 2] - d[0, 2], 2 * (d[1, 2] - d[0, 2]))
+    rigid = Robot(pa10.model, tuple(type(dr)(**{**dr.__dict__, "extra": {}}) for dr in pa10.drives))
+    assert np.all(rigid.held_deflection(q) == 0.0)
+
+
 def test_with_payload_adds_m_g_lever_horizontal_arm(pa10):
     q = np.array([0.0, np.pi / 2, 0.0, 0.0, 0.0, 0.0])  # arm horizontal along +x
     m = 3.373

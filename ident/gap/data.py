@@ -102,6 +102,7 @@ class JointData:
     q_hf: np.ndarray | None = None  # (N,) encoder reading minus its smoothed value (what feedback sees beyond it)
     friction_side: str = "rigid"   # "rigid" (no stiffness declared), "motor" or "link": where the
     #                                 nominal's friction acts on the declared flexible joint
+    stiffness: float = 0.0          # declared transmission stiffness (drives.toml), N m/rad; 0 = rigid
 
     @cached_property
     def sgn(self) -> np.ndarray:
@@ -303,12 +304,21 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
             tm, q_l = tm[ok], q_l[ok]
             cols["trial_m"].append(np.full(tm.shape, i))
             qm_m = np.interp(tm, t, qm)
-            tau_m = np.interp(tm, t, tau_rb)
+            tau_s = tau_rb
+            if k_declared > 0 and friction_side == "link":
+                # friction at the link: the spring carries it too (the motor equation holds none,
+                # tau_s = y); its smooth Coulomb + viscous part, fitted on the trial's moving
+                # samples (not y itself, which carries the torque noise into this channel)
+                F = np.column_stack([sgn_f, qd])
+                th = np.linalg.lstsq(F[keep], (y - tau_rb)[keep], rcond=None)[0] if keep.sum() > 10 else np.zeros(2)
+                tau_s = tau_rb + F @ th
+            tau_m = np.interp(tm, t, tau_s)
             # the declared transmission stiffness (drives.toml ``stiffness``) is part of the
             # nominal model: its deflection q_link - q_motor = -tau / K is taken out here, with
-            # the link's rigid-body torque on either friction side (not the measured y: that
-            # carries the torque noise and every torque-channel effect into this channel;
-            # measured on a foreign ind6 load_dependent campaign: verdict time_offset with y)
+            # the spring torque of the nominal model: the link's rigid-body torque, plus the
+            # nominal friction when it acts at the link (not the measured y: that carries the
+            # torque noise and every torque-channel effect into this channel; measured on a
+            # foreign ind6 load_dependent campaign: verdict time_offset with y)
             cols["e"].append(q_l - qm_m + (tau_m / k_declared if k_declared else 0.0))
             cols["tau_m"].append(tau_m)
             cols["qd_m"].append(np.interp(tm, t, qd))
@@ -328,7 +338,8 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                      trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
                      t_m=cat["t_m"], tau_m=cat["tau_m"], rep=reps, group=group, fold=fold,
                      deriv_window_s=float(deriv_window_s), sgn_filtered=cat["sgn"],
-                     q_hf=cat["q_hf"], friction_side=friction_side if k_declared > 0 else "rigid")
+                     q_hf=cat["q_hf"], friction_side=friction_side if k_declared > 0 else "rigid",
+                     stiffness=k_declared)
 
 
 def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20,

@@ -527,6 +527,17 @@ class CampaignSynth:
         for k, j in enumerate(moving):
             Qm[:, j] = np.interp(t_m - toff, np.concatenate([[t0], time]),
                                  np.concatenate([[sig_full["q"][0, k]], sig_full["q"][:, k]]))
+        # a held joint's motor is held, its link gives under the torque it carries at the declared
+        # stiffness (FORMAT.md drives.toml ``stiffness``): the encoder reads the motor, the markers see
+        # the link (gravity and the coupling from the moving joints)
+        if (actual.stiffness > 0).any() and t_m.size:
+            QDm, QDDm = np.zeros_like(Qm), np.zeros_like(Qm)
+            for j in moving:
+                QDm[:, j] = np.interp(t_m - toff, t_log, QD[:, j])
+                QDDm[:, j] = np.interp(t_m - toff, t_log, QDD[:, j])
+            Qm = Qm + actual.held_deflection(Qm, QDm, QDDm, moving)
+            held = [j for j in range(n) if j not in moving]
+            arrays[f"{p.id}/marker_q_held"] = Qm[:, held]   # true link angles of the held joints
         # markers are placed by the ACTUAL robot's kinematics (perturbed when asked)
         rec, minfo = synthesize_recording(actual.chain, markers, T_camera_base,
                                           t_m, Qm, rng, errors, rate_hz=cfg.marker_rate)
