@@ -369,6 +369,15 @@ FAMILIES = {
 }
 
 
+#: torque-channel families whose columns live at low speed and at velocity reversals, where the
+#: nominal model's own errors are largest (friction transients through the controller and the
+#: velocity filter): on effect-free foreign campaigns they removed up to 0.062 of the noise floor
+#: (white noise), the other torque families (slow in time, global in position, load or direction)
+#: at most 0.012. The diagnosis gives each group its own effect-size floor.
+REVERSAL_SHAPED = frozenset({"stribeck_exponential", "stribeck_rational", "presliding_bristle",
+                             "presliding_maxwell", "nonlinear_viscous"})
+
+
 def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
     """One candidate per (effect, family) of the registry (:mod:`ident.effects`); a candidate's
     ``name`` is the effect it stands for, ``family`` the form tested."""
