@@ -66,3 +66,20 @@ def test_no_declared_stiffness_keeps_the_rigid_nominal(flexible):
     q, qm = _true_at(d, trials, logs, z, "q"), _true_at(d, trials, logs, z, "qm")
     # the rigid nominal's angle is the (smoothed) motor angle: off the link by the deflection
     assert _rms(d.q - qm) < 0.2 * _rms(qm - q)
+
+
+def test_link_side_friction_effect_is_not_read_as_a_transmission_effect(tmp_path):
+    """jointlab's simulator puts the friction at the link, so the spring carries it (eq. 2-2: the
+    motor equation holds none, the spring torque is the motor-side torque y). A Stribeck hump
+    then deflects the spring as well; with the link's rigid-body torque (or a smooth Coulomb +
+    viscous fit) as the nominal spring torque, the hump's deflection read as `compliance` (this
+    campaign, 0.08 of the marker floor) and decided the verdict. The hump masks the friction side
+    in the torque channel (held-out RMS within 10 %), so the deflection decides the spring torque."""
+    camp = tmp_path / "camp"
+    assert main(["synth", str(camp), "--effect", "stribeck", "--magnitude", "1", "--seed", "100",
+                 "--reps", "2", "--duration", "12", "--quiet"]) == 0
+    assert main(["diagnose", str(camp), "--out", str(tmp_path / "out")]) == 0
+    jr = json.loads((tmp_path / "out" / "diagnosis.json").read_text())["joints"]["5"]
+    assert jr["verdict"] == "stribeck", jr["selected"]
+    tx = [e for e in jr["effects"] if e["channel"] == "transmission" and e["identifiable"]]
+    assert tx and max(e["evidence"]["removed_variance_over_floor"] for e in tx) < 0.01

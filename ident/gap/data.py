@@ -103,7 +103,7 @@ class JointData:
     friction_side: str = "rigid"   # "rigid" (no stiffness declared), "motor" or "link": where the
     #                                 nominal's friction acts on the declared flexible joint
     stiffness: float = 0.0          # declared transmission stiffness (drives.toml), N m/rad; 0 = rigid
-    tau_m_friction: np.ndarray | None = None  # link-side friction: tau_m plus the nominal friction
+    tau_m_friction: np.ndarray | None = None  # link-side friction: the spring torque y at marker times
 
     @cached_property
     def sgn(self) -> np.ndarray:
@@ -192,10 +192,27 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
               for (side, d), k in zip(sides.items(), keys)}
     side = min(scores, key=scores.get)
     d = sides[side]
-    if side == "link" and d.tau_m_friction is not None and scores["link"] < LINK_SPRING_MARGIN * scores["motor"]:
-        # the torque channel clearly puts the friction at the link: the spring carries it too
-        d = replace(d, e=d.e + (d.tau_m_friction - d.tau_m) / d.stiffness, tau_m=d.tau_m_friction)
+    if side == "link" and d.tau_m_friction is not None and d.e.size:
+        # friction at the link: the spring carries it too (the measured motor-side torque y is
+        # the spring torque) when the torque channel clearly says so, or when the deflection
+        # does (a large friction effect, e.g. a Stribeck hump, can hide the torque channel's
+        # preference; its deflection then shows it)
+        e_y = d.e + (d.tau_m_friction - d.tau_m) / d.stiffness
+        if (scores["link"] < LINK_SPRING_MARGIN * scores["motor"]
+                or _deflection_ss(d, e_y) < LINK_SPRING_DEFLECTION * _deflection_ss(d, d.e)):
+            d = replace(d, e=e_y, tau_m=d.tau_m_friction)
     return replace(d, tau_m_friction=None)
+
+
+def _deflection_ss(d: JointData, e: np.ndarray) -> float:
+    """Residual sum of squares of a transmission target ``e`` after the transmission nominal's
+    per-trial offsets and motor-angle gain."""
+    from ident.gap.diagnose import at_markers
+
+    D = (d.trial_m[:, None] == np.arange(d.n_trials)[None, :]).astype(float)
+    X = np.column_stack([D, at_markers(d, d.q)])
+    r = e - X @ np.linalg.lstsq(X, e, rcond=None)[0]
+    return float(r @ r)
 
 
 #: the spring of the declared flexible joint carries the nominal friction (transmission channel)
@@ -205,6 +222,10 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
 #: 0.98-1.03. Carrying it on a mere RMS preference put the friction's deflection into the
 #: foreign world's transmission nominal: effect-free campaigns read it as a clock offset.
 LINK_SPRING_MARGIN = 0.9
+#: ... or when the spring torque y leaves the deflection's residual variance below this fraction
+#: of the link's rigid-body torque's (measured: a jointlab Stribeck campaign 0.92, whose torque
+#: channel the hump masks; foreign campaigns, motor-side friction, 0.99-1.16)
+LINK_SPRING_DEFLECTION = 0.95
 
 
 def _sample_keys(d: JointData) -> np.ndarray:
@@ -319,14 +340,12 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
             tm, q_l = tm[ok], q_l[ok]
             cols["trial_m"].append(np.full(tm.shape, i))
             qm_m = np.interp(tm, t, qm)
-            tau_f = tau_rb
-            if k_declared > 0 and friction_side == "link":
-                # friction at the link: the spring may carry it too (the motor equation holds
-                # none, tau_s = y): its smooth Coulomb + viscous part, fitted on the trial's moving
-                # samples (not y itself, which carries the torque noise into this channel)
-                F = np.column_stack([sgn_f, qd])
-                th = np.linalg.lstsq(F[keep], (y - tau_rb)[keep], rcond=None)[0] if keep.sum() > 10 else np.zeros(2)
-                tau_f = tau_rb + F @ th
+            # friction at the link: the motor equation holds none, so the spring torque is y
+            # itself (eq. 2-2), friction and any friction effect included (a Stribeck hump at
+            # the link deflects the spring too: with the smooth nominal friction in its place,
+            # jointlab's simulator's Stribeck campaigns read as compliance). Its torque noise
+            # over K is far below the marker noise (PA10 j5: 2e-5 against 1e-3 rad).
+            tau_f = y if (k_declared > 0 and friction_side == "link") else tau_rb
             # the declared transmission stiffness (drives.toml ``stiffness``) is part of the
             # nominal model: its deflection q_link - q_motor = -tau / K is taken out below, with
             # the spring torque of the nominal model (the link's rigid-body torque, plus the
