@@ -89,18 +89,25 @@ def markdown(report: dict, plots: dict) -> str:
         L += [f"| {r['regime']} | {r['share']:.2f} |" for r in rep["localisation"]]
         if "localisation_rest" in rep:
             L.append(f"| rest | {rep['localisation_rest']:.2f} |")
-        L += ["", "Candidate effects (first selection step):", "",
-              "| effect | channel | held-out RMS | reduction | p (Holm) | significant | shape | confounded with |",
-              "|---|---|---|---|---|---|---|---|"]
+        L += ["", "Candidate effects (first selection step; size = held-out variance removed over the "
+                  "channel's noise-floor variance, against the floor that effect-free campaigns set for "
+                  "that kind of candidate):", "",
+              "| effect | channel | held-out RMS | reduction | p (Holm) | size / floor | significant | shape | "
+              "confounded with |",
+              "|---|---|---|---|---|---|---|---|---|"]
         for e in rep["effects"]:
             if not e.get("identifiable", True):
-                L.append(f"| {e['effect']} | {e['channel']} | - | - | - | no | {_cell(e['note'])} | "
+                L.append(f"| {e['effect']} | {e['channel']} | - | - | - | - | no | {_cell(e['note'])} | "
                          f"{', '.join(e.get('confounded_with', []))} |")
                 continue
+            evd = e.get("evidence", {})
+            size = (f"{evd['removed_variance_over_floor']:.3g} / {evd['effect_size_floor']:.2g}"
+                    if "removed_variance_over_floor" in evd and "effect_size_floor" in evd else "-")
             L.append(f"| {e['effect']} | {e['channel']} | {e['heldout_rms']:.4g} | {e['reduction']:.3f} | "
-                     f"{e['p_adjusted']:.2g} | {'yes' if e['significant'] else 'no'} | {_cell(e['shape'])} | "
+                     f"{e['p_adjusted']:.2g} | {size} | {'yes' if e['significant'] else 'no'} | {_cell(e['shape'])} | "
                      f"{', '.join(e.get('confounded_with', []))} |")
-        ev = [(e["effect"], k, x) for e in rep["effects"] for k, x in e.get("evidence", {}).items()]
+        ev = [(e["effect"], k, x) for e in rep["effects"] for k, x in e.get("evidence", {}).items()
+              if k.startswith("unique_share_given_")]
         if ev:
             L += ["", "Signatures (share of an effect's own reduction that survives with its confounder in "
                       "the model; near 0 = explained by the confounder):", ""]
