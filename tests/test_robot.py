@@ -2,6 +2,7 @@
 and mocap.urdf (perturbed copies, visuals, link meshes)."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import subprocess
 import sys
@@ -126,7 +127,7 @@ def test_held_deflection_is_the_carried_torque_over_the_declared_stiffness(pa10)
     assert np.all(d[:, 4] == 0.0) and d.shape == (4, 6)
     # the wrist's acceleration loads the held elbow (coupling by RNEA), linearly
     assert abs(d[1, 2] - d[0, 2]) > 0 and np.isclose(d[3, 2] - d[0, 2], 2 * (d[1, 2] - d[0, 2]))
-    rigid = Robot(pa10.model, tuple(type(dr)(**{**dr.__dict__, "extra": {}}) for dr in pa10.drives))
+    rigid = Robot(pa10.model, tuple(dataclasses.replace(dr, extra={}) for dr in pa10.drives))
     assert np.all(rigid.held_deflection(q) == 0.0)
 
 

@@ -205,13 +205,14 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
 
 
 def _deflection_ss(d: JointData, e: np.ndarray) -> float:
-    """Residual sum of squares of a transmission target ``e`` after the transmission nominal's
-    per-trial offsets and motor-angle gain."""
-    from ident.gap.diagnose import at_markers
+    """Residual sum of squares of a transmission target ``e`` after the transmission channel's
+    nominal (:func:`ident.gap.diagnose._transmission_channel`)."""
+    from ident.gap.diagnose import _transmission_channel
 
-    D = (d.trial_m[:, None] == np.arange(d.n_trials)[None, :]).astype(float)
-    X = np.column_stack([D, at_markers(d, d.q)])
-    r = e - X @ np.linalg.lstsq(X, e, rcond=None)[0]
+    ch = _transmission_channel(d)
+    y = ch.prep(e[:, None])[:, 0]
+    X = ch.prep(ch.X0)
+    r = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
     return float(r @ r)
 
 
@@ -348,11 +349,10 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
             tau_f = y if (k_declared > 0 and friction_side == "link") else tau_rb
             # the declared transmission stiffness (drives.toml ``stiffness``) is part of the
             # nominal model: its deflection q_link - q_motor = -tau / K is taken out below, with
-            # the spring torque of the nominal model (the link's rigid-body torque, plus the
-            # nominal friction when the friction is clearly at the link: build_joint_data;
-            # not the measured y: that carries the
-            # torque noise and every torque-channel effect into this channel; measured on a
-            # foreign ind6 load_dependent campaign: verdict time_offset with y)
+            # the link's rigid-body torque as the spring torque, or y when the friction is
+            # clearly at the link (build_joint_data). Not y on the motor side: there y carries
+            # the friction the spring does not (measured on a foreign ind6 load_dependent
+            # campaign: verdict time_offset with y)
             cols["dq_m"].append(q_l - qm_m)
             cols["tau_m"].append(np.interp(tm, t, tau_rb))
             cols["tau_mf"].append(np.interp(tm, t, tau_f))

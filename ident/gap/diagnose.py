@@ -55,7 +55,7 @@ class DiagnosisSettings:
     min_effect_to_floor_global: float = 0.03  # the same for the other torque families (time, position,
     #                                    load, direction, gain): at most 0.012 on those campaigns
     min_effect_to_floor_transmission: float = 0.01  # the same floor in the transmission channel (see
-    #                                  _large_enough): effect-free foreign campaigns (24: two robots, 6
+    #                                  effect_size_floor): effect-free foreign campaigns (24: two robots, 6
     #                                  seeds, URDF errors, undeclared payload COM, coloured noise) removed at
     #                                  most 0.0034 of it once the braked joints' declared deflection is in
     #                                  the marker solve (mocap.solve.held_placement); 0.195 before
@@ -309,11 +309,6 @@ def effect_size_floor(channel: str, family: str, settings: "DiagnosisSettings") 
     return settings.min_effect_to_floor if family in REVERSAL_SHAPED else settings.min_effect_to_floor_global
 
 
-def _large_enough(ev: dict, channel: str, family: str, settings: "DiagnosisSettings") -> bool:
-    """The effect-size gate (:func:`effect_size_floor`)."""
-    return ev.get("removed_variance_over_floor", 0.0) >= effect_size_floor(channel, family, settings)
-
-
 def _share(removed: float, gap: float) -> float:
     """Share of the gap still above the noise floor that an effect removes: at the first step
     the nominal's gap, later the gap the selected effects left (an effect that explains most of
@@ -452,11 +447,12 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
             if not r.test.identifiable:
                 continue
             t = r.test
-            t = replace(t, evidence={**t.evidence, "effect_size_floor": effect_size_floor(ch.name, t.family, settings)})
-            r.test = replace(t, p_adjusted=adj[name], significant=bool(
+            floor = effect_size_floor(ch.name, t.family, settings)
+            r.test = replace(t, p_adjusted=adj[name], evidence={**t.evidence, "effect_size_floor": floor},
+                             significant=bool(
                 t.physical and adj[name] < settings.alpha and t.share_step >= settings.min_explained
                 and t.reduction_step >= settings.min_reduction
-                and _large_enough(t.evidence, ch.name, t.family, settings)))
+                and t.evidence["removed_variance_over_floor"] >= floor))
         if tested_first is None:
             tested_first = rows
         sig = [r for r in rows.values() if r.test.significant]
