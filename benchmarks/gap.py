@@ -58,7 +58,12 @@ F = _load_foreign()
 EFFECTS = F.EFFECTS
 PAIRS = (("stribeck", "position_ripple"), ("load_dependent", "asymmetry"), ("thermal_drift", "nonlinear_viscous"),
          ("presliding", "torque_scale"), ("compliance", "stribeck"), ("backlash", "thermal_drift"),
-         ("time_offset", "asymmetry"), ("load_dependent", "torque_scale"))
+         ("time_offset", "asymmetry"), ("load_dependent", "torque_scale"),
+         # a wider set (seeds 69..), for a two-effect figure beyond the first pairs
+         ("position_ripple", "thermal_drift"), ("presliding", "nonlinear_viscous"), ("backlash", "load_dependent"),
+         ("compliance", "position_ripple"), ("stribeck", "asymmetry"), ("torque_scale", "thermal_drift"),
+         ("nonlinear_viscous", "asymmetry"), ("time_offset", "stribeck"), ("compliance", "torque_scale"),
+         ("backlash", "presliding"))
 
 
 # ---------------------------------------------------------------- the matrix
