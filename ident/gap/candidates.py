@@ -71,6 +71,8 @@ class Candidate:
     describe: Callable = lambda hp: ""  # noqa: E731
     family: str = ""
     physical: Callable = lambda hp, theta: True  # noqa: E731  (hp, amplitudes) -> sign is physical
+    coulomb: tuple = ()                # columns that are Coulomb-level terms: sgn(qd) x a level factor
+    viscous: tuple = ()                # columns that are viscous terms: (a function of) qd x a level factor
 
 
 def _pos(k=0):
@@ -369,6 +371,50 @@ FAMILIES = {
 }
 
 
+#: Columns of each family that modify the Coulomb level (``sgn(qd) x`` a factor of speed, angle,
+#: transmitted torque, temperature, direction or displacement since a reversal) and the viscous
+#: level (``qd`` or a function of it, x such a factor). Friction models of the literature compose
+#: such factors by product (a load-dependent level is asymmetric too when the Coulomb level is; a
+#: warm joint's Stribeck excess and nonlinear viscous term fall with its levels), so once one of
+#: them is selected, a later candidate is tested with its product with the selected level as well
+#: (:func:`level_interactions`).
+COULOMB_COLUMNS = {"stribeck_exponential": (0,), "stribeck_rational": (0,), "presliding_bristle": (0,),
+                   "presliding_maxwell": (0, 1), "ripple_modulation": (0, 1), "load_transmitted": (0,),
+                   "thermal": (0,), "asymmetry": (0,)}
+VISCOUS_COLUMNS = {"thermal": (1,), "asymmetry": (1,), "nonlinear_viscous": (0,)}
+
+
+def selected_levels(C: np.ndarray, theta: np.ndarray, cand: "Candidate", d) -> tuple:
+    """(Coulomb level, viscous level factor) of a selected candidate's fitted columns ``C @ theta``:
+    the Coulomb-type columns' torque over ``sgn(qd)`` (so ``sgn a`` gives ``a``), the viscous-type
+    columns' torque over ``qd`` (speeds below 5 % of the reference speed held at it). Either None
+    when the family has no such column."""
+    sg = _sg(d)
+    cou = C[:, list(cand.coulomb)] @ theta[list(cand.coulomb)] * sg if cand.coulomb else None
+    vis = None
+    if cand.viscous:
+        eps = 0.05 * _vref(d)
+        qd = np.where(d.qd >= 0, 1.0, -1.0) * np.maximum(np.abs(d.qd), eps)
+        vis = C[:, list(cand.viscous)] @ theta[list(cand.viscous)] / qd
+    return cou, vis
+
+
+def level_interactions(C: np.ndarray, cand: "Candidate", levels: tuple) -> np.ndarray:
+    """``C`` with the products of its Coulomb-type columns with the selected Coulomb level, and of
+    its viscous-type columns with the selected viscous level factor (``levels``, from
+    :func:`selected_levels`, summed over the selected effects): a column ``sgn a`` and a selected
+    ``sgn b`` give ``sgn a b``, the cross term of ``c sgn (1 + a)(1 + b)``. Unchanged when nothing
+    is selected or the family has no such column."""
+    extra = []
+    for idx, lev in ((cand.coulomb, levels[0]), (cand.viscous, levels[1])):
+        if lev is None or not idx or C.shape[0] != lev.shape[0]:
+            continue
+        scale = float(np.sqrt(np.mean(lev ** 2)))
+        if scale > 0:
+            extra.append(C[:, list(idx)] * (lev / scale)[:, None])
+    return np.column_stack([C] + extra) if extra else C
+
+
 #: torque-channel families whose columns live at low speed and at velocity reversals, where the
 #: nominal model's own errors are largest (friction transients through the controller and the
 #: velocity filter): on effect-free foreign campaigns they removed up to 0.062 of the noise floor
@@ -385,7 +431,8 @@ def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
     for spec in REGISTRY.values():
         for fam in spec.families:
             channel, grid, columns, describe, physical = FAMILIES[fam]
-            out.append(Candidate(spec.name, channel, grid(gear_ratio), columns, describe, fam, physical))
+            out.append(Candidate(spec.name, channel, grid(gear_ratio), columns, describe, fam, physical,
+                                 COULOMB_COLUMNS.get(fam, ()), VISCOUS_COLUMNS.get(fam, ())))
     return out
 
 

@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from ident.gap.candidates import Candidate, candidate_effects, confounders
+from ident.gap.candidates import Candidate, candidate_effects, confounders, level_interactions, selected_levels
 from ident.gap.data import JointData
 from ident.gap.nominal import NOMINAL_MODELS, NominalModel, nominal_model
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
@@ -232,17 +232,20 @@ class _ColumnCache:
 
 
 def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
-                  cache: _ColumnCache | None = None) -> tuple[dict, dict]:
+                  cache: _ColumnCache | None = None, levels: tuple = (None, None)) -> tuple[dict, dict]:
     """(candidate, hp) -> Grams of ``[X | C]`` over every family and shape parameter of one
     effect, built once. Columns that lie in the span of ``X`` (e.g. a direction-independent
     Coulomb excess when the nominal model has a torque offset) are dropped; a shape with no
     column left is left out. ``cols`` keeps the columns used and which of the family's columns
-    they are (for the sign check)."""
+    they are (for the sign check). ``levels``: the Coulomb and viscous levels selected so far
+    (torque channel), composed by product with the candidate's own (:func:`level_interactions`)."""
     out, cols = {}, {}
     p = X.shape[1]
     for cand in cands:
         for hp in cand.grid:
             C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
+            if ch.name == "torque":
+                C = level_interactions(C, cand, levels)
             if C.shape[0] == 0 or not np.all(np.isfinite(C)):
                 continue
             g = grams_augmented(base, X, C, ch.target, ch.blocks)
@@ -418,10 +421,11 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     n_blocks = int(np.sum(n_per_trial > 0))
     p_min = sign_flip_min_p(n_blocks, settings.n_perm)
     decl_ms = float(np.mean(ch.declared ** 2)) if ch.declared is not None and ch.declared.size else 0.0
+    levels = (None, None)   # fitted Coulomb / viscous levels of the effects selected so far (torque)
     for step in range(settings.max_effects):
         rows, pvals = {}, {}
         for name, group in by_effect.items():
-            gb, cols = _effect_grams(group, d, ch, X, base, cache)
+            gb, cols = _effect_grams(group, d, ch, X, base, cache, levels)
             if not gb:
                 rows[name] = _Row(name, EffectTest(name, ch.name, False, note=NOT_IDENTIFIABLE))
                 continue
@@ -463,7 +467,15 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
                                     t.explained_share, t.shape, t.family,
                                     t.evidence["removed_variance_over_floor"]), best.cv.sse))
-        C = best.cols[best.cv.hp_all][0]
+        C, keep = best.cols[best.cv.hp_all]
+        cand, hp = best.cv.hp_all
+        if ch.name == "torque" and (cand.coulomb or cand.viscous):
+            # the selected effect's fitted levels join those later candidates are composed with
+            # (its own columns: the products with earlier levels are second-order)
+            a = _amplitudes(best.cv.theta_all, X.shape[1], keep)
+            own = cache.get(cand, d, ch, hp)
+            new = selected_levels(own, a[:own.shape[1]], cand, d)
+            levels = tuple(o if n is None else n if o is None else o + n for o, n in zip(levels, new))
         base = grams_augmented(base, X, C, ch.target, ch.blocks)
         X = np.column_stack([X, C])
         current_sse = best.cv.sse
