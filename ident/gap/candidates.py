@@ -157,7 +157,11 @@ _PRESLIDING_GRID = tuple(float(x) for x in np.geomspace(5e-5, 3e-2, 11))
 
 # --- position dependence -------------------------------------------------------------------
 def _ripple_grid(gear_ratio):
-    ks = list(range(1, 49))
+    """Orders 2..48 per joint revolution (and the gear ratio's, when higher). Not 1: a term once
+    per revolution has gravity's period - added to the torque it is the nominal's gravity
+    correction (``sin q, cos q``), on the friction level it is friction growing with the gravity
+    torque (load dependence) wherever that torque keeps its sign over the motion."""
+    ks = list(range(2, 49))
     if gear_ratio and gear_ratio > 48:
         ks += [gear_ratio, 2 * gear_ratio]
     return tuple(float(k) for k in ks)
@@ -424,14 +428,31 @@ REVERSAL_SHAPED = frozenset({"stribeck_exponential", "stribeck_rational", "presl
                              "presliding_maxwell", "nonlinear_viscous"})
 
 
-def candidate_effects(gear_ratio: float | None = None) -> list[Candidate]:
+#: a ripple order is tested only if the motion covers at least this share of its period: over less,
+#: a periodic term is a smooth trend in the angle (the shape of gravity, of a URDF error and of
+#: friction growing with the gravity torque), not a ripple the data can show
+MIN_RIPPLE_PERIODS = 0.5
+
+
+def _observable_orders(grid: tuple, q_range: float | None) -> tuple:
+    if q_range is None or not np.isfinite(q_range) or q_range <= 0:
+        return grid
+    return tuple(n for n in grid if n * q_range >= 2 * np.pi * MIN_RIPPLE_PERIODS)
+
+
+def candidate_effects(gear_ratio: float | None = None, q_range: float | None = None) -> list[Candidate]:
     """One candidate per (effect, family) of the registry (:mod:`ident.effects`); a candidate's
-    ``name`` is the effect it stands for, ``family`` the form tested."""
+    ``name`` is the effect it stands for, ``family`` the form tested. ``q_range``: the joint's
+    range of motion (rad), which bounds the ripple orders tested from below
+    (:data:`MIN_RIPPLE_PERIODS`)."""
     out = []
     for spec in REGISTRY.values():
         for fam in spec.families:
             channel, grid, columns, describe, physical = FAMILIES[fam]
-            out.append(Candidate(spec.name, channel, grid(gear_ratio), columns, describe, fam, physical,
+            g = grid(gear_ratio)
+            if fam.startswith("ripple_"):
+                g = _observable_orders(g, q_range)   # none left: reported as not identifiable
+            out.append(Candidate(spec.name, channel, g, columns, describe, fam, physical,
                                  COULOMB_COLUMNS.get(fam, ()), VISCOUS_COLUMNS.get(fam, ())))
     return out
 

@@ -581,7 +581,8 @@ def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings
 
 def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None) -> DiagnosisResult:
     nominal = nominal_model(settings.nominal)
-    cands = candidate_effects(gear_ratio)
+    q_range = float(np.ptp(np.percentile(d.q, [0.5, 99.5]))) if d.q.size else None
+    cands = candidate_effects(gear_ratio, q_range)
     channels = [_torque_channel(d, nominal)]
     if d.has_transmission:
         channels.append(_transmission_channel(d))
