@@ -260,6 +260,11 @@ def summarize(results, a) -> dict:
             s["two_effect_hit"] = _rate(two, "correct")
             print(f"two effects, both among the first two selected: {s['two_effect_hit']:.3f} ({len(two)} "
                   f"campaigns; goal >= 0.8); verdict one of the two: {_rate(two, 'one_of_two'):.3f}")
+            first6 = [r for r in two if 61 <= r["seed"] <= 66]
+            if first6 and len(first6) < len(two):
+                s["two_effect_hit_first6"] = _rate(first6, "correct")
+                print(f"  of which the first six pairs (seeds 61-66): {s['two_effect_hit_first6']:.3f} "
+                      f"({len(first6)} campaigns)")
         ref = [r for r in ok if r.get("reference") and r["effect"] in F.TORQUE_EFFECTS and not r.get("second_effect")
                and r["group"] in ("single", "coloured", "urdf10", "payload")]
         if ref:

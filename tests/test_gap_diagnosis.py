@@ -168,3 +168,55 @@ def test_nominal_model_choice_changes_what_counts_as_gap(tmp_path):
     red = {r["nominal_model"]: next(e for e in r["effects"] if e["effect"] == "asymmetry").get("reduction") or 0.0
            for r in (cv, asym)}
     assert red["coulomb_viscous_asymmetric"] < red["coulomb_viscous"]
+
+
+def test_selected_friction_levels_compose_by_product_with_later_candidates():
+    """A Coulomb-level term ``sgn(qd) a`` selected first and a later one ``sgn(qd) b`` give the
+    cross term ``sgn(qd) a b`` of ``c sgn (1 + a)(1 + b)``; a viscous ``qd w`` gives the factor
+    ``w`` for later viscous columns. Written out by hand here, not with the module's helpers."""
+    from types import SimpleNamespace
+
+    from ident.gap.candidates import candidate_effects, level_interactions, selected_levels
+
+    rng = np.random.default_rng(3)
+    n = 400
+    qd = np.where(np.arange(n) % 2, 1.0, -1.0) * rng.uniform(0.2, 1.0, n)   # well away from zero
+    x = rng.uniform(0.0, 5.0, n)          # |transmitted torque|
+    w = np.linspace(1.0, 0.2, n)          # a cooling factor
+    d = SimpleNamespace(qd=qd, vmax=1.0)
+    fam = {c.family: c for c in candidate_effects(100.0)}
+    load, asym, thermal, nlv = fam["load_transmitted"], fam["asymmetry"], fam["thermal"], fam["nonlinear_viscous"]
+    sgn = np.sign(qd)
+    cou, vis = selected_levels((sgn * x)[:, None], np.array([0.4]), load, d)
+    assert vis is None
+    np.testing.assert_allclose(cou, 0.4 * x, rtol=1e-9)
+    # the asymmetry's offset |sgn| and its viscous column: only the Coulomb-type one is composed
+    C = np.column_stack([np.ones(n), qd * (qd > 0)])
+    out = level_interactions(C, asym, (cou, None))
+    assert out.shape == (n, 3)
+    prod = out[:, 2] * np.sqrt(np.mean((0.4 * x) ** 2)) / 0.4   # back to x
+    np.testing.assert_allclose(prod, x, rtol=1e-9)
+    # thermal: Coulomb sgn w and viscous qd w with amplitudes (1, 2)
+    cou_t, vis_t = selected_levels(np.column_stack([sgn * w, qd * w]), np.array([1.0, 2.0]), thermal, d)
+    np.testing.assert_allclose(cou_t, w, rtol=1e-9)
+    np.testing.assert_allclose(vis_t, 2 * w, rtol=1e-9)
+    v = (np.abs(qd) ** 1.5 * sgn)[:, None]
+    out = level_interactions(v, nlv, (cou_t, vis_t))
+    assert out.shape == (n, 2)
+    np.testing.assert_allclose(out[:, 1] / out[:, 0], w / np.sqrt(np.mean((2 * w) ** 2)) * 2, rtol=1e-9)
+    # nothing selected: unchanged
+    assert level_interactions(C, asym, (None, None)) is C
+
+
+def test_ripple_orders_need_half_a_period_of_motion():
+    """Over 1.5 rad of motion a twice-per-revolution term covers under half its period (a smooth
+    trend); order 3 covers 0.72 of it. Order 1 (gravity's period) is never a ripple candidate."""
+    from ident.gap.candidates import candidate_effects
+
+    rip = {c.family: c for c in candidate_effects(100.0, q_range=1.5)}
+    for fam in ("ripple_additive", "ripple_modulation"):
+        assert min(rip[fam].grid) == 3.0 and 100.0 in rip[fam].grid
+    full = {c.family: c for c in candidate_effects(100.0)}
+    assert min(full["ripple_additive"].grid) == 2.0
+    tiny = {c.family: c for c in candidate_effects(None, q_range=0.01)}
+    assert tiny["ripple_additive"].grid == ()

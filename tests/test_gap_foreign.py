@@ -148,3 +148,16 @@ def test_held_shoulder_deflection_is_not_read_as_a_transmission_effect(foreign_c
     assert len(tx) == 3
     worst = max(e["evidence"]["removed_variance_over_floor"] for e in tx)
     assert worst < 0.01, [(e["effect"], e["evidence"]) for e in tx]
+
+
+def test_two_friction_level_effects_are_both_found(foreign_cache, tmp_path):
+    """Load-dependent friction and a Coulomb asymmetry together (tri3, seed 62): the world scales
+    its whole Coulomb term, asymmetric part included, with the transmitted torque. Tested on their
+    own, the asymmetry's constant offset tied with a twice-per-revolution friction modulation (the
+    ripple came second); once the candidates compose friction levels by product (the asymmetry
+    also as a load-scaled offset), both are among the first two selected."""
+    wa = F.WorldArgs("load_dependent", 62, 1.0, "tri3", second_effect="asymmetry", reps=2)
+    camp, _ = F.ensure_campaign(wa, foreign_cache, nice=0)
+    assert main(["diagnose", str(camp), "--out", str(tmp_path / "out")]) == 0
+    jr = json.loads((tmp_path / "out" / "diagnosis.json").read_text())["joints"]["2"]
+    assert set(jr["selected"][:2]) == {"load_dependent", "asymmetry"}, jr["selected"]

@@ -432,6 +432,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
             cvr, _ = _cv(ch, X, fold, gb)
             cand, hp = cvr.hp_all
             physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all][1])))
+            composed = cols[cvr.hp_all][1].shape[0] > cache.get(cand, d, ch, hp).shape[1]
             p = sign_flip_pvalue(current_sse - cvr.sse, settings.n_perm, settings.seed)
             pvals[name] = p
             mse_e = float(cvr.sse.sum() / n_tot)
@@ -444,7 +445,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 reduction_step=float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
                 explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
                 share_step=_share(mse_cur - mse_e, mse_cur - noise),
-                p_value=p, p_min_attainable=p_min, shape=cand.describe(hp),
+                p_value=p, p_min_attainable=p_min,
+                shape=cand.describe(hp) + ("; its level also times the selected effects' levels" if composed else ""),
                 evidence=_size_evidence(mse_cur - mse_e, noise, decl_ms)), cvr, cols)
         adj = holm(pvals)
         for name, r in rows.items():
