@@ -100,14 +100,8 @@ def free_response(tau, omega, zeta):
     tt = np.maximum(tau, 0.0)
     sg = zeta * omega
     b = omega * np.sqrt((np.asarray(zeta, float) ** 2 - 1.0).astype(complex))
-    ep = np.exp((b - sg) * tt)
-    em = np.exp((-b - sg) * tt)
-    bt = np.abs(b) * tt
-    small = bt < 1e-6
-    bs = np.where(np.abs(b) > 0, b, 1.0)
-    sinh_b = np.where(small, tt * np.exp(-sg * tt), (ep - em) / (2.0 * bs))
-    x = np.real(0.5 * (ep + em) + sg * sinh_b)
-    return np.where(tau < 0, 1.0, x)
+    cosh_b = np.real(0.5 * (np.exp((b - sg) * tt) + np.exp((-b - sg) * tt)))
+    return np.where(tau < 0, 1.0, cosh_b + sg * _free_response_v(tau, omega, zeta))
 
 
 def _free_response_v(tau, omega, zeta):
@@ -530,9 +524,6 @@ class AngleCoastFit:
         Kst = np.where(cK > 0, 1.0 / np.where(cK > 0, cK, 1.0), 0.0)
         # the two-mass mode (both moving): reduced inertia mu = I_link J_m / J
         mu = np.maximum(Il, 1e-12) * Jmot / (np.maximum(Il, 1e-12) + Jmot)
-        wn = np.sqrt(Kst / mu)
-        # the motor on the stuck link (link-side Coulomb friction holds the link at the stop)
-        wm = np.sqrt(Kst / Jmot)
         d_scale = float(np.median(2.0 * np.sqrt(np.maximum(Kst * mu, 1e-12)))) if flexible else 1.0
         t_r = np.array([p[0][w.on] for p, w in zip(parts, windows)])
         h = np.array([p[0][w.on + 1] - p[0][w.on] for p, w in zip(parts, windows)])
@@ -586,44 +577,6 @@ class AngleCoastFit:
                 x_c, _ = coast_angle(tp - tc_rel[kk], Jkk, Kv, kce[kk], w[kk])
             post = qc[kk] + sgn[kk] * x_c
             return q_on[kk] + np.where(after, post, pre), (qc, vc, kce, w)
-
-        def deflection(tau, Kv, kce, w, a0, d):
-            """What the motor encoder sees of the transmission's deflection change since the
-            cut. The coast model moves the centre of inertia ``X = (I_link q + J_m q_m) / J``;
-            the motor angle is ``q_m = X + (I_link / J) delta`` while both move. The deflection's
-            quasi-static value follows the link equation ``K delta = I_link a + b_link w + ..``,
-            so the encoder sees in addition ``(I_link / J) (I_link (a - a0) + b_link (w - w0)) /
-            K`` with ``a = -(Kc' + Kv w) / J`` the coast's deceleration, ``a0`` the acceleration
-            before the cut and ``b_link = Kv - motor_viscous``. The deflection cannot jump at the
-            cut: it moves from where it was to that value along the two-mass mode ``mu delta'' + d
-            delta' + K delta`` (``mu = I_link J_m / J``, internal damping ``d`` fitted, shared):
-            :func:`free_response`, which rings when underdamped and relaxes along two
-            exponentials when overdamped.
-
-            At the stop: with the Coulomb friction on the motor side (``stick = "motor"``) the
-            motor sticks and the encoder holds its angle. With it on the link side (``stick =
-            "link"``) the link sticks and the motor, pushed by the spring, settles on the held
-            link: ``J_m delta'' + (motor_viscous + d) delta' + K delta = u`` from the deflection
-            at the stop, ``K delta_s = I_link a_s + s Kc`` with ``a_s = -s Kc' / J``, to
-            ``delta = u / K``, i.e. the encoder moves back by ``(J_m / J) Kc' / K`` along the
-            coast (:func:`free_response` of the motor-on-link mode, any damping)."""
-            tau_s = coast_stop(Jk, Kv, kce, w)[kk]
-            tt = np.clip(tau, 0.0, tau_s)
-            ws = coast_speed(tt, Jkk, Kv, kce[kk], w[kk])
-            ws = np.where(tau >= tau_s, 0.0, ws)
-            acc = -(kce[kk] + Kv * ws) / Jkk
-            bl = np.maximum(Kv - Bm[kk], 0.0)
-            D = cK[kk] * Il[kk] / Jkk * (Il[kk] * (acc - a0[kk]) + bl * (ws - w[kk]))
-            D0 = cK * Il / Jk * (Il * (-(kce + Kv * w) / Jk - a0) + 0.0)
-            zc = d / (2.0 * np.sqrt(np.maximum(Kst * mu, 1e-300)))
-            e = free_response(tt, wn[kk], zc[kk])
-            out = D - D0[kk] * e
-            if stick == "link":
-                zm = (Bm + d) / (2.0 * np.sqrt(np.maximum(Kst * Jmot, 1e-300)))
-                R = -Jmot / Jk * cK * kce
-                after = tau - tau_s
-                out = out + np.where(after > 0, R[kk] * (1.0 - free_response(after, wm[kk], zm[kk])), 0.0)
-            return out
 
         def resid(xr, sig_q):
             x = full(xr)

@@ -244,8 +244,7 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
     for cand in cands:
         for hp in cand.grid:
             C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
-            if ch.name == "torque":
-                C = level_interactions(C, cand, levels)
+            C = level_interactions(C, cand, levels)   # unchanged unless a level was selected
             if C.shape[0] == 0 or not np.all(np.isfinite(C)):
                 continue
             g = grams_augmented(base, X, C, ch.target, ch.blocks)
@@ -446,7 +445,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
                 share_step=_share(mse_cur - mse_e, mse_cur - noise),
                 p_value=p, p_min_attainable=p_min,
-                shape=cand.describe(hp) + ("; its level also times the selected effects' levels" if composed else ""),
+                shape=cand.describe(hp) + ("; also times the selected effects' friction levels" if composed else ""),
                 evidence=_size_evidence(mse_cur - mse_e, noise, decl_ms)), cvr, cols)
         adj = holm(pvals)
         for name, r in rows.items():
@@ -471,13 +470,13 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                                     t.evidence["removed_variance_over_floor"]), best.cv.sse))
         C, keep = best.cols[best.cv.hp_all]
         cand, hp = best.cv.hp_all
-        if ch.name == "torque" and (cand.coulomb or cand.viscous):
+        if cand.coulomb or cand.viscous:   # torque-channel families only
             # the selected effect's fitted levels join those later candidates are composed with
             # (its own columns: the products with earlier levels are second-order)
             a = _amplitudes(best.cv.theta_all, X.shape[1], keep)
             own = cache.get(cand, d, ch, hp)
             new = selected_levels(own, a[:own.shape[1]], cand, d)
-            levels = tuple(o if n is None else n if o is None else o + n for o, n in zip(levels, new))
+            levels = tuple(n if o is None else o if n is None else o + n for o, n in zip(levels, new))
         base = grams_augmented(base, X, C, ch.target, ch.blocks)
         X = np.column_stack([X, C])
         current_sse = best.cv.sse
