@@ -222,11 +222,15 @@ def _moving_span(q_ref: np.ndarray) -> slice:
     return slice(int(moving[0]), int(moving[-1]) + 2)
 
 
-def truth_reference(campaign: Path, joint: int | None = None) -> TruthReference:
-    """The reference for `campaign` (its truth files lie beside it) on `joint` (default: the
-    first moving joint)."""
+def truth_reference(campaign: Path, joint: int | None = None, trial_ids=None,
+                    truth_stem: Path | None = None) -> TruthReference:
+    """The reference for `campaign` (its truth files lie beside it, or at ``truth_stem`` +
+    ``.truth.json/.npz``) on `joint` (default: the first moving joint), over ``trial_ids`` (default:
+    every trial of the joint). With one trial the fit is not held out (leave-one-trial-out needs
+    two): it is the in-sample reduction, which the true structure's one gain barely inflates."""
     campaign = Path(campaign)
-    truth = json.loads(campaign.with_name(campaign.name + ".truth.json").read_text())
+    stem = Path(truth_stem) if truth_stem is not None else campaign
+    truth = json.loads(stem.with_name(stem.name + ".truth.json").read_text())
     a = truth["arguments"]
     if joint is None:
         j = a["joints"]
@@ -235,7 +239,9 @@ def truth_reference(campaign: Path, joint: int | None = None) -> TruthReference:
     eps, k0, damping = jt["coulomb_regularisation_eps"], jt["stiffness"], jt["damping"]
     ids = [it["id"] for it in truth["items_in_execution_order"]
            if it.get("section") == "trial" and it.get("joint") == joint]
-    npz = np.load(campaign.with_name(campaign.name + ".truth.npz"))
+    if trial_ids is not None:
+        ids = [i for i in ids if i in set(trial_ids)]
+    npz = np.load(stem.with_name(stem.name + ".truth.npz"))
     X, y, e, noise, group, dgap, clock = [], [], [], [], [], [], []
     off, skew, t0 = (truth["clock"]["marker_offset_s"], truth["clock"]["marker_skew"],
                      truth["clock"]["campaign_start_s"])
@@ -276,6 +282,11 @@ def _loto_residual(X: np.ndarray, y: np.ndarray, group: np.ndarray) -> tuple[np.
     """Leave-one-group-out least-squares residuals (all groups at once from per-group normal
     equations) and the last column's coefficient of the fit on all data."""
     ng, p = int(group.max()) + 1, X.shape[1]
+    if ng == 1:   # one group: in-sample
+        scale = np.sqrt(np.mean(X ** 2, axis=0))
+        scale[scale == 0] = 1.0
+        th = np.linalg.lstsq(X / scale, y, rcond=None)[0]
+        return y - (X / scale) @ th, float(th[-1] / scale[-1])
     scale = np.sqrt(np.mean(X ** 2, axis=0))
     scale[scale == 0] = 1.0
     Xs = X / scale

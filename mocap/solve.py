@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mocap.io.campaign import payload_com
+
 # flag bits of SolveResult.flags ---------------------------------------------------------------
 FLAG_TOO_FEW_MARKERS = 1
 FLAG_ILL_CONDITIONED = 2
@@ -663,7 +665,7 @@ def held_placement(robot, trial, log, time: np.ndarray, q_guess: np.ndarray, mov
         qd[:, j] = np.interp(time, lt, savgol_filter(x, w, 3, deriv=1, delta=dt))
         qdd[:, j] = np.interp(time, lt, savgol_filter(x, w, 3, deriv=2, delta=dt))
     load = float(getattr(trial, "load_kg", 0.0) or 0.0)
-    com = tuple(float(c) for c in (getattr(trial, "extra", None) or {}).get("payload_com", (0.0, 0.0, 0.0)))
+    com = payload_com(trial)
     rb = robot.with_payload(load, com) if load > 0 else robot
     ok = np.all(np.isfinite(q_guess), axis=1)
     out = q_guess.copy()

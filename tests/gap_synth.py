@@ -68,7 +68,8 @@ def make_world(tmp_path, effect="none", magnitude=1.0, seed=0, joint=2, loads=(0
                vmaxs=(0.3, 0.6, 1.0), reps=3, duration=10.0, rate=200.0, marker_rate=100.0,
                torque_noise=0.05, angle_noise=3e-4, payload_com=(0.0, 0.0, 0.0), declare_com=True):
     """Returns (robot, trials, logs, angles, truth). The payload sits at ``payload_com`` (flange
-    frame); the trials declare it unless ``declare_com`` is False."""
+    frame); the trials declare it when ``declare_com`` is True, omit the key when False (FORMAT.md
+    then declares it at the flange origin) and say ``"unknown"`` when it is that string."""
     rb = robot(tmp_path)
     j0 = joint - 1
     rng = np.random.default_rng(seed)
@@ -136,7 +137,8 @@ def make_world(tmp_path, effect="none", magnitude=1.0, seed=0, joint=2, loads=(0
                 trials.append(SimpleNamespace(id=f"t{k}", joints=(joint,), load_kg=load, vmax_frac=vf,
                                               repetition=r, kind="excitation",
                                               extra={"payload_com": [float(x) for x in payload_com]}
-                                              if declare_com else {}))
+                                              if declare_com is True else {"payload_com": "unknown"}
+                                              if declare_com == "unknown" else {}))
                 clock += duration + 5.0
                 k += 1
     return rb, trials, logs, angles, {"c": c, "v": v}

@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap.io.campaign import payload_com
+
 from mocap.io.errors import InputError
 
 from ident.coastdown.angle import (AngleCoastFit, AngleCoastResult, Flex, coast_speed, find_coasts,
@@ -168,7 +170,7 @@ def _flex(drive) -> Flex | None:
 def _trial_dynamics(trial, robot, j0: int, qm_all):
     rest = np.nanmedian(np.where(np.isfinite(qm_all), qm_all, np.nan), axis=0)
     rest = np.where(np.isfinite(rest), rest, 0.0)
-    p_com = tuple(float(x) for x in trial.extra.get("payload_com", (0.0, 0.0, 0.0)))
+    p_com = payload_com(trial)
     rb = robot.with_payload(trial.load_kg, p_com) if trial.load_kg > 0 else robot
     I, a, b = rb.single_joint_dynamics(j0, rest)
     return I + float(robot.drives[j0].motor_inertia), a, b

@@ -61,9 +61,6 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         items = tqdm(items, desc="diagnose", unit="joint")
     series = {}
     for j, trials in items:
-        if len(trials) < 2:
-            report["joints"][str(j)] = {"verdict": "none", "note": "fewer than 2 trials: nothing held out"}
-            continue
         logs = [campaign.read_log(t, robot) for t in trials]
         ang = None
         if angles:

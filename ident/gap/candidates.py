@@ -75,6 +75,20 @@ class Candidate:
     viscous: tuple = ()                # columns that are viscous terms: (a function of) qd x a level factor
 
 
+@dataclass(frozen=True)
+class Family:
+    """One candidate form of an effect: the channel it lives in, its shape-parameter grid (a
+    function of the joint's gear ratio), its columns ``(data view, hp) -> (N, k)`` with free
+    amplitudes, a one-line description of a shape, and which amplitudes are physical
+    ``(hp, amplitudes) -> bool`` (the sign an effect of this kind has)."""
+
+    channel: str
+    grid: Callable
+    columns: Callable
+    describe: Callable
+    physical: Callable
+
+
 def _pos(k=0):
     """Physical when amplitude ``k`` is positive."""
     return lambda hp, th: th.shape[0] > k and th[k] > 0
@@ -330,46 +344,46 @@ def _time_offset(d, hp):
 # Candidate families by name; ident.effects declares which effect each one stands for.
 # name -> (channel, grid(gear_ratio), columns, describe, physical)
 FAMILIES = {
-    "stribeck_exponential": (
+    "stribeck_exponential": Family(
         "torque", lambda g: _STRIBECK_GRID, _stribeck_exp,
         lambda hp: f"exp(-(|qd|/vs)^{hp[1]:g}) drop, vs = {hp[0]:.3g} vmax", _pos()),
-    "stribeck_rational": (
+    "stribeck_rational": Family(
         "torque", lambda g: _STRIBECK_GRID, _stribeck_rational,
         lambda hp: f"1/(1 + (|qd|/vs)^{hp[1]:g}) drop, vs = {hp[0]:.3g} vmax", _pos()),
-    "presliding_bristle": ("torque", lambda g: _PRESLIDING_GRID, _presliding,
+    "presliding_bristle": Family("torque", lambda g: _PRESLIDING_GRID, _presliding,
                            lambda hp: f"Dahl/LuGre bristle, presliding length {hp:.2e} rad", _presliding_sum_pos),
-    "presliding_maxwell": ("torque", lambda g: _PRESLIDING_GRID, _elastoplastic,
+    "presliding_maxwell": Family("torque", lambda g: _PRESLIDING_GRID, _elastoplastic,
                            lambda hp: f"elasto-plastic (Maxwell-slip) elements, break-away {hp:.2e} and "
                                       f"{4 * hp:.2e} rad", _maxwell_pos),
-    "ripple_additive": ("torque", _ripple_grid, _ripple, lambda hp: f"additive ripple, {hp:g} cycles per joint revolution (and its 2nd harmonic)",
+    "ripple_additive": Family("torque", _ripple_grid, _ripple, lambda hp: f"additive ripple, {hp:g} cycles per joint revolution (and its 2nd harmonic)",
                         lambda hp, th: True),
-    "ripple_modulation": ("torque", _ripple_grid, _modulation,
+    "ripple_modulation": Family("torque", _ripple_grid, _modulation,
                           lambda hp: f"friction level modulated {hp:g} times per joint revolution",
                           lambda hp, th: True),
-    "load_transmitted": ("torque", lambda g: tuple((src, sat) for src in ("rigid", "gravity") for sat in (0, 0.5, 1.5)),
+    "load_transmitted": Family("torque", lambda g: tuple((src, sat) for src in ("rigid", "gravity") for sat in (0, 0.5, 1.5)),
                          _load, lambda hp: f"Coulomb level growing with |{'gravity' if hp[0] == 'gravity' else 'transmitted'}"
                                            f" torque|" + (f", saturating at {hp[1]:g} x its 95th percentile" if hp[1] else ""),
                          _pos()),
-    "thermal": ("torque", lambda g: _THERMAL_GRID, _thermal,
+    "thermal": Family("torque", lambda g: _THERMAL_GRID, _thermal,
                 lambda hp: ("linear drift over the campaign" if hp[0] == "time" and not np.isfinite(hp[1])
                             else f"warm-up time constant {hp[1]:.0f} s" if hp[0] == "time"
                             else f"heating by {hp[0]}, time constant {hp[1]:.0f} s"), _thermal_physical),
-    "torque_gain": ("torque", lambda g: ("gain", "efficiency"), _scale,
+    "torque_gain": Family("torque", lambda g: ("gain", "efficiency"), _scale,
                     lambda hp: "torque proportional to rigid-body torque" if hp == "gain"
                     else "direction-dependent efficiency (motoring / back-driven)", lambda hp, th: True),
-    "asymmetry": ("torque", lambda g: (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous",
+    "asymmetry": Family("torque", lambda g: (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous",
                   lambda hp, th: True),
-    "nonlinear_viscous": ("torque", lambda g: _NLV_GRID, _nlv,
+    "nonlinear_viscous": Family("torque", lambda g: _NLV_GRID, _nlv,
                           lambda hp: f"viscous term |qd|^{hp[1]:g}" if hp[0] == "power"
                           else f"saturating viscous, knee {hp[1]:g} vmax", lambda hp, th: True),
-    "compliance": ("transmission", lambda g: tuple((src, k) for src in ("rigid", "motor") for k in ("linear", "hardening")),
+    "compliance": Family("transmission", lambda g: tuple((src, k) for src in ("rigid", "motor") for k in ("linear", "hardening")),
                    _compliance, lambda hp: f"{hp[1]} deflection with the {'transmitted' if hp[0] == 'rigid' else 'motor'} torque",
                    _compliance_physical),
-    "backlash": ("transmission", lambda g: _BACKLASH_GRID, _backlash,
+    "backlash": Family("transmission", lambda g: _BACKLASH_GRID, _backlash,
                  lambda hp: (f"smooth contact, deflection ~ |transmitted torque|^{hp[2]:.2g}" if hp[0] == "contact" else
                              f"lost motion switching with the {hp[0] if hp[0] == 'motion' else hp[1] + ' torque'} sign"),
                  _neg()),
-    "time_offset": ("transmission", lambda g: ("offset", "skew"), _time_offset,
+    "time_offset": Family("transmission", lambda g: ("offset", "skew"), _time_offset,
                     lambda hp: "marker clock shifted: q_link(t) = q(t + dt)" if hp == "offset"
                     else "marker clock shifted and running at another rate", lambda hp, th: True),
 }
@@ -448,8 +462,9 @@ def candidate_effects(gear_ratio: float | None = None, q_range: float | None = N
     out = []
     for spec in REGISTRY.values():
         for fam in spec.families:
-            channel, grid, columns, describe, physical = FAMILIES[fam]
-            g = grid(gear_ratio)
+            f = FAMILIES[fam]
+            channel, columns, describe, physical = f.channel, f.columns, f.describe, f.physical
+            g = f.grid(gear_ratio)
             if fam.startswith("ripple_"):
                 g = _observable_orders(g, q_range)   # none left: reported as not identifiable
             out.append(Candidate(spec.name, channel, g, columns, describe, fam, physical,

@@ -22,6 +22,10 @@ from functools import cached_property
 import numpy as np
 from scipy.signal import savgol_filter
 
+from mocap.io.campaign import payload_com
+
+from ident.gap.channels import _transmission_channel, motion_cycles, nominal_heldout_rms
+
 
 def savgol_derivatives(t: np.ndarray, x: np.ndarray, window_s: float = 0.1, polyorder: int = 3):
     """(x_smooth, xd, xdd) by Savitzky-Golay on a uniformly sampled signal."""
@@ -163,8 +167,6 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
     module docstring) is chosen the same way, on the samples both sides keep. (Measured: the
     demo's held-out nominal RMS 1.02 N m on the motor side, 0.24 on the link side, which
     jointlab's simulator has; the foreign world puts its friction at the motor.)"""
-    from ident.gap.diagnose import nominal_heldout_rms
-
     stiff = float(robot.drives[joint - 1].extra.get("stiffness", 0.0) or 0.0) > 0
     sides = {}
     for side in (("motor", "link") if stiff else ("rigid",)):
@@ -207,8 +209,6 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
 def _deflection_ss(d: JointData, e: np.ndarray) -> float:
     """Residual sum of squares of a transmission target ``e`` after the transmission channel's
     nominal (:func:`ident.gap.diagnose._transmission_channel`)."""
-    from ident.gap.diagnose import _transmission_channel
-
     ch = _transmission_channel(d)
     y = ch.prep(e[:, None])[:, 0]
     X = ch.prep(ch.X0)
@@ -285,7 +285,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         y = tau - J * qdd - B * qd          # motor side of eq. 2-2 moved to the right
         rest = np.where(np.isfinite(lg.qm[0]), np.nanmedian(lg.qm, axis=0), 0.0)
         rest[j0] = 0.0
-        p_com = tuple(float(x) for x in getattr(tr, "extra", {}).get("payload_com", (0.0, 0.0, 0.0)))
+        p_com = payload_com(tr)
         key = (round(tr.load_kg, 9), tuple(np.round(rest, 4)), p_com)
         if key not in cache:
             rb = robot.with_payload(tr.load_kg, p_com) if tr.load_kg > 0 else robot
@@ -379,37 +379,29 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                      tau_m_friction=cat["tau_mf"] if (k_declared > 0 and friction_side == "link") else None)
 
 
-def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20,
-                  group: np.ndarray | None = None) -> np.ndarray:
-    """Block index of each sample: a new block starts at every second velocity reversal (one
-    back-and-forth motion cycle per block). The direction is taken from samples faster than
-    ``v_zero`` (slow samples inherit the last direction, so jitter at rest makes no reversal);
-    cycles shorter than ``min_samples`` join the previous block. With ``group`` (e.g. the trial
-    of each sample), the count starts afresh in every group, so that a group's cycles do not
-    depend on how many reversals the groups before it had."""
-    s = np.where(np.abs(qd) >= v_zero, np.sign(qd), 0.0)
-    start = np.zeros(s.shape[0], bool) if group is None else np.r_[True, group[1:] != group[:-1]]
-    idx = np.where((s != 0) | start, np.arange(s.shape[0]), 0)   # a group inherits no direction
-    idx = np.maximum.accumulate(idx)
-    s = s[idx]
-    rev = np.r_[False, (s[1:] != s[:-1]) & (s[1:] != 0) & (s[:-1] != 0)] & ~start
-    if group is None:
-        cyc = np.cumsum(rev) // 2
-    else:
-        r = np.cumsum(rev)
-        local = (r - r[np.maximum.accumulate(np.where(start, np.arange(r.size), 0))]) // 2
-        cyc = np.cumsum(np.r_[True, start[1:] | (local[1:] != local[:-1])]) - 1
-    # merge cycles that are too short into the previous one, then renumber 0..k-1
-    counts = np.bincount(cyc)
-    ok = counts >= min_samples
-    ok[0] = True
-    new_id = np.cumsum(ok) - 1
-    return new_id[cyc]
+def coupled_motor_columns(joint: int, qd: np.ndarray, qdd: np.ndarray, coupling: np.ndarray | None) -> np.ndarray:
+    """The coupled motors' terms in URDF joint ``joint``'s torque (FORMAT.md "Coupled joints";
+    the model of :mod:`ident.model.rigidbody`): for every log coordinate ``k`` that drives several
+    URDF joints (a row of ``C^-1`` with more than one non-zero) and reaches this joint
+    (``(C^-T)_jk != 0``), ``(C^-T)_jk [sgn u_k, u_k, u''_k]`` with the motor velocity
+    ``u = C^-1 qd``: Coulomb and viscous friction and inertia of that motor, amplitudes free.
+    (N, 3 per such motor); none for an uncoupled robot."""
+    n = qd.shape[1]
+    if coupling is None or np.allclose(coupling, np.eye(n)):
+        return np.zeros((qd.shape[0], 0))
+    Ci = np.linalg.inv(coupling)
+    CiT = Ci.T
+    u, udd = qd @ Ci.T, qdd @ Ci.T
+    from ident.gap.candidates import ssign
+
+    cols = [CiT[joint - 1, k] * np.column_stack([ssign(u[:, k]), u[:, k], udd[:, k]])
+            for k in range(n) if np.sum(np.abs(Ci[k]) > 1e-12) > 1 and abs(CiT[joint - 1, k]) > 1e-12]
+    return np.column_stack(cols) if cols else np.zeros((qd.shape[0], 0))
 
 
 def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                             tau: np.ndarray, robot, armature=None, n_segments: int | None = None,
-                            v_zero: float = 0.02) -> JointData:
+                            v_zero: float = 0.02, coupling: np.ndarray | None = None) -> JointData:
     """:class:`JointData` for one joint of a continuous record in which several joints move
     together and nothing is repeated (e.g. an industrial controller's log).
 
@@ -451,7 +443,8 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     return JointData(
         joint=joint, trials=trials, trial=seg[k].astype(int), t=t[k], t_rel=(t - t[0])[k],
         q=q[k, j0], qd=qd[k, j0], qdd=qdd[k, j0], y=y[k], tau_urdf=tau_rb[k], tau_grav=grav[k],
-        urdf_regs=np.column_stack([qdd[k, j0], grav[k], np.ones(k.sum())]), load=np.zeros(k.sum()),
+        urdf_regs=np.column_stack([qdd[k, j0], grav[k], np.ones(k.sum()),
+                                   coupled_motor_columns(joint, qd, qdd, coupling)[k]]), load=np.zeros(k.sum()),
         vmax=float(drive.max_velocity) if np.isfinite(drive.max_velocity) else float(np.abs(qd[:, j0]).max()),
         tau_max=float(drive.max_torque), trial_m=np.zeros(0, int), e=empty, qd_m=empty, y_m=empty,
         t_m=empty, tau_m=empty, rep=np.arange(1, n_segments + 1), group=np.zeros(n_segments, int),

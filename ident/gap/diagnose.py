@@ -29,15 +29,14 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from ident.gap.candidates import Candidate, candidate_effects, confounders, level_interactions, selected_levels
+from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmission,
+                               _transmission_channel, nominal_heldout_rms, undeclared_payload_columns)
 from ident.gap.data import JointData
-from ident.gap.nominal import NOMINAL_MODELS, NominalModel, nominal_model
+from ident.gap.nominal import nominal_model
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
-                              repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
+                              loss_differential_test, loss_test_min_p, repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
-
-REGIMES = ("low_speed", "high_speed", "reversal", "high_acceleration", "position", "time", "load")
-
 
 @dataclass(frozen=True)
 class DiagnosisSettings:
@@ -64,148 +63,11 @@ class DiagnosisSettings:
     n_boot: int = 300
     seed: int = 0
     nominal: str = "cv"              # --nominal SPEC (ident.gap.nominal.nominal_model)
+    test: str = "auto"               # "cycles" (block sign-flip), "samples" (HAC loss differential) or
+    #                                  "auto": cycles where they can reach Holm's first threshold
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-@dataclass
-class Channel:
-    name: str
-    unit: str
-    target: np.ndarray
-    X0: np.ndarray
-    trial: np.ndarray
-    bounds: np.ndarray
-    demean: bool  # within-trial demeaning (per-trial offsets as nuisance)
-    blocks: np.ndarray | None = None       # (n_blocks, 2) sample ranges of the motion cycles
-    block_trial: np.ndarray | None = None  # (n_blocks,) trial of each block
-    declared: np.ndarray | None = None     # transmission: the declared stiffness's deflection (prepped)
-
-    def block_fold(self, fold: np.ndarray) -> np.ndarray:
-        """Held-out fold of each block (its trial's fold)."""
-        return fold[self.block_trial]
-
-    def prep(self, X: np.ndarray) -> np.ndarray:
-        if not self.demean or X.size == 0:
-            return X
-        out = X.copy()
-        for s, e in self.bounds:
-            out[s:e] -= out[s:e].mean(axis=0)
-        return out
-
-
-def _motion_blocks(trial: np.ndarray, qd: np.ndarray, n_trials: int) -> tuple[np.ndarray, np.ndarray]:
-    """Blocks of the randomisation test and units of the held-out SSE: the motion cycles of each
-    trial (:func:`ident.gap.data.motion_cycles`, chosen from the data, never across trials).
-    Residual correlation is short against a cycle, so cycles are nearly exchangeable units, and a
-    campaign of 12 trials gives the sign-flip test tens of blocks instead of 12 (whose smallest p,
-    times Holm's multiplier, cannot reach the level). Returns (bounds (n_blocks, 2), trial of each)."""
-    from ident.gap.data import motion_cycles
-
-    if trial.size == 0:
-        return np.zeros((0, 2), int), np.zeros(0, int)
-    cyc = motion_cycles(qd, group=trial)   # counted afresh in each trial
-    new = np.r_[True, (trial[1:] != trial[:-1]) | (cyc[1:] != cyc[:-1])]
-    starts = np.flatnonzero(new)
-    ends = np.r_[starts[1:], trial.size]
-    # a short remnant (e.g. a trial's last half cycle) joins the previous block of its trial
-    short = (ends - starts) < 20
-    keep = ~short | np.r_[True, trial[starts[1:]] != trial[starts[:-1]]]
-    starts = starts[keep]
-    ends = np.r_[starts[1:], trial.size]
-    bt = trial[starts].astype(int)
-    return np.column_stack([starts, ends]), bt
-
-
-def undeclared_payload_columns(d: JointData) -> np.ndarray:
-    """Rigid-body corrections of each payload carried without a declared ``payload_com``
-    (FORMAT.md then takes it at the flange origin, which a real payload rarely is): the payload's
-    first moments enter the moving joint's gravity torque as ``A sin q + B cos q`` and its inertia
-    about the axis linearly in the COM offset, so ``[qdd, sin q, cos q]`` on that payload's trials
-    spans a COM error exactly. A torque gain is then not identifiable (its only lever, the
-    payload's known torque, is what these columns free): the report says so instead of reading a
-    COM error as a torque scale (measured on the foreign world: effect-free ind6 campaigns with
-    the COM undeclared went to ``torque_scale``; with the gravity part alone freed, one still
-    removed 0.22 of its noise floor). (N, 3 per such payload); none when every loaded trial
-    declares its COM."""
-    cols = [d.urdf_regs * np.isin(d.trial, idx)[:, None] for idx in _undeclared_payloads(d)]
-    return np.column_stack(cols) if cols else np.zeros((d.trial.shape[0], 0))
-
-
-def _undeclared_payloads(d: JointData) -> list:
-    """Trial indices of each payload mass carried without a declared ``payload_com``."""
-    loads = {}
-    for i, tr in enumerate(d.trials):
-        if tr.load_kg > 0 and "payload_com" not in (getattr(tr, "extra", None) or {}):
-            loads.setdefault(round(float(tr.load_kg), 9), []).append(i)
-    return list(loads.values())
-
-
-def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
-    nominal = nominal or NOMINAL_MODELS["cv"]
-    X0 = nominal.columns(d)
-    extra = undeclared_payload_columns(d)
-    if extra.shape[1]:
-        X0 = np.column_stack([X0, extra])
-    nt = d.n_trials
-    blocks, bt = _motion_blocks(d.trial, d.qd, nt)
-    return Channel("torque", "N m", nominal.target(d), X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt)
-
-
-def at_markers(d: JointData, x: np.ndarray) -> np.ndarray:
-    """A log-clock signal of the torque channel (``d.q``, ``d.qdd`` ...) at the marker times
-    (per trial, interpolated on the log clock; rests left out of the log samples are bridged)."""
-    out = np.zeros(d.e.shape[0])
-    for i in np.unique(d.trial_m):   # loop over trials, vectorised over samples
-        m, ml = d.trial_m == i, d.trial == i
-        if ml.sum() >= 2:
-            out[m] = np.interp(d.t_m[m], d.t[ml], x[ml])
-    return out
-
-
-def _transmission_channel(d: JointData) -> Channel:
-    """Link angle from the markers minus motor angle, beyond the declared stiffness. Nominal:
-    per-trial offsets (marker frame calibration) and a gain on the motor angle: a link angle
-    solved from markers carries a small scale error against the encoder (gear ratio,
-    kinematic calibration), a deflection proportional to the angle that no transmission effect
-    makes (measured on the foreign world: -0.45 % of the angle, 1.1 of the channel's 1.7 mrad
-    RMS on an ind6 campaign); and the payload corrections of :func:`undeclared_payload_columns`."""
-    nt = d.n_trials
-    b = trial_bounds(d.trial_m, nt)
-    blocks, bt = _motion_blocks(d.trial_m, d.qd_m, nt)
-    qm = at_markers(d, d.q)
-    X0 = [qm[:, None]]
-    # a payload whose COM is not declared: its torque, and so the declared stiffness's deflection,
-    # is uncertain by [qdd, sin q, cos q] on its trials (as in the torque channel)
-    loads = _undeclared_payloads(d)
-    if loads:
-        regs = np.column_stack([at_markers(d, d.qdd), np.sin(qm), np.cos(qm)])
-        X0 += [regs * np.isin(d.trial_m, idx)[:, None] for idx in loads]
-    X0 = np.column_stack(X0)
-    ch = Channel("transmission", "rad", d.e, X0, d.trial_m, b, True, blocks, bt)
-    ch.target = ch.prep(d.e[:, None])[:, 0]
-    if d.stiffness > 0:
-        ch.declared = ch.prep((d.tau_m / d.stiffness)[:, None])[:, 0]
-    return ch
-
-
-class _Transmission:
-    """View of JointData whose arrays are the marker-clock ones (for candidate columns)."""
-
-    def __init__(self, d: JointData):
-        self.y_m, self.qd_m, self.trial, self.tau_m, self.t_m = d.y_m, d.qd_m, d.trial_m, d.tau_m, d.t_m
-
-
-def _cv(channel: Channel, X: np.ndarray, fold: np.ndarray, gb: dict | None = None, base=None):
-    """Leave-one-fold-out CV of ``X`` augmented by each entry of ``gb`` (hp -> Grams of
-    ``[X | C(hp)]``); without ``gb``, of ``X`` alone (``base`` = its Grams, built if None)."""
-    if gb is None:
-        base = base if base is not None else grams(X, channel.target, channel.blocks)
-        if X.shape[1] == 0:
-            return CVResult(base.yy.copy(), {}, np.zeros(0), None, float(base.yy.sum())), {None: base}
-        gb = {None: base}
-    return cross_validate(gb, fold), gb
 
 
 def _columns(cand: Candidate, d: JointData, hp):
@@ -266,13 +128,6 @@ def _amplitudes(theta: np.ndarray, p: int, keep: np.ndarray) -> np.ndarray:
     return a
 
 
-def nominal_heldout_rms(d: JointData, nominal: str = "cv") -> float:
-    """Held-out torque RMS of the nominal model (leave-one-fold-out), for data-preparation choices."""
-    ch = _torque_channel(d, nominal_model(nominal))
-    cv, _ = _cv(ch, ch.X0, ch.block_fold(d.fold))
-    return _rms(cv.sse, ch.blocks[:, 1] - ch.blocks[:, 0])
-
-
 def _over_floor(removed_mse: float, noise_mse: float) -> float:
     """Held-out variance an effect removes, in units of its channel's noise-floor variance (the
     one scale on which channels with different units are compared)."""
@@ -318,10 +173,6 @@ def _share(removed: float, gap: float) -> float:
     return float(removed / gap) if gap > 0 else (float("inf") if removed > 0 else 0.0)
 
 
-def _rms(sse, n):
-    return float(np.sqrt(np.sum(sse) / max(np.sum(n), 1)))
-
-
 @dataclass
 class _Row:
     """Working state of one effect's test in one selection step."""
@@ -345,10 +196,40 @@ class _ChannelRun:
     n_blocks: int = 0
     p_min: float = 1.0            # smallest p the block sign-flip test can give
     n_tested: int = 0             # identifiable candidates (Holm's multiplier at the first step)
+    design: _TestDesign | None = None
+    first_d: dict | None = None   # effect -> per-unit held-out loss differential at the last step
 
     def powerless(self, alpha: float) -> bool:
         """True when even the most extreme outcome cannot pass Holm's first threshold."""
         return self.n_tested > 0 and self.p_min * self.n_tested >= alpha
+
+    def detectable(self, alpha: float, power: float = 0.8) -> float:
+        """The smallest effect this channel's data could have shown beyond the model it reached:
+        the held-out variance an effect must remove (per sample, in units of the noise-floor
+        variance) for the test to pass Holm's first threshold with probability ``power``, from
+        the spread of the last selection step's loss differentials (the median over candidates
+        of their standard errors: HAC in the sample-level test, the block standard deviation in
+        the sign-flip test). Infinite when the test cannot reach the threshold at all."""
+        from scipy.stats import norm, t as student_t
+
+        if self.powerless(alpha) or not self.first_d or not np.isfinite(self.noise_floor_mse) \
+                or self.noise_floor_mse <= 0:
+            return float("inf")
+        ses = []
+        for dl in self.first_d.values():   # one standard error per candidate
+            n = dl.shape[0]
+            if self.design is not None and self.design.mode == "samples":
+                _, info = loss_differential_test(dl)
+                ses.append(info["se"] / max(info.get("hln", 1.0), 1e-12))
+            else:
+                ses.append(float(np.std(dl, ddof=1) / np.sqrt(n)) if n > 1 else float("inf"))
+        # the median over candidates: an effect present inflates its own (and its confounders')
+        # loss-differential spread; the others show the spread under the null
+        se = float(np.median(ses))
+        crit = float(student_t.isf(alpha / max(self.n_tested, 1), df=max(n - 1, 1)))
+        mean_d = (crit + float(norm.ppf(power))) * se
+        per_sample = mean_d * n / max(float(np.sum(self.n)), 1.0)
+        return float(per_sample / self.noise_floor_mse)
 
 
 NOT_IDENTIFIABLE = ("not identifiable from this campaign: its signature is indistinguishable from the "
@@ -397,12 +278,129 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray) -> "_Row":
     return choice
 
 
+def correlation_samples(r: np.ndarray, trial: np.ndarray, max_lag: int = 2000, level: float = 0.1) -> int:
+    """The residual's correlation length in samples: the first lag at which its autocorrelation
+    (within trials, pooled) falls below ``level`` (at most ``max_lag``). The guard of hv-block
+    cross-validation and the unit of the sample-level test are sized by it."""
+    r = np.asarray(r, float)
+    if r.size < 4:
+        return 1
+    r = r - r.mean()
+    den = float(r @ r)
+    if den <= 0:
+        return 1
+    same = trial[1:] == trial[:-1]
+    for k in range(1, min(max_lag, r.size - 1) + 1):   # stops at the first small lag
+        ok = trial[k:] == trial[:-k] if k > 1 else same
+        num = float(r[k:][ok] @ r[:-k][ok]) * r.size / max(int(ok.sum()), 1)
+        if num / den < level:
+            return k
+    return int(min(max_lag, r.size - 1))
+
+
+#: fewest samples in a unit of the sample-level test (:func:`_sample_units`)
+MIN_UNIT_SAMPLES = 20
+#: most units of the sample-level test per channel (Gram matrices are summed per unit)
+MAX_UNITS = 600
+
+
+def _sample_units(blocks: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each motion cycle of ``blocks`` cut into consecutive units of about ``length`` samples (a
+    remnant shorter than half a unit joins the previous one). Returns (units (n, 2), parent
+    block of each unit)."""
+    units, parent = [], []
+    for k, (s, e) in enumerate(blocks):   # loop over cycles
+        n = int(e - s)
+        m = max(int(round(n / max(length, 1))), 1)
+        edges = s + np.round(np.linspace(0, n, m + 1)).astype(int)
+        units += list(zip(edges[:-1], edges[1:]))
+        parent += [k] * m
+    return np.asarray(units, int).reshape(-1, 2), np.asarray(parent, int)
+
+
+def _guard_masks(units: np.ndarray, unit_trial: np.ndarray, fold: np.ndarray, h: int) -> dict:
+    """For each fold, the units of the same trial within ``h`` samples of its test units (not
+    tested, left out of that fold's training): hv-block cross-validation (Racine 2000)."""
+    out = {}
+    if h <= 0:
+        return out
+    for f in np.unique(fold):
+        test = fold == f
+        g = np.zeros(fold.shape[0], bool)
+        for tr in np.unique(unit_trial[test]):   # loop over the trials the fold touches
+            same = (unit_trial == tr) & ~test
+            ts, te = units[test & (unit_trial == tr), 0], units[test & (unit_trial == tr), 1]
+            lo, hi = ts.min() - h, te.max() + h
+            # units overlapping [lo, start of a test unit) or (end of a test unit, hi]
+            near = np.zeros(fold.shape[0], bool)
+            for a, b in zip(ts, te):   # loop over the fold's test units in this trial
+                near |= (units[:, 1] > a - h) & (units[:, 0] < b + h)
+            g |= same & near & (units[:, 1] > lo) & (units[:, 0] < hi)
+        if g.any():
+            out[f] = g
+    return out
+
+
+@dataclass
+class _TestDesign:
+    """How one channel's held-out error is cut into units, folded and tested."""
+
+    mode: str                 # "cycles" (sign-flip over motion cycles) or "samples" (HAC loss test)
+    blocks: np.ndarray        # (n, 2) sample ranges of the units
+    fold: np.ndarray          # (n,) held-out fold of each unit
+    guard: dict               # fold -> units left out of its training (hv-block)
+    n_cycles: int
+    correlation_samples: int = 0
+    text: str = ""
+
+
+def _test_design(d: JointData, ch: Channel, n_effects: int, settings: "DiagnosisSettings") -> _TestDesign:
+    """The units and folds of one channel's test. Campaigns with enough motion cycles keep the
+    block sign-flip test over cycles with their repetitions as folds; when that test cannot
+    reach Holm's first threshold (a record with a few cycles, a campaign of one or two trials),
+    power comes from the samples: each cycle is cut into short units, the folds are the trials
+    (or, with one trial, its cycles), the units within the residual's correlation length of a
+    test fold are left out of its training (hv-block), and the loss differential is tested with
+    a HAC variance (:func:`ident.gap.engine.loss_differential_test`)."""
+    fold_c = ch.block_fold(d.fold)
+    n_cycles = int(ch.blocks.shape[0])
+    p_min = sign_flip_min_p(n_cycles, settings.n_perm)
+    if settings.test != "samples" and len(np.unique(fold_c)) >= 2 and (
+            settings.test == "cycles" or p_min * max(n_effects, 1) < settings.alpha):
+        return _TestDesign("cycles", ch.blocks, fold_c, {}, n_cycles,
+                           text=f"block sign-flip test over {n_cycles} motion cycles; folds: "
+                                + ("repetitions" if len(np.unique(fold_c)) < n_cycles else "cycles"))
+    # the nominal's residual on all data sets the correlation length (guard and unit length)
+    X = ch.prep(ch.X0)
+    r = ch.target - X @ np.linalg.lstsq(X, ch.target, rcond=None)[0] if X.shape[1] else ch.target
+    h = correlation_samples(r, ch.trial)
+    n = int(ch.target.shape[0])
+    length = max(MIN_UNIT_SAMPLES, h, int(np.ceil(n / MAX_UNITS)))
+    units, parent = _sample_units(ch.blocks, length)
+    unit_trial = ch.block_trial[parent]
+    if len(np.unique(fold_c)) >= 2:
+        fold, ftext = fold_c[parent], "trials" if len(np.unique(fold_c)) < n_cycles else "cycles"
+    else:
+        fold, ftext = parent.copy(), "cycles"
+    guard = _guard_masks(units, unit_trial, fold, h)
+    return _TestDesign("samples", units, fold, guard, n_cycles, h,
+                       text=f"HAC loss-differential test (Diebold-Mariano, Newey-West, HLN correction) over "
+                            f"{units.shape[0]} units of ~{length} samples; folds: {ftext} "
+                            f"(hv-block, guard {h} samples: the residual's correlation length)")
+
+
 def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSettings) -> _ChannelRun:
-    fold = ch.block_fold(d.fold)
-    n_per_trial = ch.blocks[:, 1] - ch.blocks[:, 0]   # per block (motion cycle)
+    by_effect: dict = {}
+    for c in cands:
+        if c.channel == ch.name:
+            by_effect.setdefault(c.name, []).append(c)
+    design = _test_design(d, ch, len(by_effect), settings)
+    ch = replace(ch, blocks=design.blocks)
+    fold = design.fold
+    n_per_trial = ch.blocks[:, 1] - ch.blocks[:, 0]   # per unit (motion cycle or part of one)
     X = ch.prep(ch.X0)
     base = grams(X, ch.target, ch.blocks)
-    base_cv, _ = _cv(ch, X, fold, base=base)
+    base_cv, _ = _cv(ch, X, fold, base=base, guard=design.guard)
     nominal_sse = base_cv.sse.copy()
     # residual of the nominal fit on all data -> white-noise floor
     resid_all = ch.target - X @ base_cv.theta_all if X.shape[1] else ch.target
@@ -412,27 +410,31 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     excess_nom = max(mse_nom - noise, 0.0)
     steps, tested_first = [], None
     current_sse = nominal_sse
-    by_effect: dict = {}
-    for c in cands:
-        if c.channel == ch.name:
-            by_effect.setdefault(c.name, []).append(c)
     cache = _ColumnCache()
     n_blocks = int(np.sum(n_per_trial > 0))
-    p_min = sign_flip_min_p(n_blocks, settings.n_perm)
+    p_min = (sign_flip_min_p(n_blocks, settings.n_perm) if design.mode == "cycles"
+             else loss_test_min_p(n_blocks))
+    step_d = {}      # effect -> loss differentials of the latest step (power given the model reached)
     decl_ms = float(np.mean(ch.declared ** 2)) if ch.declared is not None and ch.declared.size else 0.0
     levels = (None, None)   # fitted Coulomb / viscous levels of the effects selected so far (torque)
     for step in range(settings.max_effects):
         rows, pvals = {}, {}
+        step_d = {}
         for name, group in by_effect.items():
             gb, cols = _effect_grams(group, d, ch, X, base, cache, levels)
             if not gb:
                 rows[name] = _Row(name, EffectTest(name, ch.name, False, note=NOT_IDENTIFIABLE))
                 continue
-            cvr, _ = _cv(ch, X, fold, gb)
+            cvr, _ = _cv(ch, X, fold, gb, guard=design.guard)
             cand, hp = cvr.hp_all
             physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all][1])))
             composed = cols[cvr.hp_all][1].shape[0] > cache.get(cand, d, ch, hp).shape[1]
-            p = sign_flip_pvalue(current_sse - cvr.sse, settings.n_perm, settings.seed)
+            dloss = current_sse - cvr.sse
+            if design.mode == "cycles":
+                p = sign_flip_pvalue(dloss, settings.n_perm, settings.seed)
+            else:
+                p = loss_differential_test(dloss)[0]
+            step_d[name] = dloss
             pvals[name] = p
             mse_e = float(cvr.sse.sum() / n_tot)
             mse_cur = float(current_sse.sum() / n_tot)
@@ -483,7 +485,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         by_effect.pop(best.effect)
     n_tested = sum(1 for r in (tested_first or {}).values() if r.test.identifiable)
     return _ChannelRun(nominal_sse, base_cv, n_per_trial, noise, mse_nom, tested_first or {}, steps,
-                       current_sse, n_blocks, p_min, n_tested)
+                       current_sse, n_blocks, p_min, n_tested, design, step_d)
 
 
 def _stability(res: _ChannelRun, settings: DiagnosisSettings) -> dict:
@@ -545,13 +547,14 @@ def _localise(d: JointData, noise: float, resid: np.ndarray) -> tuple[list, floa
     return rows, rest / tot
 
 
-def _heldout_residual(d: JointData, ch: Channel, cv: CVResult) -> np.ndarray:
+def _heldout_residual(ch: Channel, cv: CVResult, design: _TestDesign) -> np.ndarray:
     """Held-out residual of the nominal model: each fold's samples against the fit without it
-    (the thetas of the nominal cross-validation, not refitted)."""
+    (the thetas of the nominal cross-validation, not refitted). Samples of no tested unit stay 0."""
     r = np.zeros_like(ch.target)
+    X = ch.prep(ch.X0)
     for f, th in cv.theta_per_fold.items():
-        te = np.isin(ch.trial, np.flatnonzero(d.fold == f))
-        r[te] = ch.target[te] - ch.X0[te] @ th
+        for s0, e0 in design.blocks[design.fold == f]:   # loop over the fold's units
+            r[s0:e0] = ch.target[s0:e0] - X[s0:e0] @ th
     return r
 
 
@@ -572,18 +575,45 @@ def _selection_order(chres: dict) -> list:
     return firsts + [s for c in order for s in chres[c].selected[1:]]
 
 
+class GapDiagnosis:
+    """The sim-to-real gap diagnosis of one joint as an estimator (see the module docstring):
+    ``GapDiagnosis(nominal, families, settings).fit(data) -> DiagnosisResult``.
+
+    Parameters
+    ----------
+    nominal : str
+        The simulator's model the gap is measured against (``jointlab diagnose --nominal``;
+        :func:`ident.gap.nominal.nominal_model`).
+    families : iterable of str, optional
+        Candidate families to test (names of :data:`ident.gap.candidates.FAMILIES`); all by default.
+    settings : DiagnosisSettings, optional
+        Levels, floors and the test (``settings.nominal`` is replaced by ``nominal``).
+    """
+
+    def __init__(self, nominal: str = "cv", families=None, settings: DiagnosisSettings | None = None):
+        self.settings = replace(settings or DiagnosisSettings(), nominal=nominal)
+        self.families = None if families is None else frozenset(families)
+
+    def fit(self, data: JointData, gear_ratio: float | None = None) -> DiagnosisResult:
+        """Diagnose ``data`` (:class:`ident.gap.data.JointData`); ``gear_ratio`` sets the ripple
+        orders tested (the wave generator's and its harmonics)."""
+        from ident.signals.smoothing import one_blas_thread
+
+        with one_blas_thread():
+            return _diagnose_joint(data, self.settings, gear_ratio, self.families)
+
+
 def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings(),
                    gear_ratio: float | None = None) -> DiagnosisResult:
-    from ident.signals.smoothing import one_blas_thread
-
-    with one_blas_thread():
-        return _diagnose_joint(d, settings, gear_ratio)
+    """:class:`GapDiagnosis` with ``settings`` (its nominal included) on ``d``."""
+    return GapDiagnosis(settings.nominal, None, settings).fit(d, gear_ratio)
 
 
-def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None) -> DiagnosisResult:
+def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None,
+                    families=None) -> DiagnosisResult:
     nominal = nominal_model(settings.nominal)
     q_range = float(np.ptp(np.percentile(d.q, [0.5, 99.5]))) if d.q.size else None
-    cands = candidate_effects(gear_ratio, q_range)
+    cands = [c for c in candidate_effects(gear_ratio, q_range) if families is None or c.family in families]
     channels = [_torque_channel(d, nominal)]
     if d.has_transmission:
         channels.append(_transmission_channel(d))
@@ -607,31 +637,183 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
     # share of its gap) keep a marginal transmission finding from overriding a torque one.
     firsts = [chres[c].selected[0] for c in ("transmission", "torque") if c in chres and chres[c].selected]
     verdict = firsts[0].effect if firsts else "none"
-    insufficient = ""
-    if verdict == "none":
-        weak = [(c, r) for c, r in runs.items() if r.powerless(settings.alpha)]
-        if weak:
-            c, r = weak[0]
-            need = int(np.ceil(np.log2(2 * r.n_tested / settings.alpha)))
-            insufficient = (f"insufficient data: the {c} channel has {r.n_blocks} independent blocks (trials or "
-                            f"motion cycles); the block sign-flip test's smallest p is {r.p_min:.3g}, times "
-                            f"{r.n_tested} candidates (Holm) >= alpha {settings.alpha:g}, so no effect could be "
-                            f"declared. Record at least {need} blocks (repeat the trajectories, or a longer record "
-                            f"with more motion cycles) to settle it.")
     tch, tres = channels[0], runs["torque"]
-    resid = _heldout_residual(d, tch, tres.nominal_cv)
+    resid = _heldout_residual(tch, tres.nominal_cv, tres.design)
     localisation, rest = _localise(d, tres.noise_floor_mse, resid)
     dt = float(np.median(np.diff(d.t_rel[:1000]))) if d.t_rel.size > 2 else 0.005
     rep_var = repetition_noise_floor(resid, d.trial, d.t_rel, d.group[:d.n_trials], 1.0 / dt)
     chres["torque"] = replace(chres["torque"], noise_floor_rms_repetitions=(
         float(np.sqrt(rep_var)) if np.isfinite(rep_var) else None))
+    # power: the smallest effect each channel could have shown (noise-variance units), at least
+    # the effect-size floor of its least demanding family
+    power = {}
+    for c, r in runs.items():
+        floor = min(effect_size_floor(c, fam, settings) for fam in
+                    {cd.family for cd in cands if cd.channel == c} or {""})
+        power[c] = max(r.detectable(settings.alpha), floor)
+    spectrum = residual_spectrum(resid, tch.trial, dt, tres.noise_floor_mse)
+    status, insufficient, next_exp = _status(verdict, runs, chres, power, settings, d, spectrum, localisation)
+    alternatives = _alternatives(verdict, runs, d)
+    if alternatives and not next_exp:
+        next_exp = {"why": f"{verdict} and {', '.join(a['effect'] for a in alternatives)} explain the same term",
+                    "proposal": alternatives[0]["separate_by"],
+                    "command": _design_command(d)}
     effects.sort(key=lambda r: (not r.significant, -(r.reduction or 0.0)))
+    series = {"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial,
+              "spectrum": spectrum}
     return DiagnosisResult(
         verdict=verdict, nominal_model=nominal.label, n_trials=d.n_trials,
-        folds="leave-one-repetition-out" if len(set(d.fold.tolist())) < d.n_trials else "leave-one-trial-out",
+        folds=_folds_text(d, runs),
         channels=chres, effects=tuple(effects), insufficient=insufficient,
         selected=tuple(s.effect for s in _selection_order(chres)),
         localisation=tuple(localisation), localisation_rest=rest,
         localisation_method="decomposition of the held-out excess over non-overlapping motion regimes "
                             "(priority " + " > ".join(PARTITION) + "; the remainder is 'rest')",
-        series={"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial})
+        status=status, detectable=power, alternatives=alternatives, next_experiment=next_exp,
+        spectrum_bands=tuple(spectrum["bands"]) if spectrum else (),
+        tests={c: r.design.text for c, r in runs.items() if r.design is not None},
+        series=series)
+
+
+#: the held-out gap above the white-noise floor, in units of the floor's variance, from which a
+#: gap that no effect explains is reported as ``unexplained`` rather than ``none``. Effect-free
+#: foreign campaigns leave 0.35-0.6 (command jitter through quantisation, the feedback column's
+#: residue); a gap of a full noise variance is beyond what an adequate nominal leaves.
+UNEXPLAINED_EXCESS = 1.0
+#: effect -> the experiment that separates it from its confounders (the registry's)
+REGISTRY_SEPARATION = {n: confounders(n)[1] for n in ("load_dependent", "torque_scale")}
+#: the size (noise-variance units) below which a channel is called powerful enough: an effect
+#: removing less than this is what the acceptance calls too small for any method to see
+POWER_TARGET = 0.3
+#: frequency bands of the held-out residual's spectrum (Hz, upper edges; the last is Nyquist)
+BANDS_HZ = (1.0, 3.0, 10.0)
+
+
+def residual_spectrum(resid: np.ndarray, trial: np.ndarray, dt: float, noise_mse: float) -> dict:
+    """Welch spectrum of the held-out nominal residual (each trial's kept samples taken at the
+    median step; the few left-out slow samples are bridged) against the white-noise floor's flat
+    density ``2 sigma^2 dt``, and the share of the excess power (above the floor) in each band of
+    :data:`BANDS_HZ`. Empty when the record is too short."""
+    from scipy.signal import welch
+
+    segs = [resid[trial == k] for k in np.unique(trial)]
+    segs = [x for x in segs if x.size >= 64]
+    if not segs or not np.isfinite(noise_mse) or dt <= 0:
+        return {}
+    nper = int(min(1024, min(x.size for x in segs)))
+    f = None
+    acc, wsum = 0.0, 0
+    for x in segs:   # loop over trials
+        f, pxx = welch(x - x.mean(), fs=1.0 / dt, nperseg=nper)
+        acc = acc + pxx * x.size
+        wsum += x.size
+    pxx = acc / wsum
+    floor = 2.0 * noise_mse * dt
+    excess = np.clip(pxx - floor, 0, None)
+    df = float(f[1] - f[0]) if f.size > 1 else 1.0
+    tot = float(excess.sum() * df)
+    edges = (0.0,) + BANDS_HZ + (float(f[-1]) + df,)
+    bands = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (f >= lo) & (f < hi)
+        e = float(excess[m].sum() * df)
+        bands.append({"band_hz": [lo, min(hi, float(f[-1]))], "excess_share": e / tot if tot > 0 else 0.0,
+                      "excess_over_floor": e / max(noise_mse, 1e-300)})
+    return {"f": f, "psd": pxx, "floor": floor, "bands": bands}
+
+
+def _folds_text(d: JointData, runs: dict) -> str:
+    r = runs.get("torque")
+    if r is not None and r.design is not None and r.design.mode == "samples":
+        return "hv-block: " + r.design.text.split("folds: ", 1)[-1]
+    return "leave-one-repetition-out" if len(set(d.fold.tolist())) < d.n_trials else "leave-one-trial-out"
+
+
+def _status(verdict: str, runs: dict, chres: dict, power: dict, settings: DiagnosisSettings, d: JointData,
+            spectrum: dict, localisation) -> tuple:
+    """(status, text, next experiment) of the verdict: ``effect``; ``none`` (the gap is at the
+    noise floor, and the data could have shown an effect of the stated size); ``unexplained``
+    (a gap above the floor that no effect of the vocabulary explains: where it lies by regime and
+    frequency band); ``insufficient_data`` (the data could not have shown an effect of
+    :data:`POWER_TARGET` noise variances: what to record next)."""
+    tr = runs["torque"]
+    if verdict != "none":
+        return "effect", "", {}
+    det = power.get("torque", float("inf"))
+    excess = (tr.mse_nominal / tr.noise_floor_mse - 1.0) if tr.noise_floor_mse > 0 else float("inf")
+    seconds = float(np.sum(tr.n)) * (float(np.median(np.diff(d.t_rel[:1000]))) if d.t_rel.size > 2 else 0.0)
+    if excess > UNEXPLAINED_EXCESS and np.isfinite(excess):
+        where = ", ".join(f"{r['regime']} {r['share']:.0%}" for r in localisation[:3])
+        bands = ", ".join(f"{b['band_hz'][0]:g}-{b['band_hz'][1]:.3g} Hz {b['excess_share']:.0%}"
+                          for b in (spectrum.get("bands") or []))
+        text = (f"a held-out torque gap {excess:.2g} noise variances above the white-noise floor that no "
+                f"effect of the vocabulary explains (by regime: {where or '-'}; by frequency: {bands or '-'})")
+        return "unexplained", text, {
+            "why": "the nominal model misses something outside the effect vocabulary, or the noise is not white",
+            "proposal": "check the rigid-body model (payload, URDF inertias, coupled joints) and the logged torque's "
+                        "bandwidth (a controller or structural resonance shows as a band above a few Hz); repeat "
+                        "the same trajectory to measure the noise floor from repetitions"}
+    if det > POWER_TARGET or all(r.powerless(settings.alpha) for r in runs.values()):
+        factor = (det / POWER_TARGET) if np.isfinite(det) else float("inf")
+        more = (f"about {factor:.1f}x this record's {seconds:.0f} s of motion" if np.isfinite(factor)
+                else "several repetitions or a longer record with more motion cycles")
+        text = (f"insufficient data: the smallest effect this record could have shown removes "
+                f"{det:.2g} noise variances (goal {POWER_TARGET:g}); record {more}")
+        return "insufficient_data", text, {
+            "kind": "excitation", "seconds": float(seconds * factor) if np.isfinite(factor) else None,
+            "proposal": f"repeat the excitation ({more})", "command": _design_command(d)}
+    return "none", "", {}
+
+
+def _design_command(d: JointData) -> str:
+    """The `jointlab design` line that writes an excitation of this joint at full speed."""
+    return f"jointlab design --robot CAMPAIGN --joint {d.joint} --vmax-frac 1 --out next-excitation"
+
+
+def _alternatives(verdict: str, runs: dict, d: JointData) -> tuple:
+    """Effects that explain the same term as the verdict within the data's resolution (each keeps
+    less than a third of its reduction given the other, both significant), and the payload's
+    centre of mass when the verdict is a torque gain or load-dependent friction on trials whose
+    payload COM is undeclared (FORMAT.md then puts it at the flange origin: a declaration that
+    may be wrong) or unknown. Each: (name, why, how to separate)."""
+    out = []
+    if verdict == "none":
+        return ()
+    for r in runs.values():
+        for st in r.steps[:1]:
+            s0 = st[0]
+            if s0.effect != verdict:
+                continue
+            row = r.first.get(verdict)
+            if row is None:
+                continue
+            for k, x in row.test.evidence.items():
+                if not k.startswith("unique_share_given_"):
+                    continue
+                other = k[len("unique_share_given_"):]
+                o = r.first.get(other)
+                ub = o.test.evidence.get(f"unique_share_given_{verdict}") if o is not None else None
+                if o is not None and o.test.significant and x < 1 / 3 and ub is not None and ub < 1 / 3:
+                    _, exp = confounders(verdict)
+                    out.append({"effect": other, "why": f"explains the same term (unique shares {x:.2f} / {ub:.2f})",
+                                "separate_by": exp})
+    # a gear efficiency (FORMAT.md's torque_scale) is friction proportional to the torque the gear
+    # passes, i.e. a load-dependent friction in the friction literature: say so when it wins
+    tq = runs.get("torque")
+    st = tq.steps[0][0] if tq is not None and tq.steps else None
+    if (verdict == "torque_scale" and st is not None and st.effect == verdict and "efficiency" in st.shape
+            and not any(a["effect"] == "load_dependent" for a in out)):
+        out.append({"effect": "load_dependent", "why": "a direction-dependent gear efficiency is friction "
+                    "proportional to the torque the gear passes (FORMAT.md names it torque_scale)",
+                    "separate_by": REGISTRY_SEPARATION.get("load_dependent", "")})
+    loaded = [tr for tr in d.trials if getattr(tr, "load_kg", 0) > 0]
+    com = [(getattr(tr, "extra", None) or {}).get("payload_com") for tr in loaded]
+    if verdict in ("torque_scale", "load_dependent") and loaded and any(c is None or c == "unknown" for c in com):
+        out.append({"effect": "payload_com", "why": "a payload centre of mass away from its declared place "
+                    "changes the payload's torque like a gain on it" + (
+                        " (payload_com not declared: FORMAT.md puts it at the flange origin)"
+                        if any(c is None for c in com) else ""),
+                    "separate_by": "declare the measured payload_com, or run the trajectory without payload and "
+                                   "with the payload turned by 180 deg about the flange axis"})
+    return tuple(out)
+

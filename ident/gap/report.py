@@ -63,6 +63,19 @@ def markdown(report: dict, plots: dict) -> str:
         if "note" in rep:
             L += [rep["note"], ""]
             continue
+        if rep.get("verdict_text"):
+            L += [f"**Verdict**: {rep['verdict_text']}.", ""]
+        for a in rep.get("alternatives", []):
+            L += [f"- alternative **{a['effect']}**: {a['why']}; to separate: {a['separate_by']}."]
+        if rep.get("alternatives"):
+            L.append("")
+        if rep.get("unexplained"):
+            L += [f"What stays unexplained: {rep['unexplained']}.", ""]
+        nx = rep.get("next_experiment")
+        if nx:
+            L += ["Next experiment: " + "; ".join(f"{k}: {v}" for k, v in nx.items() if v is not None) + ".", ""]
+        if rep.get("tests"):
+            L += ["Tests: " + "; ".join(f"{c}: {t}" for c, t in rep["tests"].items()) + ".", ""]
         jm = (rep.get("nominal") or {}).get("joint_model")
         if jm:
             L += ["Joint model: " + jm["text"] + ".", ""]
@@ -70,7 +83,7 @@ def markdown(report: dict, plots: dict) -> str:
         if jp:
             L += ["Nominal friction of this joint: " + _nominal_params(jp), ""]
         if rep.get("insufficient_data"):
-            L += [f"**Insufficient data**: {rep['insufficient_data']}", ""]
+            L += [f"Why: {rep['insufficient_data']}.", ""]
         for name, ch in rep["channels"].items():
             lo, hi = ch["heldout_rms_nominal_ci95"]
             lo2, hi2 = ch["heldout_rms_final_ci95"]
@@ -117,7 +130,7 @@ def markdown(report: dict, plots: dict) -> str:
             L += ["", f"To separate **{v['effect']}** from {', '.join(v['confounded_with']) or 'its neighbours'}: "
                       f"{v['separating_experiment']}. Bootstrap over trials: it gives the largest reduction in "
                       f"{100 * v.get('bootstrap_top_share', 0):.0f}% of resamples."]
-        for key in (f"joint{j}_localisation", f"joint{j}_effects", f"joint{j}_residual"):
+        for key in (f"joint{j}_localisation", f"joint{j}_effects", f"joint{j}_residual", f"joint{j}_spectrum"):
             if key in plots:
                 L += ["", f"![{key}]({plots[key]})"]
         L.append("")
@@ -162,6 +175,16 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
             ax.set_ylabel("held-out torque residual [N m]")
             ax.set_title(f"joint {j}: nominal model residual")
             save(fig, f"joint{j}_residual")
+            sp = s.get("spectrum") or {}
+            if len(sp.get("f", ())) > 1:
+                fig, ax = plt.subplots(figsize=(6, 3.5))
+                ax.loglog(sp["f"][1:], sp["psd"][1:], label="held-out nominal residual")
+                ax.axhline(sp["floor"], color="tab:red", ls="--", label="white-noise floor")
+                ax.set_xlabel("frequency [Hz]")
+                ax.set_ylabel("PSD [(N m)^2/Hz]")
+                ax.set_title(f"joint {j}: residual spectrum against the noise floor")
+                ax.legend(fontsize=8)
+                save(fig, f"joint{j}_spectrum")
     return paths
 
 

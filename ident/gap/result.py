@@ -10,6 +10,35 @@ def _f(x):
     return None if x is None else float(x)
 
 
+def _fin(x):
+    """A float for JSON, None where it is not finite (no power at all)."""
+    return float(x) if x is not None and x == x and abs(x) != float("inf") else None
+
+
+def verdict_line(verdict: str, status: str, size: dict, detectable: dict, alternatives=(), channels=None) -> str:
+    """One line: ``stribeck: removes 2.1 noise variances (held-out RMS -14 %)``; ``none: the gap is
+    at the noise floor (this record could have shown an effect of 0.12 noise variances)``;
+    ``unexplained: ...``; ``insufficient data: ...``. Alternatives that explain the same term
+    are named with it."""
+    det = detectable.get("torque") if detectable else None
+    dtxt = (f"{det:.2g} noise variances" if det is not None and det == det and det != float("inf")
+            else "no effect at all")
+    if status == "effect":
+        s = verdict
+        if size:
+            so = size.get("size_over_floor")
+            s += (f": removes {so:.3g} noise variances" if so is not None else "") + \
+                 f" (held-out RMS -{100 * size.get('reduction', 0):.0f} %, {size.get('channel', '')} channel)"
+        if alternatives:
+            s += "; or " + " or ".join(a["effect"] for a in alternatives) + " (same term: see how to separate)"
+        return s
+    if status == "unexplained":
+        return f"unexplained: a gap above the noise floor that no vocabulary effect explains (could have shown {dtxt})"
+    if status == "insufficient_data":
+        return f"insufficient data: this record could have shown only an effect of {dtxt}"
+    return f"none: the gap is at the noise floor (this record could have shown an effect of {dtxt})"
+
+
 @dataclass(frozen=True)
 class EffectTest:
     """One candidate effect tested against the nominal model (first selection step)."""
@@ -129,8 +158,37 @@ class DiagnosisResult:
     localisation_method: str = ""
     localisation_rest: float = 0.0  # share of the excess outside every listed regime
     notes: tuple = ()
-    insufficient: str = ""          # why the data cannot settle it, and the experiment that would
+    insufficient: str = ""          # why the data cannot settle it (or what stays unexplained)
+    status: str = ""                # effect | none | unexplained | insufficient_data
+    detectable: dict = field(default_factory=dict)    # channel -> smallest detectable size (noise variances)
+    alternatives: tuple = ()        # ({"effect", "why", "separate_by"}, ...): explain the same term
+    next_experiment: dict = field(default_factory=dict)
+    spectrum_bands: tuple = ()      # ({"band_hz", "excess_share", "excess_over_floor"}, ...)
+    tests: dict = field(default_factory=dict)          # channel -> how its units were tested
     series: dict = field(default_factory=dict, repr=False, compare=False)   # plots, not in JSON
+
+    @property
+    def verdict_status(self) -> str:
+        return self.status or ("insufficient_data" if self.insufficient else
+                               "effect" if self.verdict != "none" else "none")
+
+    def verdict_text(self) -> str:
+        """The verdict in one line, the same wherever it is shown (console, study report,
+        diagnosis.md, diagnosis.json's ``verdict_text``)."""
+        return verdict_line(self.verdict, self.verdict_status, self.effect_size(), self.detectable,
+                            self.alternatives, self.channels)
+
+    def effect_size(self) -> dict:
+        """The verdict's size: held-out variance removed over the noise floor, its held-out
+        RMS reduction and the channel, from the selection step."""
+        if self.verdict == "none":
+            return {}
+        for ch in self.channels.values():
+            for st in ch.selected[:1]:
+                if st.effect == self.verdict:
+                    return {"size_over_floor": _f(st.effect_to_floor), "reduction": float(st.reduction),
+                            "channel": st.channel}
+        return {}
 
     @property
     def heldout_rms_nominal(self) -> float:
@@ -147,9 +205,23 @@ class DiagnosisResult:
              "localisation_method": self.localisation_method,
              "localisation_rest": float(self.localisation_rest),
              "effects": [e.to_dict() for e in self.effects]}
-        d["verdict_status"] = "insufficient_data" if self.insufficient else "conclusive"
-        if self.insufficient:
+        d["verdict_status"] = self.verdict_status
+        d["verdict_text"] = self.verdict_text()
+        d["detectable_over_floor"] = {k: _fin(v) for k, v in self.detectable.items()}
+        if self.effect_size():
+            d["verdict_size"] = self.effect_size()
+        if self.alternatives:
+            d["alternatives"] = [dict(a) for a in self.alternatives]
+        if self.next_experiment:
+            d["next_experiment"] = dict(self.next_experiment)
+        if self.spectrum_bands:
+            d["residual_spectrum_bands"] = [dict(b) for b in self.spectrum_bands]
+        if self.tests:
+            d["tests"] = dict(self.tests)
+        if self.verdict_status == "insufficient_data":
             d["insufficient_data"] = self.insufficient
+        elif self.verdict_status == "unexplained":
+            d["unexplained"] = self.insufficient
         if self.notes:
             d["notes"] = list(self.notes)
         return d

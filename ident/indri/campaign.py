@@ -62,6 +62,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap.io.campaign import payload_com
+
 from mocap.io.errors import InputError
 
 from ident.indri import framework as I
@@ -309,7 +311,7 @@ def _trial_data(campaign, tr, joint: int, robot, angles_dir,
     bandwidth = bandwidth if bandwidth is not None else TorqueConsistentBandwidth()
     rest = np.nanmedian(np.where(np.isfinite(log.qm), log.qm, np.nan), axis=0)
     rest = np.where(np.isfinite(rest), rest, 0.0)
-    p_com = tuple(float(x) for x in tr.extra.get("payload_com", (0.0, 0.0, 0.0)))
+    p_com = payload_com(tr)
     rb = robot.with_payload(tr.load_kg, p_com) if tr.load_kg > 0 else robot
 
     drive = robot.drives[j0]

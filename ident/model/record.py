@@ -93,7 +93,8 @@ class MultiJointRecord:
     def gap_inputs(self) -> dict:
         """Keyword arguments of ``ident.gap.data.build_joint_data_record`` (all but ``joint``,
         ``robot`` and the settings): the record's ``t, q, qd, qdd, tau`` in URDF coordinates."""
-        return {"t": self.t, "q": self.q, "qd": self.qd, "qdd": self.qdd, "tau": self.tau}
+        return {"t": self.t, "q": self.q, "qd": self.qd, "qdd": self.qdd, "tau": self.tau,
+                "coupling": self.coupling}
 
 
 # ---------------------------------------------------------------------------------------------

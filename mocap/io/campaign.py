@@ -167,15 +167,28 @@ def _check_trial_values(tab: dict, where: str, path: Path) -> None:
         if abs(off) > 1e6:
             raise InputError(f"{where}: time_offset {off!r} s is implausible", path=path,
                              label="time_offset")
-    if "payload_com" in tab:
+    if "payload_com" in tab and tab["payload_com"] != "unknown":
         com = tab["payload_com"]
         if not (isinstance(com, list) and len(com) == 3):
-            raise InputError(f"{where}: payload_com must be [x, y, z] in metres, got {com!r}",
+            raise InputError(f"{where}: payload_com must be [x, y, z] in metres or \"unknown\", got {com!r}",
                              path=path, label="payload_com")
         com = [_num(c, "payload_com", where, path) for c in com]
         if max(abs(c) for c in com) > 5.0:
             raise InputError(f"{where}: payload_com {com!r} is more than 5 m from the flange "
                              "(millimetres written as metres?)", path=path, label="payload_com")
+
+
+def payload_com(trial) -> tuple:
+    """The payload's centre of mass of a trial in the flange frame, metres (FORMAT.md): the
+    declared ``payload_com``, else the flange origin; also the origin for ``payload_com =
+    "unknown"`` (where a tool must treat the COM as free: :func:`payload_com_unknown`)."""
+    v = (getattr(trial, "extra", None) or {}).get("payload_com", (0.0, 0.0, 0.0))
+    return (0.0, 0.0, 0.0) if isinstance(v, str) else tuple(float(x) for x in v)
+
+
+def payload_com_unknown(trial) -> bool:
+    """Whether the trial says the lab does not know its payload's centre of mass."""
+    return (getattr(trial, "extra", None) or {}).get("payload_com") == "unknown"
 
 
 def _inside(root: Path, rel, key: str, where: str, manifest: Path) -> Path:

@@ -82,12 +82,14 @@ def run(args) -> int:
         angles = None if no_markers else link_angles(camp, robot, args.angles, sink)
         report, series = _diagnose(camp, robot, angles, DiagnosisSettings(seed=args.seed, nominal=args.nominal), args.joints)
         paths = write_report(report, series, out, sink)
-    summary = {j: {"verdict": r["verdict"], "heldout_rms_nominal": r.get("heldout_rms_nominal")}
+    summary = {j: {"verdict": r["verdict"], "verdict_status": r.get("verdict_status"),
+                   "verdict_text": r.get("verdict_text", r["verdict"]),
+                   "heldout_rms_nominal": r.get("heldout_rms_nominal")}
                for j, r in report["joints"].items()}
     if args.json:
         print(json.dumps({"out": str(out), "joints": summary}, indent=1))
     else:
         for j, s in summary.items():
-            print(f"joint {j}: verdict {s['verdict']}")
+            print(f"joint {j}: {s['verdict_text']}")
         print(f"wrote {paths['json']} and {paths['md']}")
     return 0
