@@ -106,7 +106,34 @@ class References:
 # ---- pure numerics ---------------------------------------------------------------------------
 def reduce_static(positions: np.ndarray, reject_m: float = 0.003):
     """Mean marker positions over a still interval (T, M, 3) -> (M, 3), robustly: frames farther
-    than ``reject_m`` from the per-axis median are dropped. Returns (mean, n_frames, scatter)."""
+    than ``reject_m`` from the per-axis median are dropped.
+
+    Parameters
+    ----------
+    positions : numpy.ndarray
+        Marker positions over the interval (m), (T, M, 3), NaN where unseen.
+    reject_m : float, optional
+        Distance from the median beyond which a frame is dropped (m).
+
+    Returns
+    -------
+    mean : numpy.ndarray
+        Mean position of each marker (m), (M, 3), NaN where never seen.
+    n_frames : numpy.ndarray
+        Frames averaged per marker, (M,).
+    scatter : numpy.ndarray
+        RMS distance of the kept frames from the mean (m), (M,).
+
+    Examples
+    --------
+    A 0.5 m outlier among five frames is dropped:
+
+    >>> pos = np.zeros((5, 1, 3))
+    >>> pos[:, 0, 0] = [1.0, 1.0, 1.0, 1.0, 1.5]
+    >>> mean, n, scatter = reduce_static(pos)
+    >>> mean.tolist(), n.tolist(), scatter.tolist()
+    ([[1.0, 0.0, 0.0]], [4], [0.0])
+    """
     med = np.nanmedian(positions, axis=0) if positions.shape[0] else \
         np.full(positions.shape[1:], np.nan)
     d = np.linalg.norm(positions - med, axis=2)
@@ -232,7 +259,49 @@ def refine_camera_pose(chain, links, poses, T_cb0):
 
 
 def fit_references(chain, labels, links, poses, T_camera_base=None) -> References:
-    """Eq. 3-4 over one or more :class:`StaticPose` (pure numerics; see :func:`build_references`)."""
+    """Eq. 3-4 over one or more :class:`StaticPose` (pure numerics; see :func:`build_references`).
+
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The robot's kinematics (``chain.frames`` holds every marked link).
+    labels : sequence of str
+        Marker labels, (M,).
+    links : sequence of str
+        The link each marker is glued to, (M,).
+    poses : list of StaticPose
+        The static intervals, reduced to means.
+    T_camera_base : numpy.ndarray, optional
+        The camera pose (4, 4); estimated from the poses when omitted (at least two poses
+        that differ in two non-parallel joints).
+
+    Returns
+    -------
+    References
+        Marker positions in their link frames, the camera pose and the consistency report.
+
+    References
+    ----------
+    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
+       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-4.
+
+    Examples
+    --------
+    Markers seen in one static pose by a camera at a known pose give back their link-frame
+    positions:
+
+    >>> from mocap.kinematics import Chain, apply_transform, make_transform
+    >>> chain = Chain(np.eye(4)[None], np.array([[0.0, 0.0, 1.0]]), ("j1",),
+    ...               {"link1": (0, np.eye(4))})
+    >>> p_link = np.array([[0.1, 0.0, 0.0], [0.0, 0.1, 0.05], [-0.1, 0.0, 0.1]])
+    >>> T_cb = make_transform(np.eye(3), [1.0, 2.0, 0.5])
+    >>> q = np.array([0.3])
+    >>> p_camera = apply_transform(T_cb @ chain.joint_transforms(q)[0], p_link)
+    >>> pose = StaticPose(q, p_camera, np.full(3, 100), np.zeros(3), np.zeros(1))
+    >>> refs = fit_references(chain, ["A", "B", "C"], ["link1"] * 3, [pose], T_camera_base=T_cb)
+    >>> bool(np.allclose(refs.p_link, p_link)), refs.camera_source
+    (True, 'given')
+    """
     labels, links = tuple(labels), tuple(links)
     if not poses:
         raise InputError("no static pose: the marker references (thesis eq. 3-4) need at least one "
@@ -342,7 +411,32 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
 
 
 def read_calib(path: str | Path) -> np.ndarray:
-    """``T_camera_base`` from a ``calib.json`` (FORMAT.md), validated as a rigid transform."""
+    """``T_camera_base`` from a ``calib.json`` (FORMAT.md), validated as a rigid transform.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The calibration file.
+
+    Returns
+    -------
+    numpy.ndarray
+        The (4, 4) transform mapping base-frame points into the camera frame.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        For a missing file, invalid JSON, or a ``T_camera_base`` that is not 4x4 and rigid.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     path = Path(d) / "calib.json"
+    ...     _ = path.write_text(json.dumps({"format": 1, "T_camera_base": np.eye(4).tolist()}))
+    ...     read_calib(path).shape
+    (4, 4)
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError("calibration file not found", path=path)
