@@ -129,7 +129,18 @@ def marker_report(result) -> dict:
     """Per marker: residual RMS over frames where it was used, rejected and missing fractions.
 
     ``result``: a :class:`mocap.solve.SolveResult`. A marker with a large residual in most frames
-    has a wrong reference (moved since the static pose, or mislabelled)."""
+    has a wrong reference (moved since the static pose, or mislabelled).
+
+    Parameters
+    ----------
+    result : mocap.solve.SolveResult
+        A trial's solve.
+
+    Returns
+    -------
+    dict
+        Label -> ``rms_mm``, ``rejected_frac``, ``missing_frac``.
+    """
     res = result.residual_m
     out = {}
     valid = result.valid
@@ -145,7 +156,20 @@ def marker_report(result) -> dict:
 
 
 def summary(results, references=None) -> dict:
-    """The ``mocap`` command's summary document: per trial frames, RMS residual, flagged frames."""
+    """The ``mocap`` command's summary document: per trial frames, RMS residual, flagged frames.
+
+    Parameters
+    ----------
+    results : iterable
+        Per-trial results with ``trial_id``, ``solve`` and ``to_dict()``.
+    references : mocap.references.References, optional
+        The static references used.
+
+    Returns
+    -------
+    dict
+        The ``mocap.json`` document (FORMAT.md).
+    """
     doc = {"format": 1, "trials": {}}
     if references is not None:
         doc["references"] = references.to_dict()
@@ -158,7 +182,18 @@ def summary(results, references=None) -> dict:
 
 # ---------------------------------------------------------------------------------------
 def chain_reach(chain) -> float:
-    """Sum of the joint-to-joint distances of the chain (m): a bound on the robot's size."""
+    """Sum of the joint-to-joint distances of the chain (m): a bound on the robot's size.
+
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The robot's kinematics.
+
+    Returns
+    -------
+    float
+        The reach (m).
+    """
     return float(np.linalg.norm(np.asarray(chain.T_parent_joint)[:, :3, 3], axis=1).sum())
 
 
@@ -167,7 +202,28 @@ def check_marker_units(positions, labels, chain, path=None, joint: int | None = 
     """Refuse a marker cloud that cannot belong to the robot: larger than three times its reach
     plus a metre, or (``check_motion``, a calibration sweep) whose markers all move less than
     2 mm (units suspected: mm read as m or back; a marker that close to the axis could not
-    place it anyway). ``positions`` (T, M, 3) in metres, ``labels`` (M,)."""
+    place it anyway).
+
+    Parameters
+    ----------
+    positions : array_like
+        Marker positions (m), (T, M, 3).
+    labels : sequence of str
+        Marker labels, (M,).
+    chain : mocap.kinematics.Chain
+        The robot's kinematics.
+    path : str or pathlib.Path, optional
+        The marker file, named in the error.
+    joint : int, optional
+        The swept joint (a calibration sweep), named in the error.
+    check_motion : bool, optional
+        Also refuse markers that barely move.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        "units suspected", naming the file and the marker.
+    """
     P = np.asarray(positions, float)
     ext = np.nanmax(P, axis=0) - np.nanmin(P, axis=0)             # (M, 3) per-marker extent
     ext_m = np.nanmax(ext, axis=1)

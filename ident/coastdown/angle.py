@@ -697,7 +697,26 @@ class AngleCoastFit:
         3-4 standard errors (an overdamped transmission).
         ``stick``: the side whose Coulomb friction holds the joint at the stop, ``"motor"`` or
         ``"link"``; None fits both (same parameters) and keeps the better. ``transmission``
-        and ``stick`` in the result say which."""
+        and ``stick`` in the result say which.
+
+        Parameters
+        ----------
+        records : list of tuple
+            ``(t, qm, windows, J)`` or ``(t, qm, windows, J, flex)`` per record.
+        starts : list of AngleCoastResult, optional
+            Fits of the records one by one, to start from.
+        kv_fixed : float, optional
+            Hold ``Kv`` at this value (N m s/rad).
+        flexible : bool, optional
+            Use the declared stiffness (True), ignore it (False), or choose (None).
+        stick : {"motor", "link"}, optional
+            The side that sticks at the stop; both tried when None.
+
+        Returns
+        -------
+        AngleCoastResult
+            The shared ``Kc``, ``Kv`` and the per-coast details.
+        """
         from ident.signals.smoothing import one_blas_thread
 
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]

@@ -792,7 +792,31 @@ def coast_segments(t, qd, tau=None, coasting=None, *, tau_tol: float | None = No
     (default 2 % of ``max |tau|``); without either the whole record is one phase, started
     at its sample of largest ``|qd|``. A phase starts at its first sample (the release: not
     at the largest noisy ``|qd|``, which would bias the measured ``v0`` upwards, and TDM/FDM
-    take ``v0`` as known) and runs to its end (the rest after the stop included)."""
+    take ``v0`` as known) and runs to its end (the rest after the stop included).
+
+    Parameters
+    ----------
+    t, qd : array_like
+        Times (s) and velocity (rad/s), (N,).
+    tau : array_like, optional
+        Drive torque (N m), (N,).
+    coasting : array_like of bool, optional
+        Where the drive is off, (N,).
+    tau_tol : float, optional
+        Torque below which the drive counts as off (N m).
+    min_samples : int, optional
+        Shortest phase kept.
+
+    Returns
+    -------
+    list of (int, int)
+        ``(start, stop)`` sample ranges, stop exclusive.
+
+    Examples
+    --------
+    >>> coast_segments(np.arange(100) * 0.01, np.ones(100), tau=np.r_[np.ones(40), np.zeros(60)])
+    [(40, 100)]
+    """
     qd = np.asarray(qd, float)
     n = qd.size
     if coasting is not None:

@@ -98,7 +98,20 @@ class ExcitationDesign:
         return self.series.period
 
     def trajectory(self, n: int | None = None, dt: float | None = None):
-        """(t, q, qd, qdd) over one period: ``n`` samples or a step ``dt``."""
+        """(t, q, qd, qdd) over one period: ``n`` samples or a step ``dt``.
+
+        Parameters
+        ----------
+        n : int, optional
+            Samples over the period (1001 by default).
+        dt : float, optional
+            Sample step (s), instead of ``n``.
+
+        Returns
+        -------
+        t, q, qd, qdd : numpy.ndarray
+            Times (s), angle (rad), speed (rad/s), acceleration (rad/s^2).
+        """
         T = self.period
         t = np.arange(0.0, T + 1e-12, dt) if dt else np.linspace(0.0, T, n or 1001)
         q, qd, qdd = self.series.evaluate(t)
