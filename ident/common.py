@@ -7,8 +7,27 @@ import numpy as np
 
 
 def to_jsonable(x):
-    """dicts (str keys), lists, numpy arrays and scalars, Paths and objects with ``to_dict()``
-    become plain JSON values; non-finite floats become ``None`` (JSON has no NaN)."""
+    """A result as plain JSON values (every writer of result files goes through this).
+
+    dicts (str keys), lists, numpy arrays and scalars, Paths and objects with ``to_dict()``
+    become plain JSON values; non-finite floats become ``None`` (JSON has no NaN).
+
+    Parameters
+    ----------
+    x : object
+        The value to convert.
+
+    Returns
+    -------
+    object
+        ``dict``, ``list``, ``str``, ``int``, ``float``, ``bool`` or ``None``, nested.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> to_jsonable({"rms": np.float64(0.25), "q": np.array([1.0, np.nan]), 5: Path("a/b")})
+    {'rms': 0.25, 'q': [1.0, None], '5': 'a/b'}
+    """
     if isinstance(x, dict):
         return {str(k): to_jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):

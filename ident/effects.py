@@ -168,6 +168,31 @@ EFFECTS: tuple = tuple(REGISTRY)
 
 
 def spec(name: str) -> EffectSpec:
+    """The registry entry of one effect of FORMAT.md's vocabulary.
+
+    Parameters
+    ----------
+    name : str
+        Effect name, e.g. ``"stribeck"``.
+
+    Returns
+    -------
+    EffectSpec
+        Its meaning, channel, confounders, simulator form and candidate families.
+
+    Raises
+    ------
+    ValueError
+        For a name outside :data:`EFFECTS`.
+
+    Examples
+    --------
+    >>> s = spec("backlash")
+    >>> s.channel, "compliance" in s.confounders
+    ('transmission', True)
+    >>> spec("stribeck").channel
+    'torque'
+    """
     try:
         return REGISTRY[name]
     except KeyError:

@@ -18,7 +18,48 @@ def cramer_rao_bound(chain, joints, marker_joint, p_joint, q: np.ndarray, sigma_
     """Per-frame Cramer-Rao lower bound on the std of the solved angles: (T, S).
 
     ``joints`` 0-based, ``q`` (T, n) the true angles, ``sigma_axis`` the per-axis marker noise
-    (3-D RMS / sqrt 3), ``visible`` (T, M) the markers seen in each frame (default: all)."""
+    (3-D RMS / sqrt 3), ``visible`` (T, M) the markers seen in each frame (default: all).
+
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The robot's kinematics.
+    joints : sequence of int
+        The solved joints, 0-based.
+    marker_joint : array_like of int
+        Joint each marker moves with, (M,).
+    p_joint : array_like
+        Marker positions in their joint's frame (m), (M, 3).
+    q : numpy.ndarray
+        True angles (rad), (T, n).
+    sigma_axis : float
+        Marker noise per axis (m).
+    visible : numpy.ndarray, optional
+        Markers seen per frame, (T, M) bool.
+
+    Returns
+    -------
+    numpy.ndarray
+        Lower bound on the std of each solved angle (rad), (T, S); inf where the markers
+        do not determine the angles.
+
+    References
+    ----------
+    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
+       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-5 (the least squares whose Jacobian this uses).
+
+    Examples
+    --------
+    One joint about z, three markers 0.1 m from the axis, 1 mm noise per axis: the bound is
+    ``sigma / sqrt(sum r^2)``:
+
+    >>> from mocap.kinematics import Chain
+    >>> chain = Chain(np.eye(4)[None], np.array([[0.0, 0.0, 1.0]]), ("j1",), {})
+    >>> p = np.array([[0.1, 0.0, 0.0], [0.0, 0.1, 0.05], [-0.1, 0.0, 0.1]])
+    >>> b = cramer_rao_bound(chain, [0], [0, 0, 0], p, np.zeros((2, 1)), sigma_axis=1e-3)
+    >>> b.round(6).tolist(), round(float(1e-3 / np.sqrt(0.03)), 6)
+    ([[0.005774], [0.005774]], 0.005774)
+    """
     from mocap.solve import MarkerSolver, _Chain
 
     q = np.atleast_2d(np.asarray(q, float))
@@ -37,13 +78,46 @@ def cramer_rao_bound(chain, joints, marker_joint, p_joint, q: np.ndarray, sigma_
 
 
 def rms_bound(bound: np.ndarray) -> np.ndarray:
-    """RMS over frames of a per-frame std bound (T, S) -> (S,): the bound on an angle RMSE."""
+    """RMS over frames of a per-frame std bound (T, S) -> (S,): the bound on an angle RMSE.
+
+    Parameters
+    ----------
+    bound : array_like
+        Per-frame bound (rad), (T, S); frames with a non-finite entry are left out.
+
+    Returns
+    -------
+    numpy.ndarray
+        The bound on the RMSE of each angle (rad), (S,).
+
+    Examples
+    --------
+    >>> rms_bound(np.array([[3.0], [4.0], [np.inf]])).round(4).tolist()
+    [3.5355]
+    """
     b = np.asarray(bound, float)
     return np.sqrt(np.mean(b[np.all(np.isfinite(b), axis=1)] ** 2, axis=0))
 
 
 def angle_errors(q_est: np.ndarray, q_true: np.ndarray) -> dict:
-    """RMSE and max error per column over frames where the estimate is finite."""
+    """RMSE and max error per column over frames where the estimate is finite.
+
+    Parameters
+    ----------
+    q_est, q_true : numpy.ndarray
+        Estimated and true angles (rad), (T, S).
+
+    Returns
+    -------
+    dict
+        ``frames`` (frames compared), ``rmse_rad`` and ``max_rad`` (S,).
+
+    Examples
+    --------
+    >>> e = angle_errors(np.array([[0.1], [0.2], [np.nan]]), np.array([[0.1], [0.1], [0.0]]))
+    >>> e["frames"], e["rmse_rad"].round(4).tolist(), e["max_rad"].round(4).tolist()
+    (2, [0.0707], [0.1])
+    """
     e = np.asarray(q_est, float) - np.asarray(q_true, float)
     ok = np.all(np.isfinite(e), axis=1)
     e = e[ok]
@@ -55,7 +129,18 @@ def marker_report(result) -> dict:
     """Per marker: residual RMS over frames where it was used, rejected and missing fractions.
 
     ``result``: a :class:`mocap.solve.SolveResult`. A marker with a large residual in most frames
-    has a wrong reference (moved since the static pose, or mislabelled)."""
+    has a wrong reference (moved since the static pose, or mislabelled).
+
+    Parameters
+    ----------
+    result : mocap.solve.SolveResult
+        A trial's solve.
+
+    Returns
+    -------
+    dict
+        Label -> ``rms_mm``, ``rejected_frac``, ``missing_frac``.
+    """
     res = result.residual_m
     out = {}
     valid = result.valid
@@ -71,7 +156,20 @@ def marker_report(result) -> dict:
 
 
 def summary(results, references=None) -> dict:
-    """The ``mocap`` command's summary document: per trial frames, RMS residual, flagged frames."""
+    """The ``mocap`` command's summary document: per trial frames, RMS residual, flagged frames.
+
+    Parameters
+    ----------
+    results : iterable
+        Per-trial results with ``trial_id``, ``solve`` and ``to_dict()``.
+    references : mocap.references.References, optional
+        The static references used.
+
+    Returns
+    -------
+    dict
+        The ``mocap.json`` document (FORMAT.md).
+    """
     doc = {"format": 1, "trials": {}}
     if references is not None:
         doc["references"] = references.to_dict()
@@ -84,7 +182,18 @@ def summary(results, references=None) -> dict:
 
 # ---------------------------------------------------------------------------------------
 def chain_reach(chain) -> float:
-    """Sum of the joint-to-joint distances of the chain (m): a bound on the robot's size."""
+    """Sum of the joint-to-joint distances of the chain (m): a bound on the robot's size.
+
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The robot's kinematics.
+
+    Returns
+    -------
+    float
+        The reach (m).
+    """
     return float(np.linalg.norm(np.asarray(chain.T_parent_joint)[:, :3, 3], axis=1).sum())
 
 
@@ -93,7 +202,28 @@ def check_marker_units(positions, labels, chain, path=None, joint: int | None = 
     """Refuse a marker cloud that cannot belong to the robot: larger than three times its reach
     plus a metre, or (``check_motion``, a calibration sweep) whose markers all move less than
     2 mm (units suspected: mm read as m or back; a marker that close to the axis could not
-    place it anyway). ``positions`` (T, M, 3) in metres, ``labels`` (M,)."""
+    place it anyway).
+
+    Parameters
+    ----------
+    positions : array_like
+        Marker positions (m), (T, M, 3).
+    labels : sequence of str
+        Marker labels, (M,).
+    chain : mocap.kinematics.Chain
+        The robot's kinematics.
+    path : str or pathlib.Path, optional
+        The marker file, named in the error.
+    joint : int, optional
+        The swept joint (a calibration sweep), named in the error.
+    check_motion : bool, optional
+        Also refuse markers that barely move.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        "units suspected", naming the file and the marker.
+    """
     P = np.asarray(positions, float)
     ext = np.nanmax(P, axis=0) - np.nanmin(P, axis=0)             # (M, 3) per-marker extent
     ext_m = np.nanmax(ext, axis=1)

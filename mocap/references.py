@@ -69,7 +69,22 @@ class References:
             raise InputError(f"marker {label!r} has no static reference", label=label) from None
 
     def for_chain(self, chain, labels=None) -> tuple[np.ndarray, np.ndarray]:
-        """``marker_joint`` (M,) and ``p_joint`` (M, 3) for :class:`mocap.solve.MarkerSolver`."""
+        """``marker_joint`` (M,) and ``p_joint`` (M, 3) for :class:`mocap.solve.MarkerSolver`.
+
+        Parameters
+        ----------
+        chain : mocap.kinematics.Chain
+            The robot's kinematics.
+        labels : sequence of str, optional
+            Markers to return, in this order; all by default.
+
+        Returns
+        -------
+        marker_joint : numpy.ndarray
+            Joint each marker moves with (-1: the base), (M,).
+        p_joint : numpy.ndarray
+            Marker positions in that joint's frame (m), (M, 3).
+        """
         labels = self.labels if labels is None else tuple(labels)
         mj = np.empty(len(labels), int)
         pj = np.empty((len(labels), 3))
@@ -106,7 +121,34 @@ class References:
 # ---- pure numerics ---------------------------------------------------------------------------
 def reduce_static(positions: np.ndarray, reject_m: float = 0.003):
     """Mean marker positions over a still interval (T, M, 3) -> (M, 3), robustly: frames farther
-    than ``reject_m`` from the per-axis median are dropped. Returns (mean, n_frames, scatter)."""
+    than ``reject_m`` from the per-axis median are dropped.
+
+    Parameters
+    ----------
+    positions : numpy.ndarray
+        Marker positions over the interval (m), (T, M, 3), NaN where unseen.
+    reject_m : float, optional
+        Distance from the median beyond which a frame is dropped (m).
+
+    Returns
+    -------
+    mean : numpy.ndarray
+        Mean position of each marker (m), (M, 3), NaN where never seen.
+    n_frames : numpy.ndarray
+        Frames averaged per marker, (M,).
+    scatter : numpy.ndarray
+        RMS distance of the kept frames from the mean (m), (M,).
+
+    Examples
+    --------
+    A 0.5 m outlier among five frames is dropped:
+
+    >>> pos = np.zeros((5, 1, 3))
+    >>> pos[:, 0, 0] = [1.0, 1.0, 1.0, 1.0, 1.5]
+    >>> mean, n, scatter = reduce_static(pos)
+    >>> mean.tolist(), n.tolist(), scatter.tolist()
+    ([[1.0, 0.0, 0.0]], [4], [0.0])
+    """
     med = np.nanmedian(positions, axis=0) if positions.shape[0] else \
         np.full(positions.shape[1:], np.nan)
     d = np.linalg.norm(positions - med, axis=2)
@@ -132,8 +174,27 @@ def _link_transforms(chain, links, q):
 def estimate_camera_pose(chain, links, poses, min_spread: float = 0.05) -> np.ndarray:
     """Closed-form ``T_camera_base`` from static poses (hand-eye ``A X = X B``, see module doc).
 
-    ``links`` (M,) link of each marker; ``poses`` a list of :class:`StaticPose`. Raises
-    :class:`InputError` when the poses do not move two non-parallel joint axes."""
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The robot's kinematics.
+    links : sequence of str
+        Link of each marker, (M,).
+    poses : list of StaticPose
+        At least two static poses.
+    min_spread : float, optional
+        Smallest rotation between poses that counts (rad).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``T_camera_base`` (4, 4).
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        When the poses do not move two non-parallel joint axes.
+    """
     from scipy.spatial.transform import Rotation
 
     links = list(links)
@@ -208,8 +269,26 @@ def _static_residuals(chain, links, poses, T_cb):
 
 
 def refine_camera_pose(chain, links, poses, T_cb0):
-    """Least-squares ``T_camera_base`` over all static markers (link positions eliminated);
-    returns the transform and the std of (rotation vector, translation) from the Jacobian."""
+    """Least-squares ``T_camera_base`` over all static markers (link positions eliminated).
+
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The robot's kinematics.
+    links : sequence of str
+        Link of each marker, (M,).
+    poses : list of StaticPose
+        The static poses.
+    T_cb0 : numpy.ndarray
+        Starting transform (4, 4), e.g. from :func:`estimate_camera_pose`.
+
+    Returns
+    -------
+    T_camera_base : numpy.ndarray
+        The refined transform (4, 4).
+    std : numpy.ndarray
+        Standard deviation of (rotation vector (rad), translation (m)) from the Jacobian, (6,).
+    """
     from scipy.optimize import least_squares
 
     def T_of(x):
@@ -232,7 +311,49 @@ def refine_camera_pose(chain, links, poses, T_cb0):
 
 
 def fit_references(chain, labels, links, poses, T_camera_base=None) -> References:
-    """Eq. 3-4 over one or more :class:`StaticPose` (pure numerics; see :func:`build_references`)."""
+    """Eq. 3-4 over one or more :class:`StaticPose` (pure numerics; see :func:`build_references`).
+
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The robot's kinematics (``chain.frames`` holds every marked link).
+    labels : sequence of str
+        Marker labels, (M,).
+    links : sequence of str
+        The link each marker is glued to, (M,).
+    poses : list of StaticPose
+        The static intervals, reduced to means.
+    T_camera_base : numpy.ndarray, optional
+        The camera pose (4, 4); estimated from the poses when omitted (at least two poses
+        that differ in two non-parallel joints).
+
+    Returns
+    -------
+    References
+        Marker positions in their link frames, the camera pose and the consistency report.
+
+    References
+    ----------
+    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
+       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-4.
+
+    Examples
+    --------
+    Markers seen in one static pose by a camera at a known pose give back their link-frame
+    positions:
+
+    >>> from mocap.kinematics import Chain, apply_transform, make_transform
+    >>> chain = Chain(np.eye(4)[None], np.array([[0.0, 0.0, 1.0]]), ("j1",),
+    ...               {"link1": (0, np.eye(4))})
+    >>> p_link = np.array([[0.1, 0.0, 0.0], [0.0, 0.1, 0.05], [-0.1, 0.0, 0.1]])
+    >>> T_cb = make_transform(np.eye(3), [1.0, 2.0, 0.5])
+    >>> q = np.array([0.3])
+    >>> p_camera = apply_transform(T_cb @ chain.joint_transforms(q)[0], p_link)
+    >>> pose = StaticPose(q, p_camera, np.full(3, 100), np.zeros(3), np.zeros(1))
+    >>> refs = fit_references(chain, ["A", "B", "C"], ["link1"] * 3, [pose], T_camera_base=T_cb)
+    >>> bool(np.allclose(refs.p_link, p_link)), refs.camera_source
+    (True, 'given')
+    """
     labels, links = tuple(labels), tuple(links)
     if not poses:
         raise InputError("no static pose: the marker references (thesis eq. 3-4) need at least one "
@@ -262,7 +383,33 @@ def fit_references(chain, labels, links, poses, T_camera_base=None) -> Reference
 # ---- campaign level --------------------------------------------------------------------------
 def read_static_pose(rec, log, labels, still_tol_rad: float = 2e-3, reject_m: float = 0.003,
                      source: str = "") -> StaticPose:
-    """Reduce one static recording (:class:`MarkerRecording` + :class:`RobotLog`) to means."""
+    """Reduce one static recording (:class:`MarkerRecording` + :class:`RobotLog`) to means.
+
+    Parameters
+    ----------
+    rec : mocap.io.recording.MarkerRecording
+        The static marker recording.
+    log : mocap.io.robotlog.RobotLog
+        The robot log of the same interval.
+    labels : sequence of str
+        Marker labels to reduce, (M,).
+    still_tol_rad : float, optional
+        Largest encoder motion of a still joint (rad).
+    reject_m : float, optional
+        Outlier distance of :func:`reduce_static` (m).
+    source : str, optional
+        Name recorded in the result.
+
+    Returns
+    -------
+    StaticPose
+        Mean encoder angles and marker positions.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        When the clocks do not overlap, a joint has no angle, or a joint moved.
+    """
     t0, t1 = rec.time[0], rec.time[-1]
     if t1 < log.time[0] or t0 > log.time[-1]:
         raise InputError(f"static pose: marker times {t0:.3f}..{t1:.3f} s and robot log times "
@@ -299,7 +446,18 @@ def read_static_pose(rec, log, labels, still_tol_rad: float = 2e-3, reject_m: fl
 
 
 def check_marker_links(campaign) -> None:
-    """Every marked link needs at least 3 markers (a rigid body pose, robust to one loss)."""
+    """Every marked link needs at least 3 markers (a rigid body pose, robust to one loss).
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The campaign whose ``[markers]`` table is checked.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        Naming the manifest and the link with too few markers.
+    """
     for link, labels in campaign.markers.items():
         if len(labels) < MIN_MARKERS_PER_LINK:
             raise InputError(f"link {link!r} has {len(labels)} marker(s); at least "
@@ -311,7 +469,29 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
     """Eq. 3-4 for a campaign: read every ``[[static]]`` recording, reduce, combine.
 
     ``T_camera_base`` (4, 4) from a calibration; ``None`` estimates it from the static poses
-    (needs >= 2 poses differing in two non-parallel joints, see the module doc)."""
+    (needs >= 2 poses differing in two non-parallel joints, see the module doc).
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The campaign (its ``[[static]]`` recordings and ``[markers]`` table).
+    robot : mocap.robot.Robot
+        The robot (held links are placed at their deflected angles).
+    T_camera_base : numpy.ndarray, optional
+        The camera pose (4, 4).
+    still_tol_rad : float, optional
+        Largest encoder motion of a still joint (rad).
+
+    Returns
+    -------
+    References
+        Marker positions in their link frames and the camera pose.
+
+    References
+    ----------
+    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
+       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-4.
+    """
 
     check_marker_links(campaign)
     link_of = campaign.link_of_label()
@@ -342,7 +522,32 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
 
 
 def read_calib(path: str | Path) -> np.ndarray:
-    """``T_camera_base`` from a ``calib.json`` (FORMAT.md), validated as a rigid transform."""
+    """``T_camera_base`` from a ``calib.json`` (FORMAT.md), validated as a rigid transform.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The calibration file.
+
+    Returns
+    -------
+    numpy.ndarray
+        The (4, 4) transform mapping base-frame points into the camera frame.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        For a missing file, invalid JSON, or a ``T_camera_base`` that is not 4x4 and rigid.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     path = Path(d) / "calib.json"
+    ...     _ = path.write_text(json.dumps({"format": 1, "T_camera_base": np.eye(4).tolist()}))
+    ...     read_calib(path).shape
+    (4, 4)
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError("calibration file not found", path=path)

@@ -56,6 +56,7 @@ class SolveResult:
 
     q : (T, n) joint angles; solved columns from the markers (NaN where ``valid`` is False),
         held columns the values used.
+
     joints : the solved joints, 0-based.
     residual_m : (T, M) residual norm of each marker (NaN where missing or not used).
     inlier : (T, M) markers used in the final least-squares polish.

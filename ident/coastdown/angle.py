@@ -95,7 +95,29 @@ def free_response(tau, omega, zeta):
     ``x'(0) = 0`` (0 for ``tau < 0``), exact in every regime: ``exp(-zeta omega tau) (cosh(b tau) +
     zeta omega sinh(b tau) / b)`` with ``b = omega sqrt(zeta^2 - 1)`` (imaginary when
     underdamped: the ringing; real when overdamped: two exponential relaxations; the limit
-    ``b -> 0`` at critical damping). Written with exponents <= 0 (no overflow). Broadcasts."""
+    ``b -> 0`` at critical damping). Written with exponents <= 0 (no overflow). Broadcasts.
+
+    Parameters
+    ----------
+    tau : array_like
+        Times (s).
+    omega : float or array_like
+        Natural angular frequency (rad/s).
+    zeta : float or array_like
+        Damping ratio (0: undamped, 1: critical).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``x(tau)``, broadcast over the arguments.
+
+    Examples
+    --------
+    Undamped, the response is ``cos(omega tau)``:
+
+    >>> free_response(np.array([0.0, np.pi / 2, np.pi]), 1.0, 0.0).round(12).tolist()
+    [1.0, 0.0, -1.0]
+    """
     tau = np.asarray(tau, float)
     tt = np.maximum(tau, 0.0)
     sg = zeta * omega
@@ -141,7 +163,39 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
     ``side = "motor"``: the Coulomb friction acts on the motor instead (``J_m m'' = s u - Kc -
     ..``, ``K delta0 = I a0 + b_l w``); the coast ends where the MOTOR's speed ``X' + (I_link /
     J) delta'`` is 0, and the motor sticks (the encoder holds its angle; the link may still
-    move on the spring)."""
+    move on the spring).
+
+    Parameters
+    ----------
+    tau : array_like
+        Times after the cut (s), (n,).
+    J, I_link, J_m : float or array_like
+        Total, link and motor inertia (kg m^2, link side), per coast.
+    K, B_m, d : float or array_like
+        Spring stiffness (N m/rad), motor viscous (N m s/rad), internal damping (N m s/rad).
+    Kc, Kv, Kc_eff : float or array_like
+        Coulomb level (N m), total viscous (N m s/rad), Coulomb level less the external torque.
+    w, a0 : float or array_like
+        Speed (rad/s) and acceleration (rad/s^2) at the cut.
+    kk : array_like of int, optional
+        Coast index of each time.
+    n_grid : int, optional
+        Grid points of the stop search.
+    side : {"link", "motor"}, optional
+        Where the Coulomb friction acts.
+
+    Returns
+    -------
+    m : numpy.ndarray
+        Motor-angle displacement (rad), (n,).
+    tau_stop : numpy.ndarray
+        Stop time of each sample's coast (s), (n,).
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3 (the rigid coast this extends to two masses).
+    """
     tau = np.asarray(tau, float)
     kk = np.arange(tau.size) if kk is None else np.asarray(kk)
     n = int(kk.max()) + 1 if kk.size else 0
@@ -214,7 +268,21 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
 
 
 def coast_stop(J, Kv, Kc_eff, w):
-    """Stop time ``tau_s = (J/Kv) ln(1 + Kv w / Kc_eff)`` (inf where ``Kc_eff <= 0``)."""
+    """Stop time ``tau_s = (J/Kv) ln(1 + Kv w / Kc_eff)`` (inf where ``Kc_eff <= 0``).
+
+    Parameters
+    ----------
+    J, Kv, Kc_eff : float or array_like
+        Inertia (kg m^2), viscous coefficient (N m s/rad), Coulomb level less the external
+        torque (N m).
+    w : float or array_like
+        Speed at the release (rad/s).
+
+    Returns
+    -------
+    numpy.ndarray
+        Stop times (s).
+    """
     Kc_eff = np.asarray(Kc_eff, float)
     w = np.maximum(np.asarray(w, float), 0.0)
     pos = Kc_eff > 0
@@ -225,7 +293,38 @@ def coast_stop(J, Kv, Kc_eff, w):
 def coast_angle(tau, J, Kv, Kc_eff, w):
     """Displacement ``x(tau)`` (rad) after a release at speed ``w > 0``: eq. 4 integrated,
     held at its value at the stop ``tau_s`` (no stop where ``Kc_eff <= 0``). Broadcasts.
-    Returns ``(x, tau_s)``."""
+
+    Parameters
+    ----------
+    tau : array_like
+        Times after the release (s).
+    J : float
+        Inertia (kg m^2).
+    Kv : float
+        Viscous coefficient (N m s/rad).
+    Kc_eff : float or array_like
+        Coulomb level less the external torque along the motion (N m).
+    w : float or array_like
+        Speed at the release (rad/s).
+
+    Returns
+    -------
+    x : numpy.ndarray
+        Angle travelled since the release (rad).
+    tau_s : numpy.ndarray
+        Stop time (s).
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+
+    Examples
+    --------
+    >>> x, tau_s = coast_angle(np.array([0.0, 0.1, 1.0]), J=0.05, Kv=0.05, Kc_eff=0.2, w=1.0)
+    >>> x.round(5).tolist(), round(float(tau_s), 4)
+    ([0.0, 0.07581, 0.10743], 0.2231)
+    """
     tau = np.asarray(tau, float)
     Kc_eff = np.asarray(Kc_eff, float)
     w = np.maximum(np.asarray(w, float), 0.0)
@@ -237,7 +336,25 @@ def coast_angle(tau, J, Kv, Kc_eff, w):
 
 
 def coast_speed(tau, J, Kv, Kc_eff, w):
-    """Speed ``x'(tau)`` of :func:`coast_angle` (paper eq. 4, 0 after the stop)."""
+    """Speed ``x'(tau)`` of :func:`coast_angle` (paper eq. 4, 0 after the stop).
+
+    Parameters
+    ----------
+    tau : array_like
+        Times after the release (s).
+    J, Kv, Kc_eff, w : float
+        As in :func:`coast_angle`.
+
+    Returns
+    -------
+    numpy.ndarray
+        Speed (rad/s), 0 after the stop.
+
+    Examples
+    --------
+    >>> coast_speed(np.array([0.0, 1.0]), J=0.05, Kv=0.05, Kc_eff=0.2, w=1.0).tolist()
+    [1.0, 0.0]
+    """
     x, tau_s = coast_angle(tau, J, Kv, Kc_eff, w)
     tt = np.clip(np.asarray(tau, float), 0.0, tau_s)
     z = Kv * tt / J
@@ -249,7 +366,25 @@ def interval_velocity(t, q):
     """First differences ``(q[i+1] - q[i]) / (t[i+1] - t[i])`` at the interval midpoints: the
     exact mean velocity over each interval (no derivative filter, so no bias beyond the
     midpoint rule, ``(dt/T)^2 / 24`` relative for eq. 4 with time constant ``T = J/Kv``).
-    Returns ``(t_mid, v)``."""
+
+    Parameters
+    ----------
+    t, q : array_like
+        Times (s) and angles (rad), (N,).
+
+    Returns
+    -------
+    t_mid : numpy.ndarray
+        Interval midpoints (s), (N - 1,).
+    v : numpy.ndarray
+        Mean velocity over each interval (rad/s), (N - 1,).
+
+    Examples
+    --------
+    >>> t_mid, v = interval_velocity([0.0, 0.1, 0.2], [0.0, 0.1, 0.3])
+    >>> t_mid.round(3).tolist(), v.round(6).tolist()
+    ([0.05, 0.15], [1.0, 2.0])
+    """
     t = np.asarray(t, float)
     q = np.asarray(q, float)
     return 0.5 * (t[1:] + t[:-1]), np.diff(q) / np.diff(t)
@@ -313,7 +448,49 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
     friction the drive was overcoming would stop it in (a friction that falls with speed
     gives at most twice that), which must be at least one encoder step. ``gravity`` (a
     callable q -> torque) is subtracted from the logged torque to give the external torque
-    ``u`` of the coast. Vectorised over samples; one small loop over rest starts."""
+    ``u`` of the coast. Vectorised over samples; one small loop over rest starts.
+
+    Parameters
+    ----------
+    t, qm, tau : array_like
+        Times (s), encoder angle (rad, link side) and drive torque (N m) of one joint, (N,).
+    resolution : float
+        Encoder step (rad, link side).
+    v_min : float
+        Slowest speed at the cut that counts (rad/s).
+    J : float
+        Inertia of the joint (kg m^2).
+    gravity : callable, optional
+        ``q -> torque`` (N m) subtracted from the logged torque.
+    pre_s, rest_s : float, optional
+        Length of the pre-cut window and of the rest that ends a coast (s).
+    min_pre : int, optional
+        Fewest samples of the pre-cut window.
+    jump_sigmas : float, optional
+        Torque step at the cut in noise levels.
+
+    Returns
+    -------
+    list of CoastWindow
+        One per coast, in time order.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3 (the coast the drive's cut starts).
+
+    Examples
+    --------
+    A joint driven at 1 rad/s, its drive cut at 0.5 s, logged at 1 kHz by a 1e-5 rad encoder:
+
+    >>> t = np.arange(1000) / 1000.0
+    >>> q = np.where(t <= 0.5, t, 0.5 + coast_angle(t - 0.5, 0.05, 0.05, 0.2, 1.0)[0])
+    >>> qm = np.round(q / 1e-5) * 1e-5
+    >>> tau = np.where(t <= 0.5, 0.25, 0.0)
+    >>> [w] = find_coasts(t, qm, tau, resolution=1e-5, v_min=0.1, J=0.05)
+    >>> w.on, w.stopped, w.direction
+    (500, True, 1)
+    """
     t = np.asarray(t, float)
     qm = np.asarray(qm, float)
     tau = np.asarray(tau, float)
@@ -437,7 +614,39 @@ class AngleCoastFit:
     values of ``Kv`` as multiples of ``Kc / mean speed`` (multi-start, least cost kept);
     ``sep_rel``: the record separates ``Kc`` from ``Kv`` when the standard error of ``Kc``
     and that of the viscous torque ``Kv v`` at the fastest cut are both within ``sep_rel``
-    times ``Kc``."""
+    times ``Kc``.
+
+    Parameters
+    ----------
+    resolution : float, optional
+        Encoder step (rad, link side).
+    kv_starts : sequence of float, optional
+        Starting values of ``Kv`` in units of ``Kc / mean speed``.
+    sep_rel : float, optional
+        Relative standard error below which ``Kc`` and ``Kv`` count as separated.
+    max_nfev : int, optional
+        Most function evaluations per start.
+    cut_lead : float, optional
+        Log intervals the cut may lie before the last drive-on sample.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), sec. 3 (maximum likelihood on eq. 4, here integrated to the angle).
+
+    Examples
+    --------
+    The coast of :func:`find_coasts`' example gives back its friction:
+
+    >>> t = np.arange(1000) / 1000.0
+    >>> q = np.where(t <= 0.5, t, 0.5 + coast_angle(t - 0.5, 0.05, 0.05, 0.2, 1.0)[0])
+    >>> qm = np.round(q / 1e-5) * 1e-5
+    >>> tau = np.where(t <= 0.5, 0.25, 0.0)
+    >>> windows = find_coasts(t, qm, tau, resolution=1e-5, v_min=0.1, J=0.05)
+    >>> r = AngleCoastFit(resolution=1e-5).fit(t, qm, windows, J=0.05)
+    >>> print(f"Kc = {r.Kc:.3f} N m, Kv = {r.Kv:.3f} N m s/rad, separable: {r.separable}")
+    Kc = 0.200 N m, Kv = 0.050 N m s/rad, separable: True
+    """
 
     def __init__(self, resolution: float = 0.0, kv_starts=(0.05, 0.5, 2.0), sep_rel: float = 0.2,
                  max_nfev: int = 400, cut_lead: float = -1.0):
@@ -449,7 +658,22 @@ class AngleCoastFit:
 
     def fit(self, t, qm, windows, J: float) -> AngleCoastResult:
         """Fit the coasts ``windows`` (from :func:`find_coasts`) of one record ``t``, ``qm``
-        with total inertia ``J``."""
+        with total inertia ``J``.
+
+        Parameters
+        ----------
+        t, qm : array_like
+            Times (s) and encoder angle (rad, link side), (N,).
+        windows : list of CoastWindow
+            The record's coasts.
+        J : float
+            Inertia of the joint (kg m^2).
+
+        Returns
+        -------
+        AngleCoastResult
+            ``Kc``, ``Kv``, their standard errors and correlation, per-coast details.
+        """
         return self.fit_records([(t, qm, windows, J)])
 
     def fit_records(self, records, starts=None, kv_fixed: float | None = None,
@@ -473,7 +697,26 @@ class AngleCoastFit:
         3-4 standard errors (an overdamped transmission).
         ``stick``: the side whose Coulomb friction holds the joint at the stop, ``"motor"`` or
         ``"link"``; None fits both (same parameters) and keeps the better. ``transmission``
-        and ``stick`` in the result say which."""
+        and ``stick`` in the result say which.
+
+        Parameters
+        ----------
+        records : list of tuple
+            ``(t, qm, windows, J)`` or ``(t, qm, windows, J, flex)`` per record.
+        starts : list of AngleCoastResult, optional
+            Fits of the records one by one, to start from.
+        kv_fixed : float, optional
+            Hold ``Kv`` at this value (N m s/rad).
+        flexible : bool, optional
+            Use the declared stiffness (True), ignore it (False), or choose (None).
+        stick : {"motor", "link"}, optional
+            The side that sticks at the stop; both tried when None.
+
+        Returns
+        -------
+        AngleCoastResult
+            The shared ``Kc``, ``Kv`` and the per-coast details.
+        """
         from ident.signals.smoothing import one_blas_thread
 
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]

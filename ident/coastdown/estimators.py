@@ -49,14 +49,7 @@ Ambiguities in the published text (an OCR of the paper) and how they are resolve
    band) while the noise enters eq. 10 multiplied by ``w^2``. This is a property of the
    published method, measured by ``benchmarks/coastdown.py``, not corrected here.
 
-Measured (``python benchmarks/coastdown.py``, 200 runs, 1 kHz): NLS is within 0.97-1.08x the
-CRB for Kv and Kc at 90/60/20 dB and ties the TDM (both are LS on eq. 4 when the record ends
-at the stop); FDM's best band is 1.7-2.5x above the bound at 20 dB and 18-90x at 60/90 dB;
-with ``v0`` taken from the noisy first sample instead of the truth, TDM is 5-15x and FDM
-130-520x above the bound (FDM's Kc moves by about 900 times the relative error of ``v0``),
-while NLS with ``v0`` free stays within 1.07x its own bound. Four of Table 2's six FDM
-figures lie below the CRB at 1 kHz (Kv at 90 dB by 20x, at 20 dB by 78x: that would take fs
->= 6 MHz).
+Measured accuracy against the Cramer-Rao bound: ``docs/validation.md`` (coast-down estimators).
 
 SNR (paper Table 2, :func:`simulate_sdof_coastdown`): ``SNR = 10 log10(P_signal / P_noise)``
 with ``P_signal`` the mean square of the noise-free velocity over the record and
@@ -158,14 +151,72 @@ class CoastdownSim:
 
 # -- the model ----------------------------------------------------------------------------
 def stop_time(J: float, Kv: float, Kc: float, v0: float) -> float:
-    """``t_s = (J/Kv) ln(1 + Kv v0 / Kc)``: where eq. 4 reaches zero (inf for Kc = 0)."""
+    """Stop time of a coast, ``t_s = (J/Kv) ln(1 + Kv v0 / Kc)``: where eq. 4 reaches zero [1]_.
+
+    Parameters
+    ----------
+    J : float
+        Inertia of the rotor (kg m^2).
+    Kv : float
+        Viscous coefficient (N m s/rad), > 0.
+    Kc : float
+        Coulomb level (N m); ``Kc <= 0`` never stops.
+    v0 : float
+        Speed at the release (rad/s), > 0.
+
+    Returns
+    -------
+    float
+        The stop time after the release (s); ``inf`` for ``Kc <= 0``.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3-4.
+
+    Examples
+    --------
+    The rotor of the paper's Table 1 stops after about 3.55 s:
+
+    >>> round(stop_time(J=0.01, Kv=0.01203, Kc=0.0017, v0=10.0), 4)
+    3.5523
+    """
     if Kc <= 0.0:
         return float("inf")
     return float(J / Kv * np.log1p(Kv * v0 / Kc))
 
 
 def coast_velocity(t, J: float, Kv: float, Kc: float, v0: float, stop: bool = True) -> np.ndarray:
-    """Paper eq. 4 (``stop=False``), or eq. 4 with the rotor at rest after ``t_s``."""
+    """Velocity of a coasting rotor: paper eq. 4 [1]_, at rest after the stop unless ``stop=False``.
+
+    ``v(t) = (v0 + Kc/Kv) exp(-Kv t / J) - Kc/Kv`` solves ``J dv/dt + Kv v + Kc = 0`` (eq. 3).
+
+    Parameters
+    ----------
+    t : array_like
+        Times after the release (s).
+    J, Kv, Kc, v0 : float
+        Inertia (kg m^2), viscous coefficient (N m s/rad), Coulomb level (N m), release
+        speed (rad/s).
+    stop : bool, optional
+        Hold the rotor at 0 after the stop time (default); ``False`` gives eq. 4 continued
+        to negative speeds.
+
+    Returns
+    -------
+    numpy.ndarray
+        The velocity (rad/s), shaped like ``t``.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+
+    Examples
+    --------
+    >>> coast_velocity([0.0, 1.0, 5.0], J=0.01, Kv=0.01203, Kc=0.0017, v0=10.0).round(3).tolist()
+    [10.0, 2.904, 0.0]
+    """
     t = np.asarray(t, float)
     r = Kc / Kv
     v = (v0 + r) * np.exp(-Kv * t / J) - r
@@ -251,7 +302,7 @@ def _tdm_eq6(Kv, t, v, v0, J, literal):
 def tdm(t, v, J: float, v0: float | None = None, *, kv_range=None, n_grid: int = 60,
         kv_step: float | None = None, kv_grid_origin: float = 0.0,
         literal_eq5: bool = False) -> CoastdownResult:
-    """The paper's time-domain method (eqs. 4-6), ``J`` and ``v0`` known.
+    """The paper's time-domain method (TDM, eqs. 4-6 of [1]_), ``J`` and ``v0`` known.
 
     ``v0`` defaults to the first measured sample. ``kv_range`` (default ``J/T/50 .. 50 J/T``
     with ``T`` the record length) is scanned on ``n_grid`` log-spaced points for the sign
@@ -262,6 +313,45 @@ def tdm(t, v, J: float, v0: float | None = None, *, kv_range=None, n_grid: int =
     root (the published fixed-step search, e.g. ``kv_step=1e-5`` for Table 2; the refined
     root stays in ``diagnostics["Kv_root"]``). Eq. 4 is
     fitted without the stop: pass the record up to the stop only.
+
+    Parameters
+    ----------
+    t, v : array_like
+        Sample times (s, the release at ``t[0]``) and coasting velocity (rad/s, > 0), (N,).
+    J : float
+        Inertia (kg m^2).
+    v0 : float, optional
+        Release speed (rad/s); the first sample when omitted.
+    kv_range : (float, float), optional
+        Search range of ``Kv`` (N m s/rad).
+    n_grid : int, optional
+        Log-spaced points of the scan.
+    kv_step, kv_grid_origin : float, optional
+        The fixed-step search's step and origin (see above).
+    literal_eq5 : bool, optional
+        Use eq. 5 as printed (denominator without the square).
+
+    Returns
+    -------
+    CoastdownResult
+        ``Kv``, ``Kc``, standard errors, residual RMS and the search's diagnostics.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 4-6 and Table 2.
+
+    Examples
+    --------
+    On the noise-free coast of the paper's Table 1 the TDM returns the true values:
+
+    >>> from ident.coastdown.estimators import simulate_sdof_coastdown
+    >>> import numpy as np
+    >>> sim = simulate_sdof_coastdown(0.01, 0.01203, 0.0017, 10.0, fs=1000.0, duration=None,
+    ...                               snr_db=60.0, rng=np.random.default_rng(0))
+    >>> r = tdm(sim.t, sim.v_clean, J=0.01)
+    >>> print(f"Kv = {r.Kv:.5f} N m s/rad, Kc = {r.Kc:.4f} N m")
+    Kv = 0.01203 N m s/rad, Kc = 0.0017 N m
     """
     tr, v, t0 = _check(t, v, "tdm")
     v0 = float(v[0]) if v0 is None else float(v0)
@@ -321,11 +411,44 @@ def tdm(t, v, J: float, v0: float | None = None, *, kv_range=None, n_grid: int =
 
 # -- FDM ----------------------------------------------------------------------------------
 def record_spectrum(t, v, w_max: float, pad: int = 64):
-    """Fourier integral ``V(jw) = int v(t) exp(-j w t) dt`` over the record, exact for the
+    """Spectrum ``V_e(jw)`` of a record at the FDM's frequencies (the input of eqs. 7-8 of [1]_).
+
+    The Fourier integral ``V(jw) = int v(t) exp(-j w t) dt`` over the record, exact for the
     piecewise-linear interpolant of uniform samples (zero outside the record), at
-    ``w_k = k dw``, ``dw = 2 pi / (pad N dt)``, ``k = 0 .. floor(w_max/dw)`` (the grid of an
-    FFT zero-padded ``pad`` times, computed by a chirp-z transform). ``v`` may be (N,) or
-    (runs, N). Returns ``(w, V)`` with ``V`` of shape ``v.shape[:-1] + (K,)``."""
+    ``w_k = k dw`` with ``dw = 2 pi / (pad N dt)`` and ``0 <= w_k <= w_max`` (the grid of an
+    FFT zero-padded ``pad`` times, computed by a chirp-z transform).
+
+    Parameters
+    ----------
+    t : array_like
+        Uniform sample times (s), (N,).
+    v : array_like
+        Velocity records (rad/s), (N,) or (runs, N).
+    w_max : float
+        Highest frequency (rad/s).
+    pad : int, optional
+        Zero-padding factor of the frequency grid.
+
+    Returns
+    -------
+    w : numpy.ndarray
+        Frequencies (rad/s), (K,).
+    V : numpy.ndarray
+        Complex spectrum, ``v.shape[:-1] + (K,)``.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 7-8.
+
+    Examples
+    --------
+    A constant 1 rad/s over 1 s has ``V(0) = 1`` rad:
+
+    >>> w, V = record_spectrum(np.linspace(0.0, 1.0, 101), np.ones(101), w_max=10.0)
+    >>> round(float(V[0].real), 6), bool(w[1] > 0)
+    (1.0, True)
+    """
     from scipy.signal import czt
 
     tr = np.asarray(t, float) - float(np.asarray(t, float)[0])
@@ -350,8 +473,35 @@ def record_spectrum(t, v, w_max: float, pad: int = 64):
 
 
 def fdm_batch(t, v, J: float, v0, *, w_max: float = 30.0, pad: int = 64):
-    """Eqs. 10-11 for many records at once: ``v`` (runs, N) on one uniform ``t``, ``v0``
-    scalar or (runs,). Returns ``(Kv, Kc, M)`` with arrays of shape (runs,)."""
+    """The FDM's closed form, eqs. 10-11 of [1]_, for many records at once.
+
+    Parameters
+    ----------
+    t : array_like
+        Uniform sample times (s), (N,).
+    v : array_like
+        Velocity records (rad/s), (runs, N).
+    J : float
+        Inertia (kg m^2).
+    v0 : float or array_like
+        Release speed(s) (rad/s), scalar or (runs,).
+    w_max : float, optional
+        Highest frequency used (rad/s).
+    pad : int, optional
+        Zero-padding factor of :func:`record_spectrum`.
+
+    Returns
+    -------
+    Kv, Kc : numpy.ndarray
+        Estimates, (runs,).
+    M : int
+        Number of frequencies used.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 9-11.
+    """
     v = np.atleast_2d(np.asarray(v, float))
     _check(t, v[0], "fdm", uniform=True)
     if not np.all(np.isfinite(v)):
@@ -379,6 +529,38 @@ def fdm(t, v, J: float, v0: float | None = None, *, w_max: float | None = None,
     length ``T``: 28 rad/s, 16 cycles over the paper's 3.55 s coast); ``v0`` defaults to the
     first sample. See the module docstring (item 4) for the bias of eq. 8 on a record that
     stops, and the benchmark for its sensitivity to ``v0``.
+
+    Parameters
+    ----------
+    t, v : array_like
+        Uniform sample times (s, release at ``t[0]``) and coasting velocity (rad/s), (N,).
+    J : float
+        Inertia (kg m^2).
+    v0 : float, optional
+        Release speed (rad/s); the first sample when omitted.
+    w_max : float, optional
+        Highest frequency used (rad/s).
+    pad : int, optional
+        Zero-padding factor of the frequency grid.
+
+    Returns
+    -------
+    CoastdownResult
+        ``Kv`` and ``Kc`` (no standard errors: the method gives none).
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 7-11.
+
+    Examples
+    --------
+    >>> from ident.coastdown.estimators import simulate_sdof_coastdown
+    >>> sim = simulate_sdof_coastdown(0.01, 0.01203, 0.0017, 10.0, fs=1000.0, duration=None,
+    ...                               snr_db=60.0, rng=np.random.default_rng(0))
+    >>> r = fdm(sim.t, sim.v_clean, J=0.01)
+    >>> print(f"Kv = {r.Kv:.4f} N m s/rad, Kc = {r.Kc:.4f} N m")
+    Kv = 0.0120 N m s/rad, Kc = 0.0017 N m
     """
     tr, v, t0 = _check(t, v, "fdm", uniform=True)
     v0 = float(v[0]) if v0 is None else float(v0)
@@ -426,6 +608,42 @@ def nls(t, v, J: float, v0: float | None = None, *, x0=None, max_nfev: int = 200
     stop time: ``v = max((v0 + Kc/Kv) exp(-Kv t/J) - Kc/Kv, 0)``; estimates (Kv, Kc) and
     ``v0`` unless ``v0`` is given. The record may extend past the stop. ``x0`` optionally
     starts the solver at (Kv, Kc[, v0]).
+
+    Parameters
+    ----------
+    t, v : array_like
+        Sample times (s, release at ``t[0]``) and velocity (rad/s, positive while coasting), (N,).
+    J : float
+        Inertia (kg m^2).
+    v0 : float, optional
+        Release speed (rad/s); estimated when omitted.
+    x0 : sequence of float, optional
+        Start of the solver, (Kv, Kc[, v0]); an exact-discretisation regression by default.
+    max_nfev : int, optional
+        Most function evaluations of the solver.
+
+    Returns
+    -------
+    CoastdownResult
+        ``Kv``, ``Kc``, ``v0``, their standard errors, residual RMS and the stop time.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), sec. 3, eq. 4 with the stop.
+
+    Examples
+    --------
+    Table 1's rotor at 60 dB SNR, 1 kHz; ``v0`` estimated with the friction:
+
+    >>> from ident.coastdown.estimators import simulate_sdof_coastdown
+    >>> sim = simulate_sdof_coastdown(0.01, 0.01203, 0.0017, 10.0, fs=1000.0, duration=None,
+    ...                               snr_db=60.0, rng=np.random.default_rng(0))
+    >>> r = nls(sim.t, sim.v, J=0.01)
+    >>> print(f"Kv = {r.Kv:.5f}, Kc = {r.Kc:.5f}, v0 = {r.v0:.3f}")
+    Kv = 0.01203, Kc = 0.00170, v0 = 10.000
+    >>> abs(r.Kv - 0.01203) < 3 * r.stderr["Kv"]
+    True
     """
     tr, v, t0 = _check(t, v, "nls")
     free_v0 = v0 is None
@@ -470,7 +688,35 @@ def crb(t, J: float, Kv: float, Kc: float, v0: float, sigma: float, *,
         estimate_v0: bool = False) -> CoastdownBound:
     """Cramer-Rao bound for (Kv, Kc[, v0]) from samples at ``t`` (release at ``t[0]``) of
     eq. 4 with the stop, in white Gaussian noise of std ``sigma``:
-    ``cov >= (G^T G / sigma^2)^-1`` with ``G`` the analytic Jacobian of the model."""
+    ``cov >= (G^T G / sigma^2)^-1`` with ``G`` the analytic Jacobian of the model.
+
+    Parameters
+    ----------
+    t : array_like
+        Sample times (s), (N,).
+    J, Kv, Kc, v0 : float
+        Inertia (kg m^2) and the true parameters (N m s/rad, N m, rad/s).
+    sigma : float
+        Standard deviation of the velocity noise (rad/s).
+    estimate_v0 : bool, optional
+        Bound ``v0`` as a third unknown.
+
+    Returns
+    -------
+    CoastdownBound
+        Covariance bound, its standard deviations and relative values.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), Table 2 (the relative errors this bounds).
+
+    Examples
+    --------
+    >>> b = crb(np.arange(3553) / 1000.0, 0.01, 0.01203, 0.0017, 10.0, sigma=0.0034)
+    >>> b.rel["Kc"] < 1e-3 and b.rel["Kv"] < b.rel["Kc"]
+    True
+    """
     tr = np.asarray(t, float) - float(np.asarray(t, float)[0])
     names = ("Kv", "Kc", "v0") if estimate_v0 else ("Kv", "Kc")
     G = _model_jac(tr, J, Kv, Kc, v0)[1][:, : len(names)]
@@ -488,7 +734,41 @@ def simulate_sdof_coastdown(J: float, Kv: float, Kc: float, v0: float, fs: float
                        runs: int | None = None) -> CoastdownSim:
     """Samples ``t = k/fs`` over ``[0, duration]`` (``None``: up to the stop time) of eq. 4
     with the stop, plus white Gaussian noise at ``snr_db`` (module docstring definition).
-    ``runs`` draws that many independent noise records at once (``v`` of shape (runs, N))."""
+    ``runs`` draws that many independent noise records at once (``v`` of shape (runs, N)).
+
+    Parameters
+    ----------
+    J, Kv, Kc, v0 : float
+        Inertia (kg m^2), viscous coefficient (N m s/rad), Coulomb level (N m), release
+        speed (rad/s); the paper's Table 1 is ``0.01, 0.01203, 0.0017, 10``.
+    fs : float
+        Sample rate (Hz).
+    duration : float or None
+        Record length (s); ``None`` ends it at the stop.
+    snr_db : float
+        Signal-to-noise ratio (dB).
+    rng : numpy.random.Generator
+        Source of the noise.
+    runs : int, optional
+        Independent noise records to draw.
+
+    Returns
+    -------
+    CoastdownSim
+        Times, noisy and clean velocity, the noise level and the stop time.
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), Table 1 (the simulated rotor) and Table 2 (the SNRs).
+
+    Examples
+    --------
+    >>> sim = simulate_sdof_coastdown(0.01, 0.01203, 0.0017, 10.0, fs=1000.0, duration=None,
+    ...                               snr_db=20.0, rng=np.random.default_rng(1), runs=3)
+    >>> sim.v.shape, round(sim.t_stop, 2)
+    ((3, 3553), 3.55)
+    """
     ts = stop_time(J, Kv, Kc, v0)
     T = ts if duration is None else float(duration)
     n = int(np.floor(T * fs + 1e-9)) + 1
@@ -512,7 +792,31 @@ def coast_segments(t, qd, tau=None, coasting=None, *, tau_tol: float | None = No
     (default 2 % of ``max |tau|``); without either the whole record is one phase, started
     at its sample of largest ``|qd|``. A phase starts at its first sample (the release: not
     at the largest noisy ``|qd|``, which would bias the measured ``v0`` upwards, and TDM/FDM
-    take ``v0`` as known) and runs to its end (the rest after the stop included)."""
+    take ``v0`` as known) and runs to its end (the rest after the stop included).
+
+    Parameters
+    ----------
+    t, qd : array_like
+        Times (s) and velocity (rad/s), (N,).
+    tau : array_like, optional
+        Drive torque (N m), (N,).
+    coasting : array_like of bool, optional
+        Where the drive is off, (N,).
+    tau_tol : float, optional
+        Torque below which the drive counts as off (N m).
+    min_samples : int, optional
+        Shortest phase kept.
+
+    Returns
+    -------
+    list of (int, int)
+        ``(start, stop)`` sample ranges, stop exclusive.
+
+    Examples
+    --------
+    >>> coast_segments(np.arange(100) * 0.01, np.ones(100), tau=np.r_[np.ones(40), np.zeros(60)])
+    [(40, 100)]
+    """
     qd = np.asarray(qd, float)
     n = qd.size
     if coasting is not None:
@@ -548,8 +852,48 @@ def coastdown_from_trial(t, qd, J: float, tau=None, coasting=None, *, method: st
     :func:`coast_segments` (drive torque switched off, i.e. ``|tau|`` drops to about 0);
     each is mirrored to positive velocity and passed to ``method`` ("nls", "tdm" or "fdm";
     TDM and FDM get the phase cut at the first sample at or below zero speed, as eq. 4 has
-    no stop). Phases released slower than ``min_speed`` are skipped. Returns one
-    :class:`CoastdownResult` per phase (``t0`` = release time, ``direction`` = +-1).
+    no stop). Phases released slower than ``min_speed`` are skipped.
+
+    Parameters
+    ----------
+    t, qd : array_like
+        Times (s) and velocity (rad/s) of one joint, (N,).
+    J : float
+        Inertia seen by ``qd`` (kg m^2).
+    tau : array_like, optional
+        Drive torque (N m), (N,).
+    coasting : array_like of bool, optional
+        Where the drive is off, (N,).
+    method : {"nls", "tdm", "fdm"}, optional
+        Estimator of each phase.
+    tau_tol : float, optional
+        Torque below which the drive counts as off (N m).
+    min_speed : float, optional
+        Slowest release kept (rad/s).
+    **kwargs
+        Passed to the estimator.
+
+    Returns
+    -------
+    list of CoastdownResult
+        One per phase (``t0`` = release time, ``direction`` = +-1).
+
+    References
+    ----------
+    .. [1] "Research on the identification methods of friction in kinematical joints of
+       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+
+    Examples
+    --------
+    A record that drives at 10 rad/s, then coasts (torque 0) to rest:
+
+    >>> t = np.arange(4000) / 1000.0
+    >>> on = t < 0.3
+    >>> qd = np.where(on, 10.0, coast_velocity(t - 0.3, 0.01, 0.01203, 0.0017, 10.0))
+    >>> tau = np.where(on, 0.12, 0.0)
+    >>> [r] = coastdown_from_trial(t, qd, 0.01, tau=tau)
+    >>> print(f"Kc = {r.Kc:.4f} N m, released at {r.t0:.1f} s")
+    Kc = 0.0017 N m, released at 0.3 s
     """
     if method not in _ESTIMATORS:
         raise InputError(f"coastdown: unknown method {method!r}; one of {sorted(_ESTIMATORS)}")

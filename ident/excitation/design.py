@@ -49,7 +49,29 @@ class DesignLimits:
 
 
 def regressor_cond(q, qd, qdd) -> float:
-    """cond(R) of the thesis's one-link regressor ``[qdd, -sin q, cos q, sign qd, qd]``."""
+    """cond(R) of the thesis's one-link regressor ``[qdd, -sin q, cos q, sign qd, qd]`` [1]_.
+
+    Parameters
+    ----------
+    q, qd, qdd : array_like
+        Joint angle (rad), speed (rad/s) and acceleration (rad/s^2) samples, (T,).
+
+    Returns
+    -------
+    float
+        The 2-norm condition number of the (T, 5) regressor, the objective of eq. 3-1.
+
+    References
+    ----------
+    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
+       motion capture (thesis, ``../shared/seeds/002_*``), eqs. 2-4, 2-5 and 3-1.
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 2.0 * np.pi, 200)
+    >>> round(regressor_cond(np.sin(t), np.cos(t), -np.sin(t)), 1)
+    57.9
+    """
     R = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])
     return float(np.linalg.cond(R))
 
@@ -76,7 +98,20 @@ class ExcitationDesign:
         return self.series.period
 
     def trajectory(self, n: int | None = None, dt: float | None = None):
-        """(t, q, qd, qdd) over one period: ``n`` samples or a step ``dt``."""
+        """(t, q, qd, qdd) over one period: ``n`` samples or a step ``dt``.
+
+        Parameters
+        ----------
+        n : int, optional
+            Samples over the period (1001 by default).
+        dt : float, optional
+            Sample step (s), instead of ``n``.
+
+        Returns
+        -------
+        t, q, qd, qdd : numpy.ndarray
+            Times (s), angle (rad), speed (rad/s), acceleration (rad/s^2).
+        """
         T = self.period
         t = np.arange(0.0, T + 1e-12, dt) if dt else np.linspace(0.0, T, n or 1001)
         q, qd, qdd = self.series.evaluate(t)
@@ -105,6 +140,42 @@ class ExcitationDesigner:
     period for the constraints and ``R``, ``n_starts`` and ``seed`` for the multi-start,
     ``margin`` (fraction of the joint range kept free at each end), ``q_center`` (None:
     middle of the range), ``maxiter`` per start.
+
+    Parameters
+    ----------
+    n_harmonics : int, optional
+        Harmonics ``N`` of eq. 3-2 (at least 2).
+    period : float, optional
+        Period of the trajectory (s).
+    n_samples : int, optional
+        Samples per period for the constraints and ``R``.
+    n_starts : int, optional
+        Random starts of the search.
+    seed : int, optional
+        Seed of the starts.
+    margin : float, optional
+        Fraction of the joint range kept free at each end.
+    q_center : float, optional
+        Centre of the motion (rad); the middle of the range by default.
+    maxiter : int, optional
+        Iterations of Powell's method per start.
+
+    References
+    ----------
+    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
+       motion capture (thesis, ``../shared/seeds/002_*``), eqs. 3-1 and 3-2.
+
+    Examples
+    --------
+    A joint of +-1 rad, 2 rad/s and 10 rad/s^2, excited at half its speed:
+
+    >>> limits = DesignLimits(q_lower=-1.0, q_upper=1.0, qd_max=2.0, qdd_max=10.0)
+    >>> design = ExcitationDesigner(n_starts=2, seed=0).fit(limits, vmax_frac=0.5)
+    >>> design.feasible, round(design.peak_speed, 6), design.cond < 10.0
+    (True, 1.0, True)
+    >>> t, q, qd, qdd = design.trajectory(n=501)
+    >>> bool(-1.0 <= q.min() and q.max() <= 1.0), round(float(abs(qd[0])), 9)
+    (True, 0.0)
     """
 
     def __init__(self, n_harmonics: int = 5, period: float = 10.0, n_samples: int = 400,
@@ -167,7 +238,22 @@ class ExcitationDesigner:
         return float(np.log(c) + 1e3 * pen)
 
     def fit(self, limits: DesignLimits, vmax_frac: float = 1.0, joint: int = 0) -> ExcitationDesign:
-        """Design the trajectory for ``limits`` at ``vmax_frac`` of the maximum speed."""
+        """Design the trajectory for ``limits`` at ``vmax_frac`` of the maximum speed.
+
+        Parameters
+        ----------
+        limits : DesignLimits
+            The joint's position, speed and acceleration limits.
+        vmax_frac : float, optional
+            Peak speed as a fraction of ``limits.qd_max``, in (0, 1].
+        joint : int, optional
+            Joint index recorded in the result.
+
+        Returns
+        -------
+        ExcitationDesign
+            The eq. 3-2 series, its cond(R), peak speed, acceleration, range and feasibility.
+        """
         if not 0 < vmax_frac <= 1:
             raise ValueError(f"vmax_frac must be in (0, 1], got {vmax_frac}")
         N = self.n_harmonics
@@ -204,7 +290,24 @@ def limits_from_robot(robot, joint: int, qdd_max: float | None = None, q_rest=No
     """Limits of joint ``joint`` (1-based) from a :class:`mocap.robot.Robot`: position and speed
     from the URDF/drives; acceleration ``qdd_max`` if given, else the drive's
     ``max_acceleration`` extra key, else half the torque limit over the link-side inertia
-    ``I + J`` about the axis at ``q_rest`` (zeros)."""
+    ``I + J`` about the axis at ``q_rest`` (zeros).
+
+    Parameters
+    ----------
+    robot : mocap.robot.Robot
+        The robot (URDF and drives).
+    joint : int
+        Joint number, from 1.
+    qdd_max : float, optional
+        Acceleration limit (rad/s^2).
+    q_rest : array_like, optional
+        Configuration at which the inertia is taken (rad), (n,).
+
+    Returns
+    -------
+    DesignLimits
+        The limits for :meth:`ExcitationDesigner.fit`.
+    """
     j0 = joint - 1
     if not 0 <= j0 < robot.n:
         raise ValueError(f"joint {joint} is not in 1..{robot.n}")

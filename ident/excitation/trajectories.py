@@ -67,6 +67,44 @@ def fourier_excitation(rng: np.random.Generator, vmax: float, vmax_frac: float, 
     Coefficients are drawn from ``rng`` (decaying as 1/l), projected onto the end constraints,
     scaled to the peak speed; the number of periods in ``duration - 2 hold`` is doubled until
     the position stays within ``q_center +- q_halfrange``.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of the coefficients.
+    vmax : float
+        The joint's maximum speed (rad/s).
+    vmax_frac : float
+        Peak speed as a fraction of ``vmax``, in (0, 1.5].
+    duration : float
+        Length of the trajectory, holds included (s).
+    q_center, q_halfrange : float
+        Centre and half-width of the allowed range (rad).
+    n_harmonics : int, optional
+        Harmonics of eq. 3-2.
+    period : float, optional
+        Nominal period (s).
+    hold : float, optional
+        Rest before and after the motion (s).
+
+    Returns
+    -------
+    FourierReference
+        The trajectory; ``sample(t)`` gives ``(q, qd, qdd)``.
+
+    References
+    ----------
+    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
+       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-2.
+
+    Examples
+    --------
+    >>> ref = fourier_excitation(np.random.default_rng(0), vmax=2.0, vmax_frac=0.5, duration=21.0,
+    ...                          q_center=0.0, q_halfrange=1.0)
+    >>> t = np.linspace(0.0, ref.duration, 20001)
+    >>> q, qd, qdd = ref.sample(t)
+    >>> round(float(np.abs(qd).max()), 3), bool(np.abs(q).max() <= 1.0), float(qd[0]) == 0.0
+    (1.0, True, True)
     """
     if not 0 < vmax_frac <= 1.5:
         raise ValueError(f"vmax_frac must be in (0, 1.5], got {vmax_frac}")
@@ -160,7 +198,35 @@ def reversals(vmax: float, vmax_frac: float, q_center: float, q_halfrange: float
     """Velocity reversals (triangle waves between +v and -v, v = vmax_frac vmax) at several
     constant accelerations ``a_k = f_k a_min``; ``a_min`` keeps the swing within
     ``q_halfrange``. Each block: 0 -> +v, ``cycles`` x (+v -> -v -> +v), +v -> 0, back to the
-    start at the same acceleration, hold."""
+    start at the same acceleration, hold.
+
+    Parameters
+    ----------
+    vmax : float
+        The joint's maximum speed (rad/s).
+    vmax_frac : float
+        Reversal speed as a fraction of ``vmax``.
+    q_center, q_halfrange : float
+        Centre and half-width of the allowed range (rad).
+    accel_factors : sequence of float, optional
+        Accelerations in units of the smallest one that keeps the swing in range.
+    cycles : int, optional
+        Reversal cycles per acceleration.
+    hold : float, optional
+        Rest between blocks (s).
+
+    Returns
+    -------
+    PiecewiseAccel
+        The trajectory (exact ``q``, ``qd``; piecewise-constant ``qdd``).
+
+    Examples
+    --------
+    >>> ref = reversals(vmax=2.0, vmax_frac=0.5, q_center=0.0, q_halfrange=0.5)
+    >>> q, qd, qdd = ref.sample(np.linspace(0.0, ref.duration, 20001))
+    >>> ref.duration, float(np.abs(qd).max()), ref.q_range
+    (17.5, 1.0, (-0.25, 0.25))
+    """
     v = vmax_frac * vmax
     a_min = v * v / max(q_halfrange, 1e-3)
     segs = [(hold, 0.0)]
@@ -182,7 +248,37 @@ def constant_velocity(vmax: float, vmax_frac: float, q_center: float, q_halfrang
                       max_cruise: float = 2.5, hold: float = 0.3) -> PiecewiseAccel:
     """Constant-velocity sweeps: for each speed ``f vmax_frac vmax``, accelerate, cruise over
     up to ``1.6 q_halfrange`` (at most ``max_cruise`` s), stop, hold, and come back at the same
-    speed (both directions, as in Kennedy et al. 2003's PA-10 friction maps)."""
+    speed (both directions, as in Kennedy et al. 2003's PA-10 friction maps).
+
+    Parameters
+    ----------
+    vmax : float
+        The joint's maximum speed (rad/s).
+    vmax_frac : float
+        Top sweep speed as a fraction of ``vmax``.
+    q_center, q_halfrange : float
+        Centre and half-width of the allowed range (rad).
+    speed_fractions : sequence of float, optional
+        Sweep speeds as fractions of the top speed.
+    accel : float, optional
+        Acceleration of the ramps (rad/s^2); ``max(2 v_top, 1)`` by default.
+    max_cruise : float, optional
+        Longest cruise (s).
+    hold : float, optional
+        Rest between sweeps (s).
+
+    Returns
+    -------
+    PiecewiseAccel
+        The trajectory.
+
+    Examples
+    --------
+    >>> ref = constant_velocity(vmax=2.0, vmax_frac=0.5, q_center=0.0, q_halfrange=0.5)
+    >>> lo, hi = ref.q_range
+    >>> round(lo, 9), round(hi, 9)
+    (-0.4, 0.4)
+    """
     vtop = vmax_frac * vmax
     a = accel if accel is not None else max(2.0 * vtop, 1.0)
     span = 1.6 * q_halfrange
@@ -237,7 +333,34 @@ class MinJerkPath(Reference):
 
 
 def min_jerk_path(waypoints, vmax: float, amax: float, hold: float = 0.5) -> MinJerkPath:
-    """Minimum-jerk moves through ``waypoints`` respecting peak speed and acceleration."""
+    """Minimum-jerk moves through ``waypoints`` respecting peak speed and acceleration.
+
+    Each move of ``dq`` lasts ``max(1.875 dq / vmax, sqrt(5.7735 dq / amax), 0.2)`` s, the
+    peak speed and acceleration of the quintic ``10 s^3 - 15 s^4 + 6 s^5``.
+
+    Parameters
+    ----------
+    waypoints : array_like
+        Joint angles to pass through (rad), (P,).
+    vmax, amax : float
+        Peak speed (rad/s) and acceleration (rad/s^2).
+    hold : float, optional
+        Rest before the first move and after each (s).
+
+    Returns
+    -------
+    MinJerkPath
+        The trajectory.
+
+    Examples
+    --------
+    >>> path = min_jerk_path([0.0, 1.0, 0.0], vmax=1.0, amax=2.0)
+    >>> path.durations.tolist(), path.duration
+    ([1.875, 1.875], 5.25)
+    >>> q, qd, qdd = path.sample(np.array([0.0, 0.5 + 1.875]))
+    >>> q.tolist(), qd.tolist()
+    ([0.0, 1.0], [0.0, 0.0])
+    """
     wp = np.asarray(waypoints, float)
     dq = np.abs(np.diff(wp))
     T = np.maximum(np.maximum(1.875 * dq / vmax, np.sqrt(5.7735 * dq / amax)), 0.2)

@@ -12,19 +12,19 @@ eq. 2-5; ``tau_max``: the drive's rated link-side torque; ``vmax``: its maximum 
 ==================  =============================================================  ==========================
 name                form added to the plant                                        size at M = 1 (literature)
 ==================  =============================================================  ==========================
-stribeck            thesis eq. 2-6: ``f = sign(qd) (c + S exp(-|qd|/Vc)) + v qd``   S = 0.45 c (30-60 %),
+stribeck            thesis eq. 2-6: ``f = sign(qd) (c + S exp(-|qd|/Vc)) + v qd``  S = 0.45 c (30-60 %),
                                                                                    Vc = 0.05 rad/s (0.02-0.1)
 presliding          LuGre bristles (Indri & Trapani eq. 5-9, DM1):                 z_ss = c/sigma0 = 2e-3 rad
                     ``dz/dt = qd - sigma0 |qd| z / c``,                            (hysteresis width), sigma1
                     ``f = sigma0 z + sigma1 dz/dt + v qd``                         critical for the link
 position_ripple     ``tau_r = A sin(n q + phi)`` on the link (harmonic drive /     A = 0.10 c (5-15 %), n = 36
                     cogging), periodic in the joint angle                          per revolution
-load_dependent      ``c_eff = c + mu |tau_g(q)|``, ``tau_g`` the gravity + payload  mu = 0.08 (0.05-0.1)
-                    torque the joint transmits (its static load)
-thermal_drift       ``c, v -> (1 + h exp(-(t - t0)/tau)) (c, v)`` on the campaign   h = 0.30 (20-40 % cold),
+load_dependent      ``c_eff = c + mu |tau_g(q)|``, ``tau_g`` the gravity +         mu = 0.08 (0.05-0.1)
+                    payload torque the joint transmits (its static load)
+thermal_drift       ``c, v -> (1 + h exp(-(t - t0)/tau)) (c, v)`` on the campaign  h = 0.30 (20-40 % cold),
                     clock ``t`` (warm-up)                                          tau = campaign length / 3
-compliance          joint stiffness ``1/k = 1/k0 + M delta / tau_max``, ``k0`` the  delta = 0.4 deg at rated
-                    declared stiffness (softer than declared)                      torque (0.3-0.5 deg)
+compliance          joint stiffness ``1/k = 1/k0 + M delta / tau_max``, ``k0``     delta = 0.4 deg at rated
+                    the declared stiffness (softer than declared)                  torque (0.3-0.5 deg)
 backlash            dead band of total width ``2 beta`` in the transmission         2 beta = 0.2 deg (0.1-0.3)
 torque_scale        logged torque ``= (1 + s) u`` (torque constant error)           s = 0.15 (10-20 %)
 asymmetry           ``c+- = c (1 +- a/2)``, ``v+- = v (1 +- a/2)`` by direction     a = 0.25 (+-20-30 %)
