@@ -53,7 +53,7 @@ class WorldArgs:
     reps: int = 4
     kinds: str = "excitation"
     noise: str = "white"
-    payload_com_known: bool = True
+    payload_com_known: bool | str = True   # True, False (omitted: a wrong declaration) or "unknown"
     urdf_error: float = 0.0
 
     @property
@@ -73,7 +73,9 @@ class WorldArgs:
             s += "-k" + "".join(k[0] for k in self.kinds.split(","))
         if self.noise != "white":
             s += f"-n{self.noise}"
-        if not self.payload_com_known:
+        if self.payload_com_known == "unknown":
+            s += "-pcunknown"
+        elif not self.payload_com_known:
             s += "-pcno"
         if self.urdf_error:
             s += f"-u{self.urdf_error:g}"
@@ -90,7 +92,9 @@ class WorldArgs:
             a += ["--kinds", self.kinds]
         if self.noise != "white":
             a += ["--noise", self.noise]
-        if not self.payload_com_known:
+        if self.payload_com_known == "unknown":
+            a += ["--payload-com-known", "unknown"]
+        elif not self.payload_com_known:
             a += ["--payload-com-known", "no"]
         if self.urdf_error:
             a += ["--urdf-error", f"{self.urdf_error:g}"]
@@ -106,7 +110,8 @@ class WorldArgs:
                 and (truth_args.get("second_effect") or None) == self.second_effect
                 and int(truth_args.get("reps")) == self.reps and truth_args.get("kinds") == self.kinds
                 and truth_args.get("noise") == self.noise
-                and (truth_args.get("payload_com_known") == "yes") == self.payload_com_known
+                and truth_args.get("payload_com_known") == {True: "yes", False: "no"}.get(
+                    self.payload_com_known, self.payload_com_known)
                 and abs(float(truth_args.get("urdf_error")) - self.urdf_error) < 1e-12)
 
 
@@ -325,9 +330,14 @@ def score_diagnosis(args: WorldArgs, report: dict) -> dict:
     out = {"verdict": verdict, "ranked": ranked, "heldout_rms_nominal": jr.get("heldout_rms_nominal"),
            "reduction_true_effect": red.get(args.effect), "reduction_verdict": red.get(verdict),
            "heldout_rms_true_effect": rms.get(args.effect)}
+    alternatives = [a.get("effect") for a in jr.get("alternatives", [])]
+    out["alternatives"] = alternatives
     if args.effect == "none":
         out["correct"] = verdict == "none"
-        out["false_attribution"] = verdict not in NOT_AN_ATTRIBUTION
+        # a wrong payload declaration (COM omitted, FORMAT.md puts it at the flange origin) read
+        # as a gain-like effect is not a false attribution when the report names the COM error
+        out["false_attribution"] = verdict not in NOT_AN_ATTRIBUTION and not (
+            args.payload_com_known is False and "payload_com" in alternatives)
     elif args.second_effect:
         out["correct"] = {args.effect, args.second_effect} <= set(ranked[:2])
         out["one_of_two"] = verdict in (args.effect, args.second_effect)

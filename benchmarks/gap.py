@@ -84,6 +84,12 @@ def foreign_jobs(a) -> list[tuple[str, object]]:
             jobs += [("payload", W("none", 41 + s, 1.0, robot, payload_com_known=False, **base))
                      for s in range(a.cond_seeds)]
             jobs += [("payload", W(e, 41, 1.0, robot, payload_com_known=False, **base)) for e in a.cond_effects]
+        if "unknown" in a.conditions:
+            jobs += [("unknown", W("none", 71 + s, 1.0, robot, payload_com_known="unknown", **base))
+                     for s in range(a.cond_seeds)]
+            jobs += [("unknown", W(e, 71, 1.0, robot, payload_com_known="unknown", **base)) for e in a.cond_effects]
+        if "declared" in a.conditions:   # the cond-effects with the COM declared, same seed as "unknown"
+            jobs += [("declared", W(e, 71, 1.0, robot, **base)) for e in a.cond_effects]
         if "coloured" in a.conditions:
             jobs += [("coloured", W("none", 51 + s, 1.0, robot, noise="coloured", **base)) for s in range(a.cond_seeds)]
             jobs += [("coloured", W(e, 51, 1.0, robot, noise="coloured", **base)) for e in a.cond_effects]
@@ -242,7 +248,8 @@ def summarize(results, a) -> dict:
                 s[f"top1_m{m:g}_{robot}"] = acc
                 print(f"top-1 accuracy, magnitude {m:g}, {robot:>5}: {acc:.3f} ({len(sel)} campaigns, "
                       f"{ins} 'insufficient data'; goal >= {0.95 if m >= 1 else 0.85})")
-        for g, goal in (("control", 0.05), ("urdf10", 0.10), ("payload", 0.10), ("coloured", 0.05)):
+        for g, goal in (("control", 0.05), ("urdf10", 0.10), ("payload", 0.10), ("unknown", 0.05),
+                        ("coloured", 0.05), ("declared", 0.05)):
             sel = [r for r in ok if r["group"] == g and r["effect"] == "none"]
             if sel:
                 fa = _rate(sel, "false_attribution")
@@ -254,7 +261,12 @@ def summarize(results, a) -> dict:
             eff = [r for r in ok if r["group"] == g and r["effect"] != "none"]
             if eff and g != "control":
                 s[f"top1_{g}"] = _rate(eff, "correct")
-                print(f"top-1 accuracy with {g:>8} (magnitude 1): {s[f'top1_{g}']:.3f} ({len(eff)} campaigns)")
+                named = sum(r["correct"] or r["effect"] in r.get("alternatives", []) for r in eff)
+                print(f"top-1 accuracy with {g:>8} (magnitude 1): {s[f'top1_{g}']:.3f} ({len(eff)} campaigns; "
+                      f"named as verdict or stated alternative: {named}) "
+                      + ", ".join(f"{r['effect']}->{r['verdict']}" + (f" (or {'/'.join(r['alternatives'])})"
+                                                                       if r.get("alternatives") else "")
+                                  for r in eff))
         two = [r for r in ok if r["group"] == "two"]
         if two:
             s["two_effect_hit"] = _rate(two, "correct")
@@ -324,7 +336,9 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=3, help="seeds per effect and magnitude")
     ap.add_argument("--controls", type=int, default=10, help="effect-free campaigns per robot")
     ap.add_argument("--conditions", default="urdf,payload,coloured,two",
-                    help="comma list of extra groups: urdf (10 %% URDF error), payload (COM undeclared), "
+                    help="comma list of extra groups: urdf (10 %% URDF error), payload (COM omitted: a wrong "
+                         "declaration), unknown (payload_com = \"unknown\"), declared (the cond-effects with the "
+                         "COM declared, seed of 'unknown'), "
                          "coloured (noise), two (two effects at once); '' for none")
     ap.add_argument("--cond-seeds", type=int, default=3, help="effect-free campaigns per condition and robot")
     ap.add_argument("--cond-effects", default=None,

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mocap.io.campaign import payload_com
+from mocap.io.payload import payload_com
 
 # flag bits of SolveResult.flags ---------------------------------------------------------------
 FLAG_TOO_FEW_MARKERS = 1

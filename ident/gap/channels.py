@@ -185,9 +185,13 @@ def _cv(channel: Channel, X: np.ndarray, fold: np.ndarray, gb: dict | None = Non
 
 
 def nominal_heldout_rms(d: JointData, nominal: str = "cv") -> float:
-    """Held-out torque RMS of the nominal model (leave-one-fold-out), for data-preparation choices."""
+    """Held-out torque RMS of the nominal model (leave-one-fold-out), for data-preparation choices.
+    Folds: the trials' (repetitions); with a single fold (one trial), the motion cycles."""
     ch = _torque_channel(d, nominal_model(nominal))
-    cv, _ = _cv(ch, ch.X0, ch.block_fold(d.fold))
+    fold = ch.block_fold(d.fold)
+    if len(np.unique(fold)) < 2:
+        fold = np.arange(ch.blocks.shape[0])
+    cv, _ = _cv(ch, ch.X0, fold)
     return _rms(cv.sse, ch.blocks[:, 1] - ch.blocks[:, 0])
 
 

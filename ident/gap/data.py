@@ -22,7 +22,7 @@ from functools import cached_property
 import numpy as np
 from scipy.signal import savgol_filter
 
-from mocap.io.campaign import payload_com
+from mocap.io.payload import payload_com
 
 from ident.gap.channels import _transmission_channel, motion_cycles, nominal_heldout_rms
 

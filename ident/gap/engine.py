@@ -1,7 +1,8 @@
 """Cross-validated comparison of a nominal model against augmented models, per channel.
 
-All fits are linear least squares on per-trial Gram matrices, so leave-one-repetition-out
-folds, grid searches over shape parameters and bootstrap resampling over trials cost sums of
+All fits are linear least squares on per-block Gram matrices (a block: a motion cycle, or a
+short unit of one), so leave-one-fold-out cross-validation, grid searches over shape parameters
+and bootstrap resampling over blocks cost sums of
 small matrices rather than refits on the samples.
 """
 from __future__ import annotations
@@ -20,10 +21,10 @@ def trial_bounds(trial: np.ndarray, n_trials: int) -> np.ndarray:
 
 @dataclass
 class Grams:
-    G: np.ndarray   # (n_trials, p, p)
-    b: np.ndarray   # (n_trials, p)
-    yy: np.ndarray  # (n_trials,)
-    n: np.ndarray   # (n_trials,) samples
+    G: np.ndarray   # (n_blocks, p, p)
+    b: np.ndarray   # (n_blocks, p)
+    yy: np.ndarray  # (n_blocks,)
+    n: np.ndarray   # (n_blocks,) samples
 
 
 def grams(X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> Grams:
@@ -32,7 +33,7 @@ def grams(X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> Grams:
     G = np.zeros((nt, p, p))
     b = np.zeros((nt, p))
     yy = np.zeros(nt)
-    for i, (s, e) in enumerate(bounds):  # loop over trials, vectorised over samples
+    for i, (s, e) in enumerate(bounds):  # loop over blocks, vectorised over samples
         Xi, ri = X[s:e], r[s:e]
         G[i] = Xi.T @ Xi
         b[i] = Xi.T @ ri
@@ -72,9 +73,9 @@ def sse_with(theta: np.ndarray, gr: Grams, idx) -> np.ndarray:
 
 @dataclass
 class CVResult:
-    sse: np.ndarray            # (n_trials,) held-out SSE of each trial
+    sse: np.ndarray            # (n_blocks,) held-out SSE of each block
     hp_per_fold: dict          # fold -> chosen shape parameter
-    theta_all: np.ndarray      # fit on all trials with the hp chosen on all trials
+    theta_all: np.ndarray      # fit on all blocks with the hp chosen on all blocks
     hp_all: object
     train_sse_all: float
     theta_per_fold: dict = field(default_factory=dict)  # fold -> theta fitted without it
@@ -97,7 +98,7 @@ def _supported(gr: Grams, mask: np.ndarray) -> bool:
 
 
 def _best_fit(grams_by_hp: dict, mask: np.ndarray):
-    """(training SSE, hp, theta) of the shape parameter with the least SSE on ``mask`` trials,
+    """(training SSE, hp, theta) of the shape parameter with the least SSE on ``mask`` blocks,
     among the shapes the training blocks support (:func:`_supported`; all when none is)."""
     cands = {hp: gr for hp, gr in grams_by_hp.items() if _supported(gr, mask)} if not mask.all() else grams_by_hp
     best = None
@@ -110,7 +111,7 @@ def _best_fit(grams_by_hp: dict, mask: np.ndarray):
     return best
 
 
-def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_trials: np.ndarray | None = None,
+def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_blocks: np.ndarray | None = None,
                    guard: dict | None = None) -> CVResult:
     """Leave-one-fold-out: in each fold choose the shape parameter by training SSE, then
     evaluate the held-out blocks. ``grams_by_hp`` maps hp -> Grams (same blocks). ``guard``
@@ -118,7 +119,7 @@ def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_trials: np.ndarray |
     are not tested (the h-blocks of hv-block cross-validation, Racine 2000: the samples within
     the residual's correlation time of the test fold, whose errors are correlated with its own)."""
     nt = fold.shape[0]
-    fit_mask = np.ones(nt, bool) if fit_trials is None else fit_trials
+    fit_mask = np.ones(nt, bool) if fit_blocks is None else fit_blocks
     sse = np.zeros(nt)
     chosen, thetas = {}, {}
     for f in np.unique(fold):
@@ -155,9 +156,9 @@ def unexplained_fraction(gr: Grams, p: int) -> float:
 
 
 def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float:
-    """One-sided paired test that ``d`` (per-trial held-out SSE reduction) is positive.
+    """One-sided paired test that ``d`` (per-block held-out SSE reduction) is positive.
 
-    Trials are the exchangeable blocks, so autocorrelation inside a trial does not inflate
+    Blocks (motion cycles) are the exchangeable units, so autocorrelation inside one does not inflate
     the significance. Randomisation over sign flips of the studentised mean."""
     d = np.asarray(d, float)
     n = d.shape[0]
@@ -289,7 +290,7 @@ def repetition_noise_floor(r: np.ndarray, trial: np.ndarray, t_rel: np.ndarray, 
 
 
 def bootstrap_ci(sse: np.ndarray, n: np.ndarray, n_boot: int = 1000, seed: int = 0, level: float = 0.95):
-    """Percentile CI of the pooled RMS sqrt(sum sse / sum n) resampling trials."""
+    """Percentile CI of the pooled RMS sqrt(sum sse / sum n) resampling blocks."""
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, sse.shape[0], size=(n_boot, sse.shape[0]))
     rms = np.sqrt(sse[idx].sum(1) / np.maximum(n[idx].sum(1), 1))

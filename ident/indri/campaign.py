@@ -62,7 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.campaign import payload_com
+from mocap.io.payload import payload_com
 
 from mocap.io.errors import InputError
 
