@@ -11,7 +11,7 @@ from ident.friction.base import CoulombViscous
 from ident.friction.static import Stribeck
 from ident.model.onelink import (OneLinkIdentifier, fit_cv_linear, name_degenerate, onelink_regressor,
                            onelink_target)
-from ident.signals.smoothing import prepare_joint_signals
+from ident.model.linkstate import prepare_joint_signals
 
 TRUE = {"I": 0.4, "mglx": 3.0, "mgly": 1.0}
 J, B = 0.35, 0.9

@@ -40,7 +40,9 @@ import numpy as np
 
 from ident.friction import MODELS
 from ident.friction.base import CoulombViscous
+from ident.friction.constants import REST_FRAC
 from ident.friction.fit import FrictionFit, eiv_bias, fit_friction
+from ident.signals.blas import one_blas_thread
 
 
 def model_class(name: str):
@@ -154,7 +156,7 @@ class OneLinkIdentifier:
     """
 
     def __init__(self, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8, seed: int = 0,
-                 bounds: dict | None = None, rest_frac: float = 0.01):
+                 bounds: dict | None = None, rest_frac: float = REST_FRAC):
         self.models = tuple(models)
         self.n_starts = int(n_starts)
         self.seed = int(seed)
@@ -166,8 +168,6 @@ class OneLinkIdentifier:
         return self.fit(sig.q, sig.qd, sig.qdd, y, errors=sig.errors)
 
     def fit(self, q, qd, qdd, y, errors: dict | None = None) -> dict:
-        from ident.signals.smoothing import one_blas_thread
-
         with one_blas_thread():
             return self._fit(q, qd, qdd, y, errors)
 

@@ -7,7 +7,7 @@ Per (trial, joint) — :func:`fit_trial_joint`, a pure function of a picklable
 1. read the robot log (and ``angles/<trial id>.csv`` when an angles folder is given; without
    it, or without that joint's column, the motor angle stands in for the link angle and the
    result says ``link_source = "motor"``);
-2. :func:`ident.signals.smoothing.prepare_joint_signals`: Fourier fits (eq. 3-2) of ``qm`` and ``q`` on one
+2. :func:`ident.model.linkstate.prepare_joint_signals`: Fourier fits (eq. 3-2) of ``qm`` and ``q`` on one
    time base (marker time + ``time_offset``: the trial's ``time_offset`` key, 0 by default, or
    estimated when ``sync="estimate"``); trials of a kind other than ``excitation`` use the
    documented smoother;
@@ -30,7 +30,8 @@ from mocap.io.errors import InputError
 
 from ident.thesis import tables as stats
 from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
-from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread, prepare_joint_signals,
+from ident.model.linkstate import prepare_joint_signals
+from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread,
                       read_angles)
 
 __all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
