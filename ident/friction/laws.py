@@ -62,10 +62,11 @@ def s1(v, Kv: float = KV_DEFAULT) -> np.ndarray:
 # static laws
 # --------------------------------------------------------------------------------------------
 def coulomb_viscous_columns(qd, sign=np.sign) -> np.ndarray:
-    """Thesis eq. 2-5's regressor: (T, 2) columns ``[sign(qd), qd]`` multiplying ``(c, v)``.
-    ``sign``: the sign function (default exact; :func:`smooth_sign` for a regularised one)."""
+    """Thesis eq. 2-5's regressor: (T, 2) columns ``[sign(qd), qd]`` multiplying ``(c, v)``,
+    the law :func:`coulomb_viscous` at unit parameters. ``sign``: the sign function (default
+    exact; :func:`smooth_sign` for a regularised one)."""
     qd = np.asarray(qd, float)
-    return np.column_stack([sign(qd), qd])
+    return np.column_stack([coulomb_viscous(qd, 1.0, 0.0, sign), coulomb_viscous(qd, 0.0, 1.0, sign)])
 
 
 def coulomb_viscous(qd, c, v, sign=np.sign):

@@ -197,6 +197,7 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
     lugre = s0 > 0.0
     lugre_step = laws.lugre_implicit_step
     excess, excess_slope = laws.stribeck_excess, laws.stribeck_excess_slope
+    S_rest = excess(0.0, S, Vc, math.exp) if S != 0.0 else 0.0     # the Stribeck excess at rest
     smooth = (S > 0.0) or (w > 0.0)
     sin, cos, exp, fabs = math.sin, math.cos, math.exp, abs
     hdt = 0.5 * dt
@@ -289,7 +290,7 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
             z = z1
             qd1 = x
         else:
-            if -(cn + S) <= R <= cp + S:
+            if -(cn + S_rest) <= R <= cp + S_rest:
                 qd1 = 0.0
                 F = R
             else:
@@ -297,8 +298,8 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
                     sg, cc, Ap = 1.0, cp, A + vep
                 else:
                     sg, cc, Ap = -1.0, cn, A + ven
-                r = sg * R - cc          # > S >= 0
-                x = (r - S) / Ap         # x >= 0 in the direction of motion
+                r = sg * R - cc          # > S_rest >= 0
+                x = (r - S_rest) / Ap        # x >= 0 in the direction of motion
                 if smooth:
                     # safeguarded Newton on the bracket [0, r/Ap]: h(0) = S - r < 0 <= h(r/Ap)
                     # (h may be non-monotone when the Stribeck slope S/Vc exceeds Ap)
@@ -380,6 +381,24 @@ def with_effects(plant: JointPlant, fx: JointEffects) -> JointPlant:
 # ---------------------------------------------------------------------------------------------
 # several joints together (pinocchio per step)
 # ---------------------------------------------------------------------------------------------
+
+def regularised_friction(qd, c_dir, v_dir, S, Vc, w, width: float = SIGN_WIDTH):
+    """The friction of the several-joint mode and its slope (for the implicit linearisation):
+    ``F = (c_dir + S exp(-|qd|/Vc)) tanh(qd / width) + v_dir qd + w qd |qd|``, the Stribeck
+    law of the single-joint mode (:func:`ident.friction.laws.stribeck_excess`) with
+    the Coulomb + viscous law (:func:`ident.friction.laws.coulomb_viscous`) under the smooth
+    sign :func:`ident.friction.laws.smooth_sign`. ``c_dir``/``v_dir``: the Coulomb level and
+    viscous coefficient of the direction of ``qd``. Returns ``(F, dF/dqd >= 0)``. As
+    ``qd -> 0+`` (``0-``) ``F`` tends to ``c_dir + S``, the edges of the single-joint mode's
+    static band; at ``qd = 0``, ``F = 0``."""
+    a = np.abs(qd)
+    level = c_dir + laws.stribeck_excess(a, S, Vc)
+    th_ = laws.smooth_sign(qd, width)
+    F = laws.coulomb_viscous(qd, level, v_dir, sign=lambda x: th_) + w * qd * a
+    dF = level * laws.smooth_sign_slope(qd, width) \
+        + laws.stribeck_excess_slope(a, S, Vc) * np.abs(th_) + v_dir + 2 * w * a
+    return F, np.maximum(dF, 0.0)
+
 
 def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: float = 0.0,
                    dt: float = 5e-4, bandwidth_hz: float = 15.0, c_nom=None, v_nom=None,
@@ -468,14 +487,7 @@ def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: 
         cn = cneg * th + muv * gload
         vav = np.array([f.va for f in fxs])
         ve = np.array([f.v for f in fxs]) * th * (1.0 + 0.5 * vav * np.where(qd >= 0, 1.0, -1.0))
-        cdir = np.where(qd >= 0, cp, cn)
-        level = cdir + laws.stribeck_excess(np.abs(qd), Sv, Vcv)
-        th_ = laws.smooth_sign(qd, eps)
-        Ff = level * th_ + ve * qd + wv * qd * np.abs(qd)
-        dF = level * laws.smooth_sign_slope(qd, eps) \
-            + laws.stribeck_excess_slope(np.abs(qd), Sv, Vcv) * np.abs(th_) + ve \
-            + 2 * wv * np.abs(qd)
-        dF = np.maximum(dF, 0.0)
+        Ff, dF = regularised_friction(qd, np.where(qd >= 0, cp, cn), ve, Sv, Vcv, wv, eps)
         Lx = -h - rA * np.sin(rn * qfull[joints] + rph)
         e = kv * dt * 0.25
         gg = e + dv
