@@ -70,7 +70,8 @@ import numpy as np
 
 from ident.friction import laws
 from ident.friction.base import FrictionModel
-from ident.friction.static import Arctan, _2_PI, s0, s1
+from ident.friction.laws import _2_PI, s0, s1
+from ident.friction.static import Arctan
 
 
 # --------------------------------------------------------------------------------------------

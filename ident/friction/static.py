@@ -15,7 +15,7 @@ import numpy as np
 from ident.friction.base import FrictionModel
 from ident.friction import laws
 from ident.friction.constants import KV_DEFAULT
-from ident.friction.laws import _2_PI, s0, s1  # noqa: F401  (s0, s1: re-exported)
+from ident.friction.laws import _2_PI, s0, s1  # noqa: F401  (s0, s1: still imported from here by ident.gap.nominal)
 
 
 def _grid_values(lo: float, hi: float, n: int):
