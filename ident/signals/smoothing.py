@@ -315,12 +315,6 @@ def _ordered_design_T(t, wf, n, extra=None):
     return XT
 
 
-def _ordered_design(t, wf, n):
-    """Columns [1, s1, c1, s2, c2, ...] (a column permutation of design_matrix) so that the
-    first 2N+1 columns are the model with N harmonics."""
-    return _ordered_design_T(t, wf, n).T
-
-
 def _rss_by_harmonics(t, q, wf, n_max):
     """RSS of the eq. 3-2 fit for N = 1..n_max harmonics, from one QR factorisation of the
     design with ``q`` appended (its last column of R is ``Q^T q``: Q is never formed; LAPACK

@@ -32,7 +32,7 @@ calls pinocchio and a small dense solve each step: about 2x real time, 30-50x sl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -372,10 +372,6 @@ def simulate_reference(plant: JointPlant, ctrl: Controller, ref, t0: float, dt: 
         u0, qm0, _ = ctrl.feedforward(q_r[:1], qd_r[:1], qdd_r[:1])
         state = rest_state(plant, float(qm0[0]))
     return simulate_single(plant, ctrl, q_r, qd_r, qdd_r, True, state, t0, dt)
-
-
-def with_effects(plant: JointPlant, fx: JointEffects) -> JointPlant:
-    return replace(plant, fx=fx)
 
 
 # ---------------------------------------------------------------------------------------------
