@@ -26,7 +26,7 @@ from ident.friction.constants import KV_DEFAULT, SIGN_WIDTH
 
 _2_PI = 2.0 / np.pi
 
-__all__ = ["smooth_sign", "smooth_sign_slope", "s0", "s1", "coulomb_viscous",
+__all__ = ["smooth_sign", "s0", "s1", "coulomb_viscous",
            "coulomb_viscous_columns", "stribeck_drop", "stribeck_columns", "stribeck_excess",
            "stribeck_excess_slope", "hyperbolic_columns", "arctan_columns", "arctan_g",
            "arctan_viscous", "lugre_rates", "lugre_implicit_step"]
@@ -39,12 +39,6 @@ def smooth_sign(v, width: float = SIGN_WIDTH):
     """``tanh(v / width)``: a continuous ``sign(v)`` with slope ``1/width`` at 0
     (:data:`ident.friction.constants.SIGN_WIDTH`)."""
     return np.tanh(v / width)
-
-
-def smooth_sign_slope(v, width: float = SIGN_WIDTH):
-    """``d/dv tanh(v / width) = (1 - tanh^2) / width``."""
-    t = np.tanh(v / width)
-    return (1 - t ** 2) / width
 
 
 def s0(v, Kv: float = KV_DEFAULT) -> np.ndarray:

@@ -391,7 +391,8 @@ def regularised_friction(qd, c_dir, v_dir, S, Vc, w, width: float = SIGN_WIDTH):
     level = c_dir + laws.stribeck_excess(a, S, Vc)
     th_ = laws.smooth_sign(qd, width)
     F = laws.coulomb_viscous(qd, level, v_dir, sign=lambda x: th_) + w * qd * a
-    dF = level * laws.smooth_sign_slope(qd, width) \
+    # d tanh(qd/width)/dqd = (1 - tanh^2)/width
+    dF = level * (1 - th_ ** 2) / width \
         + laws.stribeck_excess_slope(a, S, Vc) * np.abs(th_) + v_dir + 2 * w * a
     return F, np.maximum(dF, 0.0)
 
