@@ -5,14 +5,19 @@ columns of ``X_extra`` are nuisance terms estimated jointly (e.g. the thesis's o
 ``[qdd, -sin q, cos q]`` of eq. 2-4 for inertia and gravity; Indri & Trapani instead subtract the
 inverse dynamics, eq. 25-26, and pass no extra columns).
 
-* models linear in all parameters (``cv``, thesis eq. 2-5): linear least squares;
+The strategy is chosen from the model's declared interface (:class:`ident.friction.base.FrictionModel`;
+:func:`strategy_for`), each a small object with a ``fit`` method:
+
+* models linear in all parameters (``cv``, thesis eq. 2-5): linear least squares
+  (:class:`LinearStrategy`);
 * models with nonlinear parameters (``stribeck`` eq. 2-6, ``hyperbolic`` eq. 2-7, ``dm1``/``dm2``
   eq. 5-9/24): bounded ``scipy.optimize.least_squares`` over the nonlinear parameters only, with
   ``beta`` and the parameters the model is linear in eliminated by variable projection (solved
   by linear least squares inside each residual evaluation); positive scale parameters are
   searched in log coordinates; seeded multi-start (start 0 at the model's data-scaled hint or
-  ``x0``, the others uniform in the (log) bounds). If ``bounds`` constrain a linear parameter
-  or an extra column, all parameters are fitted jointly instead;
+  ``x0``, the others uniform in the (log) bounds) (:class:`VarProStrategy`). If ``bounds``
+  constrain a linear parameter or an extra column, all parameters are fitted jointly instead
+  (:class:`JointStrategy`);
 * static models with a ``vp_grid`` and ``design_grad`` (Stribeck, hyperbolic; issue 13's speed
   work): the extra columns are projected out once; the starts and a grid over the nonlinear
   parameters (48 values of ``Vc``; 20^3 of ``g2 > g3, g5`` plus the hump's limit
@@ -20,8 +25,10 @@ inverse dynamics, eq. 25-26, and pass no extra columns).
   from one Gram matrix of shared basis columns); only the ``n_refine`` (4) best distinct
   candidates among the starts and the grid's local minima are refined, with the analytic
   variable-projection Jacobian (Golub & Pereyra; through the SVD of the scaled design), the
-  later ones with a 100-evaluation probe that continues only when below the best so far;
-* ``arctan`` (Indri & Trapani eq. 1-2): the delta grid search of eq. 27-28, :func:`fit_arctan`.
+  later ones with a 100-evaluation probe that continues only when below the best so far
+  (:class:`GridVarProStrategy`);
+* ``arctan`` (Indri & Trapani eq. 1-2, ``fit_method = "delta_grid"``): the delta grid search of
+  eq. 27-28, :func:`fit_arctan` (:class:`DeltaGridStrategy`).
 
 Uncertainty: the Jacobian of the prediction with respect to every parameter and extra at the
 optimum, ``cov = sigma^2 (J^T W J)^-1`` with ``sigma^2 = RSS_w / (N - p)``. ``cond`` is the
@@ -539,21 +546,9 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
     settings = dict(settings or {})
     qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
                                            model_cls.param_names)
-    if model_cls.fit_method == "delta_grid":
-        return DeltaGridStrategy().fit_grid(model_cls, qd, tau, X, enames, sw, weights, bounds,
-                                            settings)
-    if qdd is not None:
-        qdd = np.asarray(qdd, float)
-        if qdd.shape != qd.shape or not np.all(np.isfinite(qdd)):
-            raise ValueError(f"qdd must be finite and shaped like qd {qd.shape}, got {qdd.shape}")
-    diagnostics = {"rms_cv": _rms_cv(qd, tau, X, sw)}
-    if model_cls.dynamic:
-        settings = _dynamic_settings(model_cls, qd, qdd, tau, X, enames, sw, weights, dt,
-                                     settings, diagnostics)
-    if n_starts < 1:
-        raise ValueError("n_starts must be >= 1")
-    pb = _Problem(model_cls, qd, tau, X, enames, sw, qdd, dt, settings, bounds, x0, n_starts,
-                  seed, n_refine, diagnostics)
+    pb = _Problem(model_cls, qd, tau, X, enames, sw, weights, settings, bounds, n_refine)
+    if model_cls.fit_method != "delta_grid":
+        pb.prepare(qdd, dt, x0, n_starts, seed)
     return strategy_for(pb).fit(pb)
 
 
@@ -580,35 +575,50 @@ def _dynamic_settings(model_cls, qd, qdd, tau, X, enames, sw, weights, dt, setti
 
 
 class _Problem:
-    """The data, settings and parameter split of one :func:`fit_friction` call, shared by the
-    strategies: the linear and nonlinear parameter names, the start and bounds of the
-    nonlinear ones (the model's ``fit_hints`` overridden by ``bounds``/``x0``), and whether
-    ``bounds`` constrain a linear parameter or an extra column (then the fit is joint)."""
+    """The data and settings of one :func:`fit_friction` call, shared by the strategies.
+    :meth:`prepare` (every strategy but the delta grid) checks ``qdd``, completes the settings
+    of dynamic models, splits the parameters into linear and nonlinear ones and sets the
+    start and bounds of the nonlinear ones (the model's ``fit_hints`` overridden by
+    ``bounds``/``x0``) and whether ``bounds`` constrain a linear parameter or an extra column
+    (then the fit is joint)."""
 
-    def __init__(self, model_cls, qd, tau, X, enames, sw, qdd, dt, settings, bounds, x0,
-                 n_starts, seed, n_refine, diagnostics):
+    def __init__(self, model_cls, qd, tau, X, enames, sw, weights, settings, bounds, n_refine):
         self.cls, self.qd, self.tau, self.X, self.enames, self.sw = model_cls, qd, tau, X, enames, sw
-        self.qdd, self.dt, self.settings, self.diagnostics = qdd, dt, settings, diagnostics
-        self.n_starts, self.seed, self.n_refine = n_starts, seed, n_refine
-        pn = model_cls.param_names
-        self.lin = model_cls.linear_params()
-        self.nl = model_cls.nonlinear_params()
-        hint0, hint_b = model_cls.fit_hints(qd, settings)
-        bounds = dict(bounds or {})
-        unknown = set(bounds) - set(pn) - set(enames)
+        self.weights, self.settings, self.n_refine = weights, settings, n_refine
+        self.bounds = dict(bounds or {})
+        self.e = X.shape[1]
+        self.qdd = self.dt = self.tr = self.starts = None
+        self.diagnostics = {}
+
+    def prepare(self, qdd, dt, x0, n_starts, seed):
+        cls, qd = self.cls, self.qd
+        if qdd is not None:
+            qdd = np.asarray(qdd, float)
+            if qdd.shape != qd.shape or not np.all(np.isfinite(qdd)):
+                raise ValueError(f"qdd must be finite and shaped like qd {qd.shape}, got {qdd.shape}")
+        self.qdd, self.dt = qdd, dt
+        self.diagnostics = {"rms_cv": _rms_cv(qd, self.tau, self.X, self.sw)}
+        if cls.dynamic:
+            self.settings = _dynamic_settings(cls, qd, qdd, self.tau, self.X, self.enames, self.sw,
+                                              self.weights, dt, self.settings, self.diagnostics)
+        if n_starts < 1:
+            raise ValueError("n_starts must be >= 1")
+        self.n_starts, self.seed = n_starts, seed
+        pn = cls.param_names
+        self.lin = cls.linear_params()
+        self.nl = cls.nonlinear_params()
+        hint0, hint_b = cls.fit_hints(qd, self.settings)
+        unknown = set(self.bounds) - set(pn) - set(self.enames)
         if unknown:
             raise ValueError(f"bounds name unknown parameters {sorted(unknown)}")
         if x0 is not None and not isinstance(x0, dict):
             x0 = dict(zip(pn, np.asarray(x0, float)))
         x0 = dict(x0 or {})
-        self.bounds = bounds
         self.start = {**hint0, **{k: float(v) for k, v in x0.items() if k in self.nl}}
-        self.nl_bounds = {k: tuple(bounds.get(k, hint_b.get(k, (-np.inf, np.inf))))
+        self.nl_bounds = {k: tuple(self.bounds.get(k, hint_b.get(k, (-np.inf, np.inf))))
                           for k in self.nl}
-        self.joint = any(k in bounds for k in self.lin) or any(k in bounds for k in enames)
-        self.e = X.shape[1]
-        self.tr = None
-        self.starts = None
+        self.joint = (any(k in self.bounds for k in self.lin)
+                      or any(k in self.bounds for k in self.enames))
 
     def model_at(self, nlvals: dict, linvals=None):
         vals = {k: 0.0 for k in self.lin} if linvals is None else dict(zip(self.lin, linvals))
@@ -770,25 +780,29 @@ class DeltaGridStrategy:
 
     name = "delta grid search + linear least squares"
 
-    def fit_grid(self, model_cls, qd, tau, X, enames, sw, weights, bounds, settings):
-        grid = settings.get("delta_grid")
+    def fit(self, pb: _Problem) -> FrictionFit:
+        grid = pb.settings.get("delta_grid")
         grid = default_delta_grid() if grid is None else np.asarray(grid, float).ravel()
-        if bounds:
-            if set(bounds) - {"delta"}:
-                raise ValueError(f"{model_cls.name} is fitted by the delta grid search (linear "
+        if pb.bounds:
+            if set(pb.bounds) - {"delta"}:
+                raise ValueError(f"{pb.cls.name} is fitted by the delta grid search (linear "
                                  "least squares for the rest): bounds may only restrict delta, "
-                                 f"got {sorted(bounds)}")
-            lo, hi = bounds["delta"]
+                                 f"got {sorted(pb.bounds)}")
+            lo, hi = pb.bounds["delta"]
             grid = grid[(grid >= lo) & (grid <= hi)]
-        return fit_arctan(qd, tau, Kv=settings.get("Kv", KV_DEFAULT), delta_grid=grid, X_extra=X,
-                          extra_names=enames, weights=None if weights is None else sw ** 2)
+        return fit_arctan(pb.qd, pb.tau, Kv=pb.settings.get("Kv", KV_DEFAULT), delta_grid=grid,
+                          X_extra=pb.X, extra_names=pb.enames,
+                          weights=None if pb.weights is None else pb.sw ** 2)
 
 
 def strategy_for(pb: _Problem):
-    """The strategy of a fit from the model's declared interface: all linear (and no bounds on
-    linear parameters or extras) -> :class:`LinearStrategy`; bounds on linear parameters or
-    extras -> :class:`JointStrategy`; a ``vp_grid`` -> :class:`GridVarProStrategy`; else
-    :class:`VarProStrategy`. Prepares the starts of the nonlinear strategies."""
+    """The strategy of a fit from the model's declared interface: ``fit_method = "delta_grid"``
+    -> :class:`DeltaGridStrategy`; all linear (and no bounds on linear parameters or extras)
+    -> :class:`LinearStrategy`; bounds on linear parameters or extras -> :class:`JointStrategy`;
+    a ``vp_grid`` -> :class:`GridVarProStrategy`; else :class:`VarProStrategy`. Prepares the
+    starts of the nonlinear strategies."""
+    if pb.cls.fit_method == "delta_grid":
+        return DeltaGridStrategy()
     if not pb.nl and not pb.joint:
         return LinearStrategy()
     pb.make_starts()
