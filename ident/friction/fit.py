@@ -42,6 +42,7 @@ import functools
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import minimum_filter
 from scipy.optimize import least_squares
 
 from ident.friction.base import CoulombViscous, FrictionModel
@@ -288,8 +289,6 @@ def _grid_rss_exact(Br, yr, S) -> np.ndarray:
 def _grid_local_minima(U, rss) -> np.ndarray:
     """Indices of the grid points (rows of ``U``, a full or partial tensor grid) whose profiled
     residual is no larger than any neighbour's (one step in each coordinate, diagonals too)."""
-    from scipy.ndimage import minimum_filter
-
     idx = tuple(np.unique(U[:, j], return_inverse=True)[1].ravel() for j in range(U.shape[1]))
     C = np.full([int(i.max()) + 1 for i in idx], np.inf)
     C[idx] = rss

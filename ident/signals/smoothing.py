@@ -42,20 +42,12 @@ from scipy.signal import savgol_coeffs, savgol_filter
 from mocap.io.errors import InputError
 
 from ident.friction.constants import REST_FRAC
+from ident.signals.blas import one_blas_thread  # noqa: F401  (re-exported)
 from ident.signals.fourier import FourierSeries, design_matrix
 
 __all__ = ["savgol_window", "differentiate", "SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundamental",
            "select_harmonics", "estimate_time_offset", "JointSignals",
            "read_angles", "AngleTrack", "one_blas_thread"]
-
-
-def one_blas_thread():
-    """Context: BLAS limited to one thread (DESIGN.md: 2-10x faster for these small solves on
-    shared 2-core machines); see :mod:`ident.signals.blas` (built once per process, nested
-    contexts free). A no-op context when threadpoolctl is absent."""
-    from ident.signals.blas import one_blas_thread as _obt
-
-    return _obt()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ident.excitation.trajectories import min_jerk_path
 from ident.friction import laws
 from ident.friction.constants import SIGN_WIDTH
 from ident.sim.effects import JointEffects
@@ -524,8 +525,6 @@ def simulate_coastdown(plant: JointPlant, ctrl: Controller, q_center: float, q_h
     Returns the concatenated result, the controller mode per step (1 tracking, 0 coasting)
     and the release events ``[(time, speed), ...]``.
     """
-    from ident.excitation.trajectories import min_jerk_path
-
     parts, modes, events = [], [], []
     u0, qm0, _ = ctrl.feedforward(np.array([q_center]), np.zeros(1), np.zeros(1))
     state = rest_state(plant, float(qm0[0]))

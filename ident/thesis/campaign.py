@@ -348,8 +348,6 @@ def load_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02):
     ``tau = N_tau tau_m`` with ``N_tau[4, 5] = r6``."""
     from mocap.robot import Robot
 
-    from ident.signals.smoothing import SavGolSmoother
-
     folder = Path(folder)
     cfg = read_tx40_config(folder / "TX40_config.yaml")
     urdf = next(iter(sorted(folder.glob("*.urdf"))), None)
