@@ -4,7 +4,7 @@ Issue 13 item 5. Per world and joint it prints the Coulomb and viscous errors ag
 truth (median over trials of |estimate / truth - 1|) through
 
 * the MARKER path: ``jointlab mocap`` link angles -> :func:`ident.thesis.campaign.fit_trial_joint`
-  (link state = encoder + the deflection the markers support, :mod:`ident.signals.linkstate`);
+  (link state = encoder + the deflection the markers support, :mod:`ident.model.linkstate`);
 * the ENCODER path: the same fit without angles (encoder + nominal deflection);
 
 their ratio (acceptance: marker path within 3 % and within 1.5x the encoder path, an encoder

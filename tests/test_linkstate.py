@@ -1,4 +1,4 @@
-"""Link state of a flexible joint (ident.signals.linkstate), the data-chosen derivative bandwidth,
+"""Link state of a flexible joint (ident.model.linkstate), the data-chosen derivative bandwidth,
 the errors-in-variables bias and the physical-validity flags, on seeded data written here with
 plain numpy (closed-form trajectories; no jointlab simulator or smoother code)."""
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 from ident.friction.base import CoulombViscous
 from ident.friction.fit import eiv_bias
 from ident.friction.static import Hyperbolic, Stribeck
-from ident.signals.linkstate import LinkStateEstimator
+from ident.model.linkstate import LinkStateEstimator
 from ident.signals.smoothing import SavGolSmoother
 from ident.thesis import tables
 
@@ -152,7 +152,7 @@ def test_flagged_fits_stay_out_of_condition_means(tmp_path):
 
 
 def test_cosine_basis_equals_the_direct_formula():
-    from ident.signals.linkstate import _cosine_basis
+    from ident.model.linkstate import _cosine_basis
 
     t = np.linspace(2.0, 27.0, 3001)
     t0, D, M = 2.0, 25.0, 160

@@ -11,7 +11,7 @@ from ident.friction.base import CoulombViscous
 from ident.friction.static import Stribeck
 from ident.model.onelink import (OneLinkIdentifier, fit_cv_linear, name_degenerate, onelink_regressor,
                            onelink_target)
-from ident.signals.smoothing import prepare_joint_signals
+from ident.model.linkstate import prepare_joint_signals
 
 TRUE = {"I": 0.4, "mglx": 3.0, "mgly": 1.0}
 J, B = 0.35, 0.9
@@ -101,21 +101,3 @@ def test_stribeck_on_cv_data_is_named_degenerate():
 ])
 def test_name_degenerate(model, params, stderr, expected):
     assert name_degenerate(model, params, stderr, qd=np.array([-2.4, 2.4])) == expected
-
-
-@pytest.mark.slow
-def test_tx40_cv_against_published(real_dir):
-    """Real data: Staubli TX40 (figaroh-examples). Viscous within -10..+40 % of the published
-    fv; the wrist-coupling armature Iam6 within 10 % of the config's 0.00964 (checks the
-    motor-to-joint conversions). Coulomb comes out at ~0.55x the published fs (reported)."""
-    from ident.thesis.campaign import fit_tx40
-
-    folder = real_dir / "tx40"
-    if not (folder / "curr_data.csv").is_file():
-        pytest.skip("TX40 data absent")
-    r = fit_tx40(folder)
-    print("\n" + r.method + "\n" + r.table() + f"\ncoupling {r.coupling}")
-    ratio = r.fv / r.fv_published
-    assert np.all((ratio > 0.9) & (ratio < 1.4)), ratio
-    assert r.coupling["Iam6"] == pytest.approx(0.00964, rel=0.1)
-    assert np.all(r.fs > 0) and np.all(r.stderr_fv < 0.1 * r.fv)

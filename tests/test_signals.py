@@ -7,8 +7,9 @@ import pytest
 
 from ident.signals.fourier import FourierSeries
 from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, estimate_fundamental,
-                           estimate_time_offset, prepare_joint_signals, read_angles,
+                           estimate_time_offset, read_angles,
                            select_harmonics)
+from ident.model.linkstate import prepare_joint_signals
 from mocap.io.errors import InputError
 
 SERIES = FourierSeries(np.array([0.5, -0.3, 0.2, 0.1, -0.05]), np.array([0.2, 0.1, -0.3, 0.05, 0.02]),

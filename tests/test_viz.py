@@ -234,8 +234,13 @@ def test_make_sink_gives_rerun_sink(rrd):
 
     s = make_sink(rrd=str(rrd))
     assert isinstance(s, RerunSink) and s.enabled
+    s.scalars("via_make_sink", np.arange(4.0), np.arange(4.0) ** 2)
     s.close()
-    assert rrd.is_file()
+    e = read_rrd(rrd)["/via_make_sink"]
+    vals, times = column(e, "Scalars:scalars")
+    assert e["rows"] == 4 and np.allclose(np.ravel(vals), np.arange(4.0) ** 2)
+    assert np.allclose(times, np.arange(4.0))
+    assert not make_sink().enabled          # neither file nor viewer: the null sink
 
 
 # ---- the seam: only viz imports rerun ------------------------------------------------------------

@@ -2,7 +2,8 @@
 from ident.friction.base import CoulombViscous, FrictionModel
 from ident.friction.dynamic import LuGreDM1, LuGreDM2, linear_scan
 from ident.friction.fit import FrictionFit, fit_arctan, fit_friction, predict
-from ident.friction.static import Arctan, Hyperbolic, Stribeck, s0, s1
+from ident.friction.laws import s0, s1
+from ident.friction.static import Arctan, Hyperbolic, Stribeck
 
 MODELS = {m.name: m for m in (CoulombViscous, Stribeck, Hyperbolic, Arctan, LuGreDM1, LuGreDM2)}
 

@@ -68,8 +68,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ident.friction import laws
 from ident.friction.base import FrictionModel
-from ident.friction.static import Arctan, _2_PI, s0, s1
+from ident.friction.laws import _2_PI, s0, s1
+from ident.friction.static import Arctan
 
 
 # --------------------------------------------------------------------------------------------
@@ -160,10 +162,6 @@ class _LuGre(FrictionModel):
         self.rest_speed = float(rest_speed)
 
     @property
-    def nonlinear_names(self) -> tuple[str, ...]:
-        return tuple(p for p in self.param_names if p not in self.linear_names)
-
-    @property
     def settings(self) -> dict:
         return {"static": self.static, "z0": self.z0, "hold": self.hold,
                 "rest_speed": self.rest_speed}
@@ -185,9 +183,9 @@ class _LuGre(FrictionModel):
     def _ab(self, v):
         """Eq. 30: ``a = sigma0 (S1(v) + rest_speed)/g(v)`` (1/s) and ``b = S0(v)^2 v``;
         dz/dt = b - a z (``rest_speed`` 0: the paper's eq. 30)."""
-        Kv = self.static.Kv
         g = self._g(v)
-        return self._p["sigma0"] * (s1(v, Kv) + self.rest_speed) / g, s0(v, Kv) ** 2 * v, g
+        a, b = laws.lugre_rates(v, self._p["sigma0"], g, self.static.Kv, self.rest_speed)
+        return a, b, g
 
     def _zss(self, v, g):
         """``b/a``: ``S0 g/sigma0`` times ``S1/(S1 + rest_speed)`` (1 when rest_speed = 0)."""
@@ -301,13 +299,6 @@ class _LuGre(FrictionModel):
         gs = max(gs, 1e-12)
         return {"sigma0": gs * 1e4}, {"sigma0": (gs, gs * 1e8)}
 
-    @classmethod
-    def canonical(cls, params):
-        return dict(params)
-
-    def degeneracy(self, qd, fit_scale: float) -> str | None:
-        return None
-
 
 class LuGreDM1(_LuGre):
     """Indri & Trapani eq. 5-9 with damping eq. 11 / constant / eq. 10 / eq. 12 (see module doc)."""
@@ -370,6 +361,15 @@ class LuGreDM2(_LuGre):
     def fit_hints(cls, qd, settings):
         x0, b = super().fit_hints(qd, settings)
         return {**x0, "gamma": 1.0}, {**b, "gamma": (1e-4, 1e4)}
+
+    @classmethod
+    def complete_settings(cls, qd, qdd, settings):
+        """``accel_ratio`` a_max/v_max from ``qd``/``qdd`` when the settings have none."""
+        if settings.get("accel_ratio") is not None:
+            return settings
+        if qdd is None:
+            raise ValueError(f"{cls.name} needs qdd")
+        return {**settings, "accel_ratio": cls.ratio_from_data(qd, qdd)}
 
     @staticmethod
     def ratio_from_data(qd, qdd) -> float:

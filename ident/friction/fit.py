@@ -5,14 +5,19 @@ columns of ``X_extra`` are nuisance terms estimated jointly (e.g. the thesis's o
 ``[qdd, -sin q, cos q]`` of eq. 2-4 for inertia and gravity; Indri & Trapani instead subtract the
 inverse dynamics, eq. 25-26, and pass no extra columns).
 
-* models linear in all parameters (``cv``, thesis eq. 2-5): linear least squares;
+The strategy is chosen from the model's declared interface (:class:`ident.friction.base.FrictionModel`;
+:func:`strategy_for`), each a small object with a ``fit`` method:
+
+* models linear in all parameters (``cv``, thesis eq. 2-5): linear least squares
+  (:class:`LinearStrategy`);
 * models with nonlinear parameters (``stribeck`` eq. 2-6, ``hyperbolic`` eq. 2-7, ``dm1``/``dm2``
   eq. 5-9/24): bounded ``scipy.optimize.least_squares`` over the nonlinear parameters only, with
   ``beta`` and the parameters the model is linear in eliminated by variable projection (solved
   by linear least squares inside each residual evaluation); positive scale parameters are
   searched in log coordinates; seeded multi-start (start 0 at the model's data-scaled hint or
-  ``x0``, the others uniform in the (log) bounds). If ``bounds`` constrain a linear parameter
-  or an extra column, all parameters are fitted jointly instead;
+  ``x0``, the others uniform in the (log) bounds) (:class:`VarProStrategy`). If ``bounds``
+  constrain a linear parameter or an extra column, all parameters are fitted jointly instead
+  (:class:`JointStrategy`);
 * static models with a ``vp_grid`` and ``design_grad`` (Stribeck, hyperbolic; issue 13's speed
   work): the extra columns are projected out once; the starts and a grid over the nonlinear
   parameters (48 values of ``Vc``; 20^3 of ``g2 > g3, g5`` plus the hump's limit
@@ -20,8 +25,10 @@ inverse dynamics, eq. 25-26, and pass no extra columns).
   from one Gram matrix of shared basis columns); only the ``n_refine`` (4) best distinct
   candidates among the starts and the grid's local minima are refined, with the analytic
   variable-projection Jacobian (Golub & Pereyra; through the SVD of the scaled design), the
-  later ones with a 100-evaluation probe that continues only when below the best so far;
-* ``arctan`` (Indri & Trapani eq. 1-2): the delta grid search of eq. 27-28, :func:`fit_arctan`.
+  later ones with a 100-evaluation probe that continues only when below the best so far
+  (:class:`GridVarProStrategy`);
+* ``arctan`` (Indri & Trapani eq. 1-2, ``fit_method = "delta_grid"``): the delta grid search of
+  eq. 27-28, :func:`fit_arctan` (:class:`DeltaGridStrategy`).
 
 Uncertainty: the Jacobian of the prediction with respect to every parameter and extra at the
 optimum, ``cov = sigma^2 (J^T W J)^-1`` with ``sigma^2 = RSS_w / (N - p)``. ``cond`` is the
@@ -35,9 +42,11 @@ import functools
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import minimum_filter
 from scipy.optimize import least_squares
 
 from ident.friction.base import CoulombViscous, FrictionModel
+from ident.friction.constants import KV_DEFAULT
 from ident.friction.static import Arctan, _2_PI, s0
 from ident.signals.blas import one_blas_thread
 
@@ -171,14 +180,12 @@ def _check_inputs(qd, tau, X_extra, extra_names, weights, param_names):
 
 
 def _linear_names(model_cls) -> tuple:
-    return tuple(getattr(model_cls, "linear_names", model_cls.param_names))
+    return model_cls.linear_params()
 
 
 def _design(model, qd, qdd, dt):
     """(Phi, offset) of a model instance: torque = Phi @ linear params + offset."""
-    if hasattr(model, "linear_design"):
-        return model.linear_design(qd, qdd, dt)
-    return model.regressor(qd), np.zeros(qd.shape)          # CoulombViscous (all linear)
+    return model.linear_design(qd, qdd, dt)
 
 
 def _wlstsq(A, y, sw=None):
@@ -282,8 +289,6 @@ def _grid_rss_exact(Br, yr, S) -> np.ndarray:
 def _grid_local_minima(U, rss) -> np.ndarray:
     """Indices of the grid points (rows of ``U``, a full or partial tensor grid) whose profiled
     residual is no larger than any neighbour's (one step in each coordinate, diagonals too)."""
-    from scipy.ndimage import minimum_filter
-
     idx = tuple(np.unique(U[:, j], return_inverse=True)[1].ravel() for j in range(U.shape[1]))
     C = np.full([int(i.max()) + 1 for i in idx], np.inf)
     C[idx] = rss
@@ -404,7 +409,7 @@ def _jacobian(model, qd, qdd, dt, X, Phi):
     cols = {}
     for i, k in enumerate(lin):
         cols[k] = Phi[:, i]
-    settings = getattr(model, "settings", {})
+    settings = model.settings
     base = model.params
     for k in pn:
         if k in cols:
@@ -448,10 +453,9 @@ def _finish(model, qd, tau, X, extra_names, sw, qdd, dt, *, nfev, converged, at_
     f_data = tau - X @ beta_extra
     fit_scale = float(np.percentile(np.abs(f_data), 99.0)) if f_data.size else 0.0
     msgs = []
-    if hasattr(model, "degeneracy"):
-        m = model.degeneracy(qd, fit_scale)
-        if m:
-            msgs.append(m)
+    m = model.degeneracy(qd, fit_scale)
+    if m:
+        msgs.append(m)
     msgs.extend(at_bound)
     lin = set(_linear_names(type(model)))
     loose = [k for k in model.param_names if k not in lin and not stderr[k] < abs(model.params[k])]
@@ -531,109 +535,172 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
     weights (inverse variances up to a scale); ``settings``: model constructor settings (Kv for
     arctan, which may also carry ``delta_grid``; ``static``/``damping``/``z0`` for dm1;
     ``static``/``accel_ratio`` for dm2). Dynamic models without a ``static`` setting get an
-    arctan model fitted to the same data first (step 1 of Indri & Trapani); dm2 without
-    ``accel_ratio`` takes a_max/v_max from ``qd``/``qdd``. ``n_refine``: how many of the
-    grid-scored candidates are refined (models with a ``vp_grid``; at most ``n_starts``; the
-    others refine every start). See the module docstring.
+    arctan model fitted to the same data first (step 1 of Indri & Trapani); the model's
+    ``complete_settings`` fills in what the data determine (dm2: a_max/v_max from
+    ``qd``/``qdd``). ``n_refine``: how many of the grid-scored candidates are refined (models
+    with a ``vp_grid``; at most ``n_starts``; the others refine every start). The strategy is
+    chosen from the model's declared interface (:func:`strategy_for`); see the module
+    docstring.
     """
     settings = dict(settings or {})
     qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
                                            model_cls.param_names)
-    if issubclass(model_cls, Arctan):
-        grid = settings.get("delta_grid")
-        grid = default_delta_grid() if grid is None else np.asarray(grid, float).ravel()
-        if bounds:
-            if set(bounds) - {"delta"}:
-                raise ValueError("arctan is fitted by the delta grid search (linear least squares "
-                                 f"for the rest): bounds may only restrict delta, got {sorted(bounds)}")
-            lo, hi = bounds["delta"]
-            grid = grid[(grid >= lo) & (grid <= hi)]
-        return fit_arctan(qd, tau, Kv=settings.get("Kv", 1000.0), delta_grid=grid, X_extra=X,
-                          extra_names=enames, weights=None if weights is None else sw ** 2)
-    if qdd is not None:
-        qdd = np.asarray(qdd, float)
-        if qdd.shape != qd.shape or not np.all(np.isfinite(qdd)):
-            raise ValueError(f"qdd must be finite and shaped like qd {qd.shape}, got {qdd.shape}")
-    diagnostics = {"rms_cv": _rms_cv(qd, tau, X, sw)}
-    if getattr(model_cls, "dynamic", False):
-        if dt is None:
-            raise ValueError(f"{model_cls.name} is dynamic: fit_friction needs dt")
-        if "static" not in settings:
-            st = fit_arctan(qd, tau, X_extra=X, extra_names=enames,
-                            weights=None if weights is None else sw ** 2)
-            settings["static"] = st.model
-            diagnostics["static_fitted_on_same_data"] = True
-        gmin = float(np.min(settings["static"].g(qd)))
-        if not gmin > 0:
-            src = ("fitted to these same data" if diagnostics.get("static_fitted_on_same_data")
-                   else "given in settings")
-            raise ValueError(f"{model_cls.name}: the static arctan model ({src}) has "
-                             f"g(v) = tau_s + tau_sc 2/pi arctan(|v| delta) <= 0 (min {gmin:.3g}) "
-                             "on these data; identify the static part first on constant-velocity "
-                             "data (Indri & Trapani step 1) and pass settings={'static': ...}")
-        if hasattr(model_cls, "ratio_from_data") and settings.get("accel_ratio") is None:
-            if qdd is None:
-                raise ValueError(f"{model_cls.name} needs qdd")
-            settings["accel_ratio"] = model_cls.ratio_from_data(qd, qdd)
-    if n_starts < 1:
-        raise ValueError("n_starts must be >= 1")
-    pn = model_cls.param_names
-    lin = _linear_names(model_cls)
-    nl = tuple(k for k in pn if k not in lin)
-    hint0, hint_b = (model_cls.fit_hints(qd, settings) if hasattr(model_cls, "fit_hints")
-                     else ({}, {}))
-    bounds = dict(bounds or {})
-    unknown = set(bounds) - set(pn) - set(enames)
-    if unknown:
-        raise ValueError(f"bounds name unknown parameters {sorted(unknown)}")
-    if x0 is not None and not isinstance(x0, dict):
-        x0 = dict(zip(pn, np.asarray(x0, float)))
-    x0 = dict(x0 or {})
-    start = {**hint0, **{k: float(v) for k, v in x0.items() if k in nl}}
-    nl_bounds = {k: tuple(bounds.get(k, hint_b.get(k, (-np.inf, np.inf)))) for k in nl}
-    joint = any(k in bounds for k in lin) or any(k in bounds for k in enames)
+    pb = _Problem(model_cls, qd, tau, X, enames, sw, weights, settings, bounds, n_refine)
+    if model_cls.fit_method != "delta_grid":
+        pb.prepare(qdd, dt, x0, n_starts, seed)
+    return strategy_for(pb).fit(pb)
 
-    def model_at(nlvals: dict, linvals=None):
-        vals = {k: 0.0 for k in lin} if linvals is None else dict(zip(lin, linvals))
-        return _build(model_cls, {**vals, **nlvals}, settings)
 
-    # ---- all linear -----------------------------------------------------------------------
-    if not nl and not joint:
-        m0 = model_at({})
-        Phi, off = _design(m0, qd, qdd, dt)
-        A = np.hstack([X, Phi])
-        b = _wlstsq(A, tau - off, sw)
-        e = X.shape[1]
-        model = model_at({}, b[e:])
-        return _finish(model, qd, tau, X, enames, sw, qdd, dt, nfev=1, converged=True,
-                       at_bound=[], diagnostics={**diagnostics, "method": "linear least squares"},
-                       beta_extra=b[:e])
+def _dynamic_settings(model_cls, qd, qdd, tau, X, enames, sw, weights, dt, settings,
+                      diagnostics) -> dict:
+    """The settings of a dynamic (LuGre-type) model: the static arctan model of step 1 (fitted
+    to the same data when not given) and what the model takes from the data."""
+    if dt is None:
+        raise ValueError(f"{model_cls.name} is dynamic: fit_friction needs dt")
+    if "static" not in settings:
+        st = fit_arctan(qd, tau, X_extra=X, extra_names=enames,
+                        weights=None if weights is None else sw ** 2)
+        settings["static"] = st.model
+        diagnostics["static_fitted_on_same_data"] = True
+    gmin = float(np.min(settings["static"].g(qd)))
+    if not gmin > 0:
+        src = ("fitted to these same data" if diagnostics.get("static_fitted_on_same_data")
+               else "given in settings")
+        raise ValueError(f"{model_cls.name}: the static arctan model ({src}) has "
+                         f"g(v) = tau_s + tau_sc 2/pi arctan(|v| delta) <= 0 (min {gmin:.3g}) "
+                         "on these data; identify the static part first on constant-velocity "
+                         "data (Indri & Trapani step 1) and pass settings={'static': ...}")
+    return model_cls.complete_settings(qd, qdd, settings)
 
-    missing = [k for k in nl if k not in start]
-    if missing:
-        raise ValueError(f"{model_cls.name}: give x0 for {missing}")
-    tr = _Transform(nl, nl_bounds)
-    rng = np.random.default_rng(seed)
-    u0 = tr.clip_inside(tr.to_u([start[k] for k in nl]))
-    starts = [u0] + [tr.clip_inside(tr.sample(rng, u0)) for _ in range(n_starts - 1)]
-    e = X.shape[1]
 
-    def vp_solve(u):
-        m = model_at(dict(zip(nl, tr.to_x(u))))
-        Phi, off = _design(m, qd, qdd, dt)
-        A = np.hstack([X, Phi])
-        b = _wlstsq(A, tau - off, sw)
+class _Problem:
+    """The data and settings of one :func:`fit_friction` call, shared by the strategies.
+    :meth:`prepare` (every strategy but the delta grid) checks ``qdd``, completes the settings
+    of dynamic models, splits the parameters into linear and nonlinear ones and sets the
+    start and bounds of the nonlinear ones (the model's ``fit_hints`` overridden by
+    ``bounds``/``x0``) and whether ``bounds`` constrain a linear parameter or an extra column
+    (then the fit is joint)."""
+
+    def __init__(self, model_cls, qd, tau, X, enames, sw, weights, settings, bounds, n_refine):
+        self.cls, self.qd, self.tau, self.X, self.enames, self.sw = model_cls, qd, tau, X, enames, sw
+        self.weights, self.settings, self.n_refine = weights, settings, n_refine
+        self.bounds = dict(bounds or {})
+        self.e = X.shape[1]
+        self.qdd = self.dt = self.tr = self.starts = None
+        self.diagnostics = {}
+
+    def prepare(self, qdd, dt, x0, n_starts, seed):
+        cls, qd = self.cls, self.qd
+        if qdd is not None:
+            qdd = np.asarray(qdd, float)
+            if qdd.shape != qd.shape or not np.all(np.isfinite(qdd)):
+                raise ValueError(f"qdd must be finite and shaped like qd {qd.shape}, got {qdd.shape}")
+        self.qdd, self.dt = qdd, dt
+        self.diagnostics = {"rms_cv": _rms_cv(qd, self.tau, self.X, self.sw)}
+        if cls.dynamic:
+            self.settings = _dynamic_settings(cls, qd, qdd, self.tau, self.X, self.enames, self.sw,
+                                              self.weights, dt, self.settings, self.diagnostics)
+        if n_starts < 1:
+            raise ValueError("n_starts must be >= 1")
+        self.n_starts, self.seed = n_starts, seed
+        pn = cls.param_names
+        self.lin = cls.linear_params()
+        self.nl = cls.nonlinear_params()
+        hint0, hint_b = cls.fit_hints(qd, self.settings)
+        unknown = set(self.bounds) - set(pn) - set(self.enames)
+        if unknown:
+            raise ValueError(f"bounds name unknown parameters {sorted(unknown)}")
+        if x0 is not None and not isinstance(x0, dict):
+            x0 = dict(zip(pn, np.asarray(x0, float)))
+        x0 = dict(x0 or {})
+        self.start = {**hint0, **{k: float(v) for k, v in x0.items() if k in self.nl}}
+        self.nl_bounds = {k: tuple(self.bounds.get(k, hint_b.get(k, (-np.inf, np.inf))))
+                          for k in self.nl}
+        self.joint = (any(k in self.bounds for k in self.lin)
+                      or any(k in self.bounds for k in self.enames))
+
+    def model_at(self, nlvals: dict, linvals=None):
+        vals = {k: 0.0 for k in self.lin} if linvals is None else dict(zip(self.lin, linvals))
+        return _build(self.cls, {**vals, **nlvals}, self.settings)
+
+    def make_starts(self):
+        """The log/linear coordinates of the nonlinear parameters and the seeded starts:
+        start 0 at the hint (or ``x0``), the others uniform in the (log) bounds."""
+        missing = [k for k in self.nl if k not in self.start]
+        if missing:
+            raise ValueError(f"{self.cls.name}: give x0 for {missing}")
+        tr = _Transform(self.nl, self.nl_bounds)
+        rng = np.random.default_rng(self.seed)
+        u0 = tr.clip_inside(tr.to_u([self.start[k] for k in self.nl]))
+        self.tr = tr
+        self.starts = [u0] + [tr.clip_inside(tr.sample(rng, u0)) for _ in range(self.n_starts - 1)]
+        return tr, self.starts
+
+    def vp_solve(self, u):
+        """Design, offset and joint least-squares coefficients ``[extras, linear]`` at ``u``."""
+        m = self.model_at(dict(zip(self.nl, self.tr.to_x(u))))
+        Phi, off = _design(m, self.qd, self.qdd, self.dt)
+        A = np.hstack([self.X, Phi])
+        b = _wlstsq(A, self.tau - off, self.sw)
         return A, off, b
 
-    grid = (model_cls.vp_grid(qd, nl_bounds) if hasattr(model_cls, "vp_grid") else None)
-    if not joint and grid is not None:
-        # score the starts and a grid over the nonlinear parameters by their profiled (variable
-        # projection) residual in array operations, then refine the best few distinct local
-        # minima with an analytic Jacobian
-        proj = _Projector(X, sw)
-        vp = _VarPro(model_cls, nl, tr, qd, tau, sw, proj)
-        B, Ug, S, *blocks = grid
-        Br = proj(B * sw[:, None])
+    def finish(self, u_best, linvals, beta_extra, best, nfev, costs, method):
+        """The fitted model (canonical representative), the nonlinear parameters at a bound,
+        and :func:`_finish`."""
+        tr, cls = self.tr, self.cls
+        nlvals = dict(zip(self.nl, tr.to_x(u_best)))
+        params = cls.canonical({**dict(zip(self.lin, linvals)), **nlvals})
+        model = _build(cls, params, self.settings)
+        at_bound = []
+        for k, lo, hi in zip(self.nl, tr.lo, tr.hi):
+            v = model.params[k]
+            for side, bd in (("lower", lo), ("upper", hi)):
+                if np.isfinite(bd) and abs(v - bd) <= 1e-6 * max(abs(bd), 1e-12) + 1e-12:
+                    at_bound.append(f"{k} = {v:.3g} is at its {side} bound (the data push it "
+                                    "there or do not determine it)")
+        self.diagnostics.update({"method": method, "n_starts": len(self.starts),
+                                 "start_costs": costs,
+                                 "bounds": {k: list(map(float, v))
+                                            for k, v in self.nl_bounds.items()}})
+        return _finish(model, self.qd, self.tau, self.X, self.enames, self.sw, self.qdd, self.dt,
+                       nfev=nfev, converged=best.success, at_bound=at_bound,
+                       diagnostics=self.diagnostics, beta_extra=beta_extra)
+
+
+class LinearStrategy:
+    """A model linear in all its parameters (``cv``, thesis eq. 2-5): one weighted linear
+    least-squares solve over ``[X_extra, design]``."""
+
+    name = "linear least squares"
+
+    def fit(self, pb: _Problem) -> FrictionFit:
+        m0 = pb.model_at({})
+        Phi, off = _design(m0, pb.qd, pb.qdd, pb.dt)
+        A = np.hstack([pb.X, Phi])
+        b = _wlstsq(A, pb.tau - off, pb.sw)
+        model = pb.model_at({}, b[pb.e:])
+        return _finish(model, pb.qd, pb.tau, pb.X, pb.enames, pb.sw, pb.qdd, pb.dt, nfev=1,
+                       converged=True, at_bound=[],
+                       diagnostics={**pb.diagnostics, "method": self.name},
+                       beta_extra=b[:pb.e])
+
+
+class GridVarProStrategy:
+    """Static models with a ``vp_grid`` and ``design_grad`` (Stribeck, hyperbolic): the starts
+    and the grid scored by their profiled residual in array operations, the best ``n_refine``
+    distinct local minima refined with the analytic variable-projection Jacobian."""
+
+    name = "variable projection: grid-scored starts, bounded least squares from the best"
+
+    def __init__(self, grid):
+        self.grid = grid
+
+    def fit(self, pb: _Problem) -> FrictionFit:
+        tr, starts = pb.tr, pb.starts
+        proj = _Projector(pb.X, pb.sw)
+        vp = _VarPro(pb.cls, pb.nl, tr, pb.qd, pb.tau, pb.sw, proj)
+        B, Ug, S, *blocks = self.grid
+        Br = proj(B * pb.sw[:, None])
         grid_rss = (_profile_rss(Br, vp.yr, S) if Ug.shape[0] > EXACT_GRID_MAX
                     else _grid_rss_exact(Br, vp.yr, S))
         blocks = blocks[0] if blocks else np.zeros(Ug.shape[0], int)
@@ -643,32 +710,47 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
         cand = np.vstack([np.array(starts), tr.to_u(Ug[loc])])
         rss = np.concatenate([start_rss, grid_rss[loc]])
         ulo, uhi = tr.ubounds()
-        pick = _distinct_best(rss, cand, uhi - ulo, max(1, min(n_refine, n_starts)))
-        best, nfev, refined = _multistart(model_cls.name, vp.resid,
+        pick = _distinct_best(rss, cand, uhi - ulo, max(1, min(pb.n_refine, pb.n_starts)))
+        best, nfev, refined = _multistart(pb.cls.name, vp.resid,
                                           [tr.clip_inside(cand[i]) for i in pick], tr.ubounds(),
                                           x_scale=1.0, max_nfev=400, jac=vp.jac, probe_nfev=100)
         nfev += len(starts)
         costs = [float(0.5 * c) for c in start_rss]
-        u_best = best.x
-        beta_extra, linvals = vp.solution(u_best)
-        method = "variable projection: grid-scored starts, bounded least squares from the best"
-        diagnostics.update({"grid_size": int(grid_rss.size), "grid_local_minima": int(loc.size),
-                            "n_refined": len(pick), "refined_costs": refined})
-    elif not joint:
-        def resid(u):
-            A, off, b = vp_solve(u)
-            return sw * (tau - off - A @ b)
+        beta_extra, linvals = vp.solution(best.x)
+        pb.diagnostics.update({"grid_size": int(grid_rss.size), "grid_local_minima": int(loc.size),
+                               "n_refined": len(pick), "refined_costs": refined})
+        return pb.finish(best.x, linvals, beta_extra, best, nfev, costs, self.name)
 
-        best, nfev, costs = _multistart(model_cls.name, resid, starts, tr.ubounds(),
+
+class VarProStrategy:
+    """Models with nonlinear parameters and no grid (dm1, dm2): bounded least squares over the
+    nonlinear parameters from every start, the linear ones and the extras eliminated by
+    variable projection in each residual evaluation."""
+
+    name = "variable projection + bounded least squares"
+
+    def fit(self, pb: _Problem) -> FrictionFit:
+        def resid(u):
+            A, off, b = pb.vp_solve(u)
+            return pb.sw * (pb.tau - off - A @ b)
+
+        best, nfev, costs = _multistart(pb.cls.name, resid, pb.starts, pb.tr.ubounds(),
                                         x_scale=1.0, max_nfev=400)
-        u_best = best.x
-        _, _, b = vp_solve(u_best)
-        beta_extra, linvals = b[:e], b[e:]
-        method = "variable projection + bounded least squares"
-    else:
-        # joint fit over [extras, linear, nonlinear] with bounds on any of them
-        allb = {**{k: (-np.inf, np.inf) for k in enames + lin}, **bounds, **nl_bounds}
-        jn = tuple(enames) + lin
+        _, _, b = pb.vp_solve(best.x)
+        return pb.finish(best.x, b[pb.e:], b[:pb.e], best, nfev, costs, self.name)
+
+
+class JointStrategy:
+    """``bounds`` on a linear parameter or an extra column: bounded least squares over
+    ``[extras, linear, nonlinear]`` together, each start's linear part from variable
+    projection."""
+
+    name = "joint bounded least squares"
+
+    def fit(self, pb: _Problem) -> FrictionFit:
+        tr, e, lin, nl = pb.tr, pb.e, pb.lin, pb.nl
+        allb = {**{k: (-np.inf, np.inf) for k in pb.enames + lin}, **pb.bounds, **pb.nl_bounds}
+        jn = tuple(pb.enames) + lin
         jlo = np.array([allb[k][0] for k in jn], float)
         jhi = np.array([allb[k][1] for k in jn], float)
 
@@ -677,39 +759,61 @@ def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, 
 
         def resid(w):
             lb, u = split(w)
-            m = model_at(dict(zip(nl, tr.to_x(u))), lb[e:])
-            return sw * (tau - X @ lb[:e] - m.torque(qd, qdd, dt))
+            m = pb.model_at(dict(zip(nl, tr.to_x(u))), lb[e:])
+            return pb.sw * (pb.tau - pb.X @ lb[:e] - m.torque(pb.qd, pb.qdd, pb.dt))
 
         ulo, uhi = tr.ubounds()
         span = np.where(np.isfinite(jhi - jlo), jhi - jlo, 1.0)
-        w0s = [np.concatenate([np.clip(vp_solve(us)[2], jlo + 1e-9 * span, jhi - 1e-9 * span), us])
-               for us in starts]
-        best, nfev, costs = _multistart(model_cls.name, resid, w0s,
+        w0s = [np.concatenate([np.clip(pb.vp_solve(us)[2], jlo + 1e-9 * span, jhi - 1e-9 * span),
+                               us]) for us in pb.starts]
+        best, nfev, costs = _multistart(pb.cls.name, resid, w0s,
                                         (np.concatenate([jlo, ulo]), np.concatenate([jhi, uhi])),
                                         x_scale="jac", max_nfev=400 * (len(w0s[0]) + 1))
         lb, u_best = split(best.x)
-        beta_extra, linvals = lb[:e], lb[e:]
-        method = "joint bounded least squares"
-    nlvals = dict(zip(nl, tr.to_x(u_best)))
-    params = model_cls.canonical({**dict(zip(lin, linvals)), **nlvals}) \
-        if hasattr(model_cls, "canonical") else {**dict(zip(lin, linvals)), **nlvals}
-    model = _build(model_cls, params, settings)
-    at_bound = []
-    for k, lo, hi in zip(nl, tr.lo, tr.hi):
-        v = model.params[k]
-        for side, bd in (("lower", lo), ("upper", hi)):
-            if np.isfinite(bd) and abs(v - bd) <= 1e-6 * max(abs(bd), 1e-12) + 1e-12:
-                at_bound.append(f"{k} = {v:.3g} is at its {side} bound (the data push it "
-                                "there or do not determine it)")
-    diagnostics.update({"method": method, "n_starts": len(starts), "start_costs": costs,
-                        "bounds": {k: list(map(float, v)) for k, v in nl_bounds.items()}})
-    return _finish(model, qd, tau, X, enames, sw, qdd, dt, nfev=nfev, converged=best.success,
-                   at_bound=at_bound, diagnostics=diagnostics, beta_extra=beta_extra)
+        return pb.finish(u_best, lb[e:], lb[:e], best, nfev, costs, self.name)
+
+
+class DeltaGridStrategy:
+    """Models declaring ``fit_method = "delta_grid"`` (arctan, Indri & Trapani eq. 27-28):
+    :func:`fit_arctan`'s grid search, ``bounds`` restricting only the grid of ``delta``."""
+
+    name = "delta grid search + linear least squares"
+
+    def fit(self, pb: _Problem) -> FrictionFit:
+        grid = pb.settings.get("delta_grid")
+        grid = default_delta_grid() if grid is None else np.asarray(grid, float).ravel()
+        if pb.bounds:
+            if set(pb.bounds) - {"delta"}:
+                raise ValueError(f"{pb.cls.name} is fitted by the delta grid search (linear "
+                                 "least squares for the rest): bounds may only restrict delta, "
+                                 f"got {sorted(pb.bounds)}")
+            lo, hi = pb.bounds["delta"]
+            grid = grid[(grid >= lo) & (grid <= hi)]
+        return fit_arctan(pb.qd, pb.tau, Kv=pb.settings.get("Kv", KV_DEFAULT), delta_grid=grid,
+                          X_extra=pb.X, extra_names=pb.enames,
+                          weights=None if pb.weights is None else pb.sw ** 2)
+
+
+def strategy_for(pb: _Problem):
+    """The strategy of a fit from the model's declared interface: ``fit_method = "delta_grid"``
+    -> :class:`DeltaGridStrategy`; all linear (and no bounds on linear parameters or extras)
+    -> :class:`LinearStrategy`; bounds on linear parameters or extras -> :class:`JointStrategy`;
+    a ``vp_grid`` -> :class:`GridVarProStrategy`; else :class:`VarProStrategy`. Prepares the
+    starts of the nonlinear strategies."""
+    if pb.cls.fit_method == "delta_grid":
+        return DeltaGridStrategy()
+    if not pb.nl and not pb.joint:
+        return LinearStrategy()
+    pb.make_starts()
+    if pb.joint:
+        return JointStrategy()
+    grid = pb.cls.vp_grid(pb.qd, pb.nl_bounds)
+    return VarProStrategy() if grid is None else GridVarProStrategy(grid)
 
 
 # --------------------------------------------------------------------------------------------
 @_one_blas_thread
-def fit_arctan(qd, tau, Kv: float = 1000.0, delta_grid=None, X_extra=None, extra_names=(),
+def fit_arctan(qd, tau, Kv: float = KV_DEFAULT, delta_grid=None, X_extra=None, extra_names=(),
                weights=None) -> FrictionFit:
     """Indri & Trapani eq. 27-28 with the delta grid search of sec. III-A.
 

@@ -13,22 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from ident.friction.base import FrictionModel
-
-_2_PI = 2.0 / np.pi
-
-
-# --------------------------------------------------------------------------------------------
-# the smooth sign/abs of Indri & Trapani (pure functions, used by the dynamic models too)
-# --------------------------------------------------------------------------------------------
-def s0(v, Kv: float = 1000.0) -> np.ndarray:
-    """Indri & Trapani eq. 2: ``S0(v) = 2/pi arctan(Kv v)``, a continuous ``sign(v)``."""
-    return _2_PI * np.arctan(Kv * np.asarray(v, float))
-
-
-def s1(v, Kv: float = 1000.0) -> np.ndarray:
-    """Indri & Trapani eq. 7: ``S1(v) = S0(v) v``, a continuous ``|v|`` (never negative)."""
-    v = np.asarray(v, float)
-    return s0(v, Kv) * v
+from ident.friction import laws
+from ident.friction.constants import KV_DEFAULT
+from ident.friction.laws import _2_PI, s0, s1  # noqa: F401  (s0, s1: still imported from here by ident.gap.nominal)
 
 
 def _grid_values(lo: float, hi: float, n: int):
@@ -48,36 +35,8 @@ LIMIT_RATIO = 1.0001                          # g2 / g3 of the hyperbolic grid's
 
 
 class _StaticModel(FrictionModel):
-    """Shared helpers of the static models."""
-
-    linear_names: tuple[str, ...] = ()
-
-    @property
-    def settings(self) -> dict:
-        return {}
-
-    @property
-    def nonlinear_names(self) -> tuple[str, ...]:
-        return tuple(p for p in self.param_names if p not in self.linear_names)
-
-    def linear_design(self, qd, qdd=None, dt=None):
-        """``(Phi (T, len(linear_names)), offset (T,))`` with torque = Phi @ lin + offset."""
-        raise NotImplementedError
-
-    def torque(self, qd, qdd=None, dt=None):
-        phi, off = self.linear_design(qd)
-        lin = np.array([self._p[k] for k in self.linear_names])
-        return phi @ lin + off
-
-    @classmethod
-    def fit_hints(cls, qd, settings: dict) -> tuple[dict, dict]:
-        """(initial values, (lo, hi) bounds) of the nonlinear parameters for data ``qd``."""
-        return {}, {}
-
-    @classmethod
-    def canonical(cls, params: dict) -> dict:
-        """The representative of parameter sets that give the same torque (identity here)."""
-        return dict(params)
+    """Memoryless models whose nonlinear parameters enter one design column each: they give
+    the analytic variable-projection Jacobian and the factored start grid."""
 
     @classmethod
     def design_grad(cls, qd, nl: dict):
@@ -103,20 +62,6 @@ class _StaticModel(FrictionModel):
         or a model without one)."""
         return None
 
-    def degeneracy(self, qd, fit_scale: float) -> str | None:
-        """A sentence naming the degenerate form these parameters take on ``qd``, or None.
-
-        ``fit_scale`` is the torque scale the parameter sizes are compared with (e.g. the
-        largest absolute friction torque of the data).
-        """
-        return None
-
-    def to_dict(self) -> dict:
-        d = super().to_dict()
-        if self.settings:
-            d["settings"] = dict(self.settings)
-        return d
-
 
 # --------------------------------------------------------------------------------------------
 class Stribeck(_StaticModel):
@@ -137,14 +82,9 @@ class Stribeck(_StaticModel):
 
     @staticmethod
     def regressor(qd, Vc: float) -> np.ndarray:
-        """(T, 3) columns multiplying (Fk, Fv, Fs) for a fixed ``Vc``."""
-        qd = np.asarray(qd, float)
-        sgn = np.sign(qd)
-        if Vc < 0 or not np.isfinite(Vc):
-            raise ValueError(f"stribeck: Vc must be finite and >= 0, got {Vc}")
-        # Vc = 0 is the limit Vc -> 0+: the drop is a second sign term
-        drop = -sgn if Vc == 0 else -sgn * -np.expm1(-np.abs(qd) / Vc)
-        return np.stack([sgn, qd, drop], axis=-1)
+        """(T, 3) columns multiplying (Fk, Fv, Fs) for a fixed ``Vc``
+        (:func:`ident.friction.laws.stribeck_columns`)."""
+        return laws.stribeck_columns(qd, Vc)
 
     def linear_design(self, qd, qdd=None, dt=None):
         qd = np.asarray(qd, float)
@@ -172,14 +112,60 @@ class Stribeck(_StaticModel):
         if vals is None:
             return None
         qd = np.asarray(qd, float)
-        sgn = np.sign(qd)
-        drops = sgn[:, None] * np.expm1(-np.abs(qd)[:, None] / vals)      # (T, n): -sgn (1 - e)
-        B = np.column_stack([sgn, qd, drops])
+        drops = laws.stribeck_drop(qd[:, None], vals)                     # (T, n)
+        B = np.column_stack([np.sign(qd), qd, drops])
         K = vals.size
         cols = np.zeros((K, 3, 1), int)
         cols[:, 1, 0] = 1
         cols[:, 2, 0] = 2 + np.arange(K)
         return B, vals[:, None], (cols, np.ones((K, 3, 1)))
+
+    @classmethod
+    def initial_guess(cls, c, v, vmax):
+        return {"Fk": 1.1 * c, "Fv": v, "Fs": 0.1 * c, "Vc": 0.05 * vmax}
+
+    @classmethod
+    def degenerate_form(cls, params, stderr, qd=None, bounds=None, fit_scale=None):
+        """``stribeck_coulomb_in_Fs`` (``Fk`` ~ 0, negative ``Fs``, small ``Vc``: thesis joint
+        5), ``stribeck_as_cv`` (``Fs`` ~ 0 or within two standard errors of 0: thesis joint 3)
+        or ``stribeck_Vc_at_bound`` (``Vc`` on a bound of ``bounds``)."""
+        Fk, Fs, Vc = params["Fk"], params["Fs"], params["Vc"]
+        scale = float(fit_scale) if fit_scale else max(abs(Fk), abs(Fs), 1e-9)
+        vmax = float(np.max(np.abs(qd))) if qd is not None and np.size(qd) else 1.0
+        if abs(Fk) < 0.05 * max(abs(Fk), abs(Fs), 1e-9) and Fs < 0 and Vc < 0.05 * vmax:
+            return "stribeck_coulomb_in_Fs"
+        se_fs = abs(stderr.get("Fs", np.nan))
+        if abs(Fs) < 0.02 * scale or (np.isfinite(se_fs) and abs(Fs) < 2.0 * se_fs):
+            return "stribeck_as_cv"
+        if bounds is not None and "Vc" in bounds:
+            lo, hi = bounds["Vc"]
+            if np.isclose(Vc, hi, rtol=1e-3) or np.isclose(Vc, lo, rtol=1e-2):
+                return "stribeck_Vc_at_bound"
+        return None
+
+    @classmethod
+    def report_form(cls, params, stderr, cov, names, qd):
+        """When ``Vc`` is below the slowest sampled speeds (2nd percentile of |qd| over 5),
+        ``1 - exp(-|qd|/Vc) = 1`` on every sample and only ``Fk - Fs`` is identifiable; report
+        the thesis's representative (its joint 5 form): ``Fk = 0``, ``Fs = -(Fk - Fs)``, with
+        the standard error of ``Fk - Fs`` on ``Fs`` and NaN on ``Fk``."""
+        a = np.abs(np.asarray(qd, float))
+        a = a[a > 0]
+        if a.size == 0 or not params["Vc"] < np.percentile(a, 2.0) / 5.0:
+            return params, stderr
+        names = list(names or ())
+        var = np.nan
+        if cov is not None and "Fk" in names and "Fs" in names:
+            i, k = names.index("Fk"), names.index("Fs")
+            C = np.asarray(cov, float)
+            var = C[i, i] + C[k, k] - 2 * C[i, k]
+        out = dict(params)
+        out["Fs"] = params["Fs"] - params["Fk"]
+        out["Fk"] = 0.0
+        se = dict(stderr)
+        se["Fs"] = float(np.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
+        se["Fk"] = float("nan")
+        return out, se
 
     def violations(self, form=None):
         """Thesis eq. 2-6 physics: static level ``Fk >= 0``, Coulomb level at speed
@@ -238,9 +224,9 @@ class Hyperbolic(_StaticModel):
 
     @staticmethod
     def regressor(qd, g2: float, g3: float, g5: float) -> np.ndarray:
-        """(T, 3) columns multiplying (g1, g4, g6) for fixed (g2, g3, g5)."""
-        qd = np.asarray(qd, float)
-        return np.stack([np.tanh(g2 * qd) - np.tanh(g3 * qd), np.tanh(g5 * qd), qd], axis=-1)
+        """(T, 3) columns multiplying (g1, g4, g6) for fixed (g2, g3, g5)
+        (:func:`ident.friction.laws.hyperbolic_columns`)."""
+        return laws.hyperbolic_columns(qd, g2, g3, g5)
 
     def linear_design(self, qd, qdd=None, dt=None):
         qd = np.asarray(qd, float)
@@ -305,6 +291,28 @@ class Hyperbolic(_StaticModel):
             U = np.vstack([U, np.column_stack([al[il], al[il] / LIMIT_RATIO, c[kl]])])
         blocks = np.repeat([0, 1], [K, U.shape[0] - K])
         return B, U, (cols, coefs), blocks
+
+    @classmethod
+    def initial_guess(cls, c, v, vmax):
+        return {"g1": 0.1 * abs(c), "g2": 100.0 / vmax, "g3": 10.0 / vmax, "g4": c,
+                "g5": 50.0 / vmax, "g6": v}
+
+    @classmethod
+    def degenerate_form(cls, params, stderr, qd=None, bounds=None, fit_scale=None):
+        """``hyperbolic_stribeck_nonunique``: the hump ``g1 (tanh(g2 qd) - tanh(g3 qd))`` under
+        2 % of ``fit_scale`` on the data, ``g2`` ~ ``g3``, ``g1`` ~ 0, or ``g1``, ``g2``,
+        ``g3`` with a relative standard error over 50 % (thesis, hyperbolic model)."""
+        rel = lambda k: abs(stderr.get(k, np.nan)) / max(abs(params[k]), 1e-12)  # noqa: E731
+        g1, g2, g3 = params["g1"], params["g2"], params["g3"]
+        if fit_scale and qd is not None and np.size(qd):
+            a = np.abs(np.asarray(qd, float))
+            if np.max(np.abs(g1 * (np.tanh(g2 * a) - np.tanh(g3 * a)))) < 0.02 * fit_scale:
+                return "hyperbolic_stribeck_nonunique"
+        if abs(g2 - g3) < 0.02 * max(abs(g2), abs(g3), 1e-9) or abs(g1) < 1e-9:
+            return "hyperbolic_stribeck_nonunique"
+        if any(not np.isfinite(rel(k)) or rel(k) > 0.5 for k in ("g1", "g2", "g3")):
+            return "hyperbolic_stribeck_nonunique"
+        return None
 
     def violations(self, form=None):
         """Thesis eq. 2-7 signs: the Coulomb term ``g4 >= 0``, the viscous ``g6 >= 0``, and a
@@ -372,8 +380,9 @@ class Arctan(_StaticModel):
     name = "arctan"
     param_names = ("tau_s", "tau_sc", "tau_v", "tau_nlv", "delta")
     linear_names = ("tau_s", "tau_sc", "tau_v", "tau_nlv")
+    fit_method = "delta_grid"
 
-    def __init__(self, *, Kv: float = 1000.0, **params):
+    def __init__(self, *, Kv: float = KV_DEFAULT, **params):
         super().__init__(**params)
         if not Kv > 0:
             raise ValueError(f"Arctan: Kv must be positive, got {Kv}")
@@ -384,11 +393,10 @@ class Arctan(_StaticModel):
         return {"Kv": self.Kv}
 
     @staticmethod
-    def regressor(qd, delta: float, Kv: float = 1000.0) -> np.ndarray:
-        """Indri & Trapani eq. 28: (T, 4) columns multiplying (tau_s, tau_sc, tau_v, tau_nlv)."""
-        qd = np.asarray(qd, float)
-        sg = s0(qd, Kv)
-        return np.stack([sg, _2_PI * np.arctan(qd * delta), qd, qd * qd * sg], axis=-1)
+    def regressor(qd, delta: float, Kv: float = KV_DEFAULT) -> np.ndarray:
+        """Indri & Trapani eq. 28: (T, 4) columns multiplying (tau_s, tau_sc, tau_v, tau_nlv)
+        (:func:`ident.friction.laws.arctan_columns`)."""
+        return laws.arctan_columns(qd, delta, Kv)
 
     def linear_design(self, qd, qdd=None, dt=None):
         qd = np.asarray(qd, float)
@@ -396,14 +404,15 @@ class Arctan(_StaticModel):
 
     # pieces reused by the dynamic (LuGre-type) models -------------------------------------
     def g(self, v) -> np.ndarray:
-        """Indri & Trapani eq. 8: ``g(v) = tau_s + tau_sc 2/pi arctan(S1(v) delta)``."""
-        return self._p["tau_s"] + self._p["tau_sc"] * _2_PI * np.arctan(
-            s1(v, self.Kv) * self._p["delta"])
+        """Indri & Trapani eq. 8: ``g(v) = tau_s + tau_sc 2/pi arctan(S1(v) delta)``
+        (:func:`ident.friction.laws.arctan_g`)."""
+        p = self._p
+        return laws.arctan_g(v, p["tau_s"], p["tau_sc"], p["delta"], self.Kv)
 
     def viscous(self, v) -> np.ndarray:
-        """Indri & Trapani eq. 9: ``tau_fv(v) = tau_v v + tau_nlv v^2 S0(v)``."""
-        v = np.asarray(v, float)
-        return self._p["tau_v"] * v + self._p["tau_nlv"] * v * v * s0(v, self.Kv)
+        """Indri & Trapani eq. 9: ``tau_fv(v) = tau_v v + tau_nlv v^2 S0(v)``
+        (:func:`ident.friction.laws.arctan_viscous`)."""
+        return laws.arctan_viscous(v, self._p["tau_v"], self._p["tau_nlv"], self.Kv)
 
     def degeneracy(self, qd, fit_scale: float) -> str | None:
         p = self._p

@@ -4,7 +4,7 @@
 Per joint, from the campaign's trials in which that joint moves alone (trials moving several
 joints are left out with a note: the residual of eq. 25-26 is built for one moving joint):
 
-1. every trial's robot log goes through :func:`ident.signals.smoothing.prepare_joint_signals`
+1. every trial's robot log goes through :func:`ident.model.linkstate.prepare_joint_signals`
    with the smoother that :class:`TorqueConsistentBandwidth` chooses from the data (a
    Savitzky-Golay window and order, or the Fourier fit of eq. 3-2 for ``excitation`` trials:
    the one whose residual torque a static function of the velocity explains best) and
@@ -67,7 +67,8 @@ from mocap.io.payload import payload_com
 from mocap.io.errors import InputError
 
 from ident.indri import framework as I
-from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread, prepare_joint_signals,
+from ident.model.linkstate import prepare_joint_signals
+from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread,
                       read_angles)
 
 __all__ = ["DYNAMIC_MODELS", "JointDynamicData", "PartialIndriResult", "DynamicFits",

@@ -55,6 +55,7 @@ from ident.common import to_jsonable as _jsonable
 from scipy.optimize import minimize_scalar, nnls
 
 from ident.friction import Arctan, FrictionFit, FrictionModel, LuGreDM1, LuGreDM2, fit_arctan, fit_friction
+from ident.friction.constants import KV_DEFAULT
 
 PI_NAMES = ("RMS", "M", "IN")
 
@@ -552,7 +553,7 @@ class IndriTrapani:
     Stribeck term (:meth:`_select_static`, jointlab's addition); False: the paper's fit alone.
     """
 
-    def __init__(self, *, Kv: float = 1000.0, delta_grid=None, deflection_range=(1e-7, 0.3),
+    def __init__(self, *, Kv: float = KV_DEFAULT, delta_grid=None, deflection_range=(1e-7, 0.3),
                  n_grid: int = 20, gamma_range=(1e-3, 1e3), n_gamma: int = 25,
                  dm1_damping: str = "eq11", static_settle: float = 0.03,
                  critical_speed: float | None = None, refine: bool = True,

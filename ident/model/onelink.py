@@ -30,7 +30,7 @@ Degenerate forms the thesis reports (ch. 5) are detected and named (:func:`name_
   combinations give the same curve (thesis, hyperbolic model discussion);
 - ``<model>_degenerate``: none of the above, but :func:`ident.friction.fit.fit_friction`
   flagged the fit (a nonlinear parameter at a bound, a near-singular Jacobian); its sentence
-  is kept in ``OneLinkFit.note``. ``stribeck_Vc_at_bound`` needs user ``bounds`` on ``Vc``.
+  is kept in ``FrictionFit.note``. ``stribeck_Vc_at_bound`` needs user ``bounds`` on ``Vc``.
 """
 from __future__ import annotations
 
@@ -40,25 +40,21 @@ import numpy as np
 
 from ident.friction import MODELS
 from ident.friction.base import CoulombViscous
+from ident.friction.constants import REST_FRAC
 from ident.friction.fit import FrictionFit, eiv_bias, fit_friction
+from ident.signals.blas import one_blas_thread
 
 
 def model_class(name: str):
     """The friction model class registered under ``name`` (FORMAT.md model names)."""
     if name in MODELS:
         return MODELS[name]
-    try:
-        from ident.friction import static
-    except ImportError:  # pragma: no cover
-        static = None
-    for cls in vars(static).values() if static else ():
-        if isinstance(cls, type) and getattr(cls, "name", None) == name:
-            return cls
     raise KeyError(f"unknown friction model {name!r} (known: {', '.join(sorted(MODELS))})")
+
 
 RIGID_NAMES = ("I", "mglx", "mgly")
 
-__all__ = ["RIGID_NAMES", "onelink_target", "onelink_regressor", "OneLinkFit",
+__all__ = ["RIGID_NAMES", "onelink_target", "onelink_regressor",
            "OneLinkIdentifier", "fit_cv_linear", "name_degenerate", "initial_guess", "with_eiv"]
 
 
@@ -71,11 +67,6 @@ def onelink_regressor(q, qdd) -> np.ndarray:
     """Rigid columns of eq. 2-4, (T, 3): ``[qdd, -sin q, cos q]`` for ``(I, mglx, mgly)``."""
     q = np.asarray(q, float)
     return np.column_stack([np.asarray(qdd, float), -np.sin(q), np.cos(q)])
-
-
-OneLinkFit = FrictionFit
-"""The former one-link result type: one-link fits are :class:`ident.friction.fit.FrictionFit`
-(rigid parameters in ``extra``/``rigid``, the degenerate form's name in ``form``)."""
 
 
 def fit_cv_linear(q, qd, qdd, y, weights=None) -> FrictionFit:
@@ -124,74 +115,21 @@ def with_eiv(fit: FrictionFit, q, qd, qdd, errors: dict) -> FrictionFit:
     return dataclasses.replace(fit, eiv=eiv, degenerate=deg)
 
 
-def initial_guess(model: str, cv: OneLinkFit, qd) -> dict:
+def initial_guess(model: str, cv: FrictionFit, qd) -> dict:
     """Start of the nonlinear fits from the Coulomb + viscous fit (thesis: "an initial guess
-    from the Coulomb + Viscous model")."""
-    c, v = cv.params["c"], cv.params["v"]
+    from the Coulomb + Viscous model"): the model's ``initial_guess``."""
     vmax = float(np.max(np.abs(qd))) if np.size(qd) else 1.0
-    if model == "stribeck":
-        return {"Fk": 1.1 * c, "Fv": v, "Fs": 0.1 * c, "Vc": 0.05 * vmax}
-    if model == "hyperbolic":
-        return {"g1": 0.1 * abs(c), "g2": 100.0 / vmax, "g3": 10.0 / vmax, "g4": c,
-                "g5": 50.0 / vmax, "g6": v}
-    return {}
+    return model_class(model).initial_guess(cv.params["c"], cv.params["v"], vmax)
 
 
 def name_degenerate(model: str, params: dict, stderr: dict, qd=None, bounds=None,
                     fit_scale: float | None = None) -> str | None:
     """Name the thesis's degenerate forms (module docstring) or return ``None``: the one
-    classifier of one-link fits (``FrictionFit.form``). ``fit_scale``: the torque scale "~ 0"
-    is judged against (the fits pass the 99th percentile of the friction torque, the scale of
-    the models' own ``degeneracy`` sentences); default ``max(|Fk|, |Fs|)``."""
-    rel = lambda k: abs(stderr.get(k, np.nan)) / max(abs(params[k]), 1e-12)  # noqa: E731
-    if model == "stribeck":
-        Fk, Fs, Vc = params["Fk"], params["Fs"], params["Vc"]
-        scale = float(fit_scale) if fit_scale else max(abs(Fk), abs(Fs), 1e-9)
-        vmax = float(np.max(np.abs(qd))) if qd is not None and np.size(qd) else 1.0
-        if abs(Fk) < 0.05 * max(abs(Fk), abs(Fs), 1e-9) and Fs < 0 and Vc < 0.05 * vmax:
-            return "stribeck_coulomb_in_Fs"
-        se_fs = abs(stderr.get("Fs", np.nan))
-        if abs(Fs) < 0.02 * scale or (np.isfinite(se_fs) and abs(Fs) < 2.0 * se_fs):
-            return "stribeck_as_cv"
-        if bounds is not None:
-            lo, hi = bounds
-            if np.isclose(Vc, hi[3], rtol=1e-3) or np.isclose(Vc, lo[3], rtol=1e-2):
-                return "stribeck_Vc_at_bound"
-    elif model == "hyperbolic":
-        g1, g2, g3 = params["g1"], params["g2"], params["g3"]
-        if fit_scale and qd is not None and np.size(qd):
-            a = np.abs(np.asarray(qd, float))
-            if np.max(np.abs(g1 * (np.tanh(g2 * a) - np.tanh(g3 * a)))) < 0.02 * fit_scale:
-                return "hyperbolic_stribeck_nonunique"
-        if abs(g2 - g3) < 0.02 * max(abs(g2), abs(g3), 1e-9) or abs(g1) < 1e-9:
-            return "hyperbolic_stribeck_nonunique"
-        if any(not np.isfinite(rel(k)) or rel(k) > 0.5 for k in ("g1", "g2", "g3")):
-            return "hyperbolic_stribeck_nonunique"
-    return None
-
-
-def _canonical_stribeck(params, se, ff, qd):
-    """When ``Vc`` is below the slowest sampled speeds (2nd percentile of |qd| over 5),
-    ``1 - exp(-|qd|/Vc) = 1`` on every sample and only ``Fk - Fs`` is identifiable; report the
-    thesis's representative (its joint 5 form): ``Fk = 0``, ``Fs = -(Fk - Fs)``, with the
-    standard error of ``Fk - Fs`` on ``Fs`` and NaN on ``Fk``."""
-    a = np.abs(np.asarray(qd, float))
-    a = a[a > 0]
-    if a.size == 0 or not params["Vc"] < np.percentile(a, 2.0) / 5.0:
-        return params, se
-    names = list(getattr(ff, "names", ()))
-    var = np.nan
-    if ff.cov is not None and "Fk" in names and "Fs" in names:
-        i, k = names.index("Fk"), names.index("Fs")
-        C = np.asarray(ff.cov, float)
-        var = C[i, i] + C[k, k] - 2 * C[i, k]
-    out = dict(params)
-    out["Fs"] = params["Fs"] - params["Fk"]
-    out["Fk"] = 0.0
-    se = dict(se)
-    se["Fs"] = float(np.sqrt(var)) if np.isfinite(var) and var >= 0 else float("nan")
-    se["Fk"] = float("nan")
-    return out, se
+    classifier of one-link fits (``FrictionFit.form``), the model's ``degenerate_form``.
+    ``bounds``: {param: (lo, hi)} the fit was given; ``fit_scale``: the torque scale "~ 0" is
+    judged against (the fits pass the 99th percentile of the friction torque, the scale of the
+    models' own ``degeneracy`` sentences); default ``max(|Fk|, |Fs|)``."""
+    return model_class(model).degenerate_form(params, stderr, qd, bounds, fit_scale)
 
 
 class OneLinkIdentifier:
@@ -218,7 +156,7 @@ class OneLinkIdentifier:
     """
 
     def __init__(self, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8, seed: int = 0,
-                 bounds: dict | None = None, rest_frac: float = 0.01):
+                 bounds: dict | None = None, rest_frac: float = REST_FRAC):
         self.models = tuple(models)
         self.n_starts = int(n_starts)
         self.seed = int(seed)
@@ -230,8 +168,6 @@ class OneLinkIdentifier:
         return self.fit(sig.q, sig.qd, sig.qdd, y, errors=sig.errors)
 
     def fit(self, q, qd, qdd, y, errors: dict | None = None) -> dict:
-        from ident.signals.smoothing import one_blas_thread
-
         with one_blas_thread():
             return self._fit(q, qd, qdd, y, errors)
 
@@ -254,21 +190,17 @@ class OneLinkIdentifier:
     def _fit_nonlinear(self, name, q, qd, qdd, y, cv) -> FrictionFit:
         cls = model_class(name)
         X = onelink_regressor(q, qdd)
-        x0 = {k: v for k, v in initial_guess(name, cv, qd).items()
-              if k not in getattr(cls, "linear_names", ())}
+        lin = cls.linear_params()
+        x0 = {k: v for k, v in initial_guess(name, cv, qd).items() if k not in lin}
         bounds = self.bounds.get(name)
         ff = fit_friction(cls, qd, y, X_extra=X, extra_names=RIGID_NAMES, bounds=bounds, x0=x0 or None,
                           n_starts=self.n_starts, seed=self.seed)
         params = dict(ff.model.params)          # fit_friction returns the canonical representative
         se = {k: float(v) for k, v in ff.stderr.items()}
-        if name == "stribeck":
-            params, se = _canonical_stribeck(params, se, ff, qd)
-        vc_bounds = None
-        if name == "stribeck" and bounds and "Vc" in bounds:
-            vc_bounds = (np.array([0, 0, 0, bounds["Vc"][0]]), np.array([0, 0, 0, bounds["Vc"][1]]))
+        params, se = cls.report_form(params, se, ff.cov, ff.names, qd)
         f_data = y - X @ np.array([ff.extra[k] for k in RIGID_NAMES])
         fit_scale = float(np.percentile(np.abs(f_data), 99.0)) if f_data.size else None
-        deg = name_degenerate(name, params, se, qd, vc_bounds, fit_scale)
+        deg = name_degenerate(name, params, se, qd, bounds, fit_scale)
         if deg is None and ff.degenerate:
             deg = f"{name}_degenerate"
         model = cls(**params)

@@ -25,9 +25,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from mocap.io.errors import InputError
+
+from ident.signals.smoothing import differentiate
 
 BRAKED_TOL_RAD = 5e-3          # peak-to-peak motion above which a braked joint "moves"
 DERIVATIVES = ("savgol", "logged")
@@ -150,11 +151,11 @@ def auto_windows(x: np.ndarray, dt: float, ratio: float = 2.0) -> np.ndarray:
     cand = [w for w in WINDOWS_S if 5 <= (int(round(w / dt)) | 1) < T]
     if not cand:
         return np.full(x.shape[1], WINDOWS_S[0])
-    r0 = np.sqrt(np.mean((x - _savgol(x, dt, cand[0], 0)) ** 2, axis=0))
+    r0 = np.sqrt(np.mean((x - differentiate(x, dt, cand[0], 0)) ** 2, axis=0))
     out = np.full(x.shape[1], cand[0])
     alive = r0 > 0
     for w in cand[1:]:                        # a handful of candidate windows
-        r = np.sqrt(np.mean((x - _savgol(x, dt, w, 0)) ** 2, axis=0))
+        r = np.sqrt(np.mean((x - differentiate(x, dt, w, 0)) ** 2, axis=0))
         alive &= r <= ratio * r0
         out = np.where(alive, w, out)
     return out
@@ -165,18 +166,8 @@ def _savgol_cols(x: np.ndarray, dt: float, windows: np.ndarray, deriv: int) -> n
     out = np.empty_like(x)
     for w in np.unique(windows):
         cols = np.flatnonzero(windows == w)
-        out[:, cols] = _savgol(x[:, cols], dt, float(w), deriv)
+        out[:, cols] = differentiate(x[:, cols], dt, float(w), deriv)
     return out
-
-
-def _savgol(x: np.ndarray, dt: float, window_s: float, deriv: int) -> np.ndarray:
-    T = x.shape[0]
-    w = int(round(window_s / dt)) | 1
-    w = max(w, 5)
-    w = min(w, T if T % 2 else T - 1)
-    if w < 5:
-        raise InputError(f"{T} samples are too few to differentiate")
-    return savgol_filter(x, w, 3, deriv=deriv, delta=dt, axis=0, mode="interp")
 
 
 def prepare_record(log, trial, n: int, coupling=None, settings: RecordSettings | None = None,

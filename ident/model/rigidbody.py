@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ident.friction import laws
 from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
 
@@ -155,8 +156,7 @@ class RigidBodyIdentifier:
         self._dropped = dropped
         F = np.zeros((T, n, 2 * n))
         for j in range(n):
-            F[:, j, 2 * j] = np.sign(rec.qd[:, j])
-            F[:, j, 2 * j + 1] = rec.qd[:, j]
+            F[:, j, 2 * j:2 * j + 2] = laws.coulomb_viscous_columns(rec.qd[:, j])
         return A, tuple(names), F
 
     def _coupled(self, rec) -> list:

@@ -37,24 +37,17 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import lapack
 from scipy.optimize import minimize_scalar
-from scipy.signal import savgol_coeffs
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from mocap.io.errors import InputError
 
+from ident.friction.constants import REST_FRAC
+from ident.signals.blas import one_blas_thread  # noqa: F401  (re-exported)
 from ident.signals.fourier import FourierSeries, design_matrix
 
-__all__ = ["SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundamental",
-           "select_harmonics", "estimate_time_offset", "JointSignals", "prepare_joint_signals",
+__all__ = ["savgol_window", "differentiate", "SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundamental",
+           "select_harmonics", "estimate_time_offset", "JointSignals",
            "read_angles", "AngleTrack", "one_blas_thread"]
-
-
-def one_blas_thread():
-    """Context: BLAS limited to one thread (DESIGN.md: 2-10x faster for these small solves on
-    shared 2-core machines); see :mod:`ident.signals.blas` (built once per process, nested
-    contexts free). A no-op context when threadpoolctl is absent."""
-    from ident.signals.blas import one_blas_thread as _obt
-
-    return _obt()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -177,6 +170,31 @@ def _savgol(x, w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray
     return y
 
 
+def savgol_window(window_s: float, dt: float, n: int, polyorder: int = 3) -> int:
+    """The one window rule of jointlab's Savitzky-Golay filters: ``window_s`` seconds at the
+    sample period ``dt`` rounded to an odd number of samples, at least ``polyorder + 2``
+    (odd) and at most the ``n`` samples (odd)."""
+    w = int(round(window_s / dt)) | 1
+    w = max(w, polyorder + 2 + (polyorder % 2 == 0))
+    return min(w, n if n % 2 else n - 1)
+
+
+def differentiate(x, dt: float, window_s: float, deriv: int = 1, polyorder: int = 3) -> np.ndarray:
+    """The one differentiator: the ``deriv``-th derivative (0: the smoothed signal) of uniform
+    samples ``x`` (along axis 0, period ``dt``) by a Savitzky-Golay filter of ``polyorder``
+    over :func:`savgol_window` (``scipy.signal.savgol_filter``, mode ``"interp"``; 1-D
+    signals through the cached kernel, the same values to rounding). An
+    :class:`~mocap.io.errors.InputError` when the samples are too few for the window."""
+    x = np.asarray(x, float)
+    n = x.shape[0]
+    w = savgol_window(window_s, dt, n, polyorder)
+    if w < polyorder + 2:
+        raise InputError(f"{n} samples are too few to differentiate")
+    if x.ndim == 1:
+        return _savgol(x, w, polyorder, deriv, dt)
+    return savgol_filter(x, w, polyorder, deriv=deriv, delta=dt, axis=0, mode="interp")
+
+
 @functools.lru_cache(maxsize=512)
 def _savgol_coeffs(w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
     """``savgol_coeffs`` cached (read-only)."""
@@ -215,12 +233,8 @@ class SavGolSmoother:
         self.n_windows = int(n_windows)
 
     def _window(self, dt: float, n: int, window_s: float | None = None) -> int:
-        w = int(round((self.window_s if window_s is None else window_s) / dt)) | 1
-        w = max(w, self.polyorder + 2 + (self.polyorder % 2 == 0))
-        w = min(w, n - 1 if n % 2 == 0 else n)
-        if w % 2 == 0:
-            w -= 1
-        return w
+        return savgol_window(self.window_s if window_s is None else window_s, dt, n,
+                             self.polyorder)
 
     def _gcv_window(self, qu, dt):
         """(window, sigma) minimising GCV over the candidate windows."""
@@ -291,12 +305,6 @@ def _ordered_design_T(t, wf, n, extra=None):
     if extra is not None:
         XT[-1] = extra
     return XT
-
-
-def _ordered_design(t, wf, n):
-    """Columns [1, s1, c1, s2, c2, ...] (a column permutation of design_matrix) so that the
-    first 2N+1 columns are the model with N harmonics."""
-    return _ordered_design_T(t, wf, n).T
 
 
 def _rss_by_harmonics(t, q, wf, n_max):
@@ -413,7 +421,7 @@ class FourierSmoother:
     def __init__(self, wf: float | None = None, n_harmonics: int | None = None,
                  max_harmonics: int = 20, periodic: bool | None = None,
                  periodic_ratio: float = 2.0, periodic_atol: float = 2e-5, fallback=None,
-                 trim_rest: bool = True, rest_frac: float = 0.01):
+                 trim_rest: bool = True, rest_frac: float = REST_FRAC):
         self.wf = wf
         self.n_harmonics = n_harmonics
         self.max_harmonics = int(max_harmonics)
@@ -537,97 +545,6 @@ class JointSignals:
                 "motor_fit_rms_deg": float(np.degrees(self.motor_fit.rms)),
                 "peak_speed": float(np.max(np.abs(self.qd))) if self.qd.size else float("nan"),
                 "max_abs_tau": float(np.max(np.abs(self.tau))) if self.tau.size else float("nan")}
-
-
-def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link=None,
-                          time_offset: float | str = 0.0, smoother=None,
-                          link_smoother=None, link_method: str = "markers",
-                          drive: tuple | None = None, link_estimator=None) -> JointSignals:
-    """Put one joint's link angle (marker clock) and motor angle/torque (robot clock) on the
-    robot log's samples, smoothing both with eq. 3-2 fits and analytic derivatives.
-
-    ``joint`` is 1-based (for naming only); ``qm``, ``tau`` are that joint's log columns.
-    ``q_link`` None: the motor angle stands in for the link angle (``link_source="motor"``).
-    ``time_offset``: seconds added to marker times, or ``"estimate"``.
-    ``link_method``: ``"encoder+deflection"`` (the thesis campaign's; :class:`ident.signals.linkstate.LinkStateEstimator`:
-    the smoothed encoder angle plus the deflection the markers support; ``drive = (J, B, K)``
-    gives the motor inertia, viscous and declared stiffness (K NaN or None: no nominal
-    deflection) for the nominal deflection ``-(u - J qmdd - B qmd) / K``), or ``"markers"``
-    (default, the thesis's own way: the marker angle smoothed and differentiated by itself, below).
-    For ``"markers"`` the link fit reuses the motor fit's fundamental (same commanded trajectory) and chooses
-    its own number of harmonics. Samples outside the span of both signals are dropped.
-    """
-    smoother = smoother if smoother is not None else FourierSmoother()
-    log_time = np.asarray(log_time, float)
-    qm = np.asarray(qm, float)
-    tau = np.asarray(tau, float)
-    fm = smoother.fit(log_time, qm)
-    if q_link is None and link_method == "encoder+deflection" and drive is not None \
-            and drive[2] is not None and np.isfinite(drive[2]) and drive[2] > 0:
-        return _encoder_deflection_signals(joint, log_time, qm, tau, None, None, fm, 0.0, drive,
-                                           link_estimator)
-    if q_link is None:
-        fl, source, offset = fm, "motor", 0.0
-    else:
-        ta = np.asarray(angle_time, float)
-        offset = estimate_time_offset(ta, q_link, fm) if time_offset == "estimate" else float(time_offset)
-        ta = ta + offset
-        ql = np.asarray(q_link, float)
-        if link_method == "encoder+deflection" and link_smoother is None:
-            return _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, drive,
-                                               link_estimator)
-        if link_method not in ("markers", "encoder+deflection"):
-            raise ValueError(f"link_method must be 'encoder+deflection' or 'markers', got {link_method!r}")
-        if link_smoother is None and isinstance(smoother, FourierSmoother):
-            # same commanded trajectory: the motor fit's fundamental and moving span (the
-            # noisier link angle would blur the rest detection)
-            link_smoother = FourierSmoother(
-                wf=fm.wf if fm.method == "fourier" else None, max_harmonics=smoother.max_harmonics,
-                periodic=None if fm.method == "fourier" else False,
-                periodic_ratio=smoother.periodic_ratio, periodic_atol=smoother.periodic_atol,
-                fallback=smoother.fallback, trim_rest=False)
-            if fm.method == "fourier":
-                inside = (ta >= fm.t_start) & (ta <= fm.t_end)
-                ta, ql = ta[inside], ql[inside]
-        elif link_smoother is None:
-            link_smoother = smoother
-        fl = link_smoother.fit(ta, ql)
-        source = "mocap"
-    lo, hi = max(fm.t_start, fl.t_start), min(fm.t_end, fl.t_end)
-    keep = (log_time >= lo) & (log_time <= hi) & np.isfinite(tau) & np.isfinite(qm)
-    t = log_time[keep]
-    if t.size < 8:
-        raise InputError(f"joint {joint}: the link angles and the robot log overlap in only {t.size} samples")
-    q, qd, qdd = fl.evaluate(t)
-    qms, qmd, qmdd = fm.evaluate(t)
-    return JointSignals(joint, t, q, qd, qdd, qms, qmd, qmdd, tau[keep], fl, fm, source, offset)
-
-
-def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, drive, estimator):
-    """:func:`prepare_joint_signals` with the link state of :mod:`ident.signals.linkstate`."""
-    from ident.signals.linkstate import LinkStateEstimator
-
-    if ql is None:                     # no markers: encoder + nominal deflection
-        lo, hi = fm.t_start, fm.t_end
-    else:
-        fin = np.isfinite(ta) & np.isfinite(ql)
-        if fin.sum() < 8:
-            raise InputError(f"joint {joint}: only {int(fin.sum())} finite link-angle samples")
-        lo, hi = max(fm.t_start, float(ta[fin][0])), min(fm.t_end, float(ta[fin][-1]))
-    keep = (log_time >= lo) & (log_time <= hi) & np.isfinite(tau) & np.isfinite(qm)
-    t = log_time[keep]
-    if t.size < 8:
-        raise InputError(f"joint {joint}: the link angles and the robot log overlap in only {t.size} samples")
-    qms, qmd, qmdd = fm.evaluate(t)
-    y = K = None
-    if drive is not None:
-        J, B, K = (float(x) if x is not None else float("nan") for x in drive)
-        y = tau[keep] - J * qmdd - B * qmd
-        K = K if np.isfinite(K) and K > 0 else None
-    est = estimator if estimator is not None else LinkStateEstimator()
-    st = est.fit(t, fm, ta, ql, y if K is not None else None, K, qm_samples=qm[keep])
-    return JointSignals(joint, t, st.q, st.qd, st.qdd, qms, qmd, qmdd, tau[keep], st.as_smooth_fit(), fm,
-                        "mocap" if ql is not None else "motor", offset, st.to_dict())
 
 
 # ---------------------------------------------------------------------------------------------

@@ -156,11 +156,6 @@ class Effect:
                 "size_at_1": self.size()}
 
 
-def nominal_params(je: JointEffects) -> dict:
-    """The FORMAT.md ``cv`` parameters of the nominal model behind ``je``."""
-    return {"c": 0.5 * (je.c_pos + je.c_neg), "v": je.v}
-
-
 def truth_models(je: JointEffects) -> dict:
     """The true friction in FORMAT.md model names where it is one of them (link side, SI).
 

@@ -32,10 +32,13 @@ calls pinocchio and a small dense solve each step: about 2x real time, 30-50x sl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
+from ident.excitation.trajectories import min_jerk_path
+from ident.friction import laws
+from ident.friction.constants import SIGN_WIDTH
 from ident.sim.effects import JointEffects
 
 
@@ -91,7 +94,7 @@ class Controller:
     def feedforward(self, q_r, qd_r, qdd_r):
         """Vectorised (u_ff, qm_r, qmd_r) over the reference samples."""
         link = self.I * qdd_r + self.a * np.sin(q_r) + self.b * np.cos(q_r) \
-            + self.c * np.sign(qd_r) + self.v * qd_r
+            + laws.coulomb_viscous(qd_r, self.c, self.v)
         u_ff = link + self.J * qdd_r + self.B * qd_r
         qm_r = q_r + link / self.k
         return u_ff, qm_r, qd_r
@@ -193,6 +196,9 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
     rA, rn, rphi = fx.ripple_A, float(fx.ripple_n), fx.ripple_phi
     mu, th_h, th_tau = fx.mu, fx.thermal_h, fx.thermal_tau
     lugre = s0 > 0.0
+    lugre_step = laws.lugre_implicit_step
+    excess, excess_slope = laws.stribeck_excess, laws.stribeck_excess_slope
+    S_rest = excess(0.0, S, Vc, math.exp) if S != 0.0 else 0.0     # the Stribeck excess at rest
     smooth = (S > 0.0) or (w > 0.0)
     sin, cos, exp, fabs = math.sin, math.cos, math.exp, abs
     hdt = 0.5 * dt
@@ -262,16 +268,12 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
             s01 = s0 + s1 / dt
             for it in range(60):
                 cx = cp if x >= 0.0 else cn
-                sg = 1.0 if x >= 0.0 else -1.0
-                Dz = 1.0 + dt * s0 * fabs(x) / cx
-                Nz = z + dt * x
-                z1 = Nz / Dz
+                z1, dz = lugre_step(z, x, dt, s0, cx)
                 h = A * x + s0 * z1 + s1 * (z1 - z) / dt + ve * x - R
                 if h > 0.0:
                     hi = x if x < hi else hi
                 else:
                     lo = x if x > lo else lo
-                dz = (dt * Dz - Nz * dt * s0 * sg / cx) / (Dz * Dz)
                 hp = A + s01 * dz + ve
                 step = h / hp if hp > 0.0 else 0.0
                 xn = x - step
@@ -284,12 +286,12 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
             if it > nmax:
                 nmax = it
             cx = cp if x >= 0.0 else cn
-            z1 = (z + dt * x) / (1.0 + dt * s0 * fabs(x) / cx)
+            z1 = lugre_step(z, x, dt, s0, cx)[0]
             F = s0 * z1 + s1 * (z1 - z) / dt + ve * x
             z = z1
             qd1 = x
         else:
-            if -(cn + S) <= R <= cp + S:
+            if -(cn + S_rest) <= R <= cp + S_rest:
                 qd1 = 0.0
                 F = R
             else:
@@ -297,8 +299,8 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
                     sg, cc, Ap = 1.0, cp, A + vep
                 else:
                     sg, cc, Ap = -1.0, cn, A + ven
-                r = sg * R - cc          # > S >= 0
-                x = (r - S) / Ap         # x >= 0 in the direction of motion
+                r = sg * R - cc          # > S_rest >= 0
+                x = (r - S_rest) / Ap        # x >= 0 in the direction of motion
                 if smooth:
                     # safeguarded Newton on the bracket [0, r/Ap]: h(0) = S - r < 0 <= h(r/Ap)
                     # (h may be non-monotone when the Stribeck slope S/Vc exceeds Ap)
@@ -309,13 +311,16 @@ def simulate_single(plant: JointPlant, ctrl: Controller, q_r, qd_r, qdd_r, enabl
                     elif not (lo < x < hi):
                         x = 0.5 * hi
                     for it in range(100):
-                        ex = exp(-x / Vc) if S > 0.0 else 0.0
-                        h = Ap * x + S * ex + w * x * x - r
+                        if S > 0.0:
+                            ex, dex = excess(x, S, Vc, exp), excess_slope(x, S, Vc, exp)
+                        else:
+                            ex, dex = 0.0, 0.0
+                        h = Ap * x + ex + w * x * x - r
                         if h < 0.0:
                             lo = x
                         else:
                             hi = x
-                        hp = Ap - S / Vc * ex + 2.0 * w * x
+                        hp = Ap + dex + 2.0 * w * x
                         xn = x - h / hp if hp > 0.0 else -1.0
                         if not (lo <= xn <= hi):
                             xn = 0.5 * (lo + hi)
@@ -370,13 +375,28 @@ def simulate_reference(plant: JointPlant, ctrl: Controller, ref, t0: float, dt: 
     return simulate_single(plant, ctrl, q_r, qd_r, qdd_r, True, state, t0, dt)
 
 
-def with_effects(plant: JointPlant, fx: JointEffects) -> JointPlant:
-    return replace(plant, fx=fx)
-
-
 # ---------------------------------------------------------------------------------------------
 # several joints together (pinocchio per step)
 # ---------------------------------------------------------------------------------------------
+
+def regularised_friction(qd, c_dir, v_dir, S, Vc, w, width: float = SIGN_WIDTH):
+    """The friction of the several-joint mode and its slope (for the implicit linearisation):
+    ``F = (c_dir + S exp(-|qd|/Vc)) tanh(qd / width) + v_dir qd + w qd |qd|``, the Stribeck
+    law of the single-joint mode (:func:`ident.friction.laws.stribeck_excess`) with
+    the Coulomb + viscous law (:func:`ident.friction.laws.coulomb_viscous`) under the smooth
+    sign :func:`ident.friction.laws.smooth_sign`. ``c_dir``/``v_dir``: the Coulomb level and
+    viscous coefficient of the direction of ``qd``. Returns ``(F, dF/dqd >= 0)``. As
+    ``qd -> 0+`` (``0-``) ``F`` tends to ``c_dir + S``, the edges of the single-joint mode's
+    static band; at ``qd = 0``, ``F = 0``."""
+    a = np.abs(qd)
+    level = c_dir + laws.stribeck_excess(a, S, Vc)
+    th_ = laws.smooth_sign(qd, width)
+    F = laws.coulomb_viscous(qd, level, v_dir, sign=lambda x: th_) + w * qd * a
+    # d tanh(qd/width)/dqd = (1 - tanh^2)/width
+    dF = level * (1 - th_ ** 2) / width \
+        + laws.stribeck_excess_slope(a, S, Vc) * np.abs(th_) + v_dir + 2 * w * a
+    return F, np.maximum(dF, 0.0)
+
 
 def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: float = 0.0,
                    dt: float = 5e-4, bandwidth_hz: float = 15.0, c_nom=None, v_nom=None,
@@ -422,7 +442,7 @@ def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: 
     kp, kdg = Mdiag * wc * wc, 2 * 0.9 * Mdiag * wc
     tau_link_ff = np.atleast_2d(ctrl_robot.rnea(QR, QDR, QDDR))[:, joints] if N else np.zeros((0, m))
     qd_sel = QDR[:, joints]
-    link_ff = tau_link_ff + c_nom * np.sign(qd_sel) + v_nom * qd_sel
+    link_ff = tau_link_ff + laws.coulomb_viscous(qd_sel, c_nom, v_nom)
     u_ff = link_ff + Jv * QDDR[:, joints] + Bv * qd_sel
     k_ff = kv if k_nom is None else np.asarray(k_nom, float)
     qm_ref = QR[:, joints] + link_ff / k_ff
@@ -437,7 +457,7 @@ def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: 
     muv = np.array([f.mu for f in fxs])
     thh = np.array([f.thermal_h for f in fxs])
     thtau = np.array([f.thermal_tau for f in fxs])
-    eps = 1e-3
+    eps = SIGN_WIDTH
     qfull = QR[0].copy()
     g0 = pin.computeGeneralizedGravity(model, data, qfull)[joints]
     q = QR[0, joints].copy() - g0 / kv
@@ -465,13 +485,7 @@ def simulate_multi(robot, joints, fxs, J, B, q_rest, refs, ctrl_robot=None, t0: 
         cn = cneg * th + muv * gload
         vav = np.array([f.va for f in fxs])
         ve = np.array([f.v for f in fxs]) * th * (1.0 + 0.5 * vav * np.where(qd >= 0, 1.0, -1.0))
-        cdir = np.where(qd >= 0, cp, cn)
-        ex = np.exp(-np.abs(qd) / Vcv)
-        th_ = np.tanh(qd / eps)
-        Ff = (cdir + Sv * ex) * th_ + ve * qd + wv * qd * np.abs(qd)
-        dF = (cdir + Sv * ex) * (1 - th_ ** 2) / eps - Sv / Vcv * ex * np.abs(th_) + ve \
-            + 2 * wv * np.abs(qd)
-        dF = np.maximum(dF, 0.0)
+        Ff, dF = regularised_friction(qd, np.where(qd >= 0, cp, cn), ve, Sv, Vcv, wv, eps)
         Lx = -h - rA * np.sin(rn * qfull[joints] + rph)
         e = kv * dt * 0.25
         gg = e + dv
@@ -511,8 +525,6 @@ def simulate_coastdown(plant: JointPlant, ctrl: Controller, q_center: float, q_h
     Returns the concatenated result, the controller mode per step (1 tracking, 0 coasting)
     and the release events ``[(time, speed), ...]``.
     """
-    from ident.excitation.trajectories import min_jerk_path
-
     parts, modes, events = [], [], []
     u0, qm0, _ = ctrl.feedforward(np.array([q_center]), np.zeros(1), np.zeros(1))
     state = rest_state(plant, float(qm0[0]))

@@ -7,7 +7,7 @@ Per (trial, joint) — :func:`fit_trial_joint`, a pure function of a picklable
 1. read the robot log (and ``angles/<trial id>.csv`` when an angles folder is given; without
    it, or without that joint's column, the motor angle stands in for the link angle and the
    result says ``link_source = "motor"``);
-2. :func:`ident.signals.smoothing.prepare_joint_signals`: Fourier fits (eq. 3-2) of ``qm`` and ``q`` on one
+2. :func:`ident.model.linkstate.prepare_joint_signals`: Fourier fits (eq. 3-2) of ``qm`` and ``q`` on one
    time base (marker time + ``time_offset``: the trial's ``time_offset`` key, 0 by default, or
    estimated when ``sync="estimate"``); trials of a kind other than ``excitation`` use the
    documented smoother;
@@ -30,11 +30,12 @@ from mocap.io.errors import InputError
 
 from ident.thesis import tables as stats
 from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
-from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread, prepare_joint_signals,
+from ident.model.linkstate import prepare_joint_signals
+from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread,
                       read_angles)
 
 __all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
-           "campaign_tasks", "log_fits", "read_tx40_config", "fit_tx40", "Tx40Result"]
+           "campaign_tasks", "log_fits", "read_tx40_config", "load_tx40"]
 
 _PLOT_POINTS = 3000
 
@@ -329,36 +330,6 @@ def read_tx40_config(path: str | Path) -> dict:
     return out
 
 
-@dataclass(frozen=True, eq=False)
-class Tx40Result:
-    """Per-joint Coulomb + viscous fits on the TX40 logs (joint side, N m and N m s/rad),
-    with the published values from the config for comparison."""
-
-    fv: np.ndarray
-    fs: np.ndarray
-    offset: np.ndarray
-    stderr_fv: np.ndarray
-    stderr_fs: np.ndarray
-    rms: np.ndarray
-    fv_published: np.ndarray
-    fs_published: np.ndarray
-    n_samples: int
-    method: str
-    coupling: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()}
-
-    def table(self) -> str:
-        lines = ["joint  fv_fit   fv_pub  ratio |  fs_fit   fs_pub  ratio |  rms"]
-        for j in range(self.fv.size):
-            lines.append(f"{j + 1:5d} {self.fv[j]:7.3f} {self.fv_published[j]:7.3f} "
-                         f"{self.fv[j] / self.fv_published[j]:6.2f} | {self.fs[j]:7.3f} "
-                         f"{self.fs_published[j]:7.3f} {self.fs[j] / self.fs_published[j]:6.2f} | "
-                         f"{self.rms[j]:6.3f}")
-        return "\n".join(lines)
-
-
 def _read_numeric_csv(path: Path) -> np.ndarray:
     try:
         return np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
@@ -367,12 +338,15 @@ def _read_numeric_csv(path: Path) -> np.ndarray:
 
 
 def load_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02):
-    """The TX40 logs on the joint side: ``(t, q, qd, qdd, tau, robot, cfg)``, smoothed with
-    Savitzky-Golay (``window_s``), edges dropped, every ``decimate``-th sample (see
-    :func:`fit_tx40` for the conversion)."""
-    from mocap.robot import Robot
+    """The Staubli TX40 logs (figaroh-examples) on the joint side: ``(t, q, qd, qdd, tau, robot,
+    cfg)``, smoothed with Savitzky-Golay (``window_s``), edges dropped, every ``decimate``-th
+    sample.
 
-    from ident.signals.smoothing import SavGolSmoother
+    Data: ``pos_read_data.csv`` motor positions (rad), ``curr_data.csv`` motor torques, both at
+    ``ts`` (0.2 ms). Conversion as in figaroh's TX40 tools: ``q = N^-1 qm`` with the wrist
+    coupling ``N[5, 4] = r6``, joint offsets -pi/2 (joint 2) and +pi/2 (joint 3), joint torques
+    ``tau = N_tau tau_m`` with ``N_tau[4, 5] = r6``."""
+    from mocap.robot import Robot
 
     folder = Path(folder)
     cfg = read_tx40_config(folder / "TX40_config.yaml")
@@ -406,83 +380,3 @@ def load_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02):
     if robot.n != 6:
         raise InputError(f"the TX40 URDF has {robot.n} revolute joints, expected 6", path=urdf)
     return t[sl], qs[sl], qd[sl], qdd[sl], tau[sl], robot, cfg
-
-
-def fit_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02,
-             with_inertia: bool = True, coupled_wrist: bool = True) -> Tx40Result:
-    """Fit Coulomb + viscous friction per joint on the Staubli TX40 logs (figaroh-examples).
-
-    Data: ``pos_read_data.csv`` motor positions (rad), ``curr_data.csv`` motor torques, both at
-    ``ts`` (0.2 ms). Conversion as in figaroh's TX40 tools: ``q = N^-1 qm`` with the wrist
-    coupling ``N[5, 4] = r6``, joint offsets -pi/2 (joint 2) and +pi/2 (joint 3), joint torques
-    ``tau = N_tau tau_m`` with ``N_tau[4, 5] = r6``. Derivatives: the Savitzky-Golay smoother
-    of :mod:`ident.signals.smoothing` (``window_s``), then every ``decimate``-th sample.
-
-    Model (the thesis's rigid-joint one-link regression generalised to the arm): with
-    ``with_inertia`` the joint torques are regressed jointly on pinocchio's joint torque
-    regressor of the TX40 URDF (all inertial parameters, min-norm least squares for the
-    unidentifiable combinations) plus, per joint, ``[sign qd, qd, 1, qdd]`` (Coulomb ``fs``,
-    viscous ``fv``, offset, armature ``Ia``) — the standard figaroh/Indri & Trapani setting —
-    and, with ``coupled_wrist``, figaroh's wrist-coupling columns (``Iam6``, ``fvm6``,
-    ``fsm6`` on joints 5 and 6 with ``sign(qd5 + qd6)``).
-    Without it, residual = tau - rnea(URDF) - Ia qdd is fitted per joint with
-    ``[sign qd, qd, 1]`` (a simplification: URDF inertial values taken as exact).
-    """
-
-    t, qs, qd, qdd, tau, robot, cfg = load_tx40(folder, decimate, window_s)
-    model = robot.model
-    T = qs.shape[0]
-    Ia = np.asarray(cfg.get("Ia", [0.0] * 6), float)
-    fv, fs, off, se_fv, se_fs, rms = (np.zeros(6) for _ in range(6))
-    coupling = {}
-    if with_inertia:
-        from ident.model.regressor import ChainDynamics
-
-        W = ChainDynamics.from_model(model).regressor(qs, qd, qdd)   # all samples at once
-        nW = W.shape[2]
-        A = np.zeros((T, 6, nW + 24))
-        A[:, :, :nW] = W
-        for j in range(6):
-            A[:, j, nW + 4 * j:nW + 4 * j + 4] = np.column_stack(
-                [np.sign(qd[:, j]), qd[:, j], np.ones(T), qdd[:, j]])
-        if coupled_wrist:  # figaroh's TX40 wrist coupling: Iam6, fvm6, fsm6 (joints 5 and 6)
-            sg = np.sign(qd[:, 4] + qd[:, 5])
-            A = np.concatenate([A, np.zeros((T, 6, 3))], axis=2)
-            A[:, 4, -3:] = np.column_stack([qdd[:, 5], qd[:, 5], sg])
-            A[:, 5, -3:] = np.column_stack([qdd[:, 4], qd[:, 4], sg])
-        A2 = A.reshape(T * 6, -1)
-        y = tau.reshape(-1)
-        # scale rows per joint so each joint's torque counts equally
-        sj = np.std(tau, axis=0)
-        wrow = np.tile(1.0 / sj, T)
-        beta, *_ = np.linalg.lstsq(A2 * wrow[:, None], y * wrow, rcond=None)
-        res = (y - A2 @ beta).reshape(T, 6)
-        # standard errors of the friction columns: residual variance per joint, projected
-        U, S, Vt = np.linalg.svd(A2 * wrow[:, None], full_matrices=False)
-        keep = S > S[0] * 1e-10
-        cov_n = (Vt[keep].T / S[keep] ** 2) @ Vt[keep]
-        s2 = float(np.sum((res / sj) ** 2)) / max(T * 6 - keep.sum(), 1)
-        se = np.sqrt(np.maximum(np.diag(cov_n) * s2, 0.0))
-        for j in range(6):
-            b = nW + 4 * j
-            fs[j], fv[j], off[j] = beta[b], beta[b + 1], beta[b + 2]
-            se_fs[j], se_fv[j] = se[b], se[b + 1]
-            rms[j] = np.sqrt(np.mean(res[:, j] ** 2))
-        method = "joint LS: pinocchio torque regressor + per-joint [sign qd, qd, 1, qdd]"
-        if coupled_wrist:
-            method += " + wrist coupling [Iam6, fvm6, fsm6]"
-            coupling = {k: float(v) for k, v in zip(("Iam6", "fvm6", "fsm6"), beta[-3:])}
-    else:
-        tau_rb = robot.rnea(qs, qd, qdd)
-        for j in range(6):
-            yj = tau[:, j] - tau_rb[:, j] - Ia[j] * qdd[:, j]
-            X = np.column_stack([np.sign(qd[:, j]), qd[:, j], np.ones(T)])
-            b, *_ = np.linalg.lstsq(X, yj, rcond=None)
-            rr = yj - X @ b
-            cov = np.linalg.inv(X.T @ X) * float(rr @ rr) / max(T - 3, 1)
-            fs[j], fv[j], off[j] = b
-            se_fs[j], se_fv[j] = np.sqrt(np.diag(cov)[:2])
-            rms[j] = np.sqrt(np.mean(rr ** 2))
-        method = "per joint: tau - rnea(URDF) - Ia qdd ~ [sign qd, qd, 1]"
-    return Tx40Result(fv, fs, off, se_fv, se_fs, rms, np.asarray(cfg["fv"], float),
-                      np.asarray(cfg["fs"], float), int(T), method, coupling)

@@ -44,9 +44,14 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
-from ident.signals.smoothing import SavGolSmoother, SmoothFit
+from ident.friction import laws
+from ident.friction.base import CoulombViscous
+from ident.friction.constants import REST_FRAC
+from ident.model.onelink import onelink_regressor
+from ident.signals.smoothing import (FourierSmoother, JointSignals, SavGolSmoother, SmoothFit,
+                                     estimate_time_offset)
 
-__all__ = ["DeflectionFit", "LinkState", "LinkStateEstimator"]
+__all__ = ["DeflectionFit", "LinkState", "LinkStateEstimator", "prepare_joint_signals"]
 
 
 def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
@@ -191,14 +196,11 @@ class LinkStateEstimator:
         self.nominal_smoother = nominal_smoother
         self.windows_s = tuple(np.geomspace(0.004, 0.128, 11))
         self.encoder_windows_s = tuple(np.geomspace(0.032, 0.256, 7))
-        self.rest_frac = 0.01
+        self.rest_frac = REST_FRAC
 
     @staticmethod
     def _eq24_rss(q, qd, qdd, y, keep):
         """(RSS, coefficients) of the Coulomb + viscous regression of eq. 2-4 on ``keep``."""
-        from ident.friction.base import CoulombViscous
-        from ident.model.onelink import onelink_regressor
-
         X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])[keep]
         b, *_ = np.linalg.lstsq(X, y[keep], rcond=None)
         r = y[keep] - X @ b
@@ -262,7 +264,8 @@ class LinkStateEstimator:
 
         rss0, b0 = rss_of(qm, qmd, qmdd)
         eps = self.rest_frac * peak
-        sides = {"link": y, "motor": y - (b0[3] * np.tanh(qmd / eps) + b0[4] * qmd)}
+        f_motor = laws.coulomb_viscous(qmd, b0[3], b0[4], sign=lambda v: laws.smooth_sign(v, eps))
+        sides = {"link": y, "motor": y - f_motor}
         best = (rss0, None, None, 0)            # no deflection unless one explains eq. 2-4 better
         for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
@@ -438,3 +441,92 @@ class LinkStateEstimator:
                 time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side))
         return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal,
                          side)
+
+
+def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link=None,
+                          time_offset: float | str = 0.0, smoother=None,
+                          link_smoother=None, link_method: str = "markers",
+                          drive: tuple | None = None, link_estimator=None) -> JointSignals:
+    """Put one joint's link angle (marker clock) and motor angle/torque (robot clock) on the
+    robot log's samples, smoothing both with eq. 3-2 fits and analytic derivatives.
+
+    ``joint`` is 1-based (for naming only); ``qm``, ``tau`` are that joint's log columns.
+    ``q_link`` None: the motor angle stands in for the link angle (``link_source="motor"``).
+    ``time_offset``: seconds added to marker times, or ``"estimate"``.
+    ``link_method``: ``"encoder+deflection"`` (the thesis campaign's; :class:`LinkStateEstimator`:
+    the smoothed encoder angle plus the deflection the markers support; ``drive = (J, B, K)``
+    gives the motor inertia, viscous and declared stiffness (K NaN or None: no nominal
+    deflection) for the nominal deflection ``-(u - J qmdd - B qmd) / K``), or ``"markers"``
+    (default, the thesis's own way: the marker angle smoothed and differentiated by itself, below).
+    For ``"markers"`` the link fit reuses the motor fit's fundamental (same commanded trajectory) and chooses
+    its own number of harmonics. Samples outside the span of both signals are dropped.
+    """
+    smoother = smoother if smoother is not None else FourierSmoother()
+    log_time = np.asarray(log_time, float)
+    qm = np.asarray(qm, float)
+    tau = np.asarray(tau, float)
+    fm = smoother.fit(log_time, qm)
+    if q_link is None and link_method == "encoder+deflection" and drive is not None \
+            and drive[2] is not None and np.isfinite(drive[2]) and drive[2] > 0:
+        return _encoder_deflection_signals(joint, log_time, qm, tau, None, None, fm, 0.0, drive,
+                                           link_estimator)
+    if q_link is None:
+        fl, source, offset = fm, "motor", 0.0
+    else:
+        ta = np.asarray(angle_time, float)
+        offset = estimate_time_offset(ta, q_link, fm) if time_offset == "estimate" else float(time_offset)
+        ta = ta + offset
+        ql = np.asarray(q_link, float)
+        if link_method == "encoder+deflection" and link_smoother is None:
+            return _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, drive,
+                                               link_estimator)
+        if link_method not in ("markers", "encoder+deflection"):
+            raise ValueError(f"link_method must be 'encoder+deflection' or 'markers', got {link_method!r}")
+        if link_smoother is None and isinstance(smoother, FourierSmoother):
+            # same commanded trajectory: the motor fit's fundamental and moving span (the
+            # noisier link angle would blur the rest detection)
+            link_smoother = FourierSmoother(
+                wf=fm.wf if fm.method == "fourier" else None, max_harmonics=smoother.max_harmonics,
+                periodic=None if fm.method == "fourier" else False,
+                periodic_ratio=smoother.periodic_ratio, periodic_atol=smoother.periodic_atol,
+                fallback=smoother.fallback, trim_rest=False)
+            if fm.method == "fourier":
+                inside = (ta >= fm.t_start) & (ta <= fm.t_end)
+                ta, ql = ta[inside], ql[inside]
+        elif link_smoother is None:
+            link_smoother = smoother
+        fl = link_smoother.fit(ta, ql)
+        source = "mocap"
+    lo, hi = max(fm.t_start, fl.t_start), min(fm.t_end, fl.t_end)
+    keep = (log_time >= lo) & (log_time <= hi) & np.isfinite(tau) & np.isfinite(qm)
+    t = log_time[keep]
+    if t.size < 8:
+        raise InputError(f"joint {joint}: the link angles and the robot log overlap in only {t.size} samples")
+    q, qd, qdd = fl.evaluate(t)
+    qms, qmd, qmdd = fm.evaluate(t)
+    return JointSignals(joint, t, q, qd, qdd, qms, qmd, qmdd, tau[keep], fl, fm, source, offset)
+
+
+def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, drive, estimator):
+    """:func:`prepare_joint_signals` with the link state of :class:`LinkStateEstimator`."""
+    if ql is None:                     # no markers: encoder + nominal deflection
+        lo, hi = fm.t_start, fm.t_end
+    else:
+        fin = np.isfinite(ta) & np.isfinite(ql)
+        if fin.sum() < 8:
+            raise InputError(f"joint {joint}: only {int(fin.sum())} finite link-angle samples")
+        lo, hi = max(fm.t_start, float(ta[fin][0])), min(fm.t_end, float(ta[fin][-1]))
+    keep = (log_time >= lo) & (log_time <= hi) & np.isfinite(tau) & np.isfinite(qm)
+    t = log_time[keep]
+    if t.size < 8:
+        raise InputError(f"joint {joint}: the link angles and the robot log overlap in only {t.size} samples")
+    qms, qmd, qmdd = fm.evaluate(t)
+    y = K = None
+    if drive is not None:
+        J, B, K = (float(x) if x is not None else float("nan") for x in drive)
+        y = tau[keep] - J * qmdd - B * qmd
+        K = K if np.isfinite(K) and K > 0 else None
+    est = estimator if estimator is not None else LinkStateEstimator()
+    st = est.fit(t, fm, ta, ql, y if K is not None else None, K, qm_samples=qm[keep])
+    return JointSignals(joint, t, st.q, st.qd, st.qdd, qms, qmd, qmdd, tau[keep], st.as_smooth_fit(), fm,
+                        "mocap" if ql is not None else "motor", offset, st.to_dict())
