@@ -13,8 +13,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("ident", "mocap", "calib")
-# removed by the integrator's gap-diagnosis work (issue "gap diagnosis on real logs")
-KNOWN = {frozenset({"ident.gap.data", "ident.gap.diagnose"})}
 
 
 def _modules() -> dict:
@@ -129,12 +127,5 @@ def test_graph_sees_function_local_and_relative_imports(tmp_path):
     assert cycles(g) == [frozenset({"p.x", "p.y"})]
 
 
-def test_no_import_circle_except_the_known_gap_one():
-    found = set(cycles(import_graph()))
-    assert found - KNOWN == set(), sorted(sorted(c) for c in found - KNOWN)
-
-
-@pytest.mark.xfail(reason="ident.gap.data <-> ident.gap.diagnose: removed by the integrator's "
-                          "gap-diagnosis work", strict=False)
 def test_no_import_circle():
     assert cycles(import_graph()) == []
