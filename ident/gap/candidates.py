@@ -24,6 +24,8 @@ from typing import Callable
 
 import numpy as np
 
+from ident.friction import laws
+
 from ident.effects import REGISTRY
 
 V_EPS = 2e-3  # rad/s: width of the smoothed sign used for Coulomb-type terms
@@ -251,9 +253,10 @@ def _motor_torque(d) -> np.ndarray:
     """The torque the gear passes: rigid-body torque plus the joint's Coulomb + viscous friction
     (a three-parameter least-squares fit of the logged torque, smooth, so the torque noise does not
     enter the regressor)."""
-    X = np.column_stack([d.tau_urdf, _sg(d), d.qd])
+    sign = lambda _: _sg(d)  # noqa: E731  (the smoothed Coulomb direction)
+    X = np.column_stack([d.tau_urdf, laws.coulomb_viscous_columns(d.qd, sign=sign)])
     th = np.linalg.lstsq(X, d.y, rcond=None)[0]
-    return d.tau_urdf + X[:, 1:] @ th[1:]
+    return d.tau_urdf + laws.coulomb_viscous(d.qd, th[1], th[2], sign=sign)
 
 
 def _scale(d, hp):

@@ -20,25 +20,18 @@ from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from mocap.io.payload import payload_com
 
 from ident.gap.channels import _transmission_channel, motion_cycles, nominal_heldout_rms
+from ident.signals.smoothing import differentiate
 
 
 def savgol_derivatives(t: np.ndarray, x: np.ndarray, window_s: float = 0.1, polyorder: int = 3):
-    """(x_smooth, xd, xdd) by Savitzky-Golay on a uniformly sampled signal."""
+    """(x_smooth, xd, xdd) of a uniformly sampled signal by the one differentiator
+    (:func:`ident.signals.smoothing.differentiate`) at the median sample step."""
     dt = float(np.median(np.diff(t)))
-    w = int(round(window_s / dt)) | 1
-    w = max(w, polyorder + 2 | 1)
-    if w > x.shape[0]:
-        w = (x.shape[0] - 1) | 1 if x.shape[0] % 2 == 0 else x.shape[0]
-        w = max(w, polyorder + 1 + ((polyorder + 1) % 2 == 0))
-    xs = savgol_filter(x, w, polyorder, deriv=0, mode="interp")
-    xd = savgol_filter(x, w, polyorder, deriv=1, delta=dt, mode="interp")
-    xdd = savgol_filter(x, w, polyorder, deriv=2, delta=dt, mode="interp")
-    return xs, xd, xdd
+    return tuple(differentiate(x, dt, window_s, k, polyorder) for k in (0, 1, 2))
 
 
 def standstill(t: np.ndarray, qd: np.ndarray, v_still: float = 2e-3, min_duration: float = 0.05) -> np.ndarray:

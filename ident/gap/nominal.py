@@ -39,6 +39,8 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
+from ident.friction import laws
+
 RIGID_FREE = ("URDF rigid-body corrections (armature, gravity scale; torque offset on multi-joint "
               "records)", "feedback gain on the encoder's high-frequency part")
 
@@ -231,10 +233,11 @@ def _builtin(label, doc, fn, amps) -> NominalModel:
 
 NOMINAL_MODELS = {
     "cv": _builtin("coulomb_viscous", "Coulomb + viscous (thesis eq. 2-5)",
-                   lambda d: np.column_stack([d.sgn, d.qd]), ("c", "v")),
+                   lambda d: laws.coulomb_viscous_columns(d.qd, sign=lambda _: d.sgn), ("c", "v")),
     "cv_asym": _builtin("coulomb_viscous_asymmetric",
                         "Coulomb + viscous with a direction-dependent Coulomb level",
-                        lambda d: np.column_stack([d.sgn, d.qd, d.qd > 0]), ("c", "v", "c_pos")),
+                        lambda d: np.column_stack([laws.coulomb_viscous_columns(d.qd, sign=lambda _: d.sgn),
+                                                   d.qd > 0]), ("c", "v", "c_pos")),
 }
 NOMINAL_MODELS["cv"].summary["spec"] = "cv"
 NOMINAL_MODELS["cv_asym"].summary["spec"] = "cv_asym"
