@@ -472,7 +472,8 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         shutil.rmtree(tmp_dir, ignore_errors=True)
         paths["manifest"] = manifest_path
-        verdicts = {j: r.get("verdict", "none") for j, r in (diag[0]["joints"].items() if diag else [])}
+        verdicts = {j: r.get("verdict_text", r.get("verdict", "none"))
+                    for j, r in (diag[0]["joints"].items() if diag else [])}
         calib = None
         if calib_res is not None:
             calib = {"origin_std_mm": float(calib_res.origin_std_mm),
@@ -1125,7 +1126,7 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
             best = max(eff, key=lambda e: e["reduction"]) if eff else None
             loc = rep.get("localisation") or []
             top = max(loc, key=lambda r: r["share"]) if loc else None
-            L.append(f"| {j} | **{rep.get('verdict')}** | {_f(rep.get('heldout_rms_nominal'))} | "
+            L.append(f"| {j} | **{rep.get('verdict_text', rep.get('verdict'))}** | {_f(rep.get('heldout_rms_nominal'))} | "
                      f"{best['effect'] if best else '-'} | {_f(best['reduction']) if best else '-'} | "
                      f"{(top['regime'] + ' ' + _f(top['share'], 2)) if top else '-'} |")
         L.append("")
