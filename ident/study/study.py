@@ -119,12 +119,13 @@ class StudyResult:
     verdicts: dict        # joint (str) -> verdict
     calib: dict | None = None
     errors: dict = field(default_factory=dict)   # "<stage>/<item>" -> message
+    verdict_lines: dict = field(default_factory=dict)   # joint (str) -> the diagnosis's verdict line
 
     def to_dict(self) -> dict:
         return {"format": 1, "out": str(self.out), "campaign": self.campaign,
                 "n_trials": self.n_trials, "stages": self.stages,
                 "paths": {k: str(v) for k, v in self.paths.items()}, "verdicts": self.verdicts,
-                "calib": self.calib, "errors": self.errors}
+                "verdict_lines": self.verdict_lines, "calib": self.calib, "errors": self.errors}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -472,13 +473,15 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         shutil.rmtree(tmp_dir, ignore_errors=True)
         paths["manifest"] = manifest_path
-        verdicts = {j: r.get("verdict_text", r.get("verdict", "none"))
-                    for j, r in (diag[0]["joints"].items() if diag else [])}
+        joints = diag[0]["joints"].items() if diag else []
+        verdicts = {j: r.get("verdict", "none") for j, r in joints}
+        lines = {j: r.get("verdict_text", r.get("verdict", "none")) for j, r in joints}
         calib = None
         if calib_res is not None:
             calib = {"origin_std_mm": float(calib_res.origin_std_mm),
                      "rotation_std_deg": float(calib_res.rotation_std_deg)}
-        return StudyResult(out, camp.name, len(camp.trials), stages, paths, verdicts, calib, errors)
+        return StudyResult(out, camp.name, len(camp.trials), stages, paths, verdicts, calib, errors,
+                           verdict_lines=lines)
 
     # stage 1: calibration ----------------------------------------------------------------------
     def _calib(self, ctx):

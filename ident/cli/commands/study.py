@@ -87,7 +87,7 @@ def run_from_args(args, campaign_path: Path) -> int:
     for k, v in res.errors.items():
         print(f"failed: {k}: {v}")
     for j, v in res.verdicts.items():
-        print(f"joint {j}: {v}")
+        print(f"joint {j}: {res.verdict_lines.get(j, v)}")
     print(f"wrote {res.paths.get('report')}" + (f" and {res.paths['rrd']}" if "rrd" in res.paths else ""))
     if res.errors:
         print(f"jointlab: {len(res.errors)} item(s) failed (see above and the report)", file=sys.stderr)
