@@ -121,7 +121,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     import time
 
     from ident.model.regressor import ChainDynamics, base_parameters
-    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier
+    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier, without_unlogged
 
     robot = campaign.load_robot()
     chain = ChainDynamics.from_model(robot.model)
@@ -129,8 +129,15 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     fits, pre, secs = {}, {}, {}
     for tr in multijoint_trials(campaign):
         t0 = time.perf_counter()
-        rec = load_record(campaign, tr, robot, record)
-        pre[tr.id] = rec.preprocessing
+        rec = without_unlogged(load_record(campaign, tr, robot, record))
+        pre[tr.id] = dict(rec.preprocessing)
+        if rec.unlogged:
+            names = ", ".join(f"{j} ({robot.joint_names[j - 1]})" for j in rec.unlogged)
+            pre[tr.id]["unlogged_torque"] = list(rec.unlogged)
+            pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [
+                f"torque not logged on joints {names} (unlogged_torque): their angles drive the "
+                "kinematics and the other joints' rigid-body torques; no friction, offset or "
+                "armature is identified for them"]
         fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **settings).fit(rec)
                        for m in models}
         _PREPARED.clear()                  # the shared design of this record is not needed again

@@ -98,6 +98,19 @@ def _drop_absorbed(A, names, nb, tol: float = 1e-6):
     return A2.reshape(T, n, p)[:, :, keep], tuple(names[k] for k in keep), tuple(dropped)
 
 
+def without_unlogged(rec):
+    """``rec`` with the torque of its unlogged joints (``rec.unlogged``, and any joint without a
+    single finite torque sample) set to 0 and those joints named in ``unlogged``: the identifier
+    leaves their rows out (a record whose torques are all finite is returned as it is)."""
+    import dataclasses
+
+    if np.isfinite(rec.tau).all():
+        return rec
+    bad = {j + 1 for j in range(rec.n) if not np.isfinite(rec.tau[:, j]).any()}
+    return dataclasses.replace(rec, tau=np.nan_to_num(rec.tau, nan=0.0, posinf=0.0, neginf=0.0),
+                               unlogged=tuple(sorted(set(getattr(rec, "unlogged", ())) | bad)))
+
+
 class RigidBodyIdentifier:
     """Settings in the constructor, learning in :meth:`fit` (see the module docstring).
 
@@ -168,14 +181,20 @@ class RigidBodyIdentifier:
     def _mask(self, rec):
         sp = np.percentile(np.abs(rec.qd), 99, axis=0)
         v0 = self.v_zero_frac * sp
-        moving = np.array([j + 1 in rec.moving for j in range(rec.n)])
+        unlogged = getattr(rec, "unlogged", ())
+        moving = np.array([j + 1 in rec.moving and j + 1 not in unlogged for j in range(rec.n)])
         M = (np.abs(rec.qd) >= v0[None, :]) & moving[None, :]
         return M, v0
 
     # ---- fit -------------------------------------------------------------------------------
     def fit(self, rec) -> RigidBodyFit:
+        """Fit ``rec`` (a :class:`ident.model.record.MultiJointRecord`). Joints in
+        ``rec.unlogged`` (their torque was not logged, FORMAT.md ``unlogged_torque``) keep their
+        angles in the regressor of the other joints; their own rows are left out and nothing
+        is identified for them."""
         from ident.signals.blas import one_blas_thread
 
+        rec = without_unlogged(rec)
         with one_blas_thread():
             return self._fit(rec)
 
