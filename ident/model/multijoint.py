@@ -17,6 +17,17 @@ def _g(x) -> str:
     return "merged" if x is None else f"{x:.4g}"
 
 
+def _pv(v, flag: dict | None) -> str:
+    """A parameter with its plausibility flag (:func:`ident.friction.plausibility.fmt`)."""
+    from ident.friction.plausibility import Flag, fmt
+
+    return fmt(v, None if not flag else Flag(flag["flag"], flag["reason"]))
+
+
+def _arm(v, flag: dict | None) -> str:
+    return "merged" if v is None else _pv(v, flag)
+
+
 def multijoint_trials(campaign) -> tuple:
     """Trials that move several joints at once."""
     return tuple(t for t in campaign.trials if len(t.joints) > 1)
@@ -41,6 +52,7 @@ class MultiJointFits:
                         "params": e["params"], "stderr": e.get("stderr", {}), "rms": e["rms"],
                         "heldout_rms": e["heldout_rms"], "offset": e["offset"],
                         "armature": e["armature"], "model": m, "method": "multi-joint rigid-body",
+                        "flags": e.get("flags", {}),
                         **({"implausible": e["implausible"]} if e.get("implausible") else {})}
         return out
 
@@ -54,6 +66,8 @@ class MultiJointFits:
                     if e.get("implausible"):
                         continue
                     for k, v in e["params"].items():
+                        if k in e.get("flags", {}):      # impossible / not identifiable
+                            continue
                         vals.setdefault((int(j), m, k), []).append(float(v))
         rows = []
         for (j, m, k), v in sorted(vals.items()):
@@ -80,6 +94,8 @@ class MultiJointFits:
         return doc
 
     def report(self) -> str:
+        from ident.friction.plausibility import meaning_line
+
         lines = ["# Multi-joint identification", ""]
         for tid, by_model in self.fits.items():
             pre = self.preprocessing[tid]
@@ -89,14 +105,22 @@ class MultiJointFits:
             for m, fit in by_model.items():
                 lines += ["", f"### {m}", "", f"Method: {fit.method}.", ""]
                 pn = None
+                flagged = []
                 for j, e in fit.joints.items():
                     if pn is None:
                         pn = list(e["params"])
                         lines += ["| joint | " + " | ".join(pn) + " | offset | armature | rms | held-out rms |",
                                   "|---" * (len(pn) + 5) + "|"]
-                    lines.append(f"| {j} | " + " | ".join(f"{e['params'][k]:.4g}" for k in pn)
-                                 + f" | {e['offset']:.4g} | {_g(e['armature'])} | {e['rms']:.4g} | "
-                                 f"{e['heldout_rms']:.4g} |")
+                    fl = e.get("flags", {})
+                    lines.append(f"| {j} | " + " | ".join(_pv(e["params"][k], fl.get(k)) for k in pn)
+                                 + f" | {e['offset']:.4g} | {_arm(e['armature'], fl.get('armature'))}"
+                                 f" | {e['rms']:.4g} | {e['heldout_rms']:.4g} |")
+                    flagged += [f"joint {j} {k}: {f['flag']} ({f['reason']})" for k, f in fl.items()]
+                lines += ["", f"Parameters: {meaning_line(m)}."] if meaning_line(m) else []
+                if flagged:
+                    lines += ["", "Flagged (not a physical estimate; left out of the summary):", ""]
+                    lines += [f"- {x}" for x in flagged]
+                lines.append("")
                 if fit.motors:
                     lines += ["", "Coupled motors (log coordinates, link side): " + "; ".join(
                         f"motor {k}: " + ", ".join(f"{kk} {vv:.4g}" for kk, vv in v.items())
@@ -213,16 +237,29 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
     for g in continuous_records(campaign, trials, logs):
         tr = trials[g[0]]
         rid = tr.id if len(g) == 1 else "+".join(trials[i].id for i in g)
+        unl = tuple(sorted({j for i in g for j in trials[i].unlogged_torque}))
         recs.append((g, prepare_record(_join_logs([logs[i] for i in g]),
-                                       SimpleNamespace(id=rid, joints=tuple(tr.joints)), robot.n, C,
+                                       SimpleNamespace(id=rid, joints=tuple(tr.joints),
+                                                       unlogged_torque=unl), robot.n, C,
                                        record)))
     offsets = campaign_clock([SimpleNamespace(time=rec.t) for _, rec in recs])
     reports, series = {}, {}
     moving = sorted({j for g, rec in recs for j in rec.moving})
+    unlogged = sorted({j for g, rec in recs for j in rec.unlogged
+                       if not joints or j in joints})
+    if unlogged:
+        from mocap.io.errors import warn_input
+
+        warn_input(f"joints {unlogged} ({', '.join(robot.joint_names[j - 1] for j in unlogged)}): "
+                   "torque not logged (unlogged_torque); their angles drive the kinematics, they "
+                   "are not diagnosed", path=campaign.manifest)
     for j in moving:
         if joints and j not in joints:
             continue
-        mine = [(k, g, rec) for k, (g, rec) in enumerate(recs) if j in rec.moving]
+        mine = [(k, g, rec) for k, (g, rec) in enumerate(recs)
+                if j in rec.moving and j not in rec.unlogged]
+        if not mine:
+            continue
         parts = [build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
                  for _, _, rec in mine]
         d = concat_joint_data(parts, [offsets[k] for k, _, _ in mine])

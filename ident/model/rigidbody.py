@@ -417,6 +417,17 @@ class RigidBodyIdentifier:
                     e["settings"] = f.model.to_dict()["settings"]
             mdl = (CoulombViscous(**e["params"]) if self.model in LINEAR_MODELS
                    else sol["ff"][j].model)
+            from ident.friction.plausibility import assess, assess_armature, to_json
+
+            flags = assess(self.model, e["params"], qd=rec.qd[M[:, j], j],
+                           stderr=e.get("stderr"), model=mdl)
+            se_arm = None
+            if cov is not None and f"Ia_{j + 1}" in idx:
+                se_arm = float(np.sqrt(max(cov[idx[f"Ia_{j + 1}"], idx[f"Ia_{j + 1}"]], 0.0)))
+            fa = assess_armature(e["armature"], se_arm)
+            e["flags"] = to_json(flags)
+            if fa is not None:
+                e["flags"]["armature"] = fa.to_dict()
             implaus = _implausible(mdl, rec.qd[M[:, j], j])
             if implaus:
                 e["implausible"] = implaus

@@ -201,10 +201,16 @@ def _run_multijoint(args, camp, models) -> int:
         print(f"  {tid}: {res.seconds[tid]:.1f} s; " + "; ".join(pre.get("steps", [])))
         for w in pre.get("warnings", []):
             print(f"  warning: {w}")
+        from ident.friction.plausibility import meaning_line
+        from ident.model.multijoint import _arm, _pv
+
         for m, fit in by_model.items():
+            if meaning_line(m):
+                print(f"    ({meaning_line(m)})")
             for j, e in fit.joints.items():
-                pv = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
-                arm = "merged" if e["armature"] is None else f"{e['armature']:.4g}"
+                fl = e.get("flags", {})
+                pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
+                arm = _arm(e["armature"], fl.get("armature"))
                 print(f"    joint {j} {m}: {pv}; offset {e['offset']:.4g}, armature "
                       f"{arm}; rms {e['rms']:.4g}, held-out {e['heldout_rms']:.4g} N m"
                       + (f" [{e['implausible']}]" if e.get("implausible") else ""))
