@@ -34,7 +34,8 @@ _2_PI = 2.0 / np.pi
 MEANING = {
     "cv": {"c": "Coulomb level (N m)", "v": "viscous coefficient (N m s/rad)"},
     "stribeck": {"Fk": "static (breakaway) level as qd -> 0 (N m)", "Fv": "viscous (N m s/rad)",
-                 "Fs": "drop from the static level to the Coulomb level at speed, Fk - Fs (N m)",
+                 "Fs": "drop from the static level to the Coulomb level at speed (that level "
+                       "is Fk - Fs; N m)",
                  "Vc": "Stribeck speed (rad/s)"},
     "hyperbolic": {"g1": "Stribeck hump height (N m)", "g2": "hump rise rate (s/rad)",
                    "g3": "hump decay rate (s/rad)", "g4": "smooth Coulomb level (N m)",
@@ -46,6 +47,12 @@ MEANING = {
     "dm2": {"sigma0": "bristle stiffness (N m/rad)", "alpha": "damping, constant part",
             "beta": "damping, acceleration part", "gamma": "damping, acceleration scale"},
 }
+
+
+#: parameters the thesis's degenerate forms of a one-link fit leave undetermined
+#: (:func:`ident.model.onelink.name_degenerate`; the same list as the thesis tables use)
+_FORM_UNDETERMINED = {"hyperbolic_stribeck_nonunique": ("g1", "g2", "g3"),
+                      "stribeck_as_cv": ("Vc",), "stribeck_Vc_at_bound": ("Vc",)}
 
 
 @dataclass(frozen=True)
@@ -183,12 +190,15 @@ def _energy(model, lo, hi, out, names):
 
 
 def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None,
-           fit_scale: float | None = None, model=None) -> dict:
+           fit_scale: float | None = None, model=None, form: str | None = None) -> dict:
     """``{param: Flag}`` for the fitted ``params`` of law ``model_name`` (see the module
     docstring). ``qd``: the speeds the fit used; ``stderr``: standard errors (None or
     non-finite: not known); ``fit_scale``: the torque scale (N m) term sizes are compared with
     (default: the friction's largest absolute torque on ``qd``); ``model``: the fitted
-    :class:`ident.friction.base.FrictionModel` (for the energy check of static laws)."""
+    :class:`ident.friction.base.FrictionModel` (for the energy check of static laws);
+    ``form``: the thesis's degenerate form of a one-link fit
+    (:func:`ident.model.onelink.name_degenerate`): in ``stribeck_coulomb_in_Fs`` ``Fk = 0`` is a
+    convention and ``-Fs`` the Coulomb level, so only ``Fk`` and ``Vc`` are undetermined."""
     p = {k: float(v) for k, v in params.items() if v is not None}
     out: dict = {}
     for k, v in p.items():
@@ -209,6 +219,14 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
             _put(out, "c", "impossible", f"Coulomb level c = {p['c']:.3g} N m < 0")
         if p.get("v", 0.0) < 0:
             _put(out, "v", "impossible", f"viscous coefficient v = {p['v']:.3g} < 0")
+    elif m == "stribeck" and form == "stribeck_coulomb_in_Fs":
+        _put(out, ["Fk", "Vc"], "unidentifiable",
+             "Vc below the sampled speeds: the Stribeck term is a second Coulomb term, Fk = 0 by "
+             "convention and -Fs carries the Coulomb level")
+        if -p["Fs"] < 0:
+            _put(out, "Fs", "impossible", f"Coulomb level -Fs = {-p['Fs']:.3g} N m < 0")
+        if p["Fv"] < 0:
+            _put(out, "Fv", "impossible", f"viscous Fv = {p['Fv']:.3g} < 0")
     elif m == "stribeck" and {"Fk", "Fv", "Fs", "Vc"} <= set(p):
         _stribeck(p, lo, hi, fit_scale, out)
     elif m == "hyperbolic" and {"g1", "g2", "g3", "g4", "g5", "g6"} <= set(p):
@@ -220,6 +238,9 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
             _put(out, "sigma0", "impossible", f"bristle stiffness sigma0 = {p['sigma0']:.3g} <= 0")
         if m == "dm1" and p.get("sigma1", 0.0) < 0:
             _put(out, "sigma1", "impossible", f"bristle damping sigma1 = {p['sigma1']:.3g} < 0")
+    for k in _FORM_UNDETERMINED.get(form, ()):
+        if k in p:
+            _put(out, k, "unidentifiable", f"degenerate form {form}: the fit does not determine it")
     names = {"cv": ("v", "c"), "stribeck": ("Fv", "Fk"), "hyperbolic": ("g6", "g4"),
              "arctan": ("tau_v", "tau_s")}.get(m)
     if names:

@@ -146,6 +146,22 @@ def run(args) -> int:
             print(f"  {e.task.trial} joint {e.task.joint}: link {lf['method']} ({e.signals['link_fit_rms_deg']:.3f} deg "
                   f"vs markers), motor {e.signals['motor_fit']['method']} "
                   f"{e.signals['motor_fit']['bandwidth_hz']:.3g} Hz; {line}")
+            for m, fl in getattr(e, "param_flags", {}).items():
+                groups: dict = {}
+                for k, f in fl.items():       # one line per reason
+                    val = ("not identifiable" if f["flag"] == "unidentifiable"
+                           else f"{e.fits[m].params[k]:.4g} [{f['flag']}]")
+                    groups.setdefault((f["flag"], f["reason"]), []).append((k, val))
+                for (kind, why), kv in groups.items():
+                    if kind == "unidentifiable":
+                        print(f"    {m} {', '.join(k for k, _ in kv)}: not identifiable ({why})")
+                    else:
+                        print(f"    {m} " + ", ".join(f"{k} {v}" for k, v in kv) + f" ({why})")
+        from ident.friction.plausibility import meaning_line
+
+        for m in one_models:
+            if meaning_line(m):
+                print(f"({meaning_line(m)})")
     if dyn is not None:
         print(f"Indri & Trapani ({', '.join(dyn_models)}) for joints {', '.join(map(str, dyn))} "
               f"-> {paths['fits']}, {out / 'indri'}")
