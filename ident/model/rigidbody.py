@@ -333,7 +333,7 @@ class RigidBodyIdentifier:
         names = self._names
         own = [[k for k, nm in enumerate(names) if nm in (f"offset_{j + 1}", f"Ia_{j + 1}")]
                for j in range(n)]
-        notes = []
+        notes, failed = [], {}
         dynamic = getattr(self.model_cls, "dynamic", False)
         solve = self._wls_factor(A2, w)        # same rows and weights in every alternation
         scale = np.sqrt(np.sum(np.where(rows, rec.tau, 0.0) ** 2, axis=0) / np.maximum(rows.sum(0), 1))
@@ -360,7 +360,7 @@ class RigidBodyIdentifier:
                                      seed=self.seed, x0=ff[j].model.params if ff[j] is not None else None,
                                      **({"qdd": kw["qdd"][rj], "dt": kw["dt"]} if kw else {}))
                 except (ValueError, RuntimeError) as exc:
-                    notes.append(f"joint {j + 1}: {self.model} fit failed ({exc})")
+                    failed.setdefault(j + 1, str(exc))      # once per joint, not per alternation
                     continue
                 ff[j] = f
                 fric[:, j] = f.model.torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)
@@ -370,6 +370,9 @@ class RigidBodyIdentifier:
                 break
         # final linear pass with the friction fixed
         b = solve((rec.tau - fric).reshape(-1))
+        failed = {j: why for j, why in failed.items() if ff[j - 1] is None}
+        if failed:
+            notes.append(_failure_note(self.model, failed))
         return {"b": b, "bf": None, "ff": ff, "notes": notes}
 
     # ---- result ----------------------------------------------------------------------------
@@ -452,6 +455,30 @@ class RigidBodyIdentifier:
         return RigidBodyFit(self.model, joints, beta, tuple(f"beta_{k}" for k in range(beta.size)),
                             off, arm, motors, sol["rms"], held, sigma, v0, int(rec.t.size), method,
                             tuple(notes))
+
+
+def _failure_note(model: str, failed: dict) -> str:
+    """One note for the joints whose ``model`` friction could not be fitted on the record, with
+    the reason (the first joint's, its per-joint numbers dropped) and a remedy the command line
+    reaches: Indri & Trapani's dynamic models need their static part from constant-velocity
+    moves (data set 1) and the bristle dynamics from velocity reversals (data set 2), which a
+    single excitation record does not hold."""
+    import re
+
+    joints = sorted(failed)
+    why = re.sub(r"\s*\(min [^)]*\)", "", failed[joints[0]])
+    why = why.split("; identify the static part first")[0]
+    why = re.sub(r"\s*and pass settings=\{.*$", "", why)
+    out = f"{model} not identified on joint(s) {', '.join(map(str, joints))}: {why}"
+    if model in ("dm1", "dm2"):
+        out += (". Missing data set: constant-velocity moves (Indri & Trapani data set 1, for the "
+                "static arctan part) and velocity reversals (data set 2"
+                + (", at two or more accelerations" if model == "dm2" else "")
+                + ") of each joint. Remedy: record them as single-joint trials "
+                "(kind = \"constant_velocity\", kind = \"reversals\") in a campaign of their own "
+                "and run `jointlab fit CAMPAIGN --models arctan,dm1,dm2` on it; on this record "
+                "`jointlab fit CAMPAIGN --models cv,stribeck,hyperbolic,arctan` fits the static laws")
+    return out
 
 
 def _implausible(model, qd) -> str | None:
