@@ -145,12 +145,14 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     import time
 
     from ident.model.regressor import ChainDynamics, base_parameters
-    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier, without_unlogged
+    from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, dynamic_data_note,
+                                       without_unlogged)
 
     robot = campaign.load_robot()
     chain = ChainDynamics.from_model(robot.model)
     base = base_parameters(chain, robot.lower, robot.upper, seed=seed)
     fits, pre, secs = {}, {}, {}
+    dyn_note = dynamic_data_note(models, {t.kind for t in campaign.trials})
     for tr in multijoint_trials(campaign):
         t0 = time.perf_counter()
         rec = without_unlogged(load_record(campaign, tr, robot, record))
@@ -162,6 +164,8 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
                 f"torque not logged on joints {names} (unlogged_torque): their angles drive the "
                 "kinematics and the other joints' rigid-body torques; no friction, offset or "
                 "armature is identified for them"]
+        if dyn_note:
+            pre[tr.id]["warnings"] = list(pre[tr.id].get("warnings", [])) + [dyn_note]
         fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **settings).fit(rec)
                        for m in models}
         _PREPARED.clear()                  # the shared design of this record is not needed again

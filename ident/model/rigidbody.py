@@ -459,10 +459,8 @@ class RigidBodyIdentifier:
 
 def _failure_note(model: str, failed: dict) -> str:
     """One note for the joints whose ``model`` friction could not be fitted on the record, with
-    the reason (the first joint's, its per-joint numbers dropped) and a remedy the command line
-    reaches: Indri & Trapani's dynamic models need their static part from constant-velocity
-    moves (data set 1) and the bristle dynamics from velocity reversals (data set 2), which a
-    single excitation record does not hold."""
+    the reason (the first joint's, its per-joint numbers dropped); the missing data set and its
+    remedy are named once per record (:func:`dynamic_data_note`)."""
     import re
 
     joints = sorted(failed)
@@ -471,14 +469,33 @@ def _failure_note(model: str, failed: dict) -> str:
     why = re.sub(r"\s*and pass settings=\{.*$", "", why)
     out = f"{model} not identified on joint(s) {', '.join(map(str, joints))}: {why}"
     if model in ("dm1", "dm2"):
-        out += (". Missing data set: constant-velocity moves (Indri & Trapani data set 1, for the "
-                "static arctan part) and velocity reversals (data set 2"
-                + (", at two or more accelerations" if model == "dm2" else "")
-                + ") of each joint. Remedy: record them as single-joint trials "
-                "(kind = \"constant_velocity\", kind = \"reversals\") in a campaign of their own "
-                "and run `jointlab fit CAMPAIGN --models arctan,dm1,dm2` on it; on this record "
-                "`jointlab fit CAMPAIGN --models cv,stribeck,hyperbolic,arctan` fits the static laws")
+        out += " (see the missing data set named in the preprocessing)"
     return out
+
+
+def dynamic_data_note(models, kinds) -> str | None:
+    """One sentence naming the data sets Indri & Trapani's dynamic models (dm1, dm2) need and
+    the campaign lacks (``kinds``: the trial kinds it has), with a remedy the command line
+    reaches; None when no dynamic model is asked or nothing is missing."""
+    dyn = [m for m in models if m in ("dm1", "dm2")]
+    if not dyn:
+        return None
+    miss = [(k, what) for k, what in (("constant_velocity", "constant-velocity moves (Indri & "
+                                       "Trapani data set 1: the static arctan part)"),
+                                      ("reversals", "velocity reversals (data set 2: the bristle "
+                                       "dynamics" + (", at two or more accelerations for dm2"
+                                                     if "dm2" in dyn else "") + ")"))
+            if k not in kinds]
+    if not miss:
+        return None
+    return (f"{', '.join(dyn)} on this record alone: the campaign has no "
+            + " and no ".join(w for _, w in miss)
+            + ", so the static part is fitted to the same record and may not be positive. "
+            "Remedy: record single-joint trials with kind = "
+            + " / ".join(f'"{k}"' for k, _ in miss)
+            + " in a campaign of their own and run `jointlab fit CAMPAIGN --models "
+            "arctan,dm1,dm2` on it; on this record `jointlab fit CAMPAIGN --models "
+            "cv,stribeck,hyperbolic,arctan` fits the static laws")
 
 
 def _implausible(model, qd) -> str | None:

@@ -28,9 +28,11 @@ __all__ = ["mean_cv", "group_records", "summarize", "excluded_fits", "rms_summar
 
 G = 9.81
 PARAM_NAMES = {"cv": ("c", "v"), "stribeck": ("Fk", "Fv", "Fs", "Vc"),
-               "hyperbolic": ("g1", "g2", "g3", "g4", "g5", "g6")}
+               "hyperbolic": ("g1", "g2", "g3", "g4", "g5", "g6"),
+               "arctan": ("tau_s", "tau_sc", "tau_v", "tau_nlv", "delta")}
 MODEL_TITLES = {"cv": "Coulomb + viscous model", "stribeck": "Four-parameter Stribeck model",
-                "hyperbolic": "Six-parameter hyperbolic model"}
+                "hyperbolic": "Six-parameter hyperbolic model",
+                "arctan": "Arctangent model (Indri & Trapani eq. 1-2)"}
 _PRINT_NAMES = {"Fk": "F_k", "Fv": "F_v", "Fs": "F_s", "Vc": "V_c", "g1": "γ_1", "g2": "γ_2",
                 "g3": "γ_3", "g4": "γ_4", "g5": "γ_5", "g6": "γ_6"}
 
@@ -303,11 +305,13 @@ def write_tables(records, out_dir: str | Path, models=("cv", "stribeck", "hyperb
             written += write_table(out_dir / f"params_{'_'.join(first)}_joint{j}", title, h, rows,
                                    _footnotes(records, j, first))
             md.append(written[-1].read_text(encoding="utf-8"))
-        if "hyperbolic" in present:
-            h, rows = param_table(records, j, ("hyperbolic",))
-            title = f"Friction parameter identification results of hyperbolic model for joint {j}."
-            written += write_table(out_dir / f"params_hyperbolic_joint{j}", title, h, rows,
-                                   _footnotes(records, j, ("hyperbolic",)))
+        for m in ("hyperbolic", "arctan"):
+            if m not in present:
+                continue
+            h, rows = param_table(records, j, (m,))
+            title = f"Friction parameter identification results of {m} model for joint {j}."
+            written += write_table(out_dir / f"params_{m}_joint{j}", title, h, rows,
+                                   _footnotes(records, j, (m,)))
             md.append(written[-1].read_text(encoding="utf-8"))
         h, rows = rms_table(records, j, tuple(present))
         count = {1: "one", 2: "two", 3: "three"}.get(len(present), str(len(present)))

@@ -91,6 +91,26 @@ def run(args) -> int:
             return _run_multijoint(args, camp_multi, models)
         raise InputError(f"the campaign mixes multi-joint trials ({multi[0].id!r}, ...) with "
                          "single-joint ones; fit them from two manifests", path=camp.manifest)
+    route_note = None
+    if "arctan" in dyn_models and not any(t.kind == "constant_velocity" and len(t.joints) == 1
+                                          for t in camp.trials):
+        # Indri & Trapani fit arctan to constant-velocity moves (data set 1); without them the
+        # static arctan law is fitted per trial like the thesis's static laws (eq. 2-4)
+        dyn_models = tuple(m for m in dyn_models if m != "arctan")
+        one_models = one_models + ("arctan",)
+        route_note = ("arctan: no constant_velocity trials (Indri & Trapani data set 1): fitted "
+                      "per trial through the one-link model (eq. 2-4) with the static laws")
+    dyn_skip_note = None
+    if dyn_models:
+        from ident.indri.campaign import feasible_models, missing_data_sets
+
+        kinds = {t.kind for t in camp.trials if len(t.joints) == 1}
+        if not feasible_models(dyn_models, kinds):
+            dyn_skip_note = (f"{', '.join(dyn_models)} not identified "
+                             f"({missing_data_sets(dyn_models, kinds)})")
+            if not one_models:
+                raise InputError(dyn_skip_note, path=camp.manifest)
+            dyn_models = ()
     inputs = [camp.root] + ([args.angles] if args.angles else [])
     if args.angles is not None and not args.angles.is_dir():
         raise InputError("--angles must be a folder", path=args.angles)
@@ -131,6 +151,9 @@ def run(args) -> int:
             doc = merge_fits_json(doc, dyn)
         print(json.dumps(doc, indent=1, allow_nan=False))
         return 0
+    for n in (route_note, dyn_skip_note):
+        if n:
+            print(f"note: {n}")
     if res is not None:
         print(f"{len(res.entries)} trial-joint fits of {len(one_models)} models -> {paths['fits']}")
         notes = sorted({n for e in res.entries for n in e.notes})
@@ -165,12 +188,26 @@ def run(args) -> int:
     if dyn is not None:
         print(f"Indri & Trapani ({', '.join(dyn_models)}) for joints {', '.join(map(str, dyn))} "
               f"-> {paths['fits']}, {out / 'indri'}")
+        for n in getattr(dyn, "notes", []):
+            print(f"note: {n}")
         for j in dyn:
             ents = dyn.joint_entries(j)
             d = dyn.data[j]
+            from ident.friction.plausibility import meaning_line
+            from ident.model.multijoint import _pv
+
             for m, e in ents.items():
-                pv = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
+                fl = e.get("flags", {})
+                pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
                 print(f"  joint {j} {m}: {pv}")
+                why = {}
+                for k, f in fl.items():
+                    why.setdefault(f["reason"], []).append(k)
+                for r, ks in why.items():
+                    print(f"    {', '.join(ks)}: {r}")
+            for m in ents:
+                if meaning_line(m):
+                    print(f"  ({meaning_line(m)})")
             if d.reversals:
                 print(f"  joint {j} reversal data sets: "
                       + ", ".join(f"{r.accel:.3g}" for r in d.reversals) + " rad/s^2")
@@ -212,6 +249,7 @@ def _run_multijoint(args, camp, models) -> int:
         return 0
     print(f"{len(res.fits)} multi-joint record(s), models {', '.join(models)} -> {out / 'fits.json'}, "
           f"{paths['rigidbody']}, {paths['rigidbody_report']}")
+    shown: set = set()
     for tid, by_model in res.fits.items():
         pre = res.preprocessing[tid]
         print(f"  {tid}: {res.seconds[tid]:.1f} s; " + "; ".join(pre.get("steps", [])))
@@ -233,7 +271,9 @@ def _run_multijoint(args, camp, models) -> int:
             for k, v in fit.motors.items():
                 print(f"    coupled motor {k} ({m} fit): " + ", ".join(f"{kk} {vv:.4g}" for kk, vv in v.items()))
             for n in fit.notes:
-                print(f"note: {n}")
+                if n not in shown:             # a note shared by every model, printed once
+                    print(f"note: {n}")
+                    shown.add(n)
     return 0
 
 
