@@ -140,13 +140,16 @@ class MultiJointFits:
 
 
 def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | None = None,
-                            seed: int = 0, **settings) -> MultiJointFits:
-    """Identify every multi-joint trial of ``campaign`` with every friction model."""
+                            seed: int = 0, v_zero="auto", **settings) -> MultiJointFits:
+    """Identify every multi-joint trial of ``campaign`` with every friction model.
+    ``v_zero``: ``"auto"`` (default): the low-speed cut of each joint chosen from the data
+    (:func:`ident.model.rigidbody.low_speed_cut`, reported in the preprocessing); a number: a
+    fraction of each joint's 99th-percentile speed (``v_zero_frac``)."""
     import time
 
     from ident.model.regressor import ChainDynamics, base_parameters
     from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, dynamic_data_note,
-                                       without_unlogged)
+                                       low_speed_cut, without_unlogged)
 
     robot = campaign.load_robot()
     chain = ChainDynamics.from_model(robot.model)
@@ -166,11 +169,53 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
                 "armature is identified for them"]
         if dyn_note:
             pre[tr.id]["warnings"] = list(pre[tr.id].get("warnings", [])) + [dyn_note]
-        fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **settings).fit(rec)
+        kw = dict(settings)
+        if v_zero == "auto":
+            cut = _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings)
+            kw["v_zero"] = cut["v_zero"]
+            pre[tr.id]["low_speed_cut"] = {k: (v.tolist() if hasattr(v, "tolist") else v)
+                                           for k, v in cut.items()}
+            pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [
+                "low-speed cut chosen from the data: rows with |qd_j| below " + ", ".join(
+                    f"{x:.3g}" for x in cut["v_zero"]) + " rad/s (" + ", ".join(
+                    f"{100 * x:.2g}" for x in cut["fraction_of_speed"]) + " % of the 99th-percentile "
+                "speeds) left out: the larger of the velocity noise floor (3 standard deviations: "
+                "angle noise " + ", ".join(f"{x:.2g}" for x in cut["sigma_q"]) + " rad through the "
+                "derivative filter, " + ", ".join(f"{x:.3g}" for x in cut["noise_floor"]) + " rad/s) "
+                "and the speed below which a Coulomb + viscous fit's residual grows past 1.5 times "
+                "its level at speed (" + ", ".join(f"{x:.3g}" for x in cut["knee"]) + " rad/s)"]
+        else:
+            kw["v_zero_frac"] = float(v_zero)
+        fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **kw).fit(rec)
                        for m in models}
         _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
+
+
+def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
+    """The low-speed cut of each joint chosen from the data (reported in the preprocessing):
+    the larger of the velocity noise floor (:func:`ident.model.rigidbody.low_speed_cut`) and
+    the residual knee of a Coulomb + viscous fit above that floor
+    (:func:`ident.model.rigidbody.residual_knee`)."""
+    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier, low_speed_cut, residual_knee
+
+    cut = low_speed_cut(campaign.read_log(tr, robot), rec, robot.drives)
+    floor = cut["v_zero"]
+    kw = {k: v for k, v in settings.items() if k not in ("folds", "v_zero", "v_zero_frac")}
+    idt = RigidBodyIdentifier(chain, base, model="cv", seed=seed, folds=0, v_zero=floor, **kw)
+    A, names, F, M, v0, sigma, idt._dropped = idt._prepared(rec)
+    idt._names = names
+    sol = idt._solve(rec, A, F, M, np.ones(rec.t.size, bool), sigma=sigma, quick=True)
+    resid = rec.tau - idt._predict(rec, A, F, sol)
+    _PREPARED.clear()
+    knee = np.array([residual_knee(rec.qd[:, j], np.where(M[:, j], resid[:, j], 0.0), floor[j])
+                     if M[:, j].any() else floor[j] for j in range(rec.n)])
+    v0 = np.maximum(floor, knee)
+    sp = np.percentile(np.abs(rec.qd), 99, axis=0)
+    return {"v_zero": v0, "noise_floor": floor, "knee": knee, "sigma_q": cut["sigma_q"],
+            "sigma_v": cut["sigma_v"], "k": cut["k"],
+            "fraction_of_speed": np.where(sp > 0, v0 / np.where(sp > 0, sp, 1.0), 0.0)}
 
 
 def continuous_records(campaign, trials, logs) -> list[list[int]]:

@@ -45,9 +45,11 @@ def register(sub):
     p.add_argument("--window", default="auto", metavar="S",
                    help="multi-joint records: Savitzky-Golay window, s, or 'auto' (per joint, the "
                         "longest window whose residual stays at the angle noise level)")
-    p.add_argument("--v-zero", type=float, default=0.02, metavar="FRAC",
-                   help="multi-joint records: rows slower than FRAC x the joint's 99th-percentile "
-                        "speed are left out of the friction fit")
+    p.add_argument("--v-zero", default="auto", metavar="FRAC",
+                   help="multi-joint records: the low-speed cut; 'auto' (default): per joint, three "
+                        "standard deviations of the velocity noise (encoder resolution, angle "
+                        "noise through the derivative filter); a number: rows slower than FRAC x "
+                        "the joint's 99th-percentile speed are left out of the friction fit")
     p.add_argument("--export-c", type=Path, default=None, metavar="DIR",
                    help="write the fitted models as C99 (jl_friction.h/.c) into DIR")
     p.add_argument("--export-dt", type=float, default=None, metavar="S",
@@ -239,7 +241,15 @@ def _run_multijoint(args, camp, models) -> int:
     except ValueError:
         raise InputError(f"--window must be 'auto' or seconds, got {args.window!r}") from None
     rs = RecordSettings(derivatives=args.derivatives, window_s=window)
-    res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero_frac=args.v_zero,
+    v_zero = args.v_zero
+    if v_zero != "auto":
+        try:
+            v_zero = float(v_zero)
+        except ValueError:
+            raise InputError(f"--v-zero must be 'auto' or a fraction, got {args.v_zero!r}") from None
+        if not 0 <= v_zero < 1:
+            raise InputError(f"--v-zero must be 'auto' or a fraction in [0, 1), got {args.v_zero!r}")
+    res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero=v_zero,
                                   n_starts=args.starts)
     doc = res.merge_into({"format": 1, "trials": {}, "summary": []})
     (out / "fits.json").write_text(json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8")
