@@ -314,3 +314,13 @@ def test_copied_marker_files_read_without_shared(rel, monkeypatch):
     rec = read_markers(p)
     assert rec.n_frames > 10 and rec.n_markers > 3
     assert (FIXTURE_REAL / "PROVENANCE.md").read_text().count(rel) == 1
+
+
+def test_marker_header_mismatch_said_once(capsys):
+    """The reader's warning (stderr) is the one place the mismatch is said; stdout does not
+    repeat it."""
+    p = FIXTURE_REAL / "trc" / "pyomeca_markers.trc"
+    assert main(["info", str(p)]) == 0
+    out = capsys.readouterr()
+    both = [ln for ln in (out.out + out.err).splitlines() if "NumFrames: header 652" in ln]
+    assert len(both) == 1 and both[0].startswith("jointlab: warning:")

@@ -96,8 +96,8 @@ def _check_trial_labels(camp, trial, rec) -> None:
 def _print_marker(d: dict) -> None:
     print(f"{d['path']}: {d['n_frames']} frames, {d['n_markers']} markers at {d['rate_hz']:g} Hz, "
           f"units {d['units']} (stored as m), time {d['first_time']:.4f} .. {d['last_time']:.4f} s")
-    for msg in d.get("header_mismatch", []):
-        print(f"  note: {msg}")
+    # a header that disagrees with the rows was already said once, as the reader's warning
+    # (stderr); it stays in the --json output under header_mismatch
     width = max((len(lb) for lb in d["labels"]), default=5)
     for lb in d["labels"]:
         print(f"  {lb:<{width}}  missing {100 * d['missing_fraction'][lb]:6.2f} %")
