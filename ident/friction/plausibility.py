@@ -114,7 +114,7 @@ def _stribeck(p, lo, hi, scale, out):
              f"Vc = {Vc:.3g} rad/s is beyond the sampled speeds (up to {hi:.3g} rad/s)")
 
 
-def _hyperbolic(p, lo, hi, scale, model, out):
+def _hyperbolic(p, lo, hi, scale, tau_scale, out):
     if p["g4"] < 0:
         _put(out, "g4", "impossible", f"Coulomb level g4 = {p['g4']:.3g} < 0")
     if p["g6"] < 0:
@@ -137,12 +137,12 @@ def _hyperbolic(p, lo, hi, scale, model, out):
     if p["g5"] * lo > 5.0:
         _put(out, "g5", "unidentifiable",
              f"g5 = {p['g5']:.3g}: tanh(g5 qd) is a sign function at every sampled speed")
-    if scale:
+    if tau_scale:
         for g, term in (("g1", abs(p["g1"])), ("g4", abs(p["g4"])), ("g6", abs(p["g6"]) * hi)):
-            if term > CANCEL_RATIO * scale:
+            if term > CANCEL_RATIO * tau_scale:
                 _put(out, g, "unidentifiable",
-                     f"{g} = {p[g]:.3g} makes a term {term / scale:.3g} times the torque scale: "
-                     "it cancels another term")
+                     f"{g} = {p[g]:.3g} makes a term {term / tau_scale:.3g} times the measured "
+                     "torque scale: it cancels another term")
 
 
 def _arctan(p, lo, hi, scale, out, Kv=1000.0):
@@ -190,7 +190,8 @@ def _energy(model, lo, hi, out, names):
 
 
 def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None,
-           fit_scale: float | None = None, model=None, form: str | None = None) -> dict:
+           fit_scale: float | None = None, model=None, form: str | None = None,
+           tau_scale: float | None = None) -> dict:
     """``{param: Flag}`` for the fitted ``params`` of law ``model_name`` (see the module
     docstring). ``qd``: the speeds the fit used; ``stderr``: standard errors (None or
     non-finite: not known); ``fit_scale``: the torque scale (N m) term sizes are compared with
@@ -198,7 +199,9 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
     :class:`ident.friction.base.FrictionModel` (for the energy check of static laws);
     ``form``: the thesis's degenerate form of a one-link fit
     (:func:`ident.model.onelink.name_degenerate`): in ``stribeck_coulomb_in_Fs`` ``Fk = 0`` is a
-    convention and ``-Fs`` the Coulomb level, so only ``Fk`` and ``Vc`` are undetermined."""
+    convention and ``-Fs`` the Coulomb level, so only ``Fk`` and ``Vc`` are undetermined;
+    ``tau_scale``: the measured torque's scale (N m, e.g. its largest absolute value): a term
+    :data:`CANCEL_RATIO` times larger cancels another one (default ``fit_scale``)."""
     p = {k: float(v) for k, v in params.items() if v is not None}
     out: dict = {}
     for k, v in p.items():
@@ -213,6 +216,7 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
             fit_scale = float(np.max(np.abs(model.torque(np.array([lo, hi, -lo, -hi])))))
         except Exception:  # noqa: BLE001
             fit_scale = None
+    tau_scale = tau_scale if tau_scale else fit_scale
     m = model_name
     if m == "cv":
         if p.get("c", 0.0) < 0:
@@ -230,7 +234,7 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
     elif m == "stribeck" and {"Fk", "Fv", "Fs", "Vc"} <= set(p):
         _stribeck(p, lo, hi, fit_scale, out)
     elif m == "hyperbolic" and {"g1", "g2", "g3", "g4", "g5", "g6"} <= set(p):
-        _hyperbolic(p, lo, hi, fit_scale, model, out)
+        _hyperbolic(p, lo, hi, fit_scale, tau_scale, out)
     elif m == "arctan" and {"tau_s", "tau_sc", "tau_v", "tau_nlv", "delta"} <= set(p):
         _arctan(p, lo, hi, fit_scale, out, getattr(model, "Kv", 1000.0))
     elif m in ("dm1", "dm2"):
@@ -238,6 +242,11 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
             _put(out, "sigma0", "impossible", f"bristle stiffness sigma0 = {p['sigma0']:.3g} <= 0")
         if m == "dm1" and p.get("sigma1", 0.0) < 0:
             _put(out, "sigma1", "impossible", f"bristle damping sigma1 = {p['sigma1']:.3g} < 0")
+        if m == "dm2" and p.get("beta", 0.0) < 0:   # eq. 24: alpha / sqrt(...) + beta -> beta
+            _put(out, "beta", "impossible", f"beta = {p['beta']:.3g} < 0: negative bristle "
+                 "damping at high acceleration (eq. 24)")
+        if m == "dm2" and p.get("gamma", 0.0) < 0:
+            _put(out, "gamma", "impossible", f"gamma = {p['gamma']:.3g} < 0")
     for k in _FORM_UNDETERMINED.get(form, ()):
         if k in p:
             _put(out, k, "unidentifiable", f"degenerate form {form}: the fit does not determine it")

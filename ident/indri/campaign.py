@@ -550,8 +550,11 @@ class DynamicFits(Mapping):
             e = dict(fj[m])
             se = {k: (v if isinstance(v, (int, float)) else None)
                   for k, v in (e.get("stderr") or {}).items()}
+            tau = (np.concatenate([np.asarray(x.tau, float) for x in d.trials.values()])
+                   if qd is not None else None)
             e["flags"] = to_json(assess(m, e.get("params", {}), qd=qd, stderr=se,
-                                        model=ms.get(_MODEL_KEY[m])))
+                                        model=ms.get(_MODEL_KEY[m]),
+                                        tau_scale=None if tau is None else float(np.max(np.abs(tau)))))
             out[m] = e
         return out
 

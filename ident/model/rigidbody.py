@@ -489,7 +489,8 @@ class RigidBodyIdentifier:
             from ident.friction.plausibility import assess, assess_armature, to_json
 
             flags = assess(self.model, e["params"], qd=rec.qd[M[:, j], j],
-                           stderr=e.get("stderr"), model=mdl)
+                           stderr=e.get("stderr"), model=mdl,
+                           tau_scale=float(np.max(np.abs(rec.tau[M[:, j], j]))))
             se_arm = None
             if cov is not None and f"Ia_{j + 1}" in idx:
                 se_arm = float(np.sqrt(max(cov[idx[f"Ia_{j + 1}"], idx[f"Ia_{j + 1}"]], 0.0)))

@@ -146,7 +146,8 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
     from ident.friction.plausibility import assess, to_json
 
     pflags = {m: to_json(assess(m, f.params, qd=sig.qd, stderr=f.stderr, model=f.friction(),
-                                form=f.form)) for m, f in fits.items()}
+                                form=f.form, tau_scale=float(np.max(np.abs(sig.tau)))))
+              for m, f in fits.items()}
     return TrialJointFit(task, fits, sd, float(np.max(np.abs(sig.tau))), float(np.max(np.abs(sig.qd))),
                          tuple(notes), plot, pflags)
 
