@@ -1115,8 +1115,11 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
          f"{', '.join(f'{100 * x:g} %' for x in speeds)} of the maximum; up to {reps} repetitions.", "",
          "## Stages", "", "| stage | computed | reused | failed | seconds | note |", "|---|---|---|---|---|---|"]
     for name, r in stages.items():
+        note = r["note"]
+        if name == "fits" and not (r["computed"] or r["reused"] or r["failed"]) and "rigidbody" in stages:
+            note = note or "no single-joint trials: the multi-joint records are fitted in the rigidbody stage"
         L.append(f"| {name} | {r['computed']} | {r['reused']} | {r['failed']} | {r['seconds']:.1f} | "
-                 f"{r['note']} |")
+                 f"{note} |")
     if errors:
         L += ["", "Failures:", ""] + [f"- `{k}`: {v}" for k, v in sorted(errors.items())]
     L += ["", "## Camera-to-base calibration", ""]
