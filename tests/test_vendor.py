@@ -324,3 +324,38 @@ def test_marker_header_mismatch_said_once(capsys):
     out = capsys.readouterr()
     both = [ln for ln in (out.out + out.err).splitlines() if "NumFrames: header 652" in ln]
     assert len(both) == 1 and both[0].startswith("jointlab: warning:")
+
+
+def test_manifest_writer_round_trips_the_new_keys(tmp_path):
+    from mocap.io.campaign import write_manifest
+
+    shutil.copytree(TIAGO, tmp_path / "t")
+    doc = {"format": 1, "name": "w",
+           "robot": {"urdf": "robot/tiago.urdf", "base_link": "torso_lift_link",
+                     "tip_link": "arm_7_link", "fixed": {"torso_lift_joint": 0.1, "head_1_joint": 0.5}},
+           "trial": [{"id": "arm", "joints": [1, 2, 3, 4, 5, 6, 7], "unlogged_torque": [5, 6, 7],
+                      "log": "trials/arm.csv"}]}
+    write_manifest(tmp_path / "t" / "campaign.toml", doc, overwrite=True)
+    camp = load_campaign(tmp_path / "t")
+    assert camp.fixed == {"torso_lift_joint": 0.1, "head_1_joint": 0.5}
+    assert camp.trials[0].unlogged_torque == (5, 6, 7)
+    assert camp.load_robot().selection.locked["head_1_joint"] == 0.5
+
+
+def test_single_joint_trial_with_unlogged_torque_is_not_fitted_and_said_once(tmp_path, capsys):
+    """A single-joint trial whose torque was not logged: the one-link fit leaves it out with one
+    warning; the other trials are fitted."""
+    from tests_paths import DEMO
+
+    camp = tmp_path / "d"
+    shutil.copytree(DEMO, camp)
+    toml = camp / "campaign.toml"
+    text = toml.read_text()
+    first = text.index("[[trial]]")
+    toml.write_text(text[:first] + text[first:].replace("[[trial]]\n", "[[trial]]\nunlogged_torque = [5]\n", 1))
+    rc, out, err = _run(capsys, ["fit", str(camp), "--out", str(tmp_path / "o"), "--models", "cv",
+                                 "--no-plots"])
+    assert rc == 0, err
+    assert (out + err).count("torque not logged") == 1
+    doc = json.loads((tmp_path / "o" / "fits.json").read_text())
+    assert len(doc["trials"]) == 11

@@ -262,7 +262,15 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
         off = tr.extra.get("time_offset", 0.0)
         if sync == "estimate":
             off = "estimate"
+        unl = [j for j in tr.joints if j in tr.unlogged_torque]
+        if unl:                                   # FORMAT.md unlogged_torque: said once
+            from mocap.io.errors import warn_input
+
+            warn_input(f"trial {tr.id!r}: torque not logged on joint(s) {unl} (unlogged_torque): "
+                       "not fitted", path=campaign.manifest)
         for j in tr.joints:
+            if j in tr.unlogged_torque:
+                continue
             d = robot.drives[j - 1]
             tasks.append(FitTask(tr.id, int(j), str(tr.log), ang, float(d.motor_inertia),
                                  float(d.motor_viscous), robot.n, tr.load_kg, tr.vmax_frac,
