@@ -410,7 +410,7 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
     need = _needs(models)
     trials, kinds, notes, links = {}, {}, [], {}
     for tr in campaign.trials:
-        if joint not in tr.joints or tr.kind not in need:
+        if joint not in tr.joints or tr.kind not in need or joint in tr.unlogged_torque:
             continue
         if len(tr.joints) > 1:
             notes.append(f"trial {tr.id!r} moves joints {list(tr.joints)}: left out (the residual "
@@ -702,7 +702,8 @@ def fit_campaign_dynamic(campaign, joints=None, angles_dir=None, sink=None, *,
     results, data, skipped = {}, {}, {}
     asked = models
     for j in joints:                                      # loop over joints (few)
-        kinds = {tr.kind for tr in campaign.trials if tr.joints == (int(j),)}
+        kinds = {tr.kind for tr in campaign.trials
+                 if tr.joints == (int(j),) and int(j) not in tr.unlogged_torque}
         models = feasible_models(asked, kinds)
         if not models:
             skipped[int(j)] = kinds
