@@ -181,7 +181,7 @@ def test_tiago_every_command_exits_0(tiago_outputs, cmd):
     assert rc == 0, err
 
 
-@pytest.mark.parametrize("cmd", ["info", "fit", "diagnose"])
+@pytest.mark.parametrize("cmd", ["info", "fit", "diagnose", "study"])
 def test_tiago_wrist_named_once_as_not_identified(tiago_outputs, cmd):
     rc, out, err = tiago_outputs[cmd]
     text = out + err
@@ -352,7 +352,8 @@ def test_single_joint_trial_with_unlogged_torque_is_not_fitted_and_said_once(tmp
     toml = camp / "campaign.toml"
     text = toml.read_text()
     first = text.index("[[trial]]")
-    toml.write_text(text[:first] + text[first:].replace("[[trial]]\n", "[[trial]]\nunlogged_torque = [5]\n", 1))
+    toml.write_text(text[:first] + text[first:].replace("[[trial]]\n",
+                                                        "[[trial]]\nunlogged_torque = [5]\n", 1))
     rc, out, err = _run(capsys, ["fit", str(camp), "--out", str(tmp_path / "o"), "--models", "cv",
                                  "--no-plots"])
     assert rc == 0, err

@@ -263,7 +263,8 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
         if sync == "estimate":
             off = "estimate"
         unl = [j for j in tr.joints if j in tr.unlogged_torque]
-        if unl:                                   # FORMAT.md unlogged_torque: said once
+        if unl and len(tr.joints) == 1:           # FORMAT.md unlogged_torque: said once
+            # (a multi-joint record's unlogged joints are said by the rigid-body stage)
             from mocap.io.errors import warn_input
 
             warn_input(f"trial {tr.id!r}: torque not logged on joint(s) {unl} (unlogged_torque): "
