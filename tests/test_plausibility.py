@@ -56,6 +56,16 @@ def test_hyperbolic_equal_rates_leave_the_hump_undetermined():
     assert k["g4"] == "impossible" and k["g6"] == "unidentifiable"
 
 
+def test_transitions_beyond_the_sampled_speeds():
+    slow = np.linspace(-0.5, 0.5, 501)
+    p = {"g1": 0.5, "g2": 40.0, "g3": 4.0, "g4": 1.0, "g5": 0.2, "g6": 0.5}
+    k = kinds(assess("hyperbolic", p, qd=slow))
+    assert k["g4"] == "unidentifiable" and k["g5"] == "unidentifiable"
+    assert kinds(assess("hyperbolic", dict(p, g5=2.0), qd=slow))["g5"] == "extrapolated"
+    a = {"tau_s": 1.0, "tau_sc": -0.3, "tau_v": 0.5, "tau_nlv": 0.0, "delta": 1.0}
+    assert kinds(assess("arctan", a, qd=slow)) == {"delta": "extrapolated"}
+
+
 def test_arctan_and_lugre_signs():
     base = {"tau_s": 1.0, "tau_sc": -0.3, "tau_v": 0.5, "tau_nlv": 0.0, "delta": 5.0}
     assert assess("arctan", base, qd=QD) == {}

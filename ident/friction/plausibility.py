@@ -9,7 +9,8 @@ Each parameter of a fit gets at most one flag:
   one on the sampled speeds, its standard error exceeds its size, or its term is more than
   :data:`CANCEL_RATIO` times the torque scale and so cancels another term);
 * ``extrapolated``: it describes speeds outside the range the data cover (a Stribeck speed
-  ``Vc`` above the fastest sampled speed).
+  ``Vc`` above the fastest sampled speed, a hyperbolic Coulomb term or an arctan Stribeck
+  transition that completes only beyond it).
 
 :func:`assess` returns ``{param: Flag}`` for one fitted model; :func:`assess_armature` one
 flag for an actuator inertia; :func:`fmt` prints a value with its flag (an unidentifiable
@@ -134,6 +135,14 @@ def _hyperbolic(p, lo, hi, scale, tau_scale, out):
     if max(p["g2"], p["g3"]) * hi < 0.2:
         _put(out, ["g1", "g2", "g3"], "unidentifiable",
              "g2, g3 so small that the hump is linear in qd on the sampled speeds (merges with g6)")
+    if 0 < p["g5"] * hi < 0.2:
+        _put(out, ["g4", "g5"], "unidentifiable",
+             f"g5 = {p['g5']:.3g}: tanh(g5 qd) is linear on the sampled speeds (up to {hi:.3g} "
+             "rad/s), the Coulomb term merges with g6")
+    elif 0 < p["g5"] * hi < 2.0:
+        _put(out, "g5", "extrapolated",
+             f"g5 = {p['g5']:.3g}: the Coulomb term saturates only beyond the sampled speeds "
+             f"(up to {hi:.3g} rad/s)")
     if p["g5"] * lo > 5.0:
         _put(out, "g5", "unidentifiable",
              f"g5 = {p['g5']:.3g}: tanh(g5 qd) is a sign function at every sampled speed")
@@ -166,6 +175,10 @@ def _arctan(p, lo, hi, scale, out, Kv=1000.0):
              f"delta = {p['delta']:.3g}: arctan(delta v) is a sign function at every sampled "
              "speed, only tau_s + tau_sc is determined")
         _put(out, "delta", "unidentifiable", "arctan(delta v) saturated on the sampled speeds")
+    if 0 < p["delta"] * hi < 1.0 and "delta" not in out:
+        _put(out, "delta", "extrapolated",
+             f"delta = {p['delta']:.3g} s/rad: the Stribeck transition (|v| ~ 1/delta = "
+             f"{1 / p['delta']:.3g} rad/s) lies beyond the sampled speeds (up to {hi:.3g} rad/s)")
     v = np.geomspace(max(lo, 1e-6), hi, 200)
     visc = p["tau_v"] * v + p["tau_nlv"] * v * v * _2_PI * np.arctan(Kv * v)
     if np.min(visc + p["tau_s"] + p["tau_sc"]) < 0 and p["tau_nlv"] < 0:
