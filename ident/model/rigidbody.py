@@ -519,8 +519,8 @@ class RigidBodyIdentifier:
                   + (f"; rows with |qd_j| < {self.v_zero_frac:g} x the joint's 99th-percentile "
                      "speed left out" if self.v_zero is None else
                      "; rows slower than the low-speed cut chosen from the data left out ("
-                     + ", ".join(f"{x:.3g}" for x in self.v_zero) + " rad/s: three standard "
-                     "deviations of the velocity estimate's noise)")
+                     + ", ".join(f"{x:.3g}" for x in self.v_zero) + " rad/s, see the "
+                     "preprocessing)")
                   + "; held-out RMS: leave-one-segment-out over "
                   f"{self.folds} contiguous segments")
         return RigidBodyFit(self.model, joints, beta, tuple(f"beta_{k}" for k in range(beta.size)),
