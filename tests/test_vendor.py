@@ -360,3 +360,34 @@ def test_single_joint_trial_with_unlogged_torque_is_not_fitted_and_said_once(tmp
     assert (out + err).count("torque not logged") == 1
     doc = json.loads((tmp_path / "o" / "fits.json").read_text())
     assert len(doc["trials"]) == 11
+
+
+def test_gravity_is_given_in_the_base_links_frame(tmp_path):
+    """The same arm once as the URDF's root and once mounted under a tilted, rotated mount on a
+    mobile base: with gravity given in base_link's frame the joint torques agree."""
+    arm = ('<link name="base_link"/><link name="a1"><inertial><origin xyz="0.4 0 0"/>'
+           '<mass value="2"/><inertia ixx="0.01" iyy="0.02" izz="0.03" ixy="0" ixz="0" iyz="0"/>'
+           '</inertial></link><link name="a2"><inertial><origin xyz="0.2 0.1 0"/><mass value="1"/>'
+           '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+           '<joint name="j1" type="revolute"><parent link="base_link"/><child link="a1"/>'
+           '<axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>'
+           '<joint name="j2" type="revolute"><parent link="a1"/><child link="a2"/>'
+           '<origin xyz="0.8 0 0"/><axis xyz="0 0.6 0.8"/>'
+           '<limit lower="-3" upper="3" effort="1" velocity="1"/></joint>')
+    plain = tmp_path / "plain.urdf"
+    plain.write_text(f'<robot name="p">{arm}</robot>')
+    mounted = tmp_path / "mounted.urdf"
+    mounted.write_text(
+        '<robot name="m"><link name="world"/><link name="cart"/><link name="wheel"/>'
+        '<joint name="slide" type="prismatic"><parent link="world"/><child link="cart"/>'
+        '<axis xyz="1 0 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+        '<joint name="wheel_joint" type="continuous"><parent link="cart"/><child link="wheel"/>'
+        '<axis xyz="0 1 0"/></joint>'
+        '<joint name="mount" type="fixed"><parent link="cart"/><child link="base_link"/>'
+        '<origin xyz="0.1 0.2 0.3" rpy="0.4 -0.7 1.1"/></joint>' + arm + '</robot>')
+    g = (0.0, 0.0, -9.81)
+    r0 = Robot.from_urdf(plain, gravity=g)
+    r1 = Robot.from_urdf(mounted, gravity=g, base_link="base_link", tip_link="a2",
+                         fixed={"slide": 0.3})
+    q = np.array([[0.3, -0.8], [1.2, 0.4], [-0.5, 2.0]])
+    np.testing.assert_allclose(r1.gravity_torque(q), r0.gravity_torque(q), rtol=1e-9, atol=1e-9)
