@@ -23,7 +23,11 @@ _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "
 
 @dataclass(frozen=True)
 class Drive:
-    """Motor-side parameters of one joint, referred to the link side (FORMAT.md)."""
+    """Motor-side parameters of one joint, referred to the link side (FORMAT.md).
+
+    ``gear_ratio`` is the reduction's magnitude; ``direction`` (+1 or -1) is the sign of the
+    declared ratio (FORMAT.md: a negative ratio only says the motor turns the other way; the
+    angles and torques of a log are on the link side already)."""
 
     name: str
     gear_ratio: float = 1.0
@@ -33,10 +37,17 @@ class Drive:
     max_torque: float = float("inf")
     encoder_resolution: float = 0.0
     extra: dict = field(default_factory=dict)
+    direction: int = 1
+
+    @property
+    def signed_gear_ratio(self) -> float:
+        """The ratio as declared (``direction * gear_ratio``)."""
+        return self.direction * self.gear_ratio
 
     def to_dict(self) -> dict:
         d = {"name": self.name}
         d.update({k: getattr(self, k) for k in _DRIVE_KEYS})
+        d["gear_ratio"] = self.signed_gear_ratio
         d.update(self.extra)
         return d
 
@@ -63,6 +74,9 @@ def read_drives(path: str | Path) -> tuple[Drive, ...]:
                 if not isinstance(v, (int, float)) or isinstance(v, bool):
                     raise InputError(f"joint {tab['name']!r}: {key} must be a number, got {v!r}",
                                      path=path, label=key)
+                if key == "gear_ratio" and v < 0:     # only the direction (FORMAT.md)
+                    vals["direction"] = -1
+                    v = -v
                 if math.isnan(v) or v < 0 or (key in _POSITIVE_KEYS and v == 0):
                     sign = "> 0" if key in _POSITIVE_KEYS else ">= 0"
                     raise InputError(f"joint {tab['name']!r}: {key} must be {sign}, got {v!r}",
@@ -87,7 +101,8 @@ def write_drives(path: str | Path, drives, overwrite: bool = False) -> Path:
         out.append("[[joint]]")
         out.append(f'name = "{d.name}"')
         for k in _DRIVE_KEYS:
-            out.append(f"{k} = {float(getattr(d, k))!r}")
+            v = d.signed_gear_ratio if k == "gear_ratio" else getattr(d, k)
+            out.append(f"{k} = {float(v)!r}")
         out.append("")
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(out), encoding="utf-8")
@@ -114,11 +129,13 @@ class Robot:
     gravity : gravity vector in the base frame.
     """
 
-    def __init__(self, model, drives=None, gravity=(0.0, 0.0, -9.81), urdf: Path | None = None):
+    def __init__(self, model, drives=None, gravity=(0.0, 0.0, -9.81), urdf: Path | None = None,
+                 selection=None):
         import pinocchio as pin
 
         self.model = model
         self.urdf = urdf
+        self.selection = selection      # mocap.urdf.ChainSelection (None: the URDF as it is)
         self.model.gravity.linear = np.asarray(gravity, float)
         n = model.njoints - 1
         axes, placements, names = [], [], []
@@ -149,25 +166,58 @@ class Robot:
                                  max_torque=float(model.effortLimit[k])) for k, nm in enumerate(names))
         drives = tuple(drives)
         if len(drives) != n:
-            raise InputError(f"drives describe {len(drives)} joints but the URDF has {n} revolute joints",
-                             path=urdf)
+            chain = ("" if selection is None or not selection.reduced else
+                     f" in the chain {selection.base_link} -> {selection.tip_link} "
+                     f"({', '.join(names)})")
+            raise InputError(f"drives describe {len(drives)} joints but the URDF has {n} revolute "
+                             f"joints{chain}", path=urdf)
         self.drives = drives
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
     def from_urdf(cls, urdf: str | Path, drives: str | Path | None = None,
-                  gravity=(0.0, 0.0, -9.81)) -> "Robot":
+                  gravity=(0.0, 0.0, -9.81), base_link: str | None = None,
+                  tip_link: str | None = None, fixed: dict | None = None,
+                  where: Path | None = None) -> "Robot":
+        """The robot of ``urdf``: the serial chain from ``base_link`` to ``tip_link`` with every
+        other joint fixed (:func:`mocap.urdf.select_chain`, FORMAT.md "Which chain is the arm";
+        pinocchio's ``buildReducedModel``: the bodies beyond a fixed joint are merged into the
+        link that carries them). ``gravity`` is given in ``base_link``'s frame; the robot's
+        base frame is the URDF's root link (the same frame where ``base_link`` is the root)."""
         import pinocchio as pin
+
+        from mocap.urdf import select_chain
 
         urdf = Path(urdf)
         if not urdf.is_file():
             raise InputError("URDF not found", path=urdf)
+        sel = select_chain(urdf, base_link, tip_link, fixed, where=where)
         try:
             model = pin.buildModelFromUrdf(str(urdf))
         except (RuntimeError, ValueError) as exc:
             raise InputError(f"pinocchio could not read the URDF: {exc}", path=urdf) from None
+        if sel.reduced:
+            q0 = pin.neutral(model)
+            ids = []
+            for nm, v in sel.locked.items():
+                if not model.existJointName(nm):
+                    continue                    # a mimic or otherwise merged joint
+                jid = model.getJointId(nm)
+                jm = model.joints[jid]
+                if jm.nq == 1:
+                    q0[jm.idx_q] = v
+                elif jm.nq == 2 and jm.nv == 1:                 # continuous: (cos, sin)
+                    q0[jm.idx_q:jm.idx_q + 2] = (math.cos(v), math.sin(v))
+                ids.append(jid)
+            model = pin.buildReducedModel(model, ids, q0)
+            g = np.asarray(gravity, float)
+            if model.existBodyName(sel.base_link):
+                f = model.frames[model.getBodyId(sel.base_link)]
+                if int(f.parentJoint) == 0:
+                    g = f.placement.rotation @ g      # base_link's frame -> the root's
+            gravity = g
         dr = read_drives(drives) if drives is not None else None
-        return cls(model, dr, gravity, urdf)
+        return cls(model, dr, gravity, urdf, selection=sel)
 
     # ---- description --------------------------------------------------------------------
     @property
@@ -204,7 +254,11 @@ class Robot:
 
     @property
     def tip_link(self) -> str:
-        """The most distal body frame (the flange or tool link of a serial chain)."""
+        """``[robot] tip_link`` where the chain was selected, else the most distal body frame
+        (the flange or tool link of a serial chain)."""
+        if self.selection is not None and self.selection.reduced \
+                and self.selection.tip_link in self.chain.frames:
+            return self.selection.tip_link
         names = [nm for nm, (jj, _) in self.chain.frames.items() if jj == self.n - 1]
         return names[-1]
 
@@ -230,6 +284,10 @@ class Robot:
             ],
             "links": list(self.link_names),
             "gravity": self.gravity.tolist(),
+            "chain": (None if self.selection is None or not self.selection.reduced else
+                      {"base_link": self.selection.base_link, "tip_link": self.selection.tip_link,
+                       "fixed": dict(self.selection.locked)}),
+            "direction": [d.direction for d in self.drives],
         }
 
     # ---- kinematics ---------------------------------------------------------------------
@@ -250,7 +308,7 @@ class Robot:
             p_joint = T_jf[:3, :3] @ np.asarray(p_flange, float) + T_jf[:3, 3]
             model.appendBodyToJoint(j + 1, pin.Inertia(float(mass), p_joint, np.zeros((3, 3))),
                                     pin.SE3.Identity())
-        return Robot(model, self.drives, self.gravity, self.urdf)
+        return Robot(model, self.drives, self.gravity, self.urdf, self.selection)
 
     def rnea(self, q, qd, qdd) -> np.ndarray:
         """Inverse dynamics without friction, (T, n) or (n,): pinocchio's batched RNEA

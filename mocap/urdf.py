@@ -4,6 +4,8 @@
   axes and link masses/inertias (a "perturbed variant" for simulators and robustness tests).
 * :func:`urdf_visuals` lists each link's visual (or collision) geometry with its placement in
   the link frame, parsed with :mod:`xml.etree.ElementTree`.
+* :func:`select_chain` picks the arm out of a larger vendor URDF (FORMAT.md "Which chain is the
+  arm": the revolute joints from ``base_link`` to ``tip_link``; every other joint fixed).
 * :func:`load_link_meshes` loads those geometries with trimesh and returns one triangle mesh
   per link, in the link frame (the URDF link frame, which is also pinocchio's body frame, so
   ``apply_transform(robot.frame_transform(link, q), vertices)`` places it in the base frame).
@@ -82,6 +84,128 @@ def _origin_transform(elem, urdf: Path, what: str) -> np.ndarray:
 
 def _fmt(v) -> str:
     return " ".join(repr(float(x)) for x in np.asarray(v, float).ravel())
+
+
+# ---- chain selection ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ChainSelection:
+    """The arm of a URDF (FORMAT.md "Which chain is the arm"): ``chain`` the moving joints from
+    ``base_link`` to ``tip_link`` (base to tip), ``locked`` every other moving joint with the value
+    it is fixed at (rad or m), ``reduced``: False where the URDF's moving joints already are the
+    chain (nothing to lock)."""
+
+    base_link: str
+    tip_link: str
+    chain: tuple
+    locked: dict
+    reduced: bool
+
+
+def _urdf_joints(root) -> dict:
+    out = {}
+    for j in root.findall("joint"):
+        par, ch = j.find("parent"), j.find("child")
+        lim = j.find("limit")
+        lo = hi = None
+        if lim is not None and j.get("type") in ("revolute", "prismatic"):
+            lo = float(lim.get("lower", "0") or 0.0)
+            hi = float(lim.get("upper", "0") or 0.0)
+        out[j.get("name")] = {"type": j.get("type"), "parent": None if par is None else par.get("link"),
+                              "child": None if ch is None else ch.get("link"), "lower": lo, "upper": hi}
+    return out
+
+
+def select_chain(urdf: str | Path, base_link: str | None = None, tip_link: str | None = None,
+                 fixed: dict | None = None, where: Path | None = None) -> ChainSelection:
+    """The arm chain of ``urdf`` and the values every other moving joint is fixed at.
+
+    ``base_link``/``tip_link`` default to the URDF's root link and its single leaf link. Without
+    either, a URDF whose moving joints all lie on one path from the root is the chain as it is
+    (links hanging off it on fixed joints are kept as they are). A joint outside the chain is
+    fixed at ``fixed[name]`` (radians or metres), default 0, or the nearer limit where 0 lies
+    outside the joint's limits. ``where`` (the manifest) is named in errors about ``fixed`` and
+    the link names."""
+    urdf = Path(urdf)
+    where = where or urdf
+    root_el = _parse(urdf).getroot()
+    joints = _urdf_joints(root_el)
+    links = [lk.get("name") for lk in root_el.findall("link")]
+    by_child = {j["child"]: nm for nm, j in joints.items()}
+    children = {}
+    for nm, j in joints.items():
+        children.setdefault(j["parent"], []).append(nm)
+    roots = [lk for lk in links if lk not in by_child]
+    fixed = dict(fixed or {})
+    moving = [nm for nm, j in joints.items() if j["type"] not in ("fixed", None)]
+
+    def path_to(link):                      # joints from the root to ``link``, root first
+        out = []
+        while link in by_child:
+            nm = by_child[link]
+            out.append(nm)
+            link = joints[nm]["parent"]
+        return out[::-1], link
+
+    for key, lk in (("base_link", base_link), ("tip_link", tip_link)):
+        if lk is not None and lk not in links:
+            near = ", ".join(x for x in links if x.split("_")[0] == str(lk).split("_")[0])[:300]
+            raise InputError(f"[robot] {key} {lk!r} is not a link of {urdf.name}"
+                             + (f" (links like it: {near})" if near else ""), path=where, label=key)
+    if base_link is None:
+        if len(roots) != 1:
+            raise InputError(f"{urdf.name} has {len(roots)} root links; name the arm's base in "
+                             "[robot] base_link", path=where, label="base_link")
+        base_link = roots[0]
+    if tip_link is None:
+        leaves = [lk for lk in links if lk not in children]
+        full = [path_to(lk)[0] for lk in leaves]
+        on_one = [lk for lk, pth in zip(leaves, full) if set(moving) <= set(pth)]
+        if base_link == roots[0] and on_one and not fixed:
+            tip = on_one[-1]
+            return ChainSelection(base_link, tip, tuple(m for m in path_to(tip)[0] if m in moving),
+                                  {}, False)
+        if len(leaves) != 1:
+            raise InputError(f"{urdf.name} has {len(leaves)} leaf links (a mobile base, a head, a "
+                             "gripper...?); name the arm's last link in [robot] tip_link",
+                             path=where, label="tip_link")
+        tip_link = leaves[0]
+    pth, _ = path_to(tip_link)
+    ups, _ = path_to(base_link)
+    if pth[:len(ups)] != ups or base_link == tip_link:
+        raise InputError(f"[robot] tip_link {tip_link!r} is not below base_link {base_link!r} in "
+                         f"{urdf.name}", path=where, label="tip_link")
+    chain = tuple(nm for nm in pth[len(ups):] if nm in moving)
+    if not chain:
+        raise InputError(f"no moving joint between {base_link!r} and {tip_link!r} in {urdf.name}",
+                         path=where, label="tip_link")
+    for key in fixed:
+        if key not in joints:
+            raise InputError(f"[robot] fixed names joint {key!r}, which is not a joint of "
+                             f"{urdf.name}", path=where, label=str(key))
+        if key in chain:
+            raise InputError(f"[robot] fixed names joint {key!r}, which is in the arm chain "
+                             f"{base_link} -> {tip_link}", path=where, label=str(key))
+    locked = {}
+    for nm in moving:
+        if nm in chain:
+            continue
+        j = joints[nm]
+        if nm in fixed:
+            v = fixed[nm]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise InputError(f"[robot] fixed {nm} must be a number (rad or m), got {v!r}",
+                                 path=where, label=nm)
+            v = float(v)
+            if j["lower"] is not None and not (j["lower"] - 1e-9 <= v <= j["upper"] + 1e-9):
+                raise InputError(f"[robot] fixed {nm} = {v!r} lies outside the joint's limits "
+                                 f"[{j['lower']:g}, {j['upper']:g}] (degrees written as radians?)",
+                                 path=where, label=nm)
+        else:
+            v = 0.0
+            if j["lower"] is not None and not j["lower"] <= 0.0 <= j["upper"]:
+                v = j["lower"] if abs(j["lower"]) < abs(j["upper"]) else j["upper"]
+        locked[nm] = v
+    return ChainSelection(base_link, tip_link, chain, locked, True)
 
 
 # ---- perturbed copies ---------------------------------------------------------------------------
@@ -290,6 +414,22 @@ def urdf_visuals(urdf: str | Path, *, kind: str = "visual", missing: str = "rais
     return out
 
 
+def missing_meshes(urdf: str | Path) -> list[str]:
+    """The distinct mesh URIs of ``urdf`` (visual and collision) that resolve to no file, in
+    document order (meshes are optional, FORMAT.md: a vendor URDF often ships without them)."""
+    urdf = Path(urdf)
+    out = []
+    for mesh in _parse(urdf).getroot().iter("mesh"):
+        fn = mesh.get("filename")
+        if not fn or fn in out:
+            continue
+        try:
+            resolve_mesh_uri(fn, urdf)
+        except InputError:
+            out.append(fn)
+    return out
+
+
 def _primitive_mesh(p: Primitive):
     import trimesh
 
@@ -319,8 +459,18 @@ def load_link_meshes(urdf: str | Path, *, kind: str = "visual", fallback_collisi
     triangle mesh in the link frame (metres), links in URDF document order. Links without
     ``kind`` geometry use their collision geometry when ``fallback_collision``; links with
     neither are left out. ``missing`` as in :func:`urdf_visuals` (``"skip"`` drops mesh files
-    that cannot be found instead of raising :class:`InputError`)."""
+    that cannot be found instead of raising :class:`InputError`; ``"warn"`` drops them with one
+    warning for the whole URDF: meshes are optional, FORMAT.md)."""
     urdf = Path(urdf)
+    if missing == "warn":
+        gone = missing_meshes(urdf)
+        if gone:
+            from mocap.io.errors import warn_input
+
+            warn_input(f"{len(gone)} mesh file(s) not found (first: {gone[0]}); the robot is drawn "
+                       "with the URDF's primitive shapes where it has them, else as link frames",
+                       path=urdf)
+        missing = "skip"
     visuals = urdf_visuals(urdf, kind=kind, missing=missing)
     if fallback_collision and kind == "visual":
         for link, items in urdf_visuals(urdf, kind="collision", missing=missing).items():

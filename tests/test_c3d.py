@@ -12,6 +12,7 @@ from mocap.io.c3d import check_c3d_structure, read_c3d, write_c3d
 from mocap.io.errors import InputError
 from mocap.io.recording import MarkerRecording
 from mocap.io.trc import read_trc
+from tests_paths import real_file
 
 REAL_C3D = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "c3d"
 BAD_NAME = "read_NOTworking2.c3d"
@@ -174,10 +175,8 @@ def test_round_trip(tmp_path, units):
     np.testing.assert_array_equal(res < 0, rec.missing)      # missing markers carry residual -1
 
 
-def test_trc_to_c3d_round_trip(real_dir, tmp_path):
-    src = real_dir / "trc" / "biobuddy_static.trc"
-    if not src.is_file():
-        pytest.skip("biobuddy_static.trc absent")
+def test_trc_to_c3d_round_trip(tmp_path):
+    src = real_file("trc/biobuddy_static.trc")      # ../shared, else fixtures/real
     rec = read_trc(src)
     back = read_c3d(write_c3d(tmp_path / "b.c3d", rec), isolate=False)
     assert back.labels == rec.labels and back.n_frames == rec.n_frames

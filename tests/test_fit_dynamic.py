@@ -334,11 +334,16 @@ def test_missing_kinds_name_what_is_needed(camp):
     def only(*kinds):
         return dataclasses.replace(cp, trials=tuple(t for t in cp.trials if t.kind in kinds))
 
-    with pytest.raises(InputError, match="dm2 needs reversals trials"):
-        fit_campaign_dynamic(only("constant_velocity", "excitation"))
-    with pytest.raises(InputError, match="dm2 needs excitation trials"):
-        fit_campaign_dynamic(only("constant_velocity", "reversals"))
-    with pytest.raises(InputError, match="constant_velocity trials"):
+    # whatever the trials allow is fitted; the missing data set is named once in the notes
+    res = fit_campaign_dynamic(only("constant_velocity", "excitation"))
+    assert set(res.joint_entries(5)) == {"arctan"}
+    said = [n for n in res.data[5].notes if "not identified" in n]
+    assert len(said) == 1 and "dm1, dm2" in said[0] and 'kind = "reversals"' in said[0]
+    res = fit_campaign_dynamic(only("constant_velocity", "reversals"))
+    assert set(res.joint_entries(5)) == {"arctan", "dm1"}
+    said = [n for n in res.data[5].notes if "not identified" in n]
+    assert len(said) == 1 and 'kind = "excitation"' in said[0]
+    with pytest.raises(InputError, match="constant-velocity moves"):
         fit_campaign_dynamic(only("reversals", "excitation"))
     one = dataclasses.replace(cp, trials=tuple(t for t in cp.trials if t.kind != "reversals"
                                                or t.vmax_frac == 0.5))
@@ -362,7 +367,9 @@ def test_cli_rejects_a_campaign_without_reversals(camp, tmp_path, capsys):
     m2 = c.parent / "norev.toml"
     m2.write_text(body)
     assert main(["fit", str(m2), "--out", str(tmp_path / "o"), "--models", "dm2"]) == 2
-    assert "dm2 needs reversals trials" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "velocity reversals" in err and 'kind = "reversals"' in err and "settings=" not in err
+    assert len(err.strip().splitlines()) == 1
 
 
 def test_bandwidth_follows_13_hz_reversals_at_200_hz():

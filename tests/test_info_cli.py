@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from ident.cli.main import main
+from tests_paths import real_file, real_names
 
 REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real"
 BAD_NAME = "read_NOTworking2.c3d"
-TRC_NAMES = sorted(p.name for p in (REAL / "trc").glob("*.trc")) if (REAL / "trc").is_dir() else []
-C3D_NAMES = sorted(p.name for p in (REAL / "c3d").glob("*.c3d") if p.name != BAD_NAME) \
-    if (REAL / "c3d").is_dir() else []
+TRC_NAMES = real_names("trc", "*.trc")                # ../shared, else fixtures/real
+C3D_NAMES = [n for n in real_names("c3d", "*.c3d") if n != BAD_NAME]
 KEYS = {"n_frames", "n_markers", "labels", "rate_hz", "units", "missing_fraction"}
 
 
@@ -40,8 +40,8 @@ def trc_header(path: Path) -> dict:
 
 
 @pytest.mark.parametrize("name", TRC_NAMES)
-def test_info_trc(real_dir, capsys, name):
-    path = real_dir / "trc" / name
+def test_info_trc(capsys, name):
+    path = real_file(f"trc/{name}")
     d = info_json(capsys, path)
     h = trc_header(path)
     assert d["n_markers"] == int(h["hdr"]["NumMarkers"]) == len(d["labels"])
@@ -58,8 +58,8 @@ def test_info_trc(real_dir, capsys, name):
 
 
 @pytest.mark.parametrize("name", C3D_NAMES)
-def test_info_c3d(real_dir, capsys, name):
-    path = real_dir / "c3d" / name
+def test_info_c3d(capsys, name):
+    path = real_file(f"c3d/{name}")
     d = info_json(capsys, path)
     c = ezc3d.c3d(str(path))
     hdr, point = c["header"]["points"], c["parameters"]["POINT"]

@@ -9,9 +9,10 @@ import pytest
 from mocap.io.errors import InputError
 from mocap.io.recording import MarkerRecording
 from mocap.io.trc import read_trc, write_trc
+from tests_paths import real_file, real_names
 
 REAL_TRC = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "trc"
-REAL_NAMES = sorted(p.name for p in REAL_TRC.glob("*.trc")) if REAL_TRC.is_dir() else []
+REAL_NAMES = real_names("trc", "*.trc")      # ../shared, else the copies in fixtures/real
 SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
 
 
@@ -63,8 +64,8 @@ def random_recording(seed: int, T=50, M=4, rate=120.0, t0=2.5, gaps=0.1) -> Mark
 # ----------------------------------------------------------------------------- real files
 
 @pytest.mark.parametrize("name", REAL_NAMES)
-def test_real_trc_matches_independent_parse(real_dir, name):
-    path = real_dir / "trc" / name
+def test_real_trc_matches_independent_parse(name):
+    path = real_file(f"trc/{name}")
     rec = read_trc(path)
     raw = raw_parse(path)
     hdr = raw["header"]
@@ -94,16 +95,16 @@ def test_real_trc_matches_independent_parse(real_dir, name):
     assert np.all(np.isfinite(rec.positions[~blank]))
 
 
-def test_real_header_mismatch_is_explicit(real_dir):
-    rec = read_trc(real_dir / "trc" / "biobuddy_static.trc")
+def test_real_header_mismatch_is_explicit():
+    rec = read_trc(real_file("trc/biobuddy_static.trc"))
     assert rec.meta["NumFrames"] == 1300 and rec.n_frames == 138 and rec.meta["n_rows"] == 138
     assert rec.meta["header_mismatch"] == ["NumFrames: header 1300, file has 138 rows"]
     assert rec.meta["OrigDataStartFrame"] == 1163
     assert rec.units == "m" and rec.positions[0, 0, 0] == 0.62772
 
 
-def test_real_comma_file(real_dir):
-    rec = read_trc(real_dir / "trc" / "pyomeca_markers.trc")
+def test_real_comma_file():
+    rec = read_trc(real_file("trc/pyomeca_markers.trc"))
     assert rec.meta["delimiter"] == ","
     assert rec.n_markers == 51 and rec.n_frames == 93
     assert rec.positions[0, 0, 0] == pytest.approx(0.7337041, abs=1e-12)   # 733.7041 mm

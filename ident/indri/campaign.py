@@ -413,7 +413,7 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
     need = _needs(models)
     trials, kinds, notes, links = {}, {}, [], {}
     for tr in campaign.trials:
-        if joint not in tr.joints or tr.kind not in need:
+        if joint not in tr.joints or tr.kind not in need or joint in tr.unlogged_torque:
             continue
         if len(tr.joints) > 1:
             notes.append(f"trial {tr.id!r} moves joints {list(tr.joints)}: left out (the residual "
@@ -524,6 +524,7 @@ class DynamicFits(Mapping):
         self.data = dict(data)
         self.models = tuple(models)
         self.campaign = campaign
+        self.notes: list = []           # campaign-level notes (joints left out, and why)
 
     def __getitem__(self, joint):
         return self._r[joint]
@@ -535,9 +536,30 @@ class DynamicFits(Mapping):
         return len(self._r)
 
     def joint_entries(self, joint: int) -> dict:
-        """fits.json entries of one joint: model -> {params, stderr, rms, ...} (FORMAT.md names)."""
+        """fits.json entries of one joint: model -> {params, stderr, rms, ..., flags} (FORMAT.md
+        names; ``flags``: :func:`ident.friction.plausibility.assess` over the speeds of the
+        joint's trials)."""
+        from ident.friction.plausibility import assess, to_json
+
         fj = self._r[joint].fits_json()
-        return {m: fj[m] for m in self.models if m in fj}
+        d = self.data.get(joint)
+        qd = (np.concatenate([np.asarray(x.qd, float) for x in d.trials.values()])
+              if d is not None and d.trials else None)
+        ms = self._r[joint].models
+        out = {}
+        for m in self.models:
+            if m not in fj:
+                continue
+            e = dict(fj[m])
+            se = {k: (v if isinstance(v, (int, float)) else None)
+                  for k, v in (e.get("stderr") or {}).items()}
+            tau = (np.concatenate([np.asarray(x.tau, float) for x in d.trials.values()])
+                   if qd is not None else None)
+            e["flags"] = to_json(assess(m, e.get("params", {}), qd=qd, stderr=se,
+                                        model=ms.get(_MODEL_KEY[m]),
+                                        tau_scale=None if tau is None else float(np.max(np.abs(tau)))))
+            out[m] = e
+        return out
 
     def compare_by_kind(self, joint: int, model: str = "dm2", reference: str = "arctan") -> dict:
         """Per trial kind, ``model`` against ``reference`` (names of ``jointlab fit --models``):
@@ -572,7 +594,8 @@ class DynamicFits(Mapping):
                 e = out.setdefault(tid, {}).setdefault(str(j), {})
                 for m, ent in self.joint_entries(j).items():
                     e[m] = {"params": ent["params"], "stderr": ent["stderr"],
-                            "rms": _rms(models[_MODEL_KEY[m]], d), "scope": "joint"}
+                            "rms": _rms(models[_MODEL_KEY[m]], d), "scope": "joint",
+                            "flags": ent.get("flags", {})}
         return I._jsonable(out)
 
     def joints_doc(self) -> dict:
@@ -679,9 +702,28 @@ def fit_campaign_dynamic(campaign, joints=None, angles_dir=None, sink=None, *,
     robot = campaign.load_robot()
     if joints is None:
         joints = sorted({j for tr in campaign.trials if tr.kind != "coastdown" for j in tr.joints})
-    results, data = {}, {}
+    results, data, skipped = {}, {}, {}
+    asked = models
     for j in joints:                                      # loop over joints (few)
-        d = joint_dynamic_data(campaign, int(j), robot, angles_dir, models, bandwidth)
+        kinds = {tr.kind for tr in campaign.trials
+                 if tr.joints == (int(j),) and int(j) not in tr.unlogged_torque}
+        models = feasible_models(asked, kinds)
+        if not models:
+            skipped[int(j)] = kinds
+            continue
+        try:
+            d = joint_dynamic_data(campaign, int(j), robot, angles_dir, models, bandwidth)
+        except InputError:
+            if "dm2" not in models:
+                raise
+            models = tuple(m for m in models if m != "dm2")   # e.g. one reversal acceleration
+            d = joint_dynamic_data(campaign, int(j), robot, angles_dir, models, bandwidth)
+            d = replace(d, notes=d.notes + (f"joint {j}: dm2 not identified: its reversals "
+                                            "trials hold fewer than two accelerations",))
+        if tuple(models) != tuple(asked):
+            d = replace(d, notes=d.notes + (
+                f"joint {j}: {', '.join(m for m in asked if m not in models)} not identified "
+                f"({missing_data_sets(asked, kinds)})",))
         with one_blas_thread():
             try:
                 if "dm2" in models:
@@ -698,4 +740,41 @@ def fit_campaign_dynamic(campaign, joints=None, angles_dir=None, sink=None, *,
             except ValueError as exc:
                 raise InputError(f"joint {j}: {exc}", path=campaign.manifest) from None
         results[int(j)], data[int(j)] = res, d
-    return DynamicFits(results, data, models, campaign.name, sink)
+    if not results:
+        kinds = set().union(*skipped.values()) if skipped else set()
+        raise InputError(f"{', '.join(asked)}: no joint of the campaign has the trials these "
+                         f"models need ({missing_data_sets(asked, kinds)})", path=campaign.manifest)
+    out = DynamicFits(results, data, asked, campaign.name, sink)
+    if skipped:
+        kinds = set().union(*skipped.values())
+        out.notes = [f"joint(s) {', '.join(map(str, sorted(skipped)))}: {', '.join(asked)} not "
+                     f"identified ({missing_data_sets(asked, kinds)})"]
+    return out
+
+
+_DATA_SETS = {"constant_velocity": "constant-velocity moves (Indri & Trapani data set 1, the "
+                                   "static arctan part: kind = \"constant_velocity\")",
+              "reversals": "velocity reversals (data set 2, the bristle dynamics: kind = "
+                           "\"reversals\", at two or more accelerations for dm2)",
+              "excitation": "variable-velocity excitation (dm2's gamma: kind = \"excitation\")"}
+
+
+def feasible_models(models, kinds) -> tuple:
+    """The dynamic ``models`` that single-joint trials of ``kinds`` allow: arctan needs
+    constant-velocity moves, dm1 also reversals, dm2 also excitation trials (Indri & Trapani
+    steps 1-3)."""
+    return tuple(m for m in models if _needs((m,)) <= set(kinds))
+
+
+def missing_data_sets(models, kinds) -> str:
+    """The data sets ``models`` need that trials of ``kinds`` lack, named once, with a remedy the
+    command line reaches."""
+    need = _needs(models) - set(kinds)
+    if not need:
+        return "nothing missing"
+    can = feasible_models(models, kinds)
+    return ("missing: " + "; ".join(_DATA_SETS[k] for k in sorted(need))
+            + ". Add such single-joint [[trial]] entries to campaign.toml and rerun `jointlab fit "
+            "CAMPAIGN --models " + ",".join(models) + "`"
+            + (f"; what these trials allow now: `jointlab fit CAMPAIGN --models {','.join(can)}`"
+               if can else ""))

@@ -17,6 +17,17 @@ def _g(x) -> str:
     return "merged" if x is None else f"{x:.4g}"
 
 
+def _pv(v, flag: dict | None) -> str:
+    """A parameter with its plausibility flag (:func:`ident.friction.plausibility.fmt`)."""
+    from ident.friction.plausibility import Flag, fmt
+
+    return fmt(v, None if not flag else Flag(flag["flag"], flag["reason"]))
+
+
+def _arm(v, flag: dict | None) -> str:
+    return "merged" if v is None else _pv(v, flag)
+
+
 def multijoint_trials(campaign) -> tuple:
     """Trials that move several joints at once."""
     return tuple(t for t in campaign.trials if len(t.joints) > 1)
@@ -41,6 +52,7 @@ class MultiJointFits:
                         "params": e["params"], "stderr": e.get("stderr", {}), "rms": e["rms"],
                         "heldout_rms": e["heldout_rms"], "offset": e["offset"],
                         "armature": e["armature"], "model": m, "method": "multi-joint rigid-body",
+                        "flags": e.get("flags", {}),
                         **({"implausible": e["implausible"]} if e.get("implausible") else {})}
         return out
 
@@ -54,6 +66,8 @@ class MultiJointFits:
                     if e.get("implausible"):
                         continue
                     for k, v in e["params"].items():
+                        if k in e.get("flags", {}):      # impossible / not identifiable
+                            continue
                         vals.setdefault((int(j), m, k), []).append(float(v))
         rows = []
         for (j, m, k), v in sorted(vals.items()):
@@ -80,6 +94,8 @@ class MultiJointFits:
         return doc
 
     def report(self) -> str:
+        from ident.friction.plausibility import meaning_line
+
         lines = ["# Multi-joint identification", ""]
         for tid, by_model in self.fits.items():
             pre = self.preprocessing[tid]
@@ -89,14 +105,22 @@ class MultiJointFits:
             for m, fit in by_model.items():
                 lines += ["", f"### {m}", "", f"Method: {fit.method}.", ""]
                 pn = None
+                flagged = []
                 for j, e in fit.joints.items():
                     if pn is None:
                         pn = list(e["params"])
                         lines += ["| joint | " + " | ".join(pn) + " | offset | armature | rms | held-out rms |",
                                   "|---" * (len(pn) + 5) + "|"]
-                    lines.append(f"| {j} | " + " | ".join(f"{e['params'][k]:.4g}" for k in pn)
-                                 + f" | {e['offset']:.4g} | {_g(e['armature'])} | {e['rms']:.4g} | "
-                                 f"{e['heldout_rms']:.4g} |")
+                    fl = e.get("flags", {})
+                    lines.append(f"| {j} | " + " | ".join(_pv(e["params"][k], fl.get(k)) for k in pn)
+                                 + f" | {e['offset']:.4g} | {_arm(e['armature'], fl.get('armature'))}"
+                                 f" | {e['rms']:.4g} | {e['heldout_rms']:.4g} |")
+                    flagged += [f"joint {j} {k}: {f['flag']} ({f['reason']})" for k, f in fl.items()]
+                lines += ["", f"Parameters: {meaning_line(m)}."] if meaning_line(m) else []
+                if flagged:
+                    lines += ["", "Flagged (not a physical estimate; left out of the summary):", ""]
+                    lines += [f"- {x}" for x in flagged]
+                lines.append("")
                 if fit.motors:
                     lines += ["", "Coupled motors (log coordinates, link side): " + "; ".join(
                         f"motor {k}: " + ", ".join(f"{kk} {vv:.4g}" for kk, vv in v.items())
@@ -116,26 +140,82 @@ class MultiJointFits:
 
 
 def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | None = None,
-                            seed: int = 0, **settings) -> MultiJointFits:
-    """Identify every multi-joint trial of ``campaign`` with every friction model."""
+                            seed: int = 0, v_zero="auto", **settings) -> MultiJointFits:
+    """Identify every multi-joint trial of ``campaign`` with every friction model.
+    ``v_zero``: ``"auto"`` (default): the low-speed cut of each joint chosen from the data
+    (:func:`ident.model.rigidbody.low_speed_cut`, reported in the preprocessing); a number: a
+    fraction of each joint's 99th-percentile speed (``v_zero_frac``)."""
     import time
 
     from ident.model.regressor import ChainDynamics, base_parameters
-    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier
+    from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, dynamic_data_note,
+                                       low_speed_cut, without_unlogged)
 
     robot = campaign.load_robot()
     chain = ChainDynamics.from_model(robot.model)
     base = base_parameters(chain, robot.lower, robot.upper, seed=seed)
     fits, pre, secs = {}, {}, {}
+    dyn_note = dynamic_data_note(models, {t.kind for t in campaign.trials})
     for tr in multijoint_trials(campaign):
         t0 = time.perf_counter()
-        rec = load_record(campaign, tr, robot, record)
-        pre[tr.id] = rec.preprocessing
-        fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **settings).fit(rec)
+        rec = without_unlogged(load_record(campaign, tr, robot, record))
+        pre[tr.id] = dict(rec.preprocessing)
+        if rec.unlogged:
+            names = ", ".join(f"{j} ({robot.joint_names[j - 1]})" for j in rec.unlogged)
+            pre[tr.id]["unlogged_torque"] = list(rec.unlogged)
+            pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [
+                f"torque not logged on joints {names} (unlogged_torque): their angles drive the "
+                "kinematics and the other joints' rigid-body torques; no friction, offset or "
+                "armature is identified for them"]
+        if dyn_note:
+            pre[tr.id]["warnings"] = list(pre[tr.id].get("warnings", [])) + [dyn_note]
+        kw = dict(settings)
+        if v_zero == "auto":
+            cut = _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings)
+            kw["v_zero"] = cut["v_zero"]
+            pre[tr.id]["low_speed_cut"] = {k: (v.tolist() if hasattr(v, "tolist") else v)
+                                           for k, v in cut.items()}
+            pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [
+                "low-speed cut chosen from the data: rows with |qd_j| below " + ", ".join(
+                    f"{x:.3g}" for x in cut["v_zero"]) + " rad/s (" + ", ".join(
+                    f"{100 * x:.2g}" for x in cut["fraction_of_speed"]) + " % of the 99th-percentile "
+                "speeds) left out: the larger of the velocity noise floor (3 standard deviations: "
+                "angle noise " + ", ".join(f"{x:.2g}" for x in cut["sigma_q"]) + " rad through the "
+                "derivative filter, " + ", ".join(f"{x:.3g}" for x in cut["noise_floor"]) + " rad/s) "
+                "and the speed below which a Coulomb + viscous fit's residual grows past 1.5 times "
+                "its level at speed (" + ", ".join(f"{x:.3g}" for x in cut["knee"]) + " rad/s)"]
+        else:
+            kw["v_zero_frac"] = float(v_zero)
+        fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **kw).fit(rec)
                        for m in models}
         _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
+
+
+def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
+    """The low-speed cut of each joint chosen from the data (reported in the preprocessing):
+    the larger of the velocity noise floor (:func:`ident.model.rigidbody.low_speed_cut`) and
+    the residual knee of a Coulomb + viscous fit above that floor
+    (:func:`ident.model.rigidbody.residual_knee`)."""
+    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier, low_speed_cut, residual_knee
+
+    cut = low_speed_cut(campaign.read_log(tr, robot), rec, robot.drives)
+    floor = cut["v_zero"]
+    kw = {k: v for k, v in settings.items() if k not in ("folds", "v_zero", "v_zero_frac")}
+    idt = RigidBodyIdentifier(chain, base, model="cv", seed=seed, folds=0, v_zero=floor, **kw)
+    A, names, F, M, v0, sigma, idt._dropped = idt._prepared(rec)
+    idt._names = names
+    sol = idt._solve(rec, A, F, M, np.ones(rec.t.size, bool), sigma=sigma, quick=True)
+    resid = rec.tau - idt._predict(rec, A, F, sol)
+    _PREPARED.clear()
+    knee = np.array([residual_knee(rec.qd[:, j], np.where(M[:, j], resid[:, j], 0.0), floor[j])
+                     if M[:, j].any() else floor[j] for j in range(rec.n)])
+    v0 = np.maximum(floor, knee)
+    sp = np.percentile(np.abs(rec.qd), 99, axis=0)
+    return {"v_zero": v0, "noise_floor": floor, "knee": knee, "sigma_q": cut["sigma_q"],
+            "sigma_v": cut["sigma_v"], "k": cut["k"],
+            "fraction_of_speed": np.where(sp > 0, v0 / np.where(sp > 0, sp, 1.0), 0.0)}
 
 
 def continuous_records(campaign, trials, logs) -> list[list[int]]:
@@ -206,16 +286,29 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
     for g in continuous_records(campaign, trials, logs):
         tr = trials[g[0]]
         rid = tr.id if len(g) == 1 else "+".join(trials[i].id for i in g)
+        unl = tuple(sorted({j for i in g for j in trials[i].unlogged_torque}))
         recs.append((g, prepare_record(_join_logs([logs[i] for i in g]),
-                                       SimpleNamespace(id=rid, joints=tuple(tr.joints)), robot.n, C,
+                                       SimpleNamespace(id=rid, joints=tuple(tr.joints),
+                                                       unlogged_torque=unl), robot.n, C,
                                        record)))
     offsets = campaign_clock([SimpleNamespace(time=rec.t) for _, rec in recs])
     reports, series = {}, {}
     moving = sorted({j for g, rec in recs for j in rec.moving})
+    unlogged = sorted({j for g, rec in recs for j in rec.unlogged
+                       if not joints or j in joints})
+    if unlogged:
+        from mocap.io.errors import warn_input
+
+        warn_input(f"joints {unlogged} ({', '.join(robot.joint_names[j - 1] for j in unlogged)}): "
+                   "torque not logged (unlogged_torque); their angles drive the kinematics, they "
+                   "are not diagnosed", path=campaign.manifest)
     for j in moving:
         if joints and j not in joints:
             continue
-        mine = [(k, g, rec) for k, (g, rec) in enumerate(recs) if j in rec.moving]
+        mine = [(k, g, rec) for k, (g, rec) in enumerate(recs)
+                if j in rec.moving and j not in rec.unlogged]
+        if not mine:
+            continue
         parts = [build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
                  for _, _, rec in mine]
         d = concat_joint_data(parts, [offsets[k] for k, _, _ in mine])

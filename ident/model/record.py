@@ -69,6 +69,7 @@ class MultiJointRecord:
     coupling: np.ndarray        # (n, n) C: q_urdf = C q_log
     moving: tuple               # 1-based joints the trial declares moving
     preprocessing: dict = field(default_factory=dict)
+    unlogged: tuple = ()        # 1-based moving joints whose torque was not logged (tau NaN)
 
     @property
     def n(self) -> int:
@@ -184,7 +185,9 @@ def prepare_record(log, trial, n: int, coupling=None, settings: RecordSettings |
     t = log.time[keep]
     qm, tau = log.qm[keep], log.tau[keep]
     qd_log = log.qd[keep] if log.qd is not None else None
-    missing = [j + 1 for j in range(n) if np.all(np.isnan(qm[:, j])) or np.all(np.isnan(tau[:, j]))]
+    unlogged = tuple(getattr(trial, "unlogged_torque", ()))      # FORMAT.md: tau ignored
+    missing = [j + 1 for j in range(n) if np.all(np.isnan(qm[:, j]))
+               or (np.all(np.isnan(tau[:, j])) and j + 1 not in unlogged)]
     if missing:
         raise InputError(f"the log has no qm_{missing[0]}/tau_{missing[0]} samples (a multi-joint "
                          "record needs every joint's angle and torque)", path=log.source,
@@ -252,7 +255,7 @@ def prepare_record(log, trial, n: int, coupling=None, settings: RecordSettings |
     if check:
         rep["peak_to_peak_rad"] = check_braked(trial, qs, st.braked_tol, path=log.source)
     return MultiJointRecord(trial.id, t_keep, qs, qd, qdd, tau_u, C,
-                            tuple(trial.joints), rep)
+                            tuple(trial.joints), rep, unlogged)
 
 
 def _interp_cols(tu, t, x):

@@ -99,6 +99,82 @@ def _drop_absorbed(A, names, nb, tol: float = 1e-6):
     return A2.reshape(T, n, p)[:, :, keep], tuple(names[k] for k in keep), tuple(dropped)
 
 
+def low_speed_cut(log, rec, drives=(), k: float = 3.0) -> dict:
+    """The low-speed cut of each joint chosen from the data: ``k`` standard deviations of the
+    noise of the velocity estimate, below which the sign of ``qd`` (and so the direction of the
+    Coulomb friction) is not known.
+
+    ``sigma_q`` (angle noise, rad) is the largest of: the declared encoder resolution over
+    sqrt(12) (``drives.toml`` ``encoder_resolution``, uniform quantisation), the smallest
+    non-zero step of the logged angle over sqrt(12) (the quantum the log shows), and the white
+    noise of the logged angle, ``std(q - S7 q) / sqrt(1 - 1/3)`` (``S7``: the 7-sample cubic
+    Savitzky-Golay smoother, whose centre weight is 1/3). ``sigma_v = sigma_q ||c||``, with
+    ``c`` the cubic Savitzky-Golay first-derivative kernel of the record's window for the joint
+    (``rec.preprocessing["window_s"]``) at the record's step: the noise that kernel passes to
+    the velocity. Returns ``{"v_zero": (n,), "sigma_q", "sigma_v", "k"}`` (rad, rad/s)."""
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    n, dt = rec.n, rec.dt
+    sq, sv, v0 = np.zeros(n), np.zeros(n), np.zeros(n)
+    win = rec.preprocessing.get("window_s", {})
+    for j in range(n):                                   # loop over joints (n <= ~7)
+        q = np.asarray(log.qm[:, j], float)
+        q = q[np.isfinite(q)]
+        enc = float(getattr(drives[j], "encoder_resolution", 0.0) or 0.0) if j < len(drives) else 0.0
+        d = np.abs(np.diff(q))
+        d = d[d > 1e-12]
+        quantum = float(d.min()) if d.size else 0.0
+        white = (float(np.std(q - savgol_filter(q, 7, 3))) / np.sqrt(1.0 - 1.0 / 3.0)
+                 if q.size >= 7 else 0.0)
+        sq[j] = max(enc / np.sqrt(12.0), quantum / np.sqrt(12.0), white)
+        w = max(5, int(round(float(win.get(str(j + 1), 5 * dt)) / dt)) | 1)
+        c = savgol_coeffs(w, 3, deriv=1, delta=dt)
+        sv[j] = sq[j] * float(np.linalg.norm(c))
+        v0[j] = k * sv[j]
+    return {"v_zero": v0, "sigma_q": sq, "sigma_v": sv, "k": float(k)}
+
+
+def residual_knee(qd, resid, v_floor, n_bins: int = 15, factor: float = 1.5) -> float:
+    """The lowest speed from which the Coulomb + viscous law fits as well as at speed: the
+    residual ``resid`` of a fit is binned over ``|qd|`` (``n_bins`` log-spaced bins from
+    ``v_floor`` to the 99th-percentile speed, bins of fewer than 10 rows skipped); the reference
+    level is the median RMS of the bins above the median speed; the knee is the lower edge of
+    the first bin, from the slowest up, whose RMS is within ``factor`` times that level (below it
+    the friction is not Coulomb + viscous: presliding, a Stribeck rise or a reversal's transient).
+    ``v_floor`` when the slowest bin already fits."""
+    a = np.abs(np.asarray(qd, float))
+    r = np.asarray(resid, float)
+    sp = float(np.percentile(a, 99)) if a.size else 0.0
+    if not sp > v_floor > 0:
+        return float(v_floor)
+    edges = np.geomspace(v_floor, sp, n_bins + 1)
+    k = np.clip(np.searchsorted(edges, a, side="right") - 1, -1, n_bins)
+    ok = (k >= 0) & (k < n_bins)
+    cnt = np.bincount(k[ok], minlength=n_bins)
+    ss = np.bincount(k[ok], weights=r[ok] ** 2, minlength=n_bins)
+    rms = np.where(cnt >= 10, np.sqrt(ss / np.maximum(cnt, 1)), np.nan)
+    mid = np.sqrt(edges[:-1] * edges[1:])
+    upper = rms[(mid >= np.median(a[a >= v_floor])) & np.isfinite(rms)] if (a >= v_floor).any() \
+        else np.array([])
+    if upper.size == 0:
+        return float(v_floor)
+    good = np.flatnonzero(np.isfinite(rms) & (rms <= factor * float(np.median(upper))))
+    return float(edges[good[0]]) if good.size else float(v_floor)
+
+
+def without_unlogged(rec):
+    """``rec`` with the torque of its unlogged joints (``rec.unlogged``, and any joint without a
+    single finite torque sample) set to 0 and those joints named in ``unlogged``: the identifier
+    leaves their rows out (a record whose torques are all finite is returned as it is)."""
+    import dataclasses
+
+    if np.isfinite(rec.tau).all():
+        return rec
+    bad = {j + 1 for j in range(rec.n) if not np.isfinite(rec.tau[:, j]).any()}
+    return dataclasses.replace(rec, tau=np.nan_to_num(rec.tau, nan=0.0, posinf=0.0, neginf=0.0),
+                               unlogged=tuple(sorted(set(getattr(rec, "unlogged", ())) | bad)))
+
+
 class RigidBodyIdentifier:
     """Settings in the constructor, learning in :meth:`fit` (see the module docstring).
 
@@ -112,7 +188,7 @@ class RigidBodyIdentifier:
     def __init__(self, chain: ChainDynamics, base: BaseParameters | None = None, model: str = "cv",
                  v_zero_frac: float = 0.02, armature: bool = True, offset: bool = True,
                  coupled_motors: bool = True, n_iter: int = 3, folds: int = 5, n_starts: int = 4,
-                 seed: int = 0, lower=None, upper=None):
+                 seed: int = 0, lower=None, upper=None, v_zero=None):
         from ident.friction import MODELS
 
         if model not in MODELS:
@@ -122,6 +198,8 @@ class RigidBodyIdentifier:
         self.model = model
         self.model_cls = MODELS[model]
         self.v_zero_frac = float(v_zero_frac)
+        # per-joint low-speed cut in rad/s (e.g. :func:`low_speed_cut`); None: the fraction
+        self.v_zero = None if v_zero is None else np.asarray(v_zero, float)
         self.armature = bool(armature)
         self.offset = bool(offset)
         self.coupled_motors = bool(coupled_motors)
@@ -167,15 +245,21 @@ class RigidBodyIdentifier:
 
     def _mask(self, rec):
         sp = np.percentile(np.abs(rec.qd), 99, axis=0)
-        v0 = self.v_zero_frac * sp
-        moving = np.array([j + 1 in rec.moving for j in range(rec.n)])
+        v0 = self.v_zero_frac * sp if self.v_zero is None else self.v_zero
+        unlogged = getattr(rec, "unlogged", ())
+        moving = np.array([j + 1 in rec.moving and j + 1 not in unlogged for j in range(rec.n)])
         M = (np.abs(rec.qd) >= v0[None, :]) & moving[None, :]
         return M, v0
 
     # ---- fit -------------------------------------------------------------------------------
     def fit(self, rec) -> RigidBodyFit:
+        """Fit ``rec`` (a :class:`ident.model.record.MultiJointRecord`). Joints in
+        ``rec.unlogged`` (their torque was not logged, FORMAT.md ``unlogged_torque``) keep their
+        angles in the regressor of the other joints; their own rows are left out and nothing
+        is identified for them."""
         from ident.signals.blas import one_blas_thread
 
+        rec = without_unlogged(rec)
         with one_blas_thread():
             return self._fit(rec)
 
@@ -184,7 +268,8 @@ class RigidBodyIdentifier:
         and the weights of the ordinary least-squares Coulomb + viscous pass), computed once per
         record and shared by the identifiers of every friction model with the same settings."""
         key = (id(rec), id(self.chain), id(self.base), self.offset, self.armature,
-               self.coupled_motors, self.v_zero_frac)
+               self.coupled_motors, self.v_zero_frac,
+               None if self.v_zero is None else tuple(self.v_zero))
         hit = _PREPARED.get("key")
         if hit is not None and hit[0] == key and hit[1] is rec:
             return hit[2]
@@ -314,7 +399,7 @@ class RigidBodyIdentifier:
         names = self._names
         own = [[k for k, nm in enumerate(names) if nm in (f"offset_{j + 1}", f"Ia_{j + 1}")]
                for j in range(n)]
-        notes = []
+        notes, failed = [], {}
         dynamic = getattr(self.model_cls, "dynamic", False)
         solve = self._wls_factor(A2, w)        # same rows and weights in every alternation
         scale = np.sqrt(np.sum(np.where(rows, rec.tau, 0.0) ** 2, axis=0) / np.maximum(rows.sum(0), 1))
@@ -341,7 +426,7 @@ class RigidBodyIdentifier:
                                      seed=self.seed, x0=ff[j].model.params if ff[j] is not None else None,
                                      **({"qdd": kw["qdd"][rj], "dt": kw["dt"]} if kw else {}))
                 except (ValueError, RuntimeError) as exc:
-                    notes.append(f"joint {j + 1}: {self.model} fit failed ({exc})")
+                    failed.setdefault(j + 1, str(exc))      # once per joint, not per alternation
                     continue
                 ff[j] = f
                 fric[:, j] = f.model.torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)
@@ -351,6 +436,9 @@ class RigidBodyIdentifier:
                 break
         # final linear pass with the friction fixed
         b = solve((rec.tau - fric).reshape(-1))
+        failed = {j: why for j, why in failed.items() if ff[j - 1] is None}
+        if failed:
+            notes.append(_failure_note(self.model, failed))
         return {"b": b, "bf": None, "ff": ff, "notes": notes}
 
     # ---- result ----------------------------------------------------------------------------
@@ -398,6 +486,18 @@ class RigidBodyIdentifier:
                     e["settings"] = f.model.to_dict()["settings"]
             mdl = (CoulombViscous(**e["params"]) if self.model in LINEAR_MODELS
                    else sol["ff"][j].model)
+            from ident.friction.plausibility import assess, assess_armature, to_json
+
+            flags = assess(self.model, e["params"], qd=rec.qd[M[:, j], j],
+                           stderr=e.get("stderr"), model=mdl,
+                           tau_scale=float(np.max(np.abs(rec.tau[M[:, j], j]))))
+            se_arm = None
+            if cov is not None and f"Ia_{j + 1}" in idx:
+                se_arm = float(np.sqrt(max(cov[idx[f"Ia_{j + 1}"], idx[f"Ia_{j + 1}"]], 0.0)))
+            fa = assess_armature(e["armature"], se_arm)
+            e["flags"] = to_json(flags)
+            if fa is not None:
+                e["flags"]["armature"] = fa.to_dict()
             implaus = _implausible(mdl, rec.qd[M[:, j], j])
             if implaus:
                 e["implausible"] = implaus
@@ -416,12 +516,57 @@ class RigidBodyIdentifier:
                      f", per-joint {self.model} friction by up to {self.n_iter} alternations with "
                      "the linear part (fit_friction with offset and armature as extra columns; "
                      "row weights from the Coulomb + viscous least-squares pass)")
-                  + f"; rows with |qd_j| < {self.v_zero_frac:g} x the joint's 99th-percentile speed "
-                  "left out; held-out RMS: leave-one-segment-out over "
+                  + (f"; rows with |qd_j| < {self.v_zero_frac:g} x the joint's 99th-percentile "
+                     "speed left out" if self.v_zero is None else
+                     "; rows slower than the low-speed cut chosen from the data left out ("
+                     + ", ".join(f"{x:.3g}" for x in self.v_zero) + " rad/s, see the "
+                     "preprocessing)")
+                  + "; held-out RMS: leave-one-segment-out over "
                   f"{self.folds} contiguous segments")
         return RigidBodyFit(self.model, joints, beta, tuple(f"beta_{k}" for k in range(beta.size)),
                             off, arm, motors, sol["rms"], held, sigma, v0, int(rec.t.size), method,
                             tuple(notes))
+
+
+def _failure_note(model: str, failed: dict) -> str:
+    """One note for the joints whose ``model`` friction could not be fitted on the record, with
+    the reason (the first joint's, its per-joint numbers dropped); the missing data set and its
+    remedy are named once per record (:func:`dynamic_data_note`)."""
+    import re
+
+    joints = sorted(failed)
+    why = re.sub(r"\s*\(min [^)]*\)", "", failed[joints[0]])
+    why = why.split("; identify the static part first")[0]
+    why = re.sub(r"\s*and pass settings=\{.*$", "", why)
+    out = f"{model} not identified on joint(s) {', '.join(map(str, joints))}: {why}"
+    if model in ("dm1", "dm2"):
+        out += " (see the missing data set named in the preprocessing)"
+    return out
+
+
+def dynamic_data_note(models, kinds) -> str | None:
+    """One sentence naming the data sets Indri & Trapani's dynamic models (dm1, dm2) need and
+    the campaign lacks (``kinds``: the trial kinds it has), with a remedy the command line
+    reaches; None when no dynamic model is asked or nothing is missing."""
+    dyn = [m for m in models if m in ("dm1", "dm2")]
+    if not dyn:
+        return None
+    miss = [(k, what) for k, what in (("constant_velocity", "constant-velocity moves (Indri & "
+                                       "Trapani data set 1: the static arctan part)"),
+                                      ("reversals", "velocity reversals (data set 2: the bristle "
+                                       "dynamics" + (", at two or more accelerations for dm2"
+                                                     if "dm2" in dyn else "") + ")"))
+            if k not in kinds]
+    if not miss:
+        return None
+    return (f"{', '.join(dyn)} on this record alone: the campaign has no "
+            + " and no ".join(w for _, w in miss)
+            + ", so the static part is fitted to the same record and may not be positive. "
+            "Remedy: record single-joint trials with kind = "
+            + " / ".join(f'"{k}"' for k, _ in miss)
+            + " in a campaign of their own and run `jointlab fit CAMPAIGN --models "
+            "arctan,dm1,dm2` on it; on this record `jointlab fit CAMPAIGN --models "
+            "cv,stribeck,hyperbolic,arctan` fits the static laws")
 
 
 def _implausible(model, qd) -> str | None:

@@ -150,6 +150,8 @@ class _Hasher:
         self._memo: dict = {}
 
     def file(self, path) -> str:
+        if path is None:                   # an optional input left out ([robot] drives)
+            return "none"
         p = Path(path)
         if not p.is_file():
             return "missing:" + str(p)
@@ -843,8 +845,10 @@ class Study:
         tmp = ctx.tmp_dir / "csv-new"
         write_study_csvs(ctx.camp, mocap_summary, fits, diag[0] if diag else None, tmp)
         _replace_dir(tmp, ctx.out / "csv")
+        later = [MANIFEST_NAME] + ([rrd_path.name] if rrd_path is not None
+                                   and rrd_path.resolve().parent == ctx.out.resolve() else [])
         md = report_markdown(ctx.camp, ctx.stages, calib_res, mocap_summary, fits,
-                             diag[0] if diag else None, plots, ctx.out, ctx.errors)
+                             diag[0] if diag else None, plots, ctx.out, ctx.errors, will_write=later)
         if getattr(self, "_coast_md", ""):
             md = md.rstrip("\n") + "\n\n" + self._coast_md
         _write_atomic(ctx.out / "report.md", md, ctx.tmp_dir)
@@ -1069,10 +1073,41 @@ def _f(x, nd=3):
     return str(x)
 
 
+def _multijoint_section(out: Path) -> list:
+    """The multi-joint rigid-body fits of ``rigidbody/rigidbody.md`` (written by
+    :meth:`ident.model.multijoint.MultiJointFits.report`) with its headings moved two levels
+    down, or [] when the stage wrote none."""
+    p = out / "rigidbody" / "rigidbody.md"
+    if not p.is_file():
+        return []
+    body = [("##" + ln) if ln.startswith("#") else ln
+            for ln in p.read_text(encoding="utf-8").splitlines()]
+    if body and body[0].startswith("### Multi-joint"):
+        body = body[1:]
+    return ["Multi-joint records: the URDF's rigid-body model jointly with per-joint friction, "
+            "torque offsets and actuator inertias (all values: `rigidbody/fits.json`, "
+            "`rigidbody/rigidbody.json`).", ""] + body
+
+
+def _existing_files(out: Path, will_write=()) -> str:
+    """The Files line of the report: the study's outputs that exist in ``out`` (or that the
+    study writes after the report: ``will_write``), each once."""
+    cands = [("calib.json", ""), ("references.json", ""), ("angles/", ""), ("mocap.json", ""),
+             ("fits/", ""), ("rigidbody/", ""), ("coastdown/", ""), ("diagnosis/", ""),
+             ("plots/", ""), ("csv/trials.csv", ""), ("csv/diagnosis_effects.csv", ""),
+             ("study.rrd", " (open with `jointlab view`)"),
+             (MANIFEST_NAME, " (input hashes: a rerun skips what is up to date)")]
+    keep = [f"`{name}`{note}" for name, note in cands
+            if (out / name.rstrip("/")).exists() or name in will_write]
+    return ", ".join(keep) + "." if keep else "none."
+
+
 def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis, plots, out: Path,
-                    errors=None) -> str:
+                    errors=None, will_write=()) -> str:
     """The study report: stages, calibration, link-angle quality, the thesis tables (Tables
-    5-1..5-3 / A / B of 002), the plots and the gap-diagnosis verdicts."""
+    5-1..5-3 / A / B of 002), the multi-joint rigid-body fits, the plots and the gap-diagnosis
+    verdicts; the Files line names only the outputs that exist (or ``will_write``: written
+    after the report)."""
     trials = campaign.trials
     joints = sorted({j for t in trials for j in t.joints})
     loads = sorted({t.load_kg for t in trials})
@@ -1084,8 +1119,11 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
          f"{', '.join(f'{100 * x:g} %' for x in speeds)} of the maximum; up to {reps} repetitions.", "",
          "## Stages", "", "| stage | computed | reused | failed | seconds | note |", "|---|---|---|---|---|---|"]
     for name, r in stages.items():
+        note = r["note"]
+        if name == "fits" and not (r["computed"] or r["reused"] or r["failed"]) and "rigidbody" in stages:
+            note = note or "no single-joint trials: the multi-joint records are fitted in the rigidbody stage"
         L.append(f"| {name} | {r['computed']} | {r['reused']} | {r['failed']} | {r['seconds']:.1f} | "
-                 f"{r['note']} |")
+                 f"{note} |")
     if errors:
         L += ["", "Failures:", ""] + [f"- `{k}`: {v}" for k, v in sorted(errors.items())]
     L += ["", "## Camera-to-base calibration", ""]
@@ -1109,6 +1147,9 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
         L.append(stages.get("mocap", {}).get("note") or "No link angles.")
     L += ["", "## Friction identification (thesis eq. 2-4)", ""]
     tables = out / "fits" / "tables" / "tables.md"
+    multi = _multijoint_section(out)
+    if multi:
+        L += multi + [""]
     if fits is not None and fits.entries and tables.is_file():
         L += [f"{len(fits.entries)} trial-joint fits of {', '.join(fits.models)}; statistics over the "
               "repetitions of each (joint, load, speed range) condition (CV = population std / |mean|).",
@@ -1117,7 +1158,7 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
             L += [f"![{key}](plots/{name})", ""]
         L.append("Per-condition plots: `fits/plots/`; all parameters with standard errors: "
                  "`fits/fits.json`, `fits/fits_diagnostics.json`.")
-    else:
+    elif not multi:
         L.append("No fits.")
     L += ["", "## Sim-to-real gap", ""]
     if diagnosis and diagnosis.get("joints"):
@@ -1141,10 +1182,7 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
         L.append("Full report: `diagnosis/diagnosis.md`, `diagnosis/diagnosis.json`.")
     else:
         L.append(stages.get("diagnosis", {}).get("note") or "No diagnosis.")
-    L += ["", "## Files", "",
-          "`calib.json`, `references.json`, `angles/`, `mocap.json`, `fits/`, `diagnosis/`, `plots/`, "
-          "`csv/trials.csv`, `csv/diagnosis_effects.csv`, `study.rrd` (open with `jointlab view`), "
-          f"`{MANIFEST_NAME}` (input hashes: a rerun skips what is up to date).", ""]
+    L += ["", "## Files", "", _existing_files(out, will_write), ""]
     return "\n".join(L)
 
 

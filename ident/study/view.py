@@ -41,7 +41,7 @@ def load_meshes(urdf) -> dict:
         from mocap.urdf import load_link_meshes
     except ImportError:
         return {}
-    return dict(load_link_meshes(Path(urdf)))
+    return dict(load_link_meshes(Path(urdf), missing="warn"))   # meshes are optional
 
 
 def decimate_indices(time: np.ndarray, max_rate_hz: float = MAX_ROBOT_RATE_HZ) -> np.ndarray:

@@ -76,6 +76,7 @@ class TrialJointFit:
     peak_speed: float
     notes: tuple = ()
     plot: dict = field(default_factory=dict, repr=False)   # time, qd, y, f_measured, pred_<model>
+    param_flags: dict = field(default_factory=dict)  # model -> {param: {"flag", "reason"}}
 
     def records(self) -> list[dict]:
         t = self.task
@@ -84,6 +85,7 @@ class TrialJointFit:
                  "stderr": {k: f.stderr.get(k, float("nan")) for k in f.params}, "rms": f.rms,
                  "max_abs_tau": self.max_abs_tau, "peak_speed": self.peak_speed,
                  "degenerate": f.form, "flags": list(f.flags),
+                 "param_flags": self.param_flags.get(m, {}),
                  "eiv_exceeds_se": bool(f.eiv["exceeds_se"]) if f.eiv else None}
                 for m, f in self.fits.items()]
 
@@ -142,8 +144,13 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
         pr = X @ np.array([f.rigid[k] for k in ("I", "mglx", "mgly")]) + f.friction().torque(sig.qd)
         plot[f"pred_{m}"] = pr[::step]
     sd = sig.to_dict()
+    from ident.friction.plausibility import assess, to_json
+
+    pflags = {m: to_json(assess(m, f.params, qd=sig.qd, stderr=f.stderr, model=f.friction(),
+                                form=f.form, tau_scale=float(np.max(np.abs(sig.tau)))))
+              for m, f in fits.items()}
     return TrialJointFit(task, fits, sd, float(np.max(np.abs(sig.tau))), float(np.max(np.abs(sig.qd))),
-                         tuple(notes), plot)
+                         tuple(notes), plot, pflags)
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,7 +178,7 @@ class FitsResult:
             for m, f in e.fits.items():
                 tj[m] = {"params": {k: _jnum(v) for k, v in f.params.items()},
                          "stderr": {k: _jnum(f.stderr.get(k, np.nan)) for k in f.params},
-                         "rms": _jnum(f.rms)}
+                         "rms": _jnum(f.rms), "flags": e.param_flags.get(m, {})}
         summ = [{k: r[k] for k in ("joint", "load_kg", "vmax_frac", "model", "param", "mean", "cv_percent")}
                 for r in self.summary]    # means over the physically valid fits only (n_excluded: diagnostics)
         return {"format": 1, "trials": trials, "summary": summ}
@@ -256,7 +263,16 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
         off = tr.extra.get("time_offset", 0.0)
         if sync == "estimate":
             off = "estimate"
+        unl = [j for j in tr.joints if j in tr.unlogged_torque]
+        if unl and len(tr.joints) == 1:           # FORMAT.md unlogged_torque: said once
+            # (a multi-joint record's unlogged joints are said by the rigid-body stage)
+            from mocap.io.errors import warn_input
+
+            warn_input(f"trial {tr.id!r}: torque not logged on joint(s) {unl} (unlogged_torque): "
+                       "not fitted", path=campaign.manifest)
         for j in tr.joints:
+            if j in tr.unlogged_torque:
+                continue
             d = robot.drives[j - 1]
             tasks.append(FitTask(tr.id, int(j), str(tr.log), ang, float(d.motor_inertia),
                                  float(d.motor_viscous), robot.n, tr.load_kg, tr.vmax_frac,

@@ -28,9 +28,11 @@ __all__ = ["mean_cv", "group_records", "summarize", "excluded_fits", "rms_summar
 
 G = 9.81
 PARAM_NAMES = {"cv": ("c", "v"), "stribeck": ("Fk", "Fv", "Fs", "Vc"),
-               "hyperbolic": ("g1", "g2", "g3", "g4", "g5", "g6")}
+               "hyperbolic": ("g1", "g2", "g3", "g4", "g5", "g6"),
+               "arctan": ("tau_s", "tau_sc", "tau_v", "tau_nlv", "delta")}
 MODEL_TITLES = {"cv": "Coulomb + viscous model", "stribeck": "Four-parameter Stribeck model",
-                "hyperbolic": "Six-parameter hyperbolic model"}
+                "hyperbolic": "Six-parameter hyperbolic model",
+                "arctan": "Arctangent model (Indri & Trapani eq. 1-2)"}
 _PRINT_NAMES = {"Fk": "F_k", "Fv": "F_v", "Fs": "F_s", "Vc": "V_c", "g1": "γ_1", "g2": "γ_2",
                 "g3": "γ_3", "g4": "γ_4", "g5": "γ_5", "g6": "γ_6"}
 
@@ -70,7 +72,8 @@ def _valid(recs, param: str | None = None) -> list:
     which the fit determined it (not in ``unidentified``, see :data:`UNIDENTIFIED`): only
     these enter means."""
     return [r for r in recs if not r.get("flags")
-            and (param is None or param not in UNIDENTIFIED.get(r.get("degenerate"), ()))]
+            and (param is None or (param not in UNIDENTIFIED.get(r.get("degenerate"), ())
+                                   and param not in r.get("param_flags", {})))]
 
 
 UNIDENTIFIED = {"hyperbolic_stribeck_nonunique": ("g1", "g2", "g3"), "stribeck_as_cv": ("Vc",),
@@ -144,6 +147,11 @@ def param_table(records, joint: int, models=("cv", "stribeck")) -> tuple[list, l
         for m, p in cols:
             recs = _valid(by_model.get(m, []), p)
             stats[(m, p)] = mean_cv([r["params"].get(p, np.nan) for r in recs]) if recs else (np.nan, np.nan)
+            allr = by_model.get(m, [])
+            if not recs and allr and all(
+                    r.get("param_flags", {}).get(p, {}).get("flag") == "unidentifiable"
+                    or p in UNIDENTIFIED.get(r.get("degenerate"), ()) for r in allr):
+                stats[(m, p)] = ("not identifiable", "n/a")   # printed as such, not as a number
         base = [j, load * G, _peak(by_model)]
         rows.append(base + ["mean"] + [stats[c][0] for c in cols])
         rows.append(base + ["CV(%)"] + [stats[c][1] for c in cols])
@@ -206,7 +214,7 @@ def _markdown(title, header, rows, models_header=None) -> str:
         prev = key
         vals = row[4:]
         if row[3] == "mean" and is_params:
-            small = [bool(np.isfinite(v) and abs(v) < 0.005) for v in vals]
+            small = [bool(not isinstance(v, str) and np.isfinite(v) and abs(v) < 0.005) for v in vals]
             out = ["<0.01" if s_ else _fmt(v) for v, s_ in zip(vals, small)]
         elif row[3] == "CV(%)" and is_params:
             out = ["n/a" if s_ else _fmt(v) for v, s_ in zip(vals, small)]
@@ -233,6 +241,19 @@ def _footnotes(records, joint: int, models) -> str:
                      "does not determine them):")
         lines += [f"- {r.get('trial')} ({r['model']}, {r['degenerate']}): "
                   f"{', '.join(UNIDENTIFIED[r['degenerate']])}" for r in und]
+    pf: dict = {}
+    for r in records:
+        if int(r["joint"]) == joint and r["model"] in models and not r.get("flags"):
+            for k, f in r.get("param_flags", {}).items():
+                pf.setdefault((r.get("trial"), r["model"], f["flag"], f["reason"]), []).append(k)
+    if pf:
+        lines.append("Parameters flagged by the plausibility check (ident.friction.plausibility) "
+                     "and left out of their means:")
+        lines += [f"- {tr} ({m}) {', '.join(ks)}: {kind} ({why})"
+                  for (tr, m, kind, why), ks in pf.items()]
+    from ident.friction.plausibility import meaning_line
+
+    lines += [meaning_line(m) + "." for m in models if meaning_line(m)]
     if eiv:
         lines.append(f"Errors in variables: in {len(eiv)} fit(s) the link-state noise biases a parameter "
                      "by more than its standard error (fits_diagnostics.json, `eiv`): "
@@ -284,11 +305,13 @@ def write_tables(records, out_dir: str | Path, models=("cv", "stribeck", "hyperb
             written += write_table(out_dir / f"params_{'_'.join(first)}_joint{j}", title, h, rows,
                                    _footnotes(records, j, first))
             md.append(written[-1].read_text(encoding="utf-8"))
-        if "hyperbolic" in present:
-            h, rows = param_table(records, j, ("hyperbolic",))
-            title = f"Friction parameter identification results of hyperbolic model for joint {j}."
-            written += write_table(out_dir / f"params_hyperbolic_joint{j}", title, h, rows,
-                                   _footnotes(records, j, ("hyperbolic",)))
+        for m in ("hyperbolic", "arctan"):
+            if m not in present:
+                continue
+            h, rows = param_table(records, j, (m,))
+            title = f"Friction parameter identification results of {m} model for joint {j}."
+            written += write_table(out_dir / f"params_{m}_joint{j}", title, h, rows,
+                                   _footnotes(records, j, (m,)))
             md.append(written[-1].read_text(encoding="utf-8"))
         h, rows = rms_table(records, j, tuple(present))
         count = {1: "one", 2: "two", 3: "three"}.get(len(present), str(len(present)))

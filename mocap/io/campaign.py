@@ -1,6 +1,7 @@
 """The campaign manifest (FORMAT.md, ``campaign.toml``) and its validation."""
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import tomllib
@@ -36,6 +37,7 @@ class Trial(Recording):
     kind: str = "excitation"
     note: str = ""
     extra: dict = field(default_factory=dict)
+    unlogged_torque: tuple[int, ...] = ()   # moving joints whose torque was not logged
 
 
 @dataclass(frozen=True)
@@ -51,6 +53,9 @@ class Campaign:
     trials: tuple[Trial, ...]
     extra: dict = field(default_factory=dict)
     coupling: tuple | None = None  # [robot] coupling rows: q_urdf = coupling @ q_log
+    base_link: str | None = None   # [robot] base_link, tip_link, fixed: which chain is the arm
+    tip_link: str | None = None
+    fixed: dict = field(default_factory=dict)
 
     @property
     def has_markers(self) -> bool:
@@ -73,7 +78,8 @@ class Campaign:
     def load_robot(self):
         from mocap.robot import Robot
 
-        robot = Robot.from_urdf(self.urdf, self.drives, self.gravity)
+        robot = Robot.from_urdf(self.urdf, self.drives, self.gravity, base_link=self.base_link,
+                                tip_link=self.tip_link, fixed=self.fixed, where=self.manifest)
         missing = [lk for lk in self.markers if lk not in robot.chain.frames]
         if missing:
             raise InputError(f"[markers] names link {missing[0]!r}, which is not in the URDF "
@@ -84,6 +90,11 @@ class Campaign:
             if bad:
                 raise InputError(f"trial {t.id!r} moves joint {bad[0]}, but the robot has {robot.n} joints",
                                  path=self.manifest, label=t.id)
+            stray = [j for j in t.unlogged_torque if j not in t.joints]
+            if stray:
+                raise InputError(f"trial {t.id!r}: unlogged_torque names joint {stray[0]}, which is "
+                                 f"not in joints = {list(t.joints)}", path=self.manifest,
+                                 label="unlogged_torque")
         if self.coupling is not None and len(self.coupling) != robot.n:
             raise InputError(f"[robot] coupling has {len(self.coupling)} rows, the robot has {robot.n} joints",
                              path=self.manifest, label="coupling")
@@ -109,7 +120,24 @@ class Campaign:
             log.check_limits(robot.lower, robot.upper, robot.joint_names)
             log.check_drive_limits(robot.max_torque, robot.max_velocity, robot.joint_names)
         if isinstance(rec, Trial):
-            log.check_joints_logged(rec.joints, what=f"trial {rec.id!r}")
+            if rec.unlogged_torque:        # FORMAT.md: their tau_<j> cells are ignored
+                import numpy as np
+
+                tau = log.tau.copy()
+                tau[:, [j - 1 for j in rec.unlogged_torque if j <= tau.shape[1]]] = np.nan
+                log = dataclasses.replace(log, tau=tau)
+                for j in rec.unlogged_torque:
+                    if j > log.qm.shape[1] or not np.isfinite(log.qm[:, j - 1]).any():
+                        raise InputError(f"no qm_{j} values, but trial {rec.id!r} moves joint {j}",
+                                         path=log.source, line=1, label=f"qm_{j}")
+            try:
+                log.check_joints_logged([j for j in rec.joints if j not in rec.unlogged_torque],
+                                        what=f"trial {rec.id!r}")
+            except InputError as exc:
+                if "tau_" in str(exc) and "unlogged_torque" not in str(exc):
+                    exc.args = (exc.args[0] + " (a joint whose torque the controller did not log "
+                                "belongs in the trial's unlogged_torque = [...])",) + exc.args[1:]
+                raise
         return log
 
     def read_markers(self, rec: Recording, robot=None):
@@ -219,7 +247,16 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
         (lambda rel, key, where: _inside(root, rel, key, where, manifest))
     rob = _req(doc, "robot", "the manifest", manifest)
     urdf = chk(_req(rob, "urdf", "[robot]", manifest), "urdf", "[robot]")
-    drives = chk(_req(rob, "drives", "[robot]", manifest), "drives", "[robot]")
+    # [robot] drives is optional: without it every joint takes the URDF's limits
+    drives = chk(rob["drives"], "drives", "[robot]") if "drives" in rob else None
+    base_link, tip_link = rob.get("base_link"), rob.get("tip_link")
+    for key, v in (("base_link", base_link), ("tip_link", tip_link)):
+        if v is not None and not (isinstance(v, str) and v.strip()):
+            raise InputError(f"[robot] {key} must be a link name, got {v!r}", path=manifest, label=key)
+    fixed = rob.get("fixed", {})
+    if not isinstance(fixed, dict):
+        raise InputError("[robot] fixed must be a table { joint_name = value, ... }", path=manifest,
+                         label="fixed")
     grav = rob.get("gravity", [0.0, 0.0, -9.81])
     if not (isinstance(grav, list) and len(grav) == 3):
         raise InputError("[robot] gravity must be a list of 3 numbers", path=manifest, label="gravity")
@@ -255,7 +292,8 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
                                 chk(_req(tab, "log", w, manifest), "log", w), joint=j))
     trials = []
     ids = set()
-    known = {"id", "joints", "load_kg", "vmax_frac", "repetition", "markers", "log", "kind", "note"}
+    known = {"id", "joints", "load_kg", "vmax_frac", "repetition", "markers", "log", "kind", "note",
+             "unlogged_torque"}
     for k, tab in enumerate(doc.get("trial", []), 1):
         tid = _req(tab, "id", f"[[trial]] number {k}", manifest)
         w = f"trial {tid!r}"
@@ -288,12 +326,20 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
             load_kg=_num(tab.get("load_kg", 0.0), "load_kg", w, manifest),
             vmax_frac=_num(tab.get("vmax_frac", 1.0), "vmax_frac", w, manifest),
             repetition=rep, kind=kind, note=str(tab.get("note", "")),
-            extra={kk: vv for kk, vv in tab.items() if kk not in known}))
+            extra={kk: vv for kk, vv in tab.items() if kk not in known},
+            unlogged_torque=_joint_list(tab.get("unlogged_torque", []), "unlogged_torque", w,
+                                        manifest)))
     top_known = {"format", "name", "robot", "markers", "static", "calib", "trial"}
     return Campaign(root=root, name=str(doc.get("name", root.name)), urdf=urdf, drives=drives,
                     gravity=grav, markers=markers, static=tuple(static), calib=tuple(calib),
                     trials=tuple(trials), extra={k: v for k, v in doc.items() if k not in top_known},
-                    coupling=coupling)
+                    coupling=coupling, base_link=base_link, tip_link=tip_link, fixed=dict(fixed))
+
+
+def _joint_list(v, key: str, where: str, manifest: Path) -> tuple:
+    if not (isinstance(v, list) and all(isinstance(j, int) and not isinstance(j, bool) for j in v)):
+        raise InputError(f"{where}: '{key}' must be a list of joint numbers", path=manifest, label=key)
+    return tuple(v)
 
 
 def _coupling(rows, manifest: Path):
@@ -321,6 +367,8 @@ def _toml_value(v) -> str:
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
     raise TypeError(f"cannot write {type(v).__name__} to TOML")
 
 

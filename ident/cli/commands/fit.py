@@ -45,9 +45,11 @@ def register(sub):
     p.add_argument("--window", default="auto", metavar="S",
                    help="multi-joint records: Savitzky-Golay window, s, or 'auto' (per joint, the "
                         "longest window whose residual stays at the angle noise level)")
-    p.add_argument("--v-zero", type=float, default=0.02, metavar="FRAC",
-                   help="multi-joint records: rows slower than FRAC x the joint's 99th-percentile "
-                        "speed are left out of the friction fit")
+    p.add_argument("--v-zero", default="auto", metavar="FRAC",
+                   help="multi-joint records: the low-speed cut; 'auto' (default): per joint, three "
+                        "standard deviations of the velocity noise (encoder resolution, angle "
+                        "noise through the derivative filter); a number: rows slower than FRAC x "
+                        "the joint's 99th-percentile speed are left out of the friction fit")
     p.add_argument("--export-c", type=Path, default=None, metavar="DIR",
                    help="write the fitted models as C99 (jl_friction.h/.c) into DIR")
     p.add_argument("--export-dt", type=float, default=None, metavar="S",
@@ -91,6 +93,26 @@ def run(args) -> int:
             return _run_multijoint(args, camp_multi, models)
         raise InputError(f"the campaign mixes multi-joint trials ({multi[0].id!r}, ...) with "
                          "single-joint ones; fit them from two manifests", path=camp.manifest)
+    route_note = None
+    if "arctan" in dyn_models and not any(t.kind == "constant_velocity" and len(t.joints) == 1
+                                          for t in camp.trials):
+        # Indri & Trapani fit arctan to constant-velocity moves (data set 1); without them the
+        # static arctan law is fitted per trial like the thesis's static laws (eq. 2-4)
+        dyn_models = tuple(m for m in dyn_models if m != "arctan")
+        one_models = one_models + ("arctan",)
+        route_note = ("arctan: no constant_velocity trials (Indri & Trapani data set 1): fitted "
+                      "per trial through the one-link model (eq. 2-4) with the static laws")
+    dyn_skip_note = None
+    if dyn_models:
+        from ident.indri.campaign import feasible_models, missing_data_sets
+
+        kinds = {t.kind for t in camp.trials if len(t.joints) == 1}
+        if not feasible_models(dyn_models, kinds):
+            dyn_skip_note = (f"{', '.join(dyn_models)} not identified "
+                             f"({missing_data_sets(dyn_models, kinds)})")
+            if not one_models:
+                raise InputError(dyn_skip_note, path=camp.manifest)
+            dyn_models = ()
     inputs = [camp.root] + ([args.angles] if args.angles else [])
     if args.angles is not None and not args.angles.is_dir():
         raise InputError("--angles must be a folder", path=args.angles)
@@ -131,6 +153,9 @@ def run(args) -> int:
             doc = merge_fits_json(doc, dyn)
         print(json.dumps(doc, indent=1, allow_nan=False))
         return 0
+    for n in (route_note, dyn_skip_note):
+        if n:
+            print(f"note: {n}")
     if res is not None:
         print(f"{len(res.entries)} trial-joint fits of {len(one_models)} models -> {paths['fits']}")
         notes = sorted({n for e in res.entries for n in e.notes})
@@ -146,15 +171,45 @@ def run(args) -> int:
             print(f"  {e.task.trial} joint {e.task.joint}: link {lf['method']} ({e.signals['link_fit_rms_deg']:.3f} deg "
                   f"vs markers), motor {e.signals['motor_fit']['method']} "
                   f"{e.signals['motor_fit']['bandwidth_hz']:.3g} Hz; {line}")
+            for m, fl in getattr(e, "param_flags", {}).items():
+                groups: dict = {}
+                for k, f in fl.items():       # one line per reason
+                    val = ("not identifiable" if f["flag"] == "unidentifiable"
+                           else f"{e.fits[m].params[k]:.4g} [{f['flag']}]")
+                    groups.setdefault((f["flag"], f["reason"]), []).append((k, val))
+                for (kind, why), kv in groups.items():
+                    if kind == "unidentifiable":
+                        print(f"    {m} {', '.join(k for k, _ in kv)}: not identifiable ({why})")
+                    else:
+                        print(f"    {m} " + ", ".join(f"{k} {v}" for k, v in kv) + f" ({why})")
+        from ident.friction.plausibility import meaning_line
+
+        for m in one_models:
+            if meaning_line(m):
+                print(f"({meaning_line(m)})")
     if dyn is not None:
         print(f"Indri & Trapani ({', '.join(dyn_models)}) for joints {', '.join(map(str, dyn))} "
               f"-> {paths['fits']}, {out / 'indri'}")
+        for n in getattr(dyn, "notes", []):
+            print(f"note: {n}")
         for j in dyn:
             ents = dyn.joint_entries(j)
             d = dyn.data[j]
+            from ident.friction.plausibility import meaning_line
+            from ident.model.multijoint import _pv
+
             for m, e in ents.items():
-                pv = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
+                fl = e.get("flags", {})
+                pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
                 print(f"  joint {j} {m}: {pv}")
+                why = {}
+                for k, f in fl.items():
+                    why.setdefault(f["reason"], []).append(k)
+                for r, ks in why.items():
+                    print(f"    {', '.join(ks)}: {r}")
+            for m in ents:
+                if meaning_line(m):
+                    print(f"  ({meaning_line(m)})")
             if d.reversals:
                 print(f"  joint {j} reversal data sets: "
                       + ", ".join(f"{r.accel:.3g}" for r in d.reversals) + " rad/s^2")
@@ -186,7 +241,15 @@ def _run_multijoint(args, camp, models) -> int:
     except ValueError:
         raise InputError(f"--window must be 'auto' or seconds, got {args.window!r}") from None
     rs = RecordSettings(derivatives=args.derivatives, window_s=window)
-    res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero_frac=args.v_zero,
+    v_zero = args.v_zero
+    if v_zero != "auto":
+        try:
+            v_zero = float(v_zero)
+        except ValueError:
+            raise InputError(f"--v-zero must be 'auto' or a fraction, got {args.v_zero!r}") from None
+        if not 0 <= v_zero < 1:
+            raise InputError(f"--v-zero must be 'auto' or a fraction in [0, 1), got {args.v_zero!r}")
+    res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero=v_zero,
                                   n_starts=args.starts)
     doc = res.merge_into({"format": 1, "trials": {}, "summary": []})
     (out / "fits.json").write_text(json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8")
@@ -196,22 +259,31 @@ def _run_multijoint(args, camp, models) -> int:
         return 0
     print(f"{len(res.fits)} multi-joint record(s), models {', '.join(models)} -> {out / 'fits.json'}, "
           f"{paths['rigidbody']}, {paths['rigidbody_report']}")
+    shown: set = set()
     for tid, by_model in res.fits.items():
         pre = res.preprocessing[tid]
         print(f"  {tid}: {res.seconds[tid]:.1f} s; " + "; ".join(pre.get("steps", [])))
         for w in pre.get("warnings", []):
             print(f"  warning: {w}")
+        from ident.friction.plausibility import meaning_line
+        from ident.model.multijoint import _arm, _pv
+
         for m, fit in by_model.items():
+            if meaning_line(m):
+                print(f"    ({meaning_line(m)})")
             for j, e in fit.joints.items():
-                pv = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
-                arm = "merged" if e["armature"] is None else f"{e['armature']:.4g}"
+                fl = e.get("flags", {})
+                pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
+                arm = _arm(e["armature"], fl.get("armature"))
                 print(f"    joint {j} {m}: {pv}; offset {e['offset']:.4g}, armature "
                       f"{arm}; rms {e['rms']:.4g}, held-out {e['heldout_rms']:.4g} N m"
                       + (f" [{e['implausible']}]" if e.get("implausible") else ""))
             for k, v in fit.motors.items():
                 print(f"    coupled motor {k} ({m} fit): " + ", ".join(f"{kk} {vv:.4g}" for kk, vv in v.items()))
             for n in fit.notes:
-                print(f"note: {n}")
+                if n not in shown:             # a note shared by every model, printed once
+                    print(f"note: {n}")
+                    shown.add(n)
     return 0
 
 

@@ -71,12 +71,16 @@ def campaign_info(path: Path) -> dict:
                       "markers_used": len([lb for lb in camp.link_of_label() if lb in m.labels])})
         if kind == "trial":
             e.update({"joints": list(rec.joints), "load_kg": rec.load_kg, "vmax_frac": rec.vmax_frac,
-                      "repetition": rec.repetition, "trial_kind": rec.kind})
+                      "repetition": rec.repetition, "trial_kind": rec.kind,
+                      "unlogged_torque": list(rec.unlogged_torque)})
             p2p, warn = _trial_motion(camp, rec, log, robot.n)
             e["peak_to_peak_rad"] = p2p
             e["warnings"] += warn
         entries.append(e)
+    from mocap.urdf import missing_meshes
+
     return {"campaign": camp.name, "root": str(camp.root), "robot": robot.describe(),
+            "missing_meshes": missing_meshes(camp.urdf),
             "coupling": None if camp.coupling is None else [list(r) for r in camp.coupling],
             "markers": {k: list(v) for k, v in camp.markers.items()}, "recordings": entries}
 
@@ -92,18 +96,30 @@ def _check_trial_labels(camp, trial, rec) -> None:
 def _print_marker(d: dict) -> None:
     print(f"{d['path']}: {d['n_frames']} frames, {d['n_markers']} markers at {d['rate_hz']:g} Hz, "
           f"units {d['units']} (stored as m), time {d['first_time']:.4f} .. {d['last_time']:.4f} s")
-    for msg in d.get("header_mismatch", []):
-        print(f"  note: {msg}")
+    # a header that disagrees with the rows was already said once, as the reader's warning
+    # (stderr); it stays in the --json output under header_mismatch
     width = max((len(lb) for lb in d["labels"]), default=5)
     for lb in d["labels"]:
         print(f"  {lb:<{width}}  missing {100 * d['missing_fraction'][lb]:6.2f} %")
 
 
-def _print_robot(r: dict) -> None:
+def _print_robot(r: dict, missing_meshes=()) -> None:
     print(f"robot {r['urdf']}: {r['n_joints']} revolute joints, gravity {r['gravity']}")
+    ch = r.get("chain")
+    if ch:
+        nz = {k: v for k, v in ch["fixed"].items() if v != 0}
+        fx = ", ".join(f"{k} = {v:g}" for k, v in nz.items())
+        rest = len(ch["fixed"]) - len(nz)
+        print(f"  chain {ch['base_link']} -> {ch['tip_link']}; every other joint fixed"
+              + (f": {fx}" if fx else "") + (f"{'; ' if fx else ': '}{rest} more at 0" if rest else ""))
     for k, j in enumerate(r["joints"], 1):
+        sign = " (motor turns the other way: negative gear ratio)" \
+            if r.get("direction") and r["direction"][k - 1] < 0 else ""
         print(f"  joint {k} {j['name']:<12} [{j['lower']:+.3f}, {j['upper']:+.3f}] rad, "
-              f"max {j['max_velocity']:.3g} rad/s, {j['max_torque']:.3g} N m, link {j['link']}")
+              f"max {j['max_velocity']:.3g} rad/s, {j['max_torque']:.3g} N m, link {j['link']}{sign}")
+    if missing_meshes:
+        print(f"  meshes: {len(missing_meshes)} mesh file(s) not found (first: {missing_meshes[0]}); "
+              "optional: the viewer draws the URDF's primitive shapes or link frames")
 
 
 def _print_log(d: dict) -> None:
@@ -120,7 +136,7 @@ def _print_log(d: dict) -> None:
 
 def _print_campaign(d: dict) -> None:
     print(f"campaign {d['campaign']!r} at {d['root']}")
-    _print_robot(d["robot"])
+    _print_robot(d["robot"], d.get("missing_meshes", ()))
     if d.get("coupling"):
         print(f"  coupling (q_urdf = coupling @ q_log): {d['coupling']}")
     if d["markers"]:
@@ -135,6 +151,9 @@ def _print_campaign(d: dict) -> None:
         if e["kind"] == "trial":
             extra = (f" joints {e['joints']} load {e['load_kg']:g} kg vmax {e['vmax_frac']:g} "
                      f"rep {e['repetition']} {e['trial_kind']}")
+            if e.get("unlogged_torque"):
+                extra += (f"; torque not logged on joints {e['unlogged_torque']} (their angles "
+                          "drive the kinematics; nothing is identified for them)")
         mk = (f"{e['marker_frames']} frames @ {e['marker_rate_hz']:g} Hz, " if e["markers"] else "")
         sp = e["sampling"]
         print(f"  {e['kind']:<6} {e['id']:<28} {e['duration_s']:8.2f} s  {mk}{e['log_samples']} log "
