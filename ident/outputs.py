@@ -91,15 +91,15 @@ def _regions(inputs) -> list[Path]:
     return list(dict.fromkeys(regions))
 
 
-def check_out_dir(out, inputs=(), flag: str = "--out") -> Path:
+def check_out_dir(out, inputs=(), flag: str = "--out", contain: bool = True) -> Path:
     """Resolve ``out`` and refuse one that is an input folder, lies inside one (or inside an
-    input's campaign), or contains one. Creates the folder."""
+    input's campaign), or (``contain``) contains one. Creates the folder."""
     out = Path(out).resolve()
     for region in _regions(inputs):
         if out == region or region in out.parents:
             raise InputError(f"{flag} {out} is inside the input folder {region}; choose another folder",
                              path=out)
-        if out in region.parents:
+        if contain and out in region.parents:
             raise InputError(f"{flag} {out} contains the input folder {region}; nothing is written "
                              "around an input, choose another folder", path=out)
     out.mkdir(parents=True, exist_ok=True)
@@ -268,6 +268,19 @@ class OutputDir:
         d.mkdir(parents=True)
         self._stages.append(d)
         return d
+
+    def final(self, path) -> Path:
+        """Where a file written into one of this run's staging folders ends up under ``out``."""
+        p = Path(path)
+        for st in self._stages:
+            if p == st or st in p.parents:
+                return self.root / p.relative_to(st)
+        return p
+
+    def check_early(self, rels) -> None:
+        """Refuse before any work when a known output name holds a file this command did not
+        write (:meth:`commit` checks every file again)."""
+        self.check([self.rel(r) for r in rels])
 
     def write(self, rel, data: bytes | str) -> Path:
         """Write one output atomically (temporary name, then rename) and register it."""

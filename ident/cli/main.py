@@ -30,11 +30,12 @@ def add_common(p: argparse.ArgumentParser, out: bool = True, out_required: bool 
 
 
 def check_out_dir(out: Path, inputs=()) -> Path:
-    """Create ``out``; refuse an output folder that is an input folder, inside one (or inside an
-    input's campaign), or that contains one (:func:`ident.outputs.check_out_dir`)."""
+    """Create ``out``; refuse an output folder that is an input folder or inside one (or inside
+    an input's campaign). ``--out`` folders go through :class:`ident.outputs.OutputDir`, which
+    also refuses one that contains an input."""
     from ident.outputs import check_out_dir as _check
 
-    return _check(out, inputs)
+    return _check(out, inputs, contain=False)
 
 
 _INPUT_ARGS = ("campaign", "path", "calib", "angles", "robot", "nominal")
