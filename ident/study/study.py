@@ -443,7 +443,7 @@ class Study:
         for out_rel, sha in rec["outputs"].items():
             p = ctx.out / out_rel
             if not ctx.od.matches(out_rel, sha):
-                if p.exists():
+                if p.exists() and ctx.od.is_own(out_rel):   # a foreign file is refused later
                     self._note(f"{p} is not what the study wrote (changed since); recomputing it")
                 return None
         return rec
@@ -483,8 +483,9 @@ class Study:
                 return self._run_locked(camp, out, state, rrd, spawn, od)
             except BaseException:
                 shutil.rmtree(state / "tmp", ignore_errors=True)
-                od.discard()
                 raise
+            finally:
+                od.discard()
 
     def _run_locked(self, camp, out: Path, state: Path, rrd, spawn, od) -> StudyResult:
         tmp_dir = state / "tmp"
