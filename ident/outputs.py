@@ -153,12 +153,11 @@ class OutputDir:
         if final.is_symlink():
             final = final.resolve()
         if final == self.root or self.root not in final.parents:
-            raise InputError(f"the output path {full} leaves the output folder {self.root} "
-                             "(through '..', an absolute name or a symlink); refusing to write it",
-                             path=full)
+            raise InputError(f"this output path leaves the output folder {self.root} (through "
+                             "'..', an absolute name or a symlink); refusing to write it", path=full)
         rel = final.relative_to(self.root).as_posix()
         if rel.split("/", 1)[0] in INTERNAL:
-            raise InputError(f"the output path {full} is reserved for jointlab's bookkeeping", path=full)
+            raise InputError("this output path is reserved for jointlab's bookkeeping", path=full)
         return rel
 
     def path(self, rel_or_abs) -> Path:

@@ -155,6 +155,12 @@ def _run(args) -> int:
 
     out = getattr(args, "out", None)
     out_existed = out is None or Path(out).exists()
+    created = []                       # the folders a failed run may leave behind, deepest first
+    if not out_existed:
+        p = Path(out).absolute()
+        while not p.exists() and p != p.parent:
+            created.append(p)
+            p = p.parent
     status = 1
     try:
         guard_outputs(args)
@@ -179,6 +185,8 @@ def _run(args) -> int:
     finally:
         if status != 0 and not out_existed:
             _remove_if_empty(Path(out))
+            for folder in created[1:]:
+                _remove_if_empty(folder)
 
 
 def _remove_if_empty(folder: Path) -> None:
