@@ -96,7 +96,8 @@ def test_codec_round_trips_bit_for_bit_and_refuses_foreign_types(tmp_path):
     # a record naming a type outside the project's result types is refused, not imported
     rec = tmp_path / "r.json"
     for bad in ({"__dataclass__": "os.system", "fields": {}}, {"__object__": "subprocess.Popen", "state": {}},
-                {"__dataclass__": "ident.outputs.OutputDir", "fields": {}}):
+                {"__dataclass__": "ident.outputs.OutputDir", "fields": {}},
+                {"__dataclass__": "ident.cli.__main__.Anything", "fields": {}}):
         rec.write_bytes(dumps_record("h", 1, 2).replace(b'"payload": 1', b'"payload": ' + json.dumps(bad).encode()))
         doc = json.loads(rec.read_text())
         doc["payload_sha256"] = __import__("hashlib").sha256(
@@ -104,6 +105,7 @@ def test_codec_round_trips_bit_for_bit_and_refuses_foreign_types(tmp_path):
         rec.write_text(json.dumps(doc))
         got, problem = read_record(rec, "h", 2)
         assert got is None and "not a valid study record" in problem
+    assert "ident.cli.__main__" not in sys.modules           # a record never imports a module
 
 
 def test_record_hash_check(tmp_path):

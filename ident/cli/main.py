@@ -119,8 +119,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("jointlab: interrupted; rerun to resume", file=sys.stderr)
+        return 130
     with warnings.catch_warnings():
         warnings.simplefilter("default", InputWarning)       # each distinct warning once
         warnings.showwarning = _show_input_warning

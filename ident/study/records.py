@@ -9,8 +9,9 @@ dataclasses of this project) in a JSON document::
 Arrays are stored as ``{"__array__": dtype, "shape": [...], "data": base64 bytes}`` with a
 plain numeric or boolean dtype (``np.frombuffer``: no object arrays, no pickle), so floats round
 trip bit for bit. A dataclass is stored as ``{"__dataclass__": "module.Class", "fields": {...}}``
-and rebuilt only when ``module`` lies in this project's packages and the name is a dataclass
-there: a record can choose among our result types, never run code. Tuples, dicts with
+and rebuilt only when ``module`` is one of this project's result modules (or already loaded)
+and the name is a dataclass there: a record can choose among our result types, never run code
+or import a module. Tuples, dicts with
 non-string keys and non-finite floats are tagged likewise.
 
 :func:`read_record` checks, before anything in the payload is used, that the document parses,
@@ -26,6 +27,7 @@ import importlib
 import json
 import math
 import re
+import sys
 from pathlib import Path, PurePath
 
 import numpy as np
@@ -33,6 +35,12 @@ import numpy as np
 FORMAT = 1
 _MODULE = re.compile(r"^(ident|calib|mocap)(\.[A-Za-z_][A-Za-z0-9_]*)+$")
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+#: the modules of the result types a study stores; a record naming another module's type is
+#: rebuilt only when that module is already loaded (reading a record never imports a module
+#: that has not been imported for other reasons)
+RESULT_MODULES = ("calib.pipeline", "calib.axis", "calib.base", "ident.friction.fit",
+                  "ident.friction.base", "ident.friction.static", "ident.friction.dynamic",
+                  "ident.thesis.campaign")
 _DTYPES = {"bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64",
            "float16", "float32", "float64", "complex64", "complex128"}
 
@@ -96,8 +104,10 @@ def _dataclass(path: str, plain: bool = False):
     if not _MODULE.match(mod) or not _NAME.match(name):
         raise RecordError(f"type {path!r} is not one of jointlab's result types")
     try:
-        cls = getattr(importlib.import_module(mod), name)
-    except (ImportError, AttributeError):
+        if mod in RESULT_MODULES:
+            importlib.import_module(mod)
+        cls = getattr(sys.modules[mod], name)     # never imports anything else
+    except (ImportError, AttributeError, KeyError):
         raise RecordError(f"type {path!r} is not one of jointlab's result types") from None
     ok = _plain_class(cls) if plain else (isinstance(cls, type) and dataclasses.is_dataclass(cls))
     if not ok:

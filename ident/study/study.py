@@ -611,11 +611,14 @@ class Study:
                                   rel, str(ctx.state / record), str(ctx.tmp_dir), h))
         ctx.od.claim([j.out_rel for j in jobs])   # refuses a file another command or the user wrote
         self._say(f"link angles: {len(jobs)} trial(s) to solve, {len(done)} reused")
+        written = {}
         for job, res in zip(jobs, self._map(_run_mocap_job, jobs, "mocap")):
             done[job.trial] = res
             if res.get("ok"):
-                ctx.od.register(res["outputs"])
+                written.update(res["outputs"])
                 self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
+        if written:
+            ctx.od.register(written)
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
         for tid, msg in failed.items():
             ctx.errors[f"mocap/{tid}"] = msg
