@@ -29,9 +29,30 @@ def _progress(it, total: int, desc: str, enabled: bool):
 
 def _init_pool_worker():
     """A pool worker ignores Ctrl-C: the terminal sends SIGINT to the whole process group, and
-    the main process alone reports it (one line) and stops the pool."""
+    the main process alone reports it (one line) and stops the pool. (The worker was forked
+    with SIGINT blocked, see :func:`_sigint_blocked`; a Ctrl-C pending since then is dropped.)"""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     _init_worker()
+
+
+class _sigint_blocked:
+    """SIGINT blocked in this thread while worker processes are forked: a Ctrl-C that lands
+    during ``fork`` would otherwise be raised inside the interpreter's at-fork hooks, where
+    Python prints and ignores it (in the parent and the child). Unblocked afterwards, a pending
+    Ctrl-C is raised here as a plain KeyboardInterrupt."""
+
+    def __enter__(self):
+        self.old = None
+        if hasattr(signal, "pthread_sigmask"):
+            self.old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        return self
+
+    def __exit__(self, *exc):
+        if self.old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self.old)
+        return False
 
 
 def _init_worker():
@@ -80,9 +101,10 @@ class PoolExecutor:
         from concurrent.futures.process import BrokenProcessPool
 
         try:
-            if self._pool is None:
-                self._pool = ProcessPoolExecutor(self.workers, initializer=_init_pool_worker)
-            futs = [self._pool.submit(fn, x) for x in items]
+            with _sigint_blocked():        # workers are forked inside submit()
+                if self._pool is None:
+                    self._pool = ProcessPoolExecutor(self.workers, initializer=_init_pool_worker)
+                futs = [self._pool.submit(fn, x) for x in items]
             for _ in _progress(as_completed(futs), len(futs), desc, self.progress):
                 pass
             return [f.result() for f in futs]
