@@ -231,3 +231,29 @@ def test_workers_are_capped_at_the_cpu_count(camp, tmp_path, capsys):
         assert main(["fit", str(camp), "--out", str(tmp_path / "p"), "--models", "cv",
                      "--workers", bad]) == 2
         assert "--workers" in _one_line(capsys)
+
+
+@pytest.mark.parametrize("argv", [
+    ["study", "{c}", "--out", "{o}", "--workers", "1", "--models", "cv", "--starts", "1", "--no-rrd",
+     "--no-plots", "--quiet"],
+    ["mocap", "{c}", "--out", "{o}"],
+])
+def test_disk_full_in_study_and_mocap_is_one_line(camp, tmp_path, capsys, monkeypatch, argv):
+    import ident.outputs as outputs
+
+    real = os.replace
+
+    def full(src, dst):
+        if STAGE_DIR in str(src) and MANIFEST in str(dst):
+            return real(src, dst)                 # the bookkeeping fits; the outputs do not
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(dst))
+
+    monkeypatch.setattr(outputs.os, "replace", full)
+    before = _digest(camp)
+    out = tmp_path / "o"
+    assert main([a.format(c=camp, o=out) for a in argv]) == 2
+    line = _one_line(capsys)
+    assert "no space left on the device" in line
+    assert _digest(camp) == before
+    left = {f for f in _files(out) if not f.startswith(".jointlab")}
+    assert left == set()                          # no output file, whole or half
