@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import pkgutil
 import sys
 import warnings
@@ -29,16 +30,12 @@ def add_common(p: argparse.ArgumentParser, out: bool = True, out_required: bool 
 
 
 def check_out_dir(out: Path, inputs=()) -> Path:
-    """Create ``out``; refuse an output folder that is an input folder or inside one."""
-    out = Path(out).resolve()
-    for inp in inputs:
-        inp = Path(inp).resolve()
-        root = inp if inp.is_dir() else inp.parent
-        if out == root or root in out.parents:
-            raise InputError(f"--out {out} is inside the input folder {root}; choose another folder",
-                             path=out)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    """Create ``out``; refuse an output folder that is an input folder or inside one (or inside
+    an input's campaign). ``--out`` folders go through :class:`ident.outputs.OutputDir`, which
+    also refuses one that contains an input."""
+    from ident.outputs import check_out_dir as _check
+
+    return _check(out, inputs, contain=False)
 
 
 _INPUT_ARGS = ("campaign", "path", "calib", "angles", "robot", "nominal")
@@ -63,9 +60,17 @@ def _protected(path: Path) -> list[Path]:
     return regions
 
 
+def _nearest_existing(path: Path) -> Path:
+    for p in (path, *path.parents):
+        if p.exists():
+            return p
+    return path
+
+
 def guard_outputs(args) -> None:
     """Refuse any output path (``--out``, ``--rrd``, ``--export-c``, a command's own outputs)
-    that equals an input or lies inside an input folder or an input's campaign folder."""
+    that equals an input, lies inside an input folder, an input's campaign folder or any other
+    campaign folder, or (``--out``) contains an input's folder."""
     inputs = [getattr(args, a, None) for a in getattr(args, "_inputs", _INPUT_ARGS)]
     inputs = [Path(p) for p in inputs if isinstance(p, (str, Path)) and Path(p).exists()]
     regions = [r for p in inputs for r in _protected(p)]
@@ -74,12 +79,21 @@ def guard_outputs(args) -> None:
         if not isinstance(out, (str, Path)):
             continue
         out = Path(out).resolve()
+        flag = "--" + attr.replace("_", "-") if attr != "campaign" else "the campaign folder"
         for region in regions:
             if out == region or region in out.parents:
-                flag = "--" + attr.replace("_", "-")
                 what = "an input" if out == region else f"inside the input folder {region}"
                 raise InputError(f"{flag} {out} is {what}; nothing is written there, choose another path",
                                  path=out)
+            if attr == "out" and out in region.parents:
+                raise InputError(f"{flag} {out} contains the input folder {region}; nothing is written "
+                                 "around an input, choose another folder", path=out)
+        # nothing is ever written into a campaign (synth's own campaign may be rewritten itself)
+        near = _nearest_existing(out if attr != "campaign" else out.parent)
+        root = _campaign_root(near) if near.exists() else None
+        if root is not None:
+            raise InputError(f"{flag} {out} is inside the campaign folder {root}; nothing is written "
+                             "into a campaign, choose another path", path=out)
 
 
 def _command_modules():
@@ -105,8 +119,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("jointlab: interrupted; rerun to resume", file=sys.stderr)
+        return 130
     with warnings.catch_warnings():
         warnings.simplefilter("default", InputWarning)       # each distinct warning once
         warnings.showwarning = _show_input_warning
@@ -120,42 +138,76 @@ def _show_input_warning(message, category, filename, lineno, file=None, line=Non
         sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
+def _os_error_line(exc: OSError) -> str:
+    """One line for an OS error: the file and the reason (read-only, disk full, name too long,
+    no permission, ...)."""
+    import errno
+
+    reasons = {errno.EROFS: "read-only file system", errno.ENOSPC: "no space left on the device",
+               errno.ENAMETOOLONG: "file name too long", errno.EACCES: "permission denied",
+               errno.EPERM: "operation not permitted", errno.EDQUOT: "disk quota exceeded",
+               errno.EISDIR: "is a folder", errno.ENOTDIR: "not a folder", errno.EEXIST: "exists",
+               errno.ENOENT: "no such file or folder"}
+    what = reasons.get(exc.errno) or exc.strerror or type(exc).__name__
+    where = exc.filename if exc.filename else None
+    text = f"{where}: {what}" if where else (f"{what}" if exc.strerror else str(exc) or what)
+    return " ".join(str(text).split())
+
+
 def _run(args) -> int:
+    from ident.study.executor import WorkerLost
+
     out = getattr(args, "out", None)
     out_existed = out is None or Path(out).exists()
+    created = []                       # the folders a failed run may leave behind, deepest first
+    if not out_existed:
+        p = Path(out).absolute()
+        while not p.exists() and p != p.parent:
+            created.append(p)
+            p = p.parent
     status = 1
     try:
         guard_outputs(args)
         status = int(args._run(args) or 0)
         return status
     except InputError as exc:
-        print(f"jointlab: error: {exc}", file=sys.stderr)
+        print(f"jointlab: error: {' '.join(str(exc).split())}", file=sys.stderr)
         status = 2
         return status
-    except (FileExistsError, PermissionError, IsADirectoryError, NotADirectoryError) as exc:
-        what = next(w for cls, w in ((PermissionError, "permission denied"),
-                                     (IsADirectoryError, "is a folder"),
-                                     (NotADirectoryError, "not a folder"),
-                                     (FileExistsError, "exists")) if isinstance(exc, cls))
-        where = exc.filename if exc.filename else str(exc)
-        msg = f"{where}: {what}" if exc.filename else str(exc)
-        print(f"jointlab: error: {msg}", file=sys.stderr)
+    except WorkerLost as exc:
+        print(f"jointlab: error: {exc}", file=sys.stderr)
+        status = 1
+        return status
+    except OSError as exc:
+        print(f"jointlab: error: {_os_error_line(exc)}", file=sys.stderr)
         status = 2
         return status
     except KeyboardInterrupt:
-        print("jointlab: interrupted", file=sys.stderr)
+        print("jointlab: interrupted; rerun to resume", file=sys.stderr)
         status = 130
         return status
     finally:
         if status != 0 and not out_existed:
             _remove_if_empty(Path(out))
+            for folder in created[1:]:
+                _remove_if_empty(folder)
 
 
 def _remove_if_empty(folder: Path) -> None:
-    """A failed run leaves no empty output folder behind (never removes anything with content)."""
+    """A failed run leaves no empty output folder behind (never removes anything with content;
+    the output bookkeeping of a run that wrote nothing goes with it)."""
+    from ident.outputs import LOCK, MANIFEST, STAGE_DIR
+
     try:
+        names = {p.name for p in folder.iterdir()}
+        if names <= {LOCK, MANIFEST, STAGE_DIR}:
+            if MANIFEST in names and json.loads((folder / MANIFEST).read_text()).get("files"):
+                return
+            for n in (LOCK, MANIFEST):
+                (folder / n).unlink(missing_ok=True)
+            (folder / STAGE_DIR).rmdir() if (folder / STAGE_DIR).exists() else None
         folder.rmdir()
-    except OSError:
+    except (OSError, ValueError, AttributeError):
         pass
 
 

@@ -8,8 +8,15 @@ and steadier for the small solves here.
 from __future__ import annotations
 
 import os
+import re
+import signal
 from concurrent.futures import ProcessPoolExecutor
 from typing import Callable, Iterable
+
+
+class WorkerLost(RuntimeError):
+    """A worker process died (killed, out of memory): the CLI prints one line and exits 1; the
+    items finished before it are kept, a rerun resumes."""
 
 
 def _progress(it, total: int, desc: str, enabled: bool):
@@ -18,6 +25,34 @@ def _progress(it, total: int, desc: str, enabled: bool):
     from tqdm import tqdm
 
     return tqdm(it, total=total, desc=desc, unit="task", leave=False)
+
+
+def _init_pool_worker():
+    """A pool worker ignores Ctrl-C: the terminal sends SIGINT to the whole process group, and
+    the main process alone reports it (one line) and stops the pool. (The worker was forked
+    with SIGINT blocked, see :func:`_sigint_blocked`; a Ctrl-C pending since then is dropped.)"""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    _init_worker()
+
+
+class _sigint_blocked:
+    """SIGINT blocked in this thread while worker processes are forked: a Ctrl-C that lands
+    during ``fork`` would otherwise be raised inside the interpreter's at-fork hooks, where
+    Python prints and ignores it (in the parent and the child). Unblocked afterwards, a pending
+    Ctrl-C is raised here as a plain KeyboardInterrupt."""
+
+    def __enter__(self):
+        self.old = None
+        if hasattr(signal, "pthread_sigmask"):
+            self.old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        return self
+
+    def __exit__(self, *exc):
+        if self.old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, self.old)
+        return False
 
 
 def _init_worker():
@@ -62,14 +97,45 @@ class PoolExecutor:
         items = list(items)
         if self.workers <= 1 or len(items) <= 1:
             return SerialExecutor(self.progress).map(fn, items, desc)
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, initializer=_init_worker)
-        futs = [self._pool.submit(fn, x) for x in items]
         from concurrent.futures import as_completed
+        from concurrent.futures.process import BrokenProcessPool
 
-        for _ in _progress(as_completed(futs), len(futs), desc, self.progress):
+        try:
+            with _sigint_blocked():        # workers are forked inside submit()
+                if self._pool is None:
+                    self._pool = ProcessPoolExecutor(self.workers, initializer=_init_pool_worker)
+                futs = [self._pool.submit(fn, x) for x in items]
+            for _ in _progress(as_completed(futs), len(futs), desc, self.progress):
+                pass
+            return [f.result() for f in futs]
+        except BrokenProcessPool:
+            self._kill()
+            raise WorkerLost(f"a worker process of the {desc} stage died (killed or out of memory); "
+                             "the finished items are kept, rerun to resume") from None
+        except BaseException:          # Ctrl-C, SIGTERM: stop the workers, no half results
+            self._kill()
+            raise
+
+    def _kill(self):
+        """Stop every worker now (pending work cancelled)."""
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        for p in procs:
+            try:
+                p.terminate()
+            except (OSError, AttributeError):
+                pass
+        try:
+            pool.shutdown(wait=False, cancel_futures=True)
+        except Exception:              # noqa: BLE001 - a broken pool may refuse; the workers are gone
             pass
-        return [f.result() for f in futs]
+        for p in procs:
+            try:
+                p.join(5)
+            except (OSError, AssertionError, AttributeError):
+                pass
 
     def close(self):
         if self._pool is not None:
@@ -107,8 +173,21 @@ class DaskExecutor:
             self.client.close()
 
 
+_SCHEDULER_URL = re.compile(r"^(tcp|tls|ws|wss|ucx|inproc)://[^\s/:]+(:[0-9]{1,5})?/?$")
+
+
 def make_executor(workers: int | None = None, scheduler: str | None = None, progress: bool = True):
-    """``scheduler`` -> Dask; ``workers == 1`` -> serial; else a local process pool."""
+    """``scheduler`` -> Dask; ``workers == 1`` -> serial; else a local process pool of at most
+    one worker per CPU (a larger ``workers`` is capped with a note)."""
+    from mocap.io.errors import InputError
+
+    from ident.outputs import cap_workers
+
+    if scheduler is not None:
+        if not _SCHEDULER_URL.match(str(scheduler)):
+            raise InputError(f"--scheduler {scheduler!r} is not a Dask scheduler address "
+                             "(e.g. tcp://host:8786)")
+    workers = cap_workers(workers)
     if scheduler:
         return DaskExecutor(scheduler, progress=progress)
     if workers == 1:

@@ -13,15 +13,23 @@ One campaign (FORMAT.md) in, one study folder out::
     DIR/plots/                     friction curves per joint, parameter spread over repetitions
     DIR/csv/                       trials.csv (one row per trial and joint), diagnosis_effects.csv
     DIR/study.rrd                  one rerun recording: markers + robot, joint signals, fits, diagnosis
-    DIR/.jointlab-study.json       the manifest: input hashes and outputs of every stage item
-    DIR/.jointlab-study/           records of finished items (results reused by a rerun), temp files
+    DIR/.jointlab-study.json       the study's cache manifest: input hashes of every stage item and
+                                   the sha256 of every record
+    DIR/.jointlab-study/           records of finished items (JSON, :mod:`ident.study.records`), temp files
+    DIR/.jointlab-outputs.json     the output manifest (:mod:`ident.outputs`): sha256 and writer of
+                                   every output file
 
 Work per trial (the angle solve, the fits) and per joint (the diagnosis) goes through the one
 executor seam (:mod:`ident.study.executor`: serial, a local process pool, a Dask cluster). Workers write
 their outputs themselves, each to a temporary name then :func:`os.replace` (so an interrupted
 study leaves no half-written file, and the items finished before the interruption are kept), and
-then a record holding the item's input hash and result. A rerun skips every item whose record
-has the current input hash and whose outputs exist. Input hashes are sha256 over the item's
+then a record holding the item's input hash, result and the sha256 of its outputs (JSON, never
+pickle: :mod:`ident.study.records`). A rerun skips an item only when its record verifies against
+its recorded hashes, has the current input hash, and every output it lists is registered to the
+study in the output manifest with the same sha256 as the bytes on disk now; a record that fails
+its check is recomputed with one line saying so, an output changed since (edited by hand or by
+another program) is recomputed, and a file in the way that another command or the user wrote
+is refused with one line naming it (:mod:`ident.outputs`). Input hashes are sha256 over the item's
 files (marker file, robot log, campaign.toml, the robot's URDF and drives, upstream outputs such as
 calib.json and the angles) and the settings that change the result. With a Dask cluster, the
 campaign and the study folder must be on a file system every worker sees at the same path.
@@ -34,7 +42,6 @@ import hashlib
 import io
 import json
 import os
-import pickle
 import shutil
 import sys
 import time
@@ -49,11 +56,14 @@ from ident.common import to_jsonable as _jsonable
 
 from mocap.io.errors import InputError
 
+from ident.outputs import OutputDir
+from ident.study.records import dumps_record, read_record
+
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
 
 MANIFEST_NAME = ".jointlab-study.json"
 STATE_DIR = ".jointlab-study"
-CACHE_VERSION = 1     # bump when a record's content changes meaning
+CACHE_VERSION = 2     # bump when a record's content changes meaning
 
 
 # ---------------------------------------------------------------------------------------------
@@ -183,34 +193,14 @@ def _write_atomic(path: Path, data: bytes | str, tmp_dir: Path) -> Path:
     return path
 
 
-def _replace_dir(tmp: Path, final: Path) -> None:
-    """Move a finished folder into place (the old one goes away only after the new one is in)."""
-    if final.exists():
-        old = tmp.parent / f"{final.name}.old.{os.getpid()}.{time.monotonic_ns()}"
-        os.replace(final, old)
-        os.replace(tmp, final)
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        final.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp, final)
+def _record_name(key: str) -> str:
+    """A record's file name from an item key (a trial id is data, never a path)."""
+    return hashlib.sha256(key.encode("utf-8")).hexdigest()[:24] + ".json"
 
 
-def _read_record(path: Path, input_hash: str):
-    """The result stored in a record if its input hash matches, else ``None``."""
-    try:
-        with open(path, "rb") as fh:
-            rec = pickle.load(fh)
-    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError, TypeError,
-            ValueError):
-        return None
-    if not isinstance(rec, dict) or rec.get("hash") != input_hash or rec.get("version") != CACHE_VERSION:
-        return None
-    return rec
-
-
-def _write_record(path: Path, input_hash: str, result, tmp_dir: Path, outputs=()) -> None:
-    rec = {"version": CACHE_VERSION, "hash": input_hash, "result": result, "outputs": list(outputs)}
-    _write_atomic(path, pickle.dumps(rec, protocol=pickle.HIGHEST_PROTOCOL), tmp_dir)
+def _write_record(path: Path, input_hash: str, result, tmp_dir: Path, outputs=None) -> None:
+    """A JSON record (:mod:`ident.study.records`); ``outputs``: {rel path: sha256}."""
+    _write_atomic(path, dumps_record(input_hash, result, CACHE_VERSION, outputs), tmp_dir)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -241,13 +231,16 @@ class _MocapJob:
     solve: Callable
     report: Callable | None
     out_csv: str
+    out_rel: str
     record: str
     tmp_dir: str
     input_hash: str
 
 
 def _run_mocap_job(job: _MocapJob) -> dict:
-    """Solve one trial's link angles, write ``angles/<id>.csv`` then the record."""
+    """Solve one trial's link angles, write the record (with the sha256 of the angles file) and
+    then rename ``angles/<id>.csv`` into place (the study registered the path as its own before
+    the job ran). OS errors while writing propagate: the run stops with one line."""
     from ident.signals.smoothing import one_blas_thread
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -255,11 +248,6 @@ def _run_mocap_job(job: _MocapJob) -> dict:
         camp, robot = _load(job.manifest)
         with one_blas_thread():
             res = job.solve(camp, job.trial, job.references, robot=robot)
-        tmp = _tmp_name(Path(job.tmp_dir), Path(job.out_csv))
-        tmp.parent.mkdir(parents=True, exist_ok=True)
-        res.write_csv(tmp, overwrite=True)
-        Path(job.out_csv).parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp, job.out_csv)
         summary = _jsonable(res.to_dict())
         if job.report is not None:
             summary["markers"] = _jsonable(job.report(res.solve))
@@ -267,7 +255,17 @@ def _run_mocap_job(job: _MocapJob) -> dict:
                   "cpu_s": time.process_time() - c0}
     except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
-    _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir), [job.out_csv])
+    tmp = _tmp_name(Path(job.tmp_dir), Path(job.out_csv))
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        res.write_csv(tmp, overwrite=True)
+        sha = file_sha256(tmp)
+        result["outputs"] = {job.out_rel: sha}
+        _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir), {job.out_rel: sha})
+        Path(job.out_csv).parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp, job.out_csv)
+    finally:
+        tmp.unlink(missing_ok=True)
     return result
 
 
@@ -365,10 +363,27 @@ def _mocap_stage(campaign, robot, T_camera_base):
 # ---------------------------------------------------------------------------------------------
 # the study
 # ---------------------------------------------------------------------------------------------
+def _tree_ok(ctx, prefix: str, key: str | None = None) -> bool:
+    """Every file the study registered under ``prefix`` (a folder 'fits/' or one file) is there
+    with the sha256 it was written with, and ``key`` (a rel path) is one of them."""
+    own = {r: e for r, e in ctx.od.entries().items()
+           if (r.startswith(prefix) if prefix.endswith("/") else r == prefix)
+           and e.get("command") == ctx.od.command}
+    if not own or (key is not None and key not in own):
+        return False
+    for r, e in own.items():
+        p = ctx.out / r
+        if not p.is_file() or p.is_symlink() or e.get("sha256") != ctx.hasher.file(p):
+            return False
+    return True
+
+
 def _reuse_stage(ctx, stage: str, h: str, path: Path, n: int, t0: float) -> bool:
-    """A whole-stage result is up to date (same input hash, output present): keep it."""
+    """A whole-stage result is up to date (same input hash, its files as the study wrote them):
+    keep it."""
     prev = ctx.old.get("stages", {}).get(stage, {})
-    if not (prev.get("hash") == h and path.is_file()):
+    rel = Path(path).relative_to(ctx.out).as_posix()
+    if not (prev.get("hash") == h and _tree_ok(ctx, rel.split("/")[0] + "/", rel)):
         return False
     ctx.man["stages"][stage] = prev
     ctx.paths[stage] = path
@@ -410,6 +425,38 @@ class Study:
         if self.progress:
             print(f"study: {msg}", file=sys.stderr, flush=True)
 
+    @staticmethod
+    def _note(msg: str) -> None:
+        """A line the user always sees (a record that failed its check, a changed output)."""
+        print(f"jointlab: note: {msg}", file=sys.stderr, flush=True)
+
+    def _record(self, ctx, rel: str, h: str):
+        """The verified record ``state/rel`` for input hash ``h`` whose outputs are all still
+        the study's, byte for byte; else ``None`` (with one line when the record or an output
+        failed its check)."""
+        path = ctx.state / rel
+        try:
+            rec, problem = read_record(path, h, CACHE_VERSION, ctx.man["records"].get(rel))
+        except OSError as exc:
+            rec, problem = None, f"unreadable: {exc.strerror or exc}"
+        if problem:
+            self._note(f"study record {path} failed its check ({problem}); recomputing it")
+        if rec is None:
+            return None
+        for out_rel, sha in rec["outputs"].items():
+            p = ctx.out / out_rel
+            if not ctx.od.matches(out_rel, sha):
+                if p.exists() and ctx.od.is_own(out_rel):   # a foreign file is refused later
+                    self._note(f"{p} is not what the study wrote (changed since); recomputing it")
+                return None
+        return rec
+
+    def _keep_record(self, ctx, rel: str) -> None:
+        """Remember the sha256 of a record just written (checked when a rerun reads it)."""
+        p = ctx.state / rel
+        if p.is_file():
+            ctx.man["records"][rel] = ctx.hasher.file(p)
+
     def _map(self, fn, items, desc):
         if not items:
             return []
@@ -428,18 +475,22 @@ class Study:
         from mocap.io.campaign import Campaign, load_campaign
 
         camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
-        out = Path(out).resolve()
-        root = Path(camp.root).resolve()
-        if out == root or root in out.parents:
-            raise InputError(f"the study folder {out} is inside the campaign folder {root}; choose another",
-                             path=out)
-        out.mkdir(parents=True, exist_ok=True)
+        od = OutputDir(out, "study", inputs=[camp.root])
+        out = od.root
+        for t in camp.trials:            # ids are data: every id-derived path stays in --out
+            od.rel(f"angles/{t.id}.csv")
         state = out / STATE_DIR
         state.mkdir(parents=True, exist_ok=True)
         with _FolderLock(state / "lock", self._say):
-            return self._run_locked(camp, out, state, rrd, spawn)
+            try:
+                return self._run_locked(camp, out, state, rrd, spawn, od)
+            except BaseException:
+                shutil.rmtree(state / "tmp", ignore_errors=True)
+                raise
+            finally:
+                od.discard()
 
-    def _run_locked(self, camp, out: Path, state: Path, rrd, spawn) -> StudyResult:
+    def _run_locked(self, camp, out: Path, state: Path, rrd, spawn, od) -> StudyResult:
         tmp_dir = state / "tmp"
         shutil.rmtree(tmp_dir, ignore_errors=True)   # leftovers of an interrupted run
         tmp_dir.mkdir(parents=True, exist_ok=True)
@@ -450,11 +501,13 @@ class Study:
                                    hasher.file(camp.drives))
         manifest_path = out / MANIFEST_NAME
         old = _read_manifest(manifest_path)
-        man = {"format": 1, "campaign": camp.name, "campaign_root": str(camp.root),
-               "settings": s.to_dict(), "stages": {}}
+        old_records = old.get("records") if isinstance(old.get("records"), dict) else {}
+        man = {"format": 2, "campaign": camp.name, "campaign_root": str(camp.root),
+               "settings": s.to_dict(), "stages": {},
+               "records": {k: v for k, v in old_records.items() if isinstance(v, str)}}
         stages, errors, paths = {}, {}, {}
         ctx = _Context(camp, robot, out, state, tmp_dir, hasher, base_hash, man, old, stages,
-                       errors, paths)
+                       errors, paths, od)
 
         T_cb, calib_res = self._calib(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
@@ -496,9 +549,9 @@ class Study:
         files = [ctx.hasher.file(p) for c in camp.calib for p in (c.markers, c.log)]
         h = ctx.hasher.combine("calib", ctx.base_hash, files, s.calib_method)
         path = ctx.out / "calib.json"
-        record = ctx.state / "records" / "calib.pkl"
-        rec = _read_record(record, h) if path.is_file() else None
-        if rec is not None:
+        record = "records/calib.json"
+        rec = self._record(ctx, record, h)
+        if rec is not None and "calib.json" in rec["outputs"]:
             res = rec["result"]
             ctx.stages["calib"] = _stage_row(reused=1, seconds=time.perf_counter() - t0)
         else:
@@ -515,8 +568,11 @@ class Study:
                 ctx.stages["calib"] = _stage_row(failed=1, seconds=time.perf_counter() - t0,
                                                  note=_error_text(exc))
                 return None, None
-            _write_atomic(path, json.dumps(_jsonable(res.to_dict()), indent=1), ctx.tmp_dir)
-            _write_record(record, h, res, ctx.tmp_dir, [str(path)])
+            data = json.dumps(_jsonable(res.to_dict()), indent=1).encode("utf-8")
+            _write_record(ctx.state / record, h, res, ctx.tmp_dir,
+                          {"calib.json": hashlib.sha256(data).hexdigest()})
+            ctx.od.write("calib.json", data)
+            self._keep_record(ctx, record)
             ctx.stages["calib"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
         ctx.man["stages"]["calib"] = {"hash": h, "outputs": ["calib.json"]}
         ctx.paths["calib"] = path
@@ -543,8 +599,7 @@ class Study:
             self._say(f"mocap {note}")
             ctx.stages["mocap"] = _stage_row(seconds=time.perf_counter() - t0, note=note)
             return None, None, None
-        _write_atomic(ctx.out / "references.json", json.dumps(_jsonable(refs.to_dict()), indent=1),
-                      ctx.tmp_dir)
+        ctx.od.write("references.json", json.dumps(_jsonable(refs.to_dict()), indent=1))
         refs_hash = ctx.hasher.file(ctx.out / "references.json")
         angles_dir = ctx.out / "angles"
         jobs, hashes, done = [], {}, {}
@@ -552,17 +607,24 @@ class Study:
             h = ctx.hasher.combine("mocap", ctx.base_hash, refs_hash, ctx.hasher.file(tr.markers),
                                    ctx.hasher.file(tr.log))
             hashes[tr.id] = h
-            csv_path = angles_dir / f"{tr.id}.csv"
-            record = ctx.state / "records" / "mocap" / f"{tr.id}.pkl"
-            rec = _read_record(record, h) if csv_path.is_file() else None
-            if rec is not None:
+            rel = ctx.od.rel(f"angles/{tr.id}.csv")
+            record = f"records/mocap/{_record_name(tr.id)}"
+            rec = self._record(ctx, record, h)
+            if rec is not None and rel in rec["outputs"]:
                 done[tr.id] = rec["result"]
                 continue
-            jobs.append(_MocapJob(str(camp.manifest), tr.id, refs, solve, report, str(csv_path),
-                                  str(record), str(ctx.tmp_dir), h))
+            jobs.append(_MocapJob(str(camp.manifest), tr.id, refs, solve, report, str(ctx.out / rel),
+                                  rel, str(ctx.state / record), str(ctx.tmp_dir), h))
+        ctx.od.claim([j.out_rel for j in jobs])   # refuses a file another command or the user wrote
         self._say(f"link angles: {len(jobs)} trial(s) to solve, {len(done)} reused")
+        written = {}
         for job, res in zip(jobs, self._map(_run_mocap_job, jobs, "mocap")):
             done[job.trial] = res
+            if res.get("ok"):
+                written.update(res["outputs"])
+                self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
+        if written:
+            ctx.od.register(written)
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
         for tid, msg in failed.items():
             ctx.errors[f"mocap/{tid}"] = msg
@@ -573,7 +635,8 @@ class Study:
                    "references": _jsonable(refs.to_dict()),
                    "trials": {tid: done[tid]["summary"] for tid in hashes if done[tid].get("ok")},
                    "failed": failed}
-        _write_atomic(ctx.out / "mocap.json", json.dumps(summary, indent=1), ctx.tmp_dir)
+        ctx.od.write("mocap.json", json.dumps(summary, indent=1))
+        ctx.angles_ok = frozenset(items)
         ctx.paths["angles"] = angles_dir
         ctx.paths["mocap"] = ctx.out / "mocap.json"
         ctx.stages["mocap"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
@@ -600,23 +663,24 @@ class Study:
             if tr.id not in by_trial:
                 continue
             ang = None
-            if angles_dir is not None and (angles_dir / f"{tr.id}.csv").is_file():
-                ang = angles_dir / f"{tr.id}.csv"
+            if angles_dir is not None and tr.id in ctx.angles_ok:
+                ang = ctx.od.path(f"angles/{tr.id}.csv")
             ttasks = tuple(dataclasses.replace(t, angles=None if ang is None else str(ang))
                            for t in by_trial[tr.id])
             h = ctx.hasher.combine("fits", ctx.base_hash, ctx.hasher.file(tr.log),
                                    None if ang is None else ctx.hasher.file(ang), fit_settings,
                                    [dataclasses.asdict(t) | {"log": "", "angles": ""} for t in ttasks])
             hashes[tr.id] = h
-            record = ctx.state / "records" / "fits" / f"{tr.id}.pkl"
-            rec = _read_record(record, h)
+            record = f"records/fits/{_record_name(tr.id)}"
+            rec = self._record(ctx, record, h)
             if rec is not None:
                 done[tr.id] = rec["result"]
                 continue
-            jobs.append(_FitJob(tr.id, ttasks, str(record), str(ctx.tmp_dir), h))
+            jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h))
         self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
         for job, res in zip(jobs, self._map(_run_fit_job, jobs, "fits")):
             done[job.trial] = res
+            self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
         for tid, msg in failed.items():
             ctx.errors[f"fits/{tid}"] = msg
@@ -626,11 +690,11 @@ class Study:
         stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots)
         fits_dir = ctx.out / "fits"
         prev = ctx.old.get("stages", {}).get("fits", {})
-        if not (prev.get("hash") == stage_hash and (fits_dir / "fits.json").is_file()):
+        if not (prev.get("hash") == stage_hash and _tree_ok(ctx, "fits/", "fits/fits.json")):
             if entries:
                 tmp = ctx.tmp_dir / "fits-new"
                 result.write(tmp, plots=s.plots)
-                _replace_dir(tmp, fits_dir)
+                ctx.od.commit(tmp, "fits", prune=True)
         ctx.man["stages"]["fits"] = {"hash": stage_hash, "outputs": ["fits/"],
                                      "items": {tid: {"hash": h} for tid, h in hashes.items()
                                                if tid in done and done[tid].get("ok")}}
@@ -672,7 +736,7 @@ class Study:
         (tmp / "fits.json").write_text(json.dumps(res.merge_into({"format": 1, "trials": {}, "summary": []}),
                                                   indent=1, allow_nan=False), encoding="utf-8")
         res.write(tmp)
-        _replace_dir(tmp, out)
+        ctx.od.commit(tmp, "rigidbody", prune=True)
         ctx.man["stages"]["rigidbody"] = {"hash": h, "outputs": ["rigidbody/"]}
         ctx.paths["rigidbody"] = out / "rigidbody.json"
         ctx.stages["rigidbody"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
@@ -703,16 +767,17 @@ class Study:
                      for t in trials]
             h = ctx.hasher.combine("diagnosis", ctx.base_hash, j, files, dset.to_dict())
             hashes[j] = h
-            record = ctx.state / "records" / "diagnosis" / f"joint{j}.pkl"
-            rec = _read_record(record, h)
+            record = f"records/diagnosis/joint{j}.json"
+            rec = self._record(ctx, record, h)
             if rec is not None:
                 done[j] = rec["result"]
                 continue
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
-                                 dset, str(record), str(ctx.tmp_dir), h))
+                                 dset, str(ctx.state / record), str(ctx.tmp_dir), h))
         self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
         for job, res in zip(jobs, self._map(_run_diag_job, jobs, "diagnosis")):
             done[job.joint] = res
+            self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
         failed = {j: r["error"] for j, r in done.items() if not r.get("ok")}
         for j, msg in failed.items():
             ctx.errors[f"diagnosis/joint{j}"] = msg
@@ -726,12 +791,12 @@ class Study:
         diag_dir = ctx.out / "diagnosis"
         prev = ctx.old.get("stages", {}).get("diagnosis", {})
         if report["joints"] and not (prev.get("hash") == stage_hash
-                                     and (diag_dir / "diagnosis.json").is_file()):
+                                     and _tree_ok(ctx, "diagnosis/", "diagnosis/diagnosis.json")):
             from ident.gap.report import write_report
 
             tmp = ctx.tmp_dir / "diagnosis-new"
             write_report(report, series, tmp, None)
-            _replace_dir(tmp, diag_dir)
+            ctx.od.commit(tmp, "diagnosis", prune=True)
         ctx.man["stages"]["diagnosis"] = {"hash": stage_hash, "outputs": ["diagnosis/"],
                                           "items": {str(j): {"hash": h} for j, h in hashes.items()
                                                     if j in ok}}
@@ -771,7 +836,7 @@ class Study:
                   "link_angles": False}
         tmp = ctx.tmp_dir / "diagnosis-new"
         write_report(report, series, tmp, None)
-        _replace_dir(tmp, diag_dir)
+        ctx.od.commit(tmp, "diagnosis", prune=True)
         ctx.man["stages"]["diagnosis"] = {"hash": h, "outputs": ["diagnosis/"]}
         ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
@@ -793,7 +858,7 @@ class Study:
                                self.settings.plots)
         folder, section = ctx.out / "coastdown", ctx.out / "coastdown" / "section.md"
         prev = ctx.old.get("stages", {}).get("coastdown", {})
-        if prev.get("hash") == h and section.is_file():
+        if prev.get("hash") == h and _tree_ok(ctx, "coastdown/", "coastdown/section.md"):
             ctx.man["stages"]["coastdown"] = prev
             ctx.stages["coastdown"] = _stage_row(reused=len(trials), seconds=time.perf_counter() - t0)
             return section.read_text(encoding="utf-8")
@@ -811,7 +876,7 @@ class Study:
                 "notes and decay curves: `coastdown/coastdown.md`; values: `coastdown/coastdown.json`.\n\n"
                 + coastdown_table(report) + "\n")
         (tmp / "section.md").write_text(text, encoding="utf-8")
-        _replace_dir(tmp, folder)
+        ctx.od.commit(tmp, "coastdown", prune=True)
         ctx.paths["coastdown"] = folder / "coastdown.json"
         ctx.man["stages"]["coastdown"] = {"hash": h, "outputs": ["coastdown/"]}
         ctx.stages["coastdown"] = _stage_row(computed=len(report.trials), failed=len(report.skipped),
@@ -828,7 +893,10 @@ class Study:
                                str(rrd_path), ctx.errors)
         outputs = ["report.md", "csv/"] + (["plots/"] if s.plots else [])
         prev = ctx.old.get("stages", {}).get("report", {})
-        have = all((ctx.out / o).exists() for o in outputs) and (rrd_path is None or rrd_path.is_file())
+        rrd_inside = rrd_path is not None and ctx.out in Path(rrd_path).resolve().parents
+        have = (all(_tree_ok(ctx, o) for o in outputs)
+                and (rrd_path is None or (_tree_ok(ctx, ctx.od.rel(rrd_path)) if rrd_inside
+                                          else rrd_path.is_file())))
         ctx.paths["report"] = ctx.out / "report.md"
         if rrd_path is not None:
             ctx.paths["rrd"] = rrd_path
@@ -841,23 +909,24 @@ class Study:
         if s.plots and fits is not None and fits.entries:
             tmp = ctx.tmp_dir / "plots-new"
             plots = write_study_plots(fits, tmp)
-            _replace_dir(tmp, ctx.out / "plots")
+            ctx.od.commit(tmp, "plots", prune=True)
         tmp = ctx.tmp_dir / "csv-new"
         write_study_csvs(ctx.camp, mocap_summary, fits, diag[0] if diag else None, tmp)
-        _replace_dir(tmp, ctx.out / "csv")
+        ctx.od.commit(tmp, "csv", prune=True)
         later = [MANIFEST_NAME] + ([rrd_path.name] if rrd_path is not None
                                    and rrd_path.resolve().parent == ctx.out.resolve() else [])
         md = report_markdown(ctx.camp, ctx.stages, calib_res, mocap_summary, fits,
                              diag[0] if diag else None, plots, ctx.out, ctx.errors, will_write=later)
         if getattr(self, "_coast_md", ""):
             md = md.rstrip("\n") + "\n\n" + self._coast_md
-        _write_atomic(ctx.out / "report.md", md, ctx.tmp_dir)
+        ctx.od.write("report.md", md)
         if rrd_path is not None or spawn:
             bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
             shown = dataclasses.replace(ctx.camp, trials=tuple(t for t in ctx.camp.trials
                                                                if t.id not in bad))
             log_study(shown, ctx.robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, md,
-                      ctx.out, s.rrd_trials, ctx.tmp_dir)   # failed trials are in the report only
+                      ctx.out, s.rrd_trials, ctx.tmp_dir,   # failed trials are in the report only
+                      install=ctx.od.install if rrd_inside else None)
         up["report"] = {"hash": h, "outputs": outputs + ([str(rrd_path)] if rrd_path else [])}
         ctx.stages["report"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
 
@@ -906,6 +975,8 @@ class _Context:
     stages: dict
     errors: dict
     paths: dict
+    od: OutputDir
+    angles_ok: frozenset = frozenset()
 
 
 def _read_manifest(path: Path) -> dict:
@@ -1200,11 +1271,12 @@ def _rrd_trials(campaign, which: str):
 
 
 def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, report_md, out,
-              which: str = "first", tmp_dir: Path | None = None) -> list[str]:
+              which: str = "first", tmp_dir: Path | None = None, install=None) -> list[str]:
     """One recording of the study: the campaign (markers in the camera frame, the robot posed
     by the motor angles and placed by the calibration, joint signals), the calibration, the link
     angles, the fits and the diagnosis, with a blueprint showing all of them. Written to a
-    temporary file and renamed to ``rrd_path`` when complete."""
+    temporary file and renamed to ``rrd_path`` when complete (``install(tmp, rrd_path)`` does
+    the rename when given: the output folder's checked, registered install)."""
     sub = dataclasses.replace(campaign, trials=tuple(_rrd_trials(campaign, which)))
     ids = {t.id for t in sub.trials}
     tmp = None
@@ -1220,7 +1292,10 @@ def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, dia
             tmp.unlink(missing_ok=True)
         raise
     if tmp is not None:
-        os.replace(tmp, rrd_path)
+        if install is not None:
+            install(tmp, rrd_path)
+        else:
+            os.replace(tmp, rrd_path)
     return logged
 
 

@@ -5,7 +5,8 @@ import json
 import sys
 from pathlib import Path
 
-from ident.cli.main import add_common, check_out_dir
+from ident.cli.main import add_common
+from ident.outputs import OutputDir
 
 
 def register(sub):
@@ -33,18 +34,15 @@ def run(args) -> int:
     from viz import make_sink
 
     camp = load_campaign(args.campaign)
-    existed = Path(args.out).exists()
-    out = check_out_dir(args.out, [camp.root])
-    try:
+    with OutputDir(args.out, "calib", [camp.root]) as od:
+        od.check_early(["calib.json"])
         robot = camp.load_robot()
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
             result = calibrate(camp, robot, method=args.method, sink=sink, noise_mm=args.noise_mm,
                                min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check)
-        path = write_calib_json(out / "calib.json", result)
-    except BaseException:
-        if not existed and out.is_dir() and not any(out.iterdir()):
-            out.rmdir()  # no empty output folder left behind on failure
-        raise
+        stage = od.stage()
+        path = od.final(write_calib_json(stage / "calib.json", result))
+        od.commit(stage)
     for w in result.warnings:
         print(f"jointlab: warning: {w}", file=sys.stderr)
     if args.json:

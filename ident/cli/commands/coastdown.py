@@ -4,7 +4,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ident.cli.main import add_common, check_out_dir
+from ident.cli.main import add_common
+from ident.outputs import OutputDir
 
 
 def register(sub):
@@ -25,11 +26,15 @@ def run(args) -> int:
     from ident.coastdown.campaign import CoastdownSettings, analyse_campaign, write_coastdown
 
     camp = load_campaign(args.campaign)
-    out = check_out_dir(args.out, [camp.root])
-    report = analyse_campaign(camp, settings=CoastdownSettings(joints=tuple(args.joints)),
-                              progress=not args.json)
-    with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-coastdown") as sink:
-        paths = write_coastdown(report, out, sink, plots=not args.no_plots)
+    with OutputDir(args.out, "coastdown", [camp.root]) as od:
+        out = od.root
+        report = analyse_campaign(camp, settings=CoastdownSettings(joints=tuple(args.joints)),
+                                  progress=not args.json)
+        stage = od.stage()
+        with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-coastdown") as sink:
+            paths = write_coastdown(report, stage, sink, plots=not args.no_plots)
+        paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
+        od.commit(stage)
     if args.json:
         d = report.to_dict()
         print(json.dumps({"out": str(out), "joints": d["joints"] and {

@@ -10,7 +10,8 @@ import numpy as np
 
 from mocap.io.errors import InputError
 
-from ident.cli.main import add_common, check_out_dir
+from ident.cli.main import add_common
+from ident.outputs import OutputDir
 
 
 def register(sub):
@@ -58,16 +59,20 @@ def run(args) -> int:
         raise InputError(f"--joint {args.joint}: the robot has joints 1..{robot.n}", path=args.robot)
     if not 0 < args.vmax_frac <= 1:
         raise InputError(f"--vmax-frac must be in (0, 1], got {args.vmax_frac}")
-    out = check_out_dir(args.out, [args.robot])
-    limits = limits_from_robot(robot, args.joint, args.amax)
-    design = ExcitationDesigner(n_harmonics=args.harmonics, period=args.period, n_starts=args.starts,
-                                seed=args.seed).fit(limits, args.vmax_frac, args.joint)
-    d = design.to_dict()
-    (out / "design.json").write_text(json.dumps(d, indent=1), encoding="utf-8")
-    t, q, qd, qdd = design.trajectory(dt=args.dt)
-    np.savetxt(out / "trajectory.csv", np.column_stack([t, q, qd, qdd]), delimiter=",",
-               header="time,q,qd,qdd", comments="", fmt="%.9g")
-    _plot(out / "design.png", t, q, qd, qdd, design)
+    with OutputDir(args.out, "design", [args.robot]) as od:
+        od.check_early(["design.json", "trajectory.csv", "design.png"])
+        out = od.root
+        limits = limits_from_robot(robot, args.joint, args.amax)
+        design = ExcitationDesigner(n_harmonics=args.harmonics, period=args.period, n_starts=args.starts,
+                                    seed=args.seed).fit(limits, args.vmax_frac, args.joint)
+        d = design.to_dict()
+        stage = od.stage()
+        (stage / "design.json").write_text(json.dumps(d, indent=1), encoding="utf-8")
+        t, q, qd, qdd = design.trajectory(dt=args.dt)
+        np.savetxt(stage / "trajectory.csv", np.column_stack([t, q, qd, qdd]), delimiter=",",
+                   header="time,q,qd,qdd", comments="", fmt="%.9g")
+        _plot(stage / "design.png", t, q, qd, qdd, design)
+        od.commit(stage)
     if args.rrd or args.spawn:
         from viz import make_sink
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ident.cli.main import add_common, check_out_dir
+from ident.cli.main import add_common
+from ident.outputs import OutputDir
 
 
 def register(sub):
@@ -75,13 +76,18 @@ def run(args) -> int:
     camp = load_campaign(args.campaign)
     joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
     check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
-    out = check_out_dir(args.out, [camp.root])
-    robot = camp.load_robot()
-    with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
-        no_markers = args.no_markers or not camp.has_markers   # marker-less campaigns
-        angles = None if no_markers else link_angles(camp, robot, args.angles, sink)
-        report, series = _diagnose(camp, robot, angles, DiagnosisSettings(seed=args.seed, nominal=args.nominal), args.joints)
-        paths = write_report(report, series, out, sink)
+    with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:
+        od.check_early(["diagnosis.json", "diagnosis.md"])
+        out = od.root
+        robot = camp.load_robot()
+        with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
+            no_markers = args.no_markers or not camp.has_markers   # marker-less campaigns
+            angles = None if no_markers else link_angles(camp, robot, args.angles, sink)
+            report, series = _diagnose(camp, robot, angles, DiagnosisSettings(seed=args.seed, nominal=args.nominal), args.joints)
+            stage = od.stage()
+            paths = write_report(report, series, stage, sink)
+        paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
+        od.commit(stage)
     summary = {j: {"verdict": r["verdict"], "verdict_status": r.get("verdict_status"),
                    "verdict_text": r.get("verdict_text", r["verdict"]),
                    "heldout_rms_nominal": r.get("heldout_rms_nominal")}

@@ -22,7 +22,8 @@ from pathlib import Path
 
 from mocap.io.errors import InputError
 
-from ident.cli.main import add_common, check_out_dir
+from ident.cli.main import add_common
+from ident.outputs import OutputDir, cap_workers
 
 
 def register(sub):
@@ -62,10 +63,10 @@ def register(sub):
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
 
-    from ident.thesis.campaign import fit_campaign
-    from ident.indri.campaign import DYNAMIC_MODELS, fit_campaign_dynamic, merge_fits_json
+    from ident.indri.campaign import DYNAMIC_MODELS
     from ident.model.onelink import model_class
 
+    args.workers = cap_workers(args.workers)
     models = tuple(dict.fromkeys(m.strip() for m in args.models.split(",") if m.strip()))
     if not models:
         raise InputError("--models is empty")
@@ -116,9 +117,19 @@ def run(args) -> int:
     inputs = [camp.root] + ([args.angles] if args.angles else [])
     if args.angles is not None and not args.angles.is_dir():
         raise InputError("--angles must be a folder", path=args.angles)
-    out = check_out_dir(args.out, inputs)
-    if args.export_c is not None:
-        check_out_dir(args.export_c, inputs)
+    with OutputDir(args.out, "fit", inputs) as od:
+        od.check_early(["fits.json"])
+        if args.export_c is None:
+            return _run_single(args, camp, models, one_models, dyn_models, od, None)
+        with OutputDir(args.export_c, "fit", inputs, flag="--export-c") as oc:
+            return _run_single(args, camp, models, one_models, dyn_models, od, oc)
+
+
+def _run_single(args, camp, models, one_models, dyn_models, od, oc) -> int:
+    from ident.thesis.campaign import fit_campaign
+    from ident.indri.campaign import fit_campaign_dynamic, merge_fits_json
+
+    out, stage = od.root, od.stage()
     executor = None
     if args.workers > 1 and one_models:
         from ident.study.executor import make_executor
@@ -134,19 +145,24 @@ def run(args) -> int:
                                    n_starts=args.starts, seed=args.seed, sync=args.sync)
             if dyn_models:
                 dyn = fit_campaign_dynamic(camp, angles_dir=args.angles, sink=sink, models=dyn_models)
-            paths = res.write(out, plots=not args.no_plots) if res is not None else {}
+            paths = res.write(stage, plots=not args.no_plots) if res is not None else {}
             if dyn is not None:
                 doc = res.to_dict() if res is not None else {"format": 1, "trials": {}, "summary": []}
-                paths["fits"] = out / "fits.json"
+                paths["fits"] = stage / "fits.json"
                 paths["fits"].write_text(json.dumps(merge_fits_json(doc, dyn), indent=1,
                                                     allow_nan=False), encoding="utf-8")
-                paths["indri"] = dyn.write_reports(out, sink=sink)
+                paths["indri"] = dyn.write_reports(stage, sink=sink)
     finally:
         if executor is not None:
             executor.close()
+    paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
     exported, export_note = [], None
-    if args.export_c is not None:
-        exported, export_note = _export_c(args.export_c, res, dyn, args.export_dt)
+    if oc is not None:
+        cstage = oc.stage()
+        exported, export_note = _export_c(cstage, res, dyn, args.export_dt)
+        exported = [oc.final(p) for p in exported]
+        oc.commit(cstage)
+    od.commit(stage)
     if args.json:
         doc = res.to_dict() if res is not None else {"format": 1, "trials": {}, "summary": []}
         if dyn is not None:
@@ -227,15 +243,22 @@ def _run_multijoint(args, camp, models) -> int:
     of every asked model, torque offsets, actuator inertias and coupled motors
     (:mod:`ident.model.rigidbody`)."""
     from ident.friction import MODELS
-    from ident.model.multijoint import fit_multijoint_campaign
-    from ident.model.record import RecordSettings
 
     bad = [m for m in models if m not in MODELS]
     if bad:
         raise InputError(f"unknown friction model {bad[0]!r} (known: {', '.join(MODELS)})", label=bad[0])
     if args.export_c is not None:
         raise InputError("--export-c is not available for multi-joint records")
-    out = check_out_dir(args.out, [camp.root])
+    with OutputDir(args.out, "fit", [camp.root]) as od:
+        od.check_early(["fits.json"])
+        return _run_multijoint_in(args, camp, models, od)
+
+
+def _run_multijoint_in(args, camp, models, od) -> int:
+    from ident.model.multijoint import fit_multijoint_campaign
+    from ident.model.record import RecordSettings
+
+    out, stage = od.root, od.stage()
     try:
         window = args.window if args.window == "auto" else float(args.window)
     except ValueError:
@@ -252,8 +275,9 @@ def _run_multijoint(args, camp, models) -> int:
     res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero=v_zero,
                                   n_starts=args.starts)
     doc = res.merge_into({"format": 1, "trials": {}, "summary": []})
-    (out / "fits.json").write_text(json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8")
-    paths = res.write(out)
+    (stage / "fits.json").write_text(json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8")
+    paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in res.write(stage).items()}
+    od.commit(stage)
     if args.json:
         print(json.dumps(doc, indent=1, allow_nan=False))
         return 0

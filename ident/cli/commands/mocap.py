@@ -12,7 +12,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ident.cli.main import add_common, check_out_dir
+from ident.cli.main import add_common
+from ident.outputs import OutputDir
 
 
 def register(sub):
@@ -38,13 +39,21 @@ def register(sub):
 
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
+
+    camp = load_campaign(args.campaign)
+    trials = [camp.trial(t) for t in args.trial] if args.trial else list(camp.trials)
+    with OutputDir(args.out, "mocap", [camp.root] + ([args.calib] if args.calib else [])) as od:
+        od.check_early(["references.json", "mocap.json"] + [f"angles/{t.id}.csv" for t in trials])
+        return _run(args, camp, trials, od)
+
+
+def _run(args, camp, trials, od) -> int:
     from mocap.quality import summary
     from mocap.references import read_calib
     from mocap.solve import solve_trial
     from viz import make_sink
 
-    camp = load_campaign(args.campaign)
-    out = check_out_dir(args.out, [camp.root] + ([args.calib] if args.calib else []))
+    out, stage = od.root, od.stage()
     robot = camp.load_robot()
     T_cb = read_calib(args.calib) if args.calib else None
     from ident.study.angles import campaign_references
@@ -53,7 +62,6 @@ def run(args) -> int:
         print("camera pose: from the static pose(s) if they fix it, else from the [[calib]] sweeps "
               "(save it with `jointlab calib`)")
     refs, camera_from = campaign_references(camp, robot, T_cb)
-    trials = [camp.trial(t) for t in args.trial] if args.trial else list(camp.trials)
     results = []
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
         if sink.enabled:
@@ -65,12 +73,13 @@ def run(args) -> int:
             res = solve_trial(camp, tr, refs, sink=sink, robot=robot, refine=args.refine,
                               refine_geometry=args.refine_geometry,
                               min_markers=args.min_markers, reject_sigma=args.reject_sigma)
-            res.write_csv(out / "angles" / f"{tr.id}.csv", overwrite=True)
+            res.write_csv(stage / od.rel(f"angles/{tr.id}.csv"), overwrite=True)
             results.append(res)
     doc = summary(results, refs)
     doc["camera_from"] = camera_from
-    (out / "references.json").write_text(json.dumps(refs.to_dict(), indent=1), encoding="utf-8")
-    (out / "mocap.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    (stage / "references.json").write_text(json.dumps(refs.to_dict(), indent=1), encoding="utf-8")
+    (stage / "mocap.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+    od.commit(stage)
     if args.json:
         print(json.dumps(doc, indent=1))
     else:

@@ -1,6 +1,7 @@
 """``jointlab study CAMPAIGN --out DIR [--workers N | --scheduler tcp://HOST:PORT]``: the whole
 study of a campaign (calibration, link angles, friction fits, gap diagnosis, report, one .rrd),
-resumable: a rerun skips every trial whose outputs exist and whose input hashes match."""
+resumable: a rerun skips every item whose record verifies, whose input hashes match and whose
+outputs are byte for byte what the study wrote (docs/outputs.md)."""
 from __future__ import annotations
 
 import json
@@ -62,15 +63,18 @@ def run_from_args(args, campaign_path: Path) -> int:
 
     settings = settings_from_args(args)
     camp = load_campaign(campaign_path)
-    out = check_out_dir(args.out, [camp.root])
+    from ident.outputs import check_out_dir as check_study_out
+
+    out = check_study_out(args.out, [camp.root])
     if args.rrd is not None:
         check_out_dir(Path(args.rrd).resolve().parent, [camp.root])
     try:
         executor = make_executor(args.workers, args.scheduler, progress=not args.quiet)
     except ImportError as exc:
         raise InputError(str(exc)) from None
-    except OSError as exc:
-        raise InputError(f"cannot reach the Dask scheduler {args.scheduler}: {exc}") from None
+    except (OSError, ValueError, TimeoutError) as exc:
+        msg = " ".join(str(exc).split()) or type(exc).__name__
+        raise InputError(f"--scheduler: cannot reach the Dask scheduler {args.scheduler}: {msg}") from None
     try:
         res = Study(settings, executor, progress=not args.quiet).run(camp, out, rrd=args.rrd,
                                                                       spawn=args.spawn)
