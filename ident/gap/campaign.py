@@ -40,7 +40,9 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
     mocap solver); without it only the torque channel is diagnosed.
     """
     robot = robot or campaign.load_robot()
-    single = [t for t in campaign.trials if len(t.joints) == 1]
+    # a joint whose torque was not logged (FORMAT.md ``unlogged_torque``) has nothing to diagnose
+    single = [t for t in campaign.trials if len(t.joints) == 1
+              and t.joints[0] not in tuple(getattr(t, "unlogged_torque", ()) or ())]
     skipped = [t.id for t in campaign.trials if len(t.joints) != 1]
     by_joint: dict[int, list] = {}
     for t in single:
