@@ -120,12 +120,14 @@ def run(args) -> int:
     with OutputDir(args.out, "fit", inputs) as od:
         od.check_early(["fits.json"])
         if args.export_c is None:
-            return _run_single(args, camp, models, one_models, dyn_models, od, None)
+            return _run_single(args, camp, models, one_models, dyn_models, od, None,
+                               (route_note, dyn_skip_note))
         with OutputDir(args.export_c, "fit", inputs, flag="--export-c") as oc:
-            return _run_single(args, camp, models, one_models, dyn_models, od, oc)
+            return _run_single(args, camp, models, one_models, dyn_models, od, oc,
+                               (route_note, dyn_skip_note))
 
 
-def _run_single(args, camp, models, one_models, dyn_models, od, oc) -> int:
+def _run_single(args, camp, models, one_models, dyn_models, od, oc, notes=()) -> int:
     from ident.thesis.campaign import fit_campaign
     from ident.indri.campaign import fit_campaign_dynamic, merge_fits_json
 
@@ -169,7 +171,7 @@ def _run_single(args, camp, models, one_models, dyn_models, od, oc) -> int:
             doc = merge_fits_json(doc, dyn)
         print(json.dumps(doc, indent=1, allow_nan=False))
         return 0
-    for n in (route_note, dyn_skip_note):
+    for n in notes:
         if n:
             print(f"note: {n}")
     if res is not None:
