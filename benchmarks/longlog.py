@@ -1,0 +1,125 @@
+"""Benchmark: ``jointlab info`` on a long robot log (issue 30).
+
+Goal: a 10-million-row, 13-column log (``time``, ``qm_1..6``, ``tau_1..6``: a 6-joint controller
+log at 5 kHz for 33 minutes) in at most 15 s and 1.5 GB peak resident. Each command runs in its
+own process under ``/usr/bin/time``, which reports its wall time and peak resident set.
+
+Beside ``jointlab info`` on the long log, the same invocation times two baselines on a shorter
+log of the same kind (``--base-rows``, default 1 M rows; the old reader needs about 0.7 KB per
+row, too much for a shared machine at 10 M rows): the careful line-by-line parser (the reader
+every log went through before the streaming reader, ``mocap.io.robotlog._read_careful``) and a
+plain ``numpy.loadtxt`` of the table, and ``jointlab info`` on that shorter log, so that the
+ratios compare like with like.
+
+    python benchmarks/longlog.py                       # 10 M rows (generated once, cached)
+    python benchmarks/longlog.py --rows 2000000        # a smaller log
+    python benchmarks/longlog.py --no-baseline         # only the long-log run
+
+The logs are made here with their own generator (sines and noise, written by pyarrow's CSV
+writer, cells rounded to 1e-6 rad and 1e-4 N m) into a cache folder and reused.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+GOAL_S = 15.0
+GOAL_GB = 1.5
+RATE_HZ = 5000.0
+N_JOINTS = 6
+
+
+def make_log(rows: int, cache: Path, seed: int = 3) -> Path:
+    """A ``rows``-row log at :data:`RATE_HZ`: per joint a sum of two sines plus noise for the
+    angle, a noisy torque; written in blocks of 1 M rows."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    path = cache / f"longlog-{rows}.csv"
+    if path.is_file():
+        return path
+    print(f"writing a {rows}-row log to {path} (once) ...", flush=True)
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    names = ["time"] + [f"qm_{j + 1}" for j in range(N_JOINTS)] + [f"tau_{j + 1}" for j in range(N_JOINTS)]
+    f = rng.uniform(0.05, 0.5, size=(2, N_JOINTS))
+    tmp = path.with_suffix(".part")
+    tmp.write_text(",".join(names) + "\n")
+    with open(tmp, "ab") as fh, pacsv.CSVWriter(
+            fh, pa.schema([(n, pa.float64()) for n in names]),
+            write_options=pacsv.WriteOptions(include_header=False, quoting_style="none")) as w:
+        for a in range(0, rows, 1_000_000):
+            i = np.arange(a, min(rows, a + 1_000_000))
+            t = i / RATE_HZ
+            ph = 2 * np.pi * t[:, None]
+            q = np.sin(ph * f[0]) + 0.3 * np.sin(ph * f[1]) + 1e-5 * rng.standard_normal((i.size, N_JOINTS))
+            tau = 5 * np.cos(ph * f[0]) + 0.2 * rng.standard_normal((i.size, N_JOINTS))
+            cols = [np.round(t, 6)] + list(np.round(q, 6).T) + list(np.round(tau, 4).T)
+            w.write_batch(pa.record_batch([pa.array(c) for c in cols], names=names))
+    tmp.rename(path)
+    print(f"  {path.stat().st_size / 1e9:.2f} GB in {time.perf_counter() - t0:.0f} s", flush=True)
+    return path
+
+
+def timed(code: str | list, label: str) -> tuple[float, float]:
+    """Wall seconds and peak resident GB of one child process (``/usr/bin/time``)."""
+    with tempfile.NamedTemporaryFile("r", suffix=".time") as tf:
+        argv = [sys.executable, "-c", code] if isinstance(code, str) else [sys.executable, *code]
+        env = dict(os.environ, PYTHONPATH=str(REPO), OPENBLAS_NUM_THREADS="1")
+        r = subprocess.run(["/usr/bin/time", "-o", tf.name, "-f", "%e %M", *argv], env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        if r.returncode != 0:
+            raise SystemExit(f"{label} failed ({r.returncode}):\n{r.stderr[-2000:]}")
+        wall, kb = tf.read().split()[-2:]
+    return float(wall), float(kb) * 1024 / 1e9
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rows", type=int, default=10_000_000)
+    ap.add_argument("--base-rows", type=int, default=1_000_000)
+    ap.add_argument("--no-baseline", action="store_true")
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "jointlab-bench")
+    a = ap.parse_args(argv)
+    a.cache.mkdir(parents=True, exist_ok=True)
+    big = make_log(a.rows, a.cache)
+    size = big.stat().st_size
+    cmd = ["-m", "ident.cli", "info", str(big)]
+    print(f"log: {a.rows} rows x {1 + 2 * N_JOINTS} columns, {size / 1e9:.2f} GB; load {os.getloadavg()[0]:.1f}",
+          flush=True)
+    wall, gb = timed(cmd, "jointlab info")
+    print(f"jointlab info ({a.rows} rows): {wall:.1f} s, peak {gb:.2f} GB resident "
+          f"(goal <= {GOAL_S:.0f} s, <= {GOAL_GB} GB: {'met' if wall <= GOAL_S and gb <= GOAL_GB else 'NOT met'})",
+          flush=True)
+    if not a.no_baseline:
+        small = make_log(a.base_rows, a.cache)
+        n = a.base_rows
+        w_new, g_new = timed(["-m", "ident.cli", "info", str(small)], "jointlab info (short)")
+        careful = ("from pathlib import Path; from mocap.io.robotlog import _read_careful; "
+                   f"log = _read_careful(Path({str(small)!r}), None); log.sampling()")
+        w_old, g_old = timed(careful, "careful reader")
+        loadtxt = ("import numpy as np; "
+                   f"a = np.loadtxt({str(small)!r}, delimiter=',', skiprows=1, ndmin=2)")
+        w_np, g_np = timed(loadtxt, "numpy.loadtxt")
+        print(f"baselines on {n} rows (same invocation):")
+        print(f"  jointlab info          {w_new:6.2f} s  {g_new:5.2f} GB")
+        print(f"  careful reader (old)   {w_old:6.2f} s  {g_old:5.2f} GB   "
+              f"info is {w_old / w_new:.1f}x faster, {g_old / g_new:.1f}x less memory")
+        print(f"  numpy.loadtxt          {w_np:6.2f} s  {g_np:5.2f} GB   "
+              f"info is {w_np / w_new:.1f}x faster, {g_np / g_new:.1f}x less memory")
+        print(f"  old reader extrapolated to {a.rows} rows: ~{w_old * a.rows / n:.0f} s, "
+              f"~{g_old * a.rows / n:.1f} GB (linear in rows)")
+    print(json.dumps({"rows": a.rows, "wall_s": wall, "peak_gb": gb}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
