@@ -69,17 +69,18 @@ def make_log(rows: int, cache: Path, seed: int = 3) -> Path:
     return path
 
 
-def timed(code: str | list, label: str) -> tuple[float, float]:
-    """Wall seconds and peak resident GB of one child process (``/usr/bin/time``)."""
+def timed(code: str | list, label: str) -> tuple[float, float, float]:
+    """Wall seconds, peak resident GB and CPU seconds (user + system) of one child process
+    (``/usr/bin/time``); on a shared machine the CPU time is the steadier figure."""
     with tempfile.NamedTemporaryFile("r", suffix=".time") as tf:
         argv = [sys.executable, "-c", code] if isinstance(code, str) else [sys.executable, *code]
         env = dict(os.environ, PYTHONPATH=str(REPO), OPENBLAS_NUM_THREADS="1")
-        r = subprocess.run(["/usr/bin/time", "-o", tf.name, "-f", "%e %M", *argv], env=env,
+        r = subprocess.run(["/usr/bin/time", "-o", tf.name, "-f", "%e %M %U %S", *argv], env=env,
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         if r.returncode != 0:
             raise SystemExit(f"{label} failed ({r.returncode}):\n{r.stderr[-2000:]}")
-        wall, kb = tf.read().split()[-2:]
-    return float(wall), float(kb) * 1024 / 1e9
+        wall, kb, user, system = tf.read().split()[-4:]
+    return float(wall), float(kb) * 1024 / 1e9, float(user) + float(system)
 
 
 def main(argv=None) -> int:
@@ -95,29 +96,31 @@ def main(argv=None) -> int:
     cmd = ["-m", "ident.cli", "info", str(big)]
     print(f"log: {a.rows} rows x {1 + 2 * N_JOINTS} columns, {size / 1e9:.2f} GB; load {os.getloadavg()[0]:.1f}",
           flush=True)
-    wall, gb = timed(cmd, "jointlab info")
-    print(f"jointlab info ({a.rows} rows): {wall:.1f} s, peak {gb:.2f} GB resident "
+    wall, gb, cpu = timed(cmd, "jointlab info")
+    print(f"jointlab info ({a.rows} rows): {wall:.1f} s ({cpu:.1f} s CPU), peak {gb:.2f} GB resident "
           f"(goal <= {GOAL_S:.0f} s, <= {GOAL_GB} GB: {'met' if wall <= GOAL_S and gb <= GOAL_GB else 'NOT met'})",
           flush=True)
     if not a.no_baseline:
         small = make_log(a.base_rows, a.cache)
         n = a.base_rows
-        w_new, g_new = timed(["-m", "ident.cli", "info", str(small)], "jointlab info (short)")
+        w_new, g_new, c_new = timed(["-m", "ident.cli", "info", str(small)], "jointlab info (short)")
         careful = ("from pathlib import Path; from mocap.io.robotlog import _read_careful; "
                    f"log = _read_careful(Path({str(small)!r}), None); log.sampling()")
-        w_old, g_old = timed(careful, "careful reader")
+        w_old, g_old, c_old = timed(careful, "careful reader")
         loadtxt = ("import numpy as np; "
                    f"a = np.loadtxt({str(small)!r}, delimiter=',', skiprows=1, ndmin=2)")
-        w_np, g_np = timed(loadtxt, "numpy.loadtxt")
+        w_np, g_np, c_np = timed(loadtxt, "numpy.loadtxt")
         print(f"baselines on {n} rows (same invocation):")
-        print(f"  jointlab info          {w_new:6.2f} s  {g_new:5.2f} GB")
-        print(f"  careful reader (old)   {w_old:6.2f} s  {g_old:5.2f} GB   "
-              f"info is {w_old / w_new:.1f}x faster, {g_old / g_new:.1f}x less memory")
-        print(f"  numpy.loadtxt          {w_np:6.2f} s  {g_np:5.2f} GB   "
-              f"info is {w_np / w_new:.1f}x faster, {g_np / g_new:.1f}x less memory")
+        print(f"  jointlab info          {w_new:6.2f} s  {c_new:6.2f} s CPU  {g_new:5.2f} GB")
+        print(f"  careful reader (old)   {w_old:6.2f} s  {c_old:6.2f} s CPU  {g_old:5.2f} GB   "
+              f"info: {w_old / w_new:.1f}x faster ({c_old / c_new:.1f}x less CPU), "
+              f"{g_old / g_new:.1f}x less memory")
+        print(f"  numpy.loadtxt          {w_np:6.2f} s  {c_np:6.2f} s CPU  {g_np:5.2f} GB   "
+              f"info: {w_np / w_new:.1f}x faster ({c_np / c_new:.1f}x less CPU), "
+              f"{g_np / g_new:.1f}x less memory")
         print(f"  old reader extrapolated to {a.rows} rows: ~{w_old * a.rows / n:.0f} s, "
               f"~{g_old * a.rows / n:.1f} GB (linear in rows)")
-    print(json.dumps({"rows": a.rows, "wall_s": wall, "peak_gb": gb}))
+    print(json.dumps({"rows": a.rows, "wall_s": wall, "cpu_s": cpu, "peak_gb": gb}))
     return 0
 
 

@@ -59,7 +59,7 @@ class RobotLog:
     tau: np.ndarray
     extra: dict = field(default_factory=dict)
     source: Path | None = None
-    line_numbers: np.ndarray | None = None   # (T,) the file line of each sample, for messages
+    line_numbers: np.ndarray | range | None = None   # (T,) the file line of each sample, for messages
 
     def line_of(self, i: int) -> int | None:
         """The file line of sample ``i`` (None for a log not read from a file)."""
@@ -75,7 +75,8 @@ class RobotLog:
 
     @property
     def rate_hz(self) -> float:
-        return float(1.0 / np.median(np.diff(self.time))) if self.n_samples > 1 else float("nan")
+        return (float(1.0 / np.median(np.diff(self.time), overwrite_input=True))
+                if self.n_samples > 1 else float("nan"))
 
     def coupled(self, coupling) -> "RobotLog":
         """The log in URDF joints for a controller with coupled joints (FORMAT.md ``[robot]
@@ -188,10 +189,11 @@ class RobotLog:
         dt = np.diff(self.time)
         if dt.size == 0:
             return SamplingStats(self.n_samples, float("nan"), float("nan"), float("nan"), 0, False)
-        med = float(np.median(dt))
-        irregular = bool(np.any(np.abs(dt - med) > 0.01 * med))
-        return SamplingStats(self.n_samples, float(dt.min()), med, float(dt.max()),
-                             int(self.repeated_rows().sum()), irregular)
+        lo, hi = float(dt.min()), float(dt.max())
+        med = float(np.median(dt, overwrite_input=True))
+        irregular = max(hi - med, med - lo) > 0.01 * med        # the largest |dt - median|
+        return SamplingStats(self.n_samples, lo, med, hi, int(self.repeated_rows().sum()),
+                             bool(irregular))
 
     def columns(self) -> dict[str, np.ndarray]:
         cols = {"time": self.time}
@@ -395,10 +397,11 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
                 X[:, j] = np.nan
     names = [f"c{k}" for k in range(len(header))]
     kind = [0 if h == "time" else 1 if _CANONICAL.match(h) else 2 for h in header]
+    pool = pa.system_memory_pool()                      # gives freed blocks back at once
     try:
         reader = pacsv.open_csv(
-            path,
-            read_options=pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=1 << 23),
+            path, memory_pool=pool,
+            read_options=pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=1 << 20),
             parse_options=pacsv.ParseOptions(delimiter=",", quote_char=False,
                                              ignore_empty_lines=False),
             convert_options=pacsv.ConvertOptions(column_types={c: pa.float64() for c in names},
@@ -411,8 +414,9 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
                 return None
             for k, col in enumerate(batch.columns):
                 c = col.to_numpy(zero_copy_only=False)
-                if kind[k] == 0 and not np.isfinite(c).all():
-                    return None                         # a missing time
+                if kind[k] == 0 and not (np.isfinite(c).all() and (pos == 0 or c[0] > time[pos - 1])
+                                         and (c[1:] > c[:-1]).all()):
+                    return None                         # a missing time, time not increasing
                 with np.errstate(invalid="ignore"):
                     if (kind[k] == 1 and (np.abs(c) > ABSURD).any()) or (kind[k] == 2 and np.isinf(c).any()):
                         return None                     # infinite or absurd values
@@ -420,9 +424,11 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
             pos += n
     except pa.ArrowException:
         return None                                     # a cell that is no number, a row's width
-    if pos != T or (np.diff(time) <= 0).any():
+    finally:
+        pool.release_unused()
+    if pos != T:
         return None
-    return RobotLog(time, qm, tau, extra, path, np.arange(2, T + 2))
+    return RobotLog(time, qm, tau, extra, path, range(2, T + 2))
 
 
 def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
