@@ -32,6 +32,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 GOAL_S = 15.0
 GOAL_GB = 1.5
+GOAL_REC_S = 60.0
+GOAL_REC_GB = 2.0
 RATE_HZ = 5000.0
 N_JOINTS = 6
 
@@ -69,6 +71,70 @@ def make_log(rows: int, cache: Path, seed: int = 3) -> Path:
     return path
 
 
+ARM7 = REPO / "fixtures" / "arm7" / "arm7.urdf"
+
+
+def make_arm7_campaign(duration: float, rate: float, cache: Path, seed: int = 5) -> Path:
+    """A campaign of the 7-joint ``fixtures/arm7`` arm with one multi-joint trial of
+    ``duration`` s logged at ``rate`` Hz: every joint a sum of three sines whose frequencies
+    (0.35-0.9 Hz) are multiples of 1/60 Hz, so that the motion repeats every minute and
+    pinocchio's ``rnea`` runs over one minute only; Coulomb + viscous friction and an offset per
+    joint, torque noise, encoder quantisation of 2e-5 rad. Written in blocks of one minute."""
+    import numpy as np
+    import pinocchio as pin
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    root = cache / f"arm7-{duration:g}s-{rate:g}hz"
+    if (root / "campaign.toml").is_file():
+        return root
+    print(f"writing a {duration:g} s, {rate:g} Hz 7-joint campaign to {root} (once) ...", flush=True)
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    model = pin.buildModelFromUrdf(str(ARM7))
+    data = model.createData()
+    n = model.nq
+    period = 60.0
+    w = 2 * np.pi * rng.integers(21, 55, (n, 3)) / period
+    a = rng.uniform(0.15, 0.35, (n, 3)) / np.array([1.0, 1.6, 2.4])
+    ph = rng.uniform(0, 2 * np.pi, (n, 3))
+    tp = np.arange(int(round(period * rate))) / rate
+    arg = tp[:, None, None] * w[None] + ph[None]
+    q = np.sum(a * np.sin(arg), axis=2)
+    qd = np.sum(a * w * np.cos(arg), axis=2)
+    qdd = -np.sum(a * w ** 2 * np.sin(arg), axis=2)
+    rigid = np.array([pin.rnea(model, data, q[k], qd[k], qdd[k]) for k in range(tp.size)])
+    fc = np.array([3.0, 4.0, 2.0, 2.5, 0.8, 0.6, 0.3])
+    fv = np.array([6.0, 5.0, 3.0, 3.0, 1.0, 0.8, 0.4])
+    off = np.array([0.3, -0.5, 0.2, 0.1, -0.05, 0.04, 0.02])
+    tau_p = rigid + fc * np.sign(qd) + fv * qd + off
+    qm_p = np.round(q / 2e-5) * 2e-5
+    (root / "robot").mkdir(parents=True, exist_ok=True)
+    (root / "trials").mkdir(exist_ok=True)
+    (root / "robot" / "arm7.urdf").write_bytes(ARM7.read_bytes())
+    (root / "robot" / "drives.toml").write_text("".join(
+        f'[[joint]]\nname = "a{j}"\ngear_ratio = 100.0\n\n' for j in range(1, n + 1)), encoding="utf-8")
+    names = ["time"] + [f"qm_{j}" for j in range(1, n + 1)] + [f"tau_{j}" for j in range(1, n + 1)]
+    log = root / "trials" / "rec.csv"
+    log.write_text(",".join(names) + "\n")
+    n_total = int(round(duration * rate))
+    with open(log, "ab") as fh, pacsv.CSVWriter(
+            fh, pa.schema([(c, pa.float64()) for c in names]),
+            write_options=pacsv.WriteOptions(include_header=False, quoting_style="none")) as wr:
+        for a0 in range(0, n_total, tp.size):
+            m = min(tp.size, n_total - a0)
+            t = np.round((a0 + np.arange(m)) / rate, 6)
+            tau = np.round(tau_p[:m] + 0.1 * rng.standard_normal((m, n)), 4)
+            cols = [t] + list(np.round(qm_p[:m], 5).T) + list(tau.T)
+            wr.write_batch(pa.record_batch([pa.array(c) for c in cols], names=names))
+    (root / "campaign.toml").write_text(
+        'format = 1\nname = "arm7-long"\n\n[robot]\nurdf = "robot/arm7.urdf"\n'
+        'drives = "robot/drives.toml"\n\n[[trial]]\nid = "rec"\njoints = [1, 2, 3, 4, 5, 6, 7]\n'
+        'kind = "excitation"\nlog = "trials/rec.csv"\n', encoding="utf-8")
+    print(f"  {log.stat().st_size / 1e9:.2f} GB in {time.perf_counter() - t0:.0f} s", flush=True)
+    return root
+
+
 def timed(code: str | list, label: str) -> tuple[float, float, float]:
     """Wall seconds, peak resident GB and CPU seconds (user + system) of one child process
     (``/usr/bin/time``); on a shared machine the CPU time is the steadier figure."""
@@ -83,14 +149,46 @@ def timed(code: str | list, label: str) -> tuple[float, float, float]:
     return float(wall), float(kb) * 1024 / 1e9, float(user) + float(system)
 
 
+def long_record(a) -> int:
+    """``jointlab fit --models cv`` and ``jointlab diagnose`` on the long 7-joint record."""
+    camp = make_arm7_campaign(a.duration, a.rate, a.cache)
+    rows = int(round(a.duration * a.rate))
+    print(f"record: {a.duration:g} s at {a.rate:g} Hz, 7 joints ({rows} rows); load {os.getloadavg()[0]:.1f}",
+          flush=True)
+    out = Path(tempfile.mkdtemp(prefix="jl-longrec-"))
+    res = {}
+    for name, argv in (("fit --models cv", ["fit", str(camp), "--models", "cv", "--out", str(out / "fit")]),
+                       ("diagnose", ["diagnose", str(camp), "--out", str(out / "diag")])):
+        wall, gb, cpu = timed(["-m", "ident.cli", *argv], f"jointlab {name}")
+        ok = wall <= GOAL_REC_S and gb <= GOAL_REC_GB
+        print(f"jointlab {name}: {wall:.1f} s ({cpu:.1f} s CPU), peak {gb:.2f} GB resident "
+              f"(goal <= {GOAL_REC_S:.0f} s, <= {GOAL_REC_GB:g} GB: {'met' if ok else 'NOT met'})", flush=True)
+        res[name] = {"wall_s": wall, "cpu_s": cpu, "peak_gb": gb}
+    fits = json.loads((out / "fit" / "rigidbody.json").read_text())
+    print("decimation:", json.dumps(fits, default=str)[:0] or _decimation_text(out))
+    print(json.dumps({"rows": rows, **res}))
+    return 0
+
+
+def _decimation_text(out: Path) -> str:
+    md = (out / "fit" / "rigidbody.md").read_text().splitlines()
+    return next((ln[2:] for ln in md if ln.startswith("- decimated")), "none")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rows", type=int, default=10_000_000)
     ap.add_argument("--base-rows", type=int, default=1_000_000)
     ap.add_argument("--no-baseline", action="store_true")
+    ap.add_argument("--record", action="store_true",
+                    help="instead: fit --models cv and diagnose on a long 7-joint record")
+    ap.add_argument("--duration", type=float, default=3600.0, help="--record: seconds")
+    ap.add_argument("--rate", type=float, default=1000.0, help="--record: log rate, Hz")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "jointlab-bench")
     a = ap.parse_args(argv)
     a.cache.mkdir(parents=True, exist_ok=True)
+    if a.record:
+        return long_record(a)
     big = make_log(a.rows, a.cache)
     size = big.stat().st_size
     cmd = ["-m", "ident.cli", "info", str(big)]
