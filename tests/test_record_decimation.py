@@ -32,27 +32,27 @@ def test_long_record_is_decimated_with_an_anti_alias_filter():
     rec = prepare_record(log, TRIAL, 1)
     dec = rec.preprocessing["decimation"]
     # velocity band of a 0.5 Hz sine: 0.5 Hz (Welch resolution ~0.03 Hz); 10 harmonics -> 5 Hz,
-    # below the 20 Hz floor: cut-off 20 Hz, new rate >= 50 Hz, the largest integer factor
+    # below the 10 Hz floor: cut-off 10 Hz, new rate >= 25 Hz, the largest integer factor
     assert dec["velocity_bandwidth_hz"] == pytest.approx(0.5, abs=0.05)
-    assert dec["cutoff_hz"] == 20.0
-    assert dec["factor"] == 20 and dec["rate_hz"] == pytest.approx(50.0)
-    assert rec.t.size == -(-T // 20)
-    np.testing.assert_allclose(np.diff(rec.t), 0.02, rtol=1e-9)
-    assert any(s.startswith("decimated by 20") for s in rec.preprocessing["steps"])
-    # the 180 Hz tone would alias to |180 - 4 x 50| = 20 Hz; filtered it is gone, and the noise
+    assert dec["cutoff_hz"] == 10.0
+    assert dec["factor"] == 40 and dec["rate_hz"] == pytest.approx(25.0)
+    assert rec.t.size == -(-T // 40)
+    np.testing.assert_allclose(np.diff(rec.t), 0.04, rtol=1e-9)
+    assert any(s.startswith("decimated by 40") for s in rec.preprocessing["steps"])
+    # the 180 Hz tone would alias to |180 - 7 x 25| = 5 Hz; filtered it is gone, and the noise
     # is averaged down: what is left is the slow torque within a small fraction of the tone
     inner = slice(50, -50)                      # the filter's end transients
-    err = rec.tau[inner, 0] - slow[::20][inner]
+    err = rec.tau[inner, 0] - slow[::40][inner]
     assert np.sqrt(np.mean(err ** 2)) < 0.02
     np.testing.assert_allclose(rec.q[inner, 0], 0.4 * np.sin(2 * np.pi * 0.5 * rec.t[inner]), atol=2e-3)
     np.testing.assert_allclose(rec.qd[inner, 0], 0.4 * np.pi * np.cos(np.pi * rec.t[inner]), atol=2e-2)
 
 
 def test_plain_subsampling_would_alias():
-    """The check above can fail: every 20th sample without the filter keeps the tone."""
+    """The check above can fail: every 40th sample without the filter keeps the tone."""
     T = AUTO_DECIMATE_SAMPLES + 50_000
     log, slow = _log(T)
-    err = log.tau[::20, 0] - slow[::20]
+    err = log.tau[::40, 0] - slow[::40]
     assert np.sqrt(np.mean(err ** 2)) > 0.2
 
 

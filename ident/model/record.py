@@ -44,8 +44,8 @@ AUTO_DECIMATE_SAMPLES = 200_000
 #: the anti-alias cut-off passes this many harmonics of the velocity bandwidth: a Coulomb step
 #: ``sgn(qd)`` of a periodic motion keeps about 96 % of its power in its first ten harmonics
 K_HARMONICS = 10.0
-#: the lowest anti-alias cut-off, Hz (friction transients at reversals last tens of ms)
-F_C_MIN = 20.0
+#: the lowest anti-alias cut-off, Hz: a slow motion still keeps friction transients of 50 ms
+F_C_MIN = 10.0
 #: the new rate is at least this many times the cut-off (Nyquist 1.25 f_c: room for the filter's
 #: transition band)
 RATE_PER_CUTOFF = 2.5
