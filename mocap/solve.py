@@ -435,20 +435,54 @@ class _Chain:
         return P, X
 
     def _normal(self, P, X, r, w):
-        """H = J^T W J and g = J^T W r, with J_mk = w_k x P_m + v_k: the Plucker twist
-        (w_k, v_k = o_k x w_k) of solved joint k applied to marker m (zero if k does not move m)."""
-        T, S = P.shape[0], X.shape[2]
-        om, v = X[:, :3, :], X[:, 3:, :]
-        Px, Py, Pz = P[..., 0, None], P[..., 1, None], P[..., 2, None]
-        ox, oy, oz = om[:, None, 0], om[:, None, 1], om[:, None, 2]
-        J = np.empty((T, P.shape[1], 3, S))
-        J[:, :, 0] = oy * Pz - oz * Py + v[:, None, 0]
-        J[:, :, 1] = oz * Px - ox * Pz + v[:, None, 1]
-        J[:, :, 2] = ox * Py - oy * Px + v[:, None, 2]
-        J *= self.mmask[None, :, None, :]
-        Jf = J.reshape(T, -1, S)
-        wJt = np.swapaxes(Jf * np.repeat(w, 3, axis=1)[..., None], 1, 2)
-        return wJt @ Jf, (wJt @ r.reshape(T, -1, 1))[..., 0]
+        """H = J^T W J and g = J^T W r, with J_mk = w_k x P_m + v_k = A_m X_k: the Plucker twist
+        X_k = (w_k, v_k = o_k x w_k) of solved joint k applied to marker m through
+        A_m = [-[P_m]x | I] (zero if k does not move m). Marker m enters H_kl when both k and l
+        move it, so H_kl = X_k^T C_max(k,l) X_l and g_k = X_k^T f_k with the sums over the
+        markers that joint i moves (those on joint i and beyond):
+        ``C_i = sum w_m A_m^T A_m = [[tr(S2) I - S2, [s1]x], [-[s1]x, s0 I]]`` (``s0 = sum w``,
+        ``s1 = sum w P``, ``S2 = sum w P P^T``) and ``f_i = sum w_m A_m^T r_m = sum w (P x r, r)``:
+        a 6 x 6 matrix and a wrench per joint instead of a (3M x S) Jacobian per frame."""
+        T, M, S = P.shape[0], P.shape[1], X.shape[2]
+        Px, Py, Pz = P[..., 0], P[..., 1], P[..., 2]
+        rx, ry, rz = r[..., 0], r[..., 1], r[..., 2]
+        feat = np.empty((T, 16, M))
+        feat[:, 0] = w
+        wPx, wPy, wPz = (np.multiply(w, c, out=feat[:, 1 + k]) for k, c in enumerate((Px, Py, Pz)))
+        np.multiply(wPx, Px, out=feat[:, 4])
+        np.multiply(wPx, Py, out=feat[:, 5])
+        np.multiply(wPx, Pz, out=feat[:, 6])
+        np.multiply(wPy, Py, out=feat[:, 7])
+        np.multiply(wPy, Pz, out=feat[:, 8])
+        np.multiply(wPz, Pz, out=feat[:, 9])
+        feat[:, 10] = wPy * rz - wPz * ry                  # w P x r
+        feat[:, 11] = wPz * rx - wPx * rz
+        feat[:, 12] = wPx * ry - wPy * rx
+        np.multiply(w, rx, out=feat[:, 13])
+        np.multiply(w, ry, out=feat[:, 14])
+        np.multiply(w, rz, out=feat[:, 15])
+        # sums over the markers each solved joint moves: one matrix product with the mask
+        suffix = np.swapaxes((feat.reshape(T * 16, M) @ self.mmask).reshape(T, 16, S), 1, 2)
+        s0, s1 = suffix[..., 0], suffix[..., 1:4]
+        xx, xy, xz, yy, yz, zz = (suffix[..., 4 + k] for k in range(6))
+        wx, vx = X[:, :3], X[:, 3:]                                                # (T, 3, S)
+        ax, ay, az = wx[:, 0], wx[:, 1], wx[:, 2]                                  # (T, S)
+        bx, by, bz = vx[:, 0], vx[:, 1], vx[:, 2]
+        sx, sy, sz = s1[..., 0], s1[..., 1], s1[..., 2]
+        tr = xx + yy + zz
+        # Z_i = C_i X_i: top (tr S2 - S2) w + s1 x v, bottom -s1 x w + s0 v
+        Z = np.empty((T, 6, S))
+        Z[:, 0] = (tr - xx) * ax - xy * ay - xz * az + (sy * bz - sz * by)
+        Z[:, 1] = -xy * ax + (tr - yy) * ay - yz * az + (sz * bx - sx * bz)
+        Z[:, 2] = -xz * ax - yz * ay + (tr - zz) * az + (sx * by - sy * bx)
+        Z[:, 3] = -(sy * az - sz * ay) + s0 * bx
+        Z[:, 4] = -(sz * ax - sx * az) + s0 * by
+        Z[:, 5] = -(sx * ay - sy * ax) + s0 * bz
+        Hu = np.swapaxes(X, 1, 2) @ Z                      # Hu[k, l] = X_k^T C_l X_l
+        H = np.triu(Hu)
+        H = H + np.swapaxes(np.triu(Hu, 1), 1, 2)          # H_kl = H_lk = X_k^T C_l X_l, k <= l
+        g = np.einsum("tak,tka->tk", X, suffix[..., 10:16])
+        return H, g
 
     def predict(self, qs, idx=None, chunk: int = 2048):
         """Model markers for ``qs`` (K, S) at frames ``idx`` (default all)."""
