@@ -429,9 +429,12 @@ class _Chain:
         S = len(self.s.joints)
         X = np.empty((T, 6, S))
         for k, i in enumerate(self.s.joints):  # loop over solved joints
-            w = np.einsum("tij,j->ti", R[:, i], self.s.chain.axes[i])
+            w = R[:, i] @ self.s.chain.axes[i]
             X[:, :3, k] = w
-            X[:, 3:, k] = np.cross(o[:, i], w)
+            ox, oy, oz = o[:, i, 0], o[:, i, 1], o[:, i, 2]
+            X[:, 3, k] = oy * w[:, 2] - oz * w[:, 1]     # o x w
+            X[:, 4, k] = oz * w[:, 0] - ox * w[:, 2]
+            X[:, 5, k] = ox * w[:, 1] - oy * w[:, 0]
         return P, X
 
     def _normal(self, P, X, r, w):
@@ -444,44 +447,42 @@ class _Chain:
         ``s1 = sum w P``, ``S2 = sum w P P^T``) and ``f_i = sum w_m A_m^T r_m = sum w (P x r, r)``:
         a 6 x 6 matrix and a wrench per joint instead of a (3M x S) Jacobian per frame."""
         T, M, S = P.shape[0], P.shape[1], X.shape[2]
-        Px, Py, Pz = P[..., 0], P[..., 1], P[..., 2]
-        rx, ry, rz = r[..., 0], r[..., 1], r[..., 2]
-        feat = np.empty((T, 16, M))
-        feat[:, 0] = w
-        wPx, wPy, wPz = (np.multiply(w, c, out=feat[:, 1 + k]) for k, c in enumerate((Px, Py, Pz)))
-        np.multiply(wPx, Px, out=feat[:, 4])
-        np.multiply(wPx, Py, out=feat[:, 5])
-        np.multiply(wPx, Pz, out=feat[:, 6])
-        np.multiply(wPy, Py, out=feat[:, 7])
-        np.multiply(wPy, Pz, out=feat[:, 8])
-        np.multiply(wPz, Pz, out=feat[:, 9])
-        feat[:, 10] = wPy * rz - wPz * ry                  # w P x r
-        feat[:, 11] = wPz * rx - wPx * rz
-        feat[:, 12] = wPx * ry - wPy * rx
-        np.multiply(w, rx, out=feat[:, 13])
-        np.multiply(w, ry, out=feat[:, 14])
-        np.multiply(w, rz, out=feat[:, 15])
+        Pc = np.moveaxis(P, 2, 0).copy()                   # (3, T, M): contiguous components
+        rc = np.moveaxis(r, 2, 0).copy()
+        Px, Py, Pz = Pc
+        rx, ry, rz = rc
+        feat = np.empty((16, T, M))
+        feat[0] = w
+        wPx, wPy, wPz = np.multiply(w, Pc, out=feat[1:4])
+        np.multiply(wPx, Px, out=feat[4])
+        np.multiply(wPx, Py, out=feat[5])
+        np.multiply(wPx, Pz, out=feat[6])
+        np.multiply(wPy, Py, out=feat[7])
+        np.multiply(wPy, Pz, out=feat[8])
+        np.multiply(wPz, Pz, out=feat[9])
+        feat[10] = wPy * rz - wPz * ry                     # w P x r
+        feat[11] = wPz * rx - wPx * rz
+        feat[12] = wPx * ry - wPy * rx
+        np.multiply(w, rc, out=feat[13:16])
         # sums over the markers each solved joint moves: one matrix product with the mask
-        suffix = np.swapaxes((feat.reshape(T * 16, M) @ self.mmask).reshape(T, 16, S), 1, 2)
-        s0, s1 = suffix[..., 0], suffix[..., 1:4]
-        xx, xy, xz, yy, yz, zz = (suffix[..., 4 + k] for k in range(6))
-        wx, vx = X[:, :3], X[:, 3:]                                                # (T, 3, S)
-        ax, ay, az = wx[:, 0], wx[:, 1], wx[:, 2]                                  # (T, S)
-        bx, by, bz = vx[:, 0], vx[:, 1], vx[:, 2]
-        sx, sy, sz = s1[..., 0], s1[..., 1], s1[..., 2]
+        suffix = (feat.reshape(16 * T, M) @ self.mmask).reshape(16, T, S)
+        s0 = suffix[0]
+        sx, sy, sz = suffix[1], suffix[2], suffix[3]
+        xx, xy, xz, yy, yz, zz = suffix[4:10]
+        ax, ay, az, bx, by, bz = np.moveaxis(X, 1, 0).copy()     # (T, S) each: w_k, v_k
         tr = xx + yy + zz
         # Z_i = C_i X_i: top (tr S2 - S2) w + s1 x v, bottom -s1 x w + s0 v
-        Z = np.empty((T, 6, S))
-        Z[:, 0] = (tr - xx) * ax - xy * ay - xz * az + (sy * bz - sz * by)
-        Z[:, 1] = -xy * ax + (tr - yy) * ay - yz * az + (sz * bx - sx * bz)
-        Z[:, 2] = -xz * ax - yz * ay + (tr - zz) * az + (sx * by - sy * bx)
-        Z[:, 3] = -(sy * az - sz * ay) + s0 * bx
-        Z[:, 4] = -(sz * ax - sx * az) + s0 * by
-        Z[:, 5] = -(sx * ay - sy * ax) + s0 * bz
-        Hu = np.swapaxes(X, 1, 2) @ Z                      # Hu[k, l] = X_k^T C_l X_l
-        H = np.triu(Hu)
-        H = H + np.swapaxes(np.triu(Hu, 1), 1, 2)          # H_kl = H_lk = X_k^T C_l X_l, k <= l
-        g = np.einsum("tak,tka->tk", X, suffix[..., 10:16])
+        Z = np.empty((6, T, S))
+        Z[0] = (tr - xx) * ax - xy * ay - xz * az + (sy * bz - sz * by)
+        Z[1] = -xy * ax + (tr - yy) * ay - yz * az + (sz * bx - sx * bz)
+        Z[2] = -xz * ax - yz * ay + (tr - zz) * az + (sx * by - sy * bx)
+        Z[3] = -(sy * az - sz * ay) + s0 * bx
+        Z[4] = -(sz * ax - sx * az) + s0 * by
+        Z[5] = -(sx * ay - sy * ax) + s0 * bz
+        Hu = np.swapaxes(X, 1, 2) @ np.moveaxis(Z, 0, 1)   # Hu[k, l] = X_k^T C_l X_l
+        upper = np.arange(S)[:, None] <= np.arange(S)[None, :]
+        H = np.where(upper, Hu, np.swapaxes(Hu, 1, 2))      # H_kl = H_lk = X_k^T C_l X_l, k <= l
+        g = np.einsum("tak,atk->tk", X, suffix[10:16])
         return H, g
 
     def predict(self, qs, idx=None, chunk: int = 2048):
@@ -575,16 +576,23 @@ class _Chain:
             cn = _cost(r2n, m, loss, scale)
             acc = cn <= cost
             flat = (cost - cn) <= 1e-12 * cost + 1e-30
-            qs[act[acc]] = qn[acc]
             lam = np.where(acc, np.maximum(lam * 0.1, 1e-12), lam * 10.0)
-            P[acc], J[acc], r[acc], r2[acc], cost[acc] = Pn[acc], Jn[acc], rn[acc], r2n[acc], cn[acc]
-            if loss == "linear":
-                self.P_last[act[acc]] = Pn[acc]
+            if acc.all():                   # the usual case: take the new state whole
+                qs[act] = qn
+                P, J, r, r2, cost = Pn, Jn, rn, r2n, cn
+                if loss == "linear":
+                    self.P_last[act] = Pn
+            else:
+                qs[act[acc]] = qn[acc]
+                P[acc], J[acc], r[acc], r2[acc], cost[acc] = Pn[acc], Jn[acc], rn[acc], r2n[acc], cn[acc]
+                if loss == "linear":
+                    self.P_last[act[acc]] = Pn[acc]
             done = (acc & flat) | (lam > 1e8)
-            conv[act[done]] = True
-            keep = ~done
-            act, P, J, r, r2, cost, lam = (act[keep], P[keep], J[keep], r[keep], r2[keep],
-                                           cost[keep], lam[keep])
+            if done.any():
+                conv[act[done]] = True
+                keep = ~done
+                act, P, J, r, r2, cost, lam = (act[keep], P[keep], J[keep], r[keep], r2[keep],
+                                               cost[keep], lam[keep])
         return it
 
 
