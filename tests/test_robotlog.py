@@ -149,3 +149,18 @@ def test_streaming_reader_random_logs_and_blocks(tmp_path, monkeypatch):
                                           | (np.isnan(sig[1:]) & np.isnan(sig[:-1]))).all(axis=1)])
         np.testing.assert_array_equal(fast.repeated_rows(), whole)
         assert whole[rep].all()
+
+
+def test_files_from_a_megabyte_on_stream(tmp_path, monkeypatch):
+    rng = np.random.default_rng(2)
+    T = 30_000
+    log = RobotLog(np.arange(T) / 1000.0, rng.normal(size=(T, 3)), rng.normal(size=(T, 3)))
+    p = write_robot_log(tmp_path / "big.csv", log)
+    assert p.stat().st_size >= rl.STREAM_MIN_BYTES
+    slow = rl._read_careful(p, None)
+
+    def refuse(*a):
+        raise AssertionError("the careful parser read a well-formed long log")
+
+    monkeypatch.setattr(rl, "_read_careful", refuse)
+    _same(read_robot_log(p), slow)

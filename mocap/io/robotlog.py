@@ -313,6 +313,8 @@ def _check_values(data: np.ndarray, header: list[str], path: Path, line_no: np.n
 #: any case); every other cell must be a number pyarrow's float parser takes whole
 _NAN_SPELLINGS = ["", "nan", "naN", "nAn", "nAN", "Nan", "NaN", "NAn", "NAN"]
 _CHUNK = 1 << 24
+#: files from this size on stream through :func:`_read_fast`
+STREAM_MIN_BYTES = 1 << 20
 
 
 def _count_rows(fh, first: bytes) -> int | None:
@@ -445,8 +447,8 @@ def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
     path = Path(path)
     if not path.is_file():
         raise InputError("robot log not found", path=path)
-    try:
-        fast = _read_fast(path, n_joints)
+    try:   # small files: the careful parser is as quick
+        fast = _read_fast(path, n_joints) if path.stat().st_size >= STREAM_MIN_BYTES else None
     except OSError:
         fast = None
     return fast if fast is not None else _read_careful(path, n_joints)
