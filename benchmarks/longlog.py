@@ -14,6 +14,13 @@ ratios compare like with like.
     python benchmarks/longlog.py                       # 10 M rows (generated once, cached)
     python benchmarks/longlog.py --rows 2000000        # a smaller log
     python benchmarks/longlog.py --no-baseline         # only the long-log run
+    python benchmarks/longlog.py --record --only fit   # fit --models cv, 1 h at 1 kHz, 7 joints
+    python benchmarks/longlog.py --record --only diagnose --duration 300   # diagnose, 5 min
+
+``--record``: goal (issue 30) ``jointlab fit --models cv`` and ``jointlab diagnose`` on a 1-hour,
+1 kHz, 7-joint log each in at most 60 s and 2 GB; the record is decimated by the shared record
+layer (``ident.model.record``, docs/long-records.md) and the decimation line of ``rigidbody.md``
+is printed. The 7-joint campaign (``fixtures/arm7``) is made by :func:`make_arm7_campaign`.
 
 The logs are made here with their own generator (sines and noise, written by pyarrow's CSV
 writer, cells rounded to 1e-6 rad and 1e-4 N m) into a cache folder and reused.
