@@ -427,14 +427,14 @@ class _Chain:
         if not jac:
             return P, None
         S = len(self.s.joints)
+        J = list(self.s.joints)
         X = np.empty((T, 6, S))
-        for k, i in enumerate(self.s.joints):  # loop over solved joints
-            w = R[:, i] @ self.s.chain.axes[i]
-            X[:, :3, k] = w
-            ox, oy, oz = o[:, i, 0], o[:, i, 1], o[:, i, 2]
-            X[:, 3, k] = oy * w[:, 2] - oz * w[:, 1]     # o x w
-            X[:, 4, k] = oz * w[:, 0] - ox * w[:, 2]
-            X[:, 5, k] = ox * w[:, 1] - oy * w[:, 0]
+        w = np.einsum("tsij,sj->tis", R[:, J], self.s.chain.axes[J])   # (T, 3, S) axes in base
+        X[:, :3] = w
+        oJ = np.swapaxes(o[:, J], 1, 2)                                # (T, 3, S) origins
+        X[:, 3] = oJ[:, 1] * w[:, 2] - oJ[:, 2] * w[:, 1]              # v = o x w
+        X[:, 4] = oJ[:, 2] * w[:, 0] - oJ[:, 0] * w[:, 2]
+        X[:, 5] = oJ[:, 0] * w[:, 1] - oJ[:, 1] * w[:, 0]
         return P, X
 
     def _normal(self, P, X, r, w):
