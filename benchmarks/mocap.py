@@ -249,11 +249,45 @@ def find_opensim(arg):
     return None
 
 
+def baseline_tree(root: Path, robot, joints, case, solver, res, repeat: int = 6) -> None:
+    """The solver of the source tree ``root`` (its mocap/kinematics.py and mocap/solve.py, loaded
+    under other module names) against this one on the same frames: CPU frames/s, best of
+    ``repeat`` alternating runs, and the largest difference of the solved angles."""
+    import importlib.util
+
+    def load(name, rel):
+        spec = importlib.util.spec_from_file_location(name, root / rel)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+        return mod
+
+    kin, sol = load("_base_kinematics", "mocap/kinematics.py"), load("_base_solve", "mocap/solve.py")
+    ch = robot.chain
+    base = sol.MarkerSolver(kin.Chain(ch.T_parent_joint, ch.axes, ch.joint_names, ch.frames), joints,
+                            case["mj"], case["pj"])
+    best = {"base": np.inf, "ours": np.inf}
+    out = {}
+    for _ in range(repeat):
+        for k, s in (("base", base), ("ours", solver)):
+            c0 = time.process_time()
+            out[k] = s.fit(case["p_base"], case["q_motor"])
+            best[k] = min(best[k], time.process_time() - c0)
+    T = case["q"].shape[0]
+    dq = float(np.nanmax(np.abs(out["ours"].q - out["base"].q)))
+    print(f"  baseline tree {root}: {T / best['base']:,.0f} frames/s CPU, this tree "
+          f"{T / best['ours']:,.0f} (same process, best of {repeat}): {best['base'] / best['ours']:.2f}x; "
+          f"angles differ by at most {dq:.2g} rad")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="short run")
     ap.add_argument("--opensim-python", help="python interpreter with opensim (default /tmp/osim/bin/python)")
     ap.add_argument("--no-opensim", action="store_true")
+    ap.add_argument("--baseline-tree", type=Path, default=None, metavar="DIR",
+                    help="also time the solver of another source tree (e.g. `git archive <commit> | "
+                         "tar -x -C DIR`) on the same frames in this process, alternating runs")
     args = ap.parse_args(argv)
     n_frames = {"single joint 2, 4 markers": 20000 if args.quick else 100000,
                 "6-joint chain, 16 markers": 10000 if args.quick else 40000}
@@ -278,6 +312,8 @@ def main(argv=None) -> int:
             print(f"\n== {name}: {T} frames, joints {[j + 1 for j in joints]}")
             print(f"  ours ({res.method}): {T / cpu:,.0f} frames/s CPU ({T / wall:,.0f} wall), "
                   f"{res.iterations} iterations, {n_ok}/{T} frames valid")
+            if args.baseline_tree is not None:
+                baseline_tree(args.baseline_tree, robot, joints, case, solver, res)
             print("  RMSE   mrad: " + " ".join(f"{1e3 * x:7.3f}" for x in e))
             print("  CRB    mrad: " + " ".join(f"{1e3 * x:7.3f}" for x in crb))
             print("  RMSE / CRB : " + " ".join(f"{x:7.3f}" for x in ratio))

@@ -176,11 +176,8 @@ class Chain:
         o = np.empty((T, n, 3))
         Rprev = None
         oprev = np.zeros((T, 3))
-        for i in range(n):  # loop over joints (n <= ~7), vectorised over frames
+        for i, C in enumerate(self._rodrigues_blocks()):  # joints (n <= ~7), frames vectorised
             P = self.T_parent_joint[i]
-            K = skew(self.axes[i])
-            Pr = P[:3, :3]
-            C = np.hstack([Pr, Pr @ K, Pr @ K @ K, P[:3, 3:4]])  # (3, 10)
             if Rprev is None:
                 B = np.broadcast_to(C, (T, 3, 10))
                 ob = oprev + P[:3, 3]
@@ -194,6 +191,21 @@ class Chain:
             R[:, i] = Rprev
             o[:, i] = ob
         return R, o
+
+    def _rodrigues_blocks(self) -> list:
+        """Per joint ``[Pr, Pr K, Pr K^2, p]`` (3, 10): the joint's placement ``(Pr, p)`` and the
+        cross-product matrix ``K`` of its axis, so that ``R_i = R_{i-1} (Pr + sin q Pr K +
+        (1 - cos q) Pr K^2)`` (Rodrigues); computed once per chain."""
+        blocks = self.__dict__.get("_blocks")
+        if blocks is None:
+            blocks = []
+            for i in range(self.n):
+                P = self.T_parent_joint[i]
+                K = skew(self.axes[i])
+                Pr = P[:3, :3]
+                blocks.append(np.hstack([Pr, Pr @ K, Pr @ K @ K, P[:3, 3:4]]))
+            object.__setattr__(self, "_blocks", blocks)       # a cache, not a field
+        return blocks
 
     def joint_transforms(self, q: np.ndarray) -> np.ndarray:
         """``T_base_joint`` for every joint: (T, n, 4, 4) from q (T, n) (or (n,) -> (n, 4, 4))."""

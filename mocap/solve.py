@@ -430,28 +430,63 @@ class _Chain:
         if not jac:
             return P, None
         S = len(self.s.joints)
+        J = list(self.s.joints)
         X = np.empty((T, 6, S))
-        for k, i in enumerate(self.s.joints):  # loop over solved joints
-            w = np.einsum("tij,j->ti", R[:, i], self.s.chain.axes[i])
-            X[:, :3, k] = w
-            X[:, 3:, k] = np.cross(o[:, i], w)
+        w = np.einsum("tsij,sj->tis", R[:, J], self.s.chain.axes[J])   # (T, 3, S) axes in base
+        X[:, :3] = w
+        oJ = np.swapaxes(o[:, J], 1, 2)                                # (T, 3, S) origins
+        X[:, 3] = oJ[:, 1] * w[:, 2] - oJ[:, 2] * w[:, 1]              # v = o x w
+        X[:, 4] = oJ[:, 2] * w[:, 0] - oJ[:, 0] * w[:, 2]
+        X[:, 5] = oJ[:, 0] * w[:, 1] - oJ[:, 1] * w[:, 0]
         return P, X
 
     def _normal(self, P, X, r, w):
-        """H = J^T W J and g = J^T W r, with J_mk = w_k x P_m + v_k: the Plucker twist
-        (w_k, v_k = o_k x w_k) of solved joint k applied to marker m (zero if k does not move m)."""
-        T, S = P.shape[0], X.shape[2]
-        om, v = X[:, :3, :], X[:, 3:, :]
-        Px, Py, Pz = P[..., 0, None], P[..., 1, None], P[..., 2, None]
-        ox, oy, oz = om[:, None, 0], om[:, None, 1], om[:, None, 2]
-        J = np.empty((T, P.shape[1], 3, S))
-        J[:, :, 0] = oy * Pz - oz * Py + v[:, None, 0]
-        J[:, :, 1] = oz * Px - ox * Pz + v[:, None, 1]
-        J[:, :, 2] = ox * Py - oy * Px + v[:, None, 2]
-        J *= self.mmask[None, :, None, :]
-        Jf = J.reshape(T, -1, S)
-        wJt = np.swapaxes(Jf * np.repeat(w, 3, axis=1)[..., None], 1, 2)
-        return wJt @ Jf, (wJt @ r.reshape(T, -1, 1))[..., 0]
+        """H = J^T W J and g = J^T W r, with J_mk = w_k x P_m + v_k = A_m X_k: the Plucker twist
+        X_k = (w_k, v_k = o_k x w_k) of solved joint k applied to marker m through
+        A_m = [-[P_m]x | I] (zero if k does not move m). Marker m enters H_kl when both k and l
+        move it, so H_kl = X_k^T C_max(k,l) X_l and g_k = X_k^T f_k with the sums over the
+        markers that joint i moves (those on joint i and beyond):
+        ``C_i = sum w_m A_m^T A_m = [[tr(S2) I - S2, [s1]x], [-[s1]x, s0 I]]`` (``s0 = sum w``,
+        ``s1 = sum w P``, ``S2 = sum w P P^T``) and ``f_i = sum w_m A_m^T r_m = sum w (P x r, r)``:
+        a 6 x 6 matrix and a wrench per joint instead of a (3M x S) Jacobian per frame."""
+        T, M, S = P.shape[0], P.shape[1], X.shape[2]
+        Pc = np.moveaxis(P, 2, 0).copy()                   # (3, T, M): contiguous components
+        rc = np.moveaxis(r, 2, 0).copy()
+        Px, Py, Pz = Pc
+        rx, ry, rz = rc
+        feat = np.empty((16, T, M))
+        feat[0] = w
+        wPx, wPy, wPz = np.multiply(w, Pc, out=feat[1:4])
+        np.multiply(wPx, Px, out=feat[4])
+        np.multiply(wPx, Py, out=feat[5])
+        np.multiply(wPx, Pz, out=feat[6])
+        np.multiply(wPy, Py, out=feat[7])
+        np.multiply(wPy, Pz, out=feat[8])
+        np.multiply(wPz, Pz, out=feat[9])
+        feat[10] = wPy * rz - wPz * ry                     # w P x r
+        feat[11] = wPz * rx - wPx * rz
+        feat[12] = wPx * ry - wPy * rx
+        np.multiply(w, rc, out=feat[13:16])
+        # sums over the markers each solved joint moves: one matrix product with the mask
+        suffix = (feat.reshape(16 * T, M) @ self.mmask).reshape(16, T, S)
+        s0 = suffix[0]
+        sx, sy, sz = suffix[1], suffix[2], suffix[3]
+        xx, xy, xz, yy, yz, zz = suffix[4:10]
+        ax, ay, az, bx, by, bz = np.moveaxis(X, 1, 0).copy()     # (T, S) each: w_k, v_k
+        tr = xx + yy + zz
+        # Z_i = C_i X_i: top (tr S2 - S2) w + s1 x v, bottom -s1 x w + s0 v
+        Z = np.empty((6, T, S))
+        Z[0] = (tr - xx) * ax - xy * ay - xz * az + (sy * bz - sz * by)
+        Z[1] = -xy * ax + (tr - yy) * ay - yz * az + (sz * bx - sx * bz)
+        Z[2] = -xz * ax - yz * ay + (tr - zz) * az + (sx * by - sy * bx)
+        Z[3] = -(sy * az - sz * ay) + s0 * bx
+        Z[4] = -(sz * ax - sx * az) + s0 * by
+        Z[5] = -(sx * ay - sy * ax) + s0 * bz
+        Hu = np.swapaxes(X, 1, 2) @ np.moveaxis(Z, 0, 1)   # Hu[k, l] = X_k^T C_l X_l
+        upper = np.arange(S)[:, None] <= np.arange(S)[None, :]
+        H = np.where(upper, Hu, np.swapaxes(Hu, 1, 2))      # H_kl = H_lk = X_k^T C_l X_l, k <= l
+        g = np.einsum("tak,atk->tk", X, suffix[10:16])
+        return H, g
 
     def predict(self, qs, idx=None, chunk: int = 2048):
         """Model markers for ``qs`` (K, S) at frames ``idx`` (default all)."""
@@ -544,16 +579,23 @@ class _Chain:
             cn = _cost(r2n, m, loss, scale)
             acc = cn <= cost
             flat = (cost - cn) <= 1e-12 * cost + 1e-30
-            qs[act[acc]] = qn[acc]
             lam = np.where(acc, np.maximum(lam * 0.1, 1e-12), lam * 10.0)
-            P[acc], J[acc], r[acc], r2[acc], cost[acc] = Pn[acc], Jn[acc], rn[acc], r2n[acc], cn[acc]
-            if loss == "linear":
-                self.P_last[act[acc]] = Pn[acc]
+            if acc.all():                   # the usual case: take the new state whole
+                qs[act] = qn
+                P, J, r, r2, cost = Pn, Jn, rn, r2n, cn
+                if loss == "linear":
+                    self.P_last[act] = Pn
+            else:
+                qs[act[acc]] = qn[acc]
+                P[acc], J[acc], r[acc], r2[acc], cost[acc] = Pn[acc], Jn[acc], rn[acc], r2n[acc], cn[acc]
+                if loss == "linear":
+                    self.P_last[act[acc]] = Pn[acc]
             done = (acc & flat) | (lam > 1e8)
-            conv[act[done]] = True
-            keep = ~done
-            act, P, J, r, r2, cost, lam = (act[keep], P[keep], J[keep], r[keep], r2[keep],
-                                           cost[keep], lam[keep])
+            if done.any():
+                conv[act[done]] = True
+                keep = ~done
+                act, P, J, r, r2, cost, lam = (act[keep], P[keep], J[keep], r[keep], r2[keep],
+                                               cost[keep], lam[keep])
         return it
 
 

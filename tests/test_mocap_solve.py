@@ -234,3 +234,35 @@ def test_refinement_recovers_joint_placement_offsets(robot):
     assert np.allclose(np.degrees(rr.offsets[0, :2]), [0.5, -0.3], atol=0.03)
     assert np.allclose(1e3 * rr.offsets[0, 2:], [2.0, -1.0], atol=0.3)
     assert "joint_offsets" in rr.to_dict()
+
+
+@pytest.mark.parametrize("joints", [(0, 1, 2, 3, 4, 5), (1, 3, 4)])
+def test_normal_equations_match_a_finite_difference_jacobian(robot, joints):
+    """The chain solve's J^T W J and J^T W r (per-joint marker sums) against the Jacobian of the
+    model markers by central differences, with random weights, residuals and a marker left out."""
+    from mocap.solve import _Chain
+
+    counts = {"link2": 3, "link3": 3, "link4": 3, "link5": 3, "link6": 4}
+    q, p_base, mj, pj, q_guess, _ = _problem(robot, joints, counts, T=40)
+    solver = MarkerSolver(robot.chain, joints, mj, pj)
+    ch = _Chain(solver, q_guess)
+    idx = np.arange(q.shape[0])
+    qs = q_guess[:, list(solver.joints)]
+    P, X = ch._eval(qs, idx, True)
+    rng = np.random.default_rng(5)
+    r = rng.normal(size=P.shape)
+    w = rng.uniform(0.0, 2.0, P.shape[:2])
+    w[:, 4] = 0.0
+    H, g = ch._normal(P, X, r, w)
+    S, eps = len(solver.joints), 1e-6
+    J = np.empty(P.shape + (S,))
+    for k in range(S):
+        d = np.zeros(S)
+        d[k] = eps
+        J[..., k] = (ch._eval(qs + d, idx, False)[0] - ch._eval(qs - d, idx, False)[0]) / (2 * eps)
+    Jf = J.reshape(q.shape[0], -1, S)
+    W = np.repeat(w, 3, axis=1)
+    H_ref = np.einsum("tmk,tm,tml->tkl", Jf, W, Jf)
+    g_ref = np.einsum("tmk,tm,tm->tk", Jf, W, r.reshape(q.shape[0], -1))
+    np.testing.assert_allclose(H, H_ref, rtol=1e-6, atol=1e-8 * np.abs(H_ref).max())
+    np.testing.assert_allclose(g, g_ref, rtol=1e-6, atol=1e-8 * np.abs(g_ref).max())

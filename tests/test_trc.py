@@ -296,3 +296,81 @@ def test_doubled_separator_in_a_row_is_an_error_not_a_shift(tmp_path):
     path.write_text("\n".join(rows) + "\n")
     rec = read_trc(path)
     assert np.isnan(rec.positions[1, 2]).all() and rec.positions[1, 1, 2] == pytest.approx(6e-3)
+
+
+# ----------------------------------------------------------------------------- streaming reader
+from mocap.io import trc as trc_mod  # noqa: E402
+
+_ROWS = ["1\t0.00\t1\t2\t3\t4\t5\t6\t7\t8\t9",
+         "2\t0.01\t\t\t\t14\t15\t16\t17\t18\t19",
+         "3\t0.02\t21\t22\t23\tnan\tNaN\tNAN\t27\t28\t29",
+         "4\t0.03\t31\t32\t33\t34\t35\t36\t\t\t",
+         "5\t0.04\t41\t\t43\t44\t-4.5e1\t46\t47\t48\t49"]
+
+
+def _careful(p):
+    fast = trc_mod._read_fast
+    trc_mod._read_fast = lambda path: None
+    try:
+        return read_trc(p)
+    finally:
+        trc_mod._read_fast = fast
+
+
+@pytest.mark.parametrize("edit, wide", [
+    (lambda b: b, False),                                      # the usual layout
+    (lambda b: b.replace(b"\n", b"\r\n"), False),              # CRLF
+    (lambda b: b"\xef\xbb\xbf" + b, False),                    # BOM
+    (lambda b: b.replace(b"\n1\t", b"\n\n1\t"), False),        # one more blank line
+    (lambda b: b, True),                                       # two empty cells past the markers
+])
+def test_streaming_reader_equals_careful_parser(tmp_path, edit, wide):
+    p = make_trc(tmp_path, [r + "\t\t" for r in _ROWS[:4]] if wide else _ROWS)   # row 5: partial
+    p.write_bytes(edit(p.read_bytes()))
+    fast = trc_mod._read_fast(p)
+    assert fast is not None
+    slow = _careful(p)
+    np.testing.assert_array_equal(fast.time, slow.time)
+    np.testing.assert_array_equal(fast.positions, slow.positions)
+    assert fast.labels == slow.labels and fast.meta == slow.meta and fast.units == slow.units
+
+
+@pytest.mark.parametrize("row", [
+    "6\t0.05\t1\t2\t3\t4\t5\t6\t7\t8",          # a short row
+    "6\t0.05\t1\t2\t3\t4\t5\t6\t7\t8\t9\t10",   # a value past the last marker
+    "6\t0.05\t1\t2\t3\t4\t5\t6\t7\tx\t9",       # a word
+    "6\t0.04\t1\t2\t3\t4\t5\t6\t7\t8\t9",       # time not increasing
+    "6\t0.05\t1\t2\t3\t4\t5\t6\t7\t8\tinf",     # infinite
+    "6\t\t1\t2\t3\t4\t5\t6\t7\t8\t9",           # no time
+])
+def test_streaming_reader_declines_what_the_careful_parser_judges(tmp_path, row):
+    p = make_trc(tmp_path, _ROWS + [row])
+    assert trc_mod._read_fast(p) is None
+    with pytest.raises(InputError):
+        read_trc(p)
+
+
+def test_streaming_reader_on_a_written_file(tmp_path):
+    rec = random_recording(4, T=3000, M=6)
+    p = write_trc(tmp_path / "w.trc", rec)
+    fast = trc_mod._read_fast(p)
+    assert fast is not None
+    slow = _careful(p)
+    np.testing.assert_array_equal(fast.positions, slow.positions)
+    np.testing.assert_array_equal(fast.time, slow.time)
+    assert fast.meta == slow.meta
+
+
+def test_files_from_a_megabyte_on_stream(tmp_path, monkeypatch):
+    rec = random_recording(6, T=6000, M=8)
+    p = write_trc(tmp_path / "big.trc", rec)
+    assert p.stat().st_size >= trc_mod.STREAM_MIN_BYTES
+    slow = _careful(p)
+
+    def refuse(path):
+        raise AssertionError("the careful parser read a well-formed long file")
+
+    monkeypatch.setattr(trc_mod, "_decode", refuse)
+    fast = read_trc(p)
+    np.testing.assert_array_equal(fast.positions, slow.positions)
+    assert fast.meta == slow.meta

@@ -17,6 +17,14 @@ and diagnosis reports):
   Savitzky-Golay filter of ``window_s`` (``auto``: per joint, :func:`auto_windows`); ``logged`` takes the controller's ``qd_<j>`` for the
   velocity and differentiates it (same filter) for the acceleration. The RMS difference between
   the logged and the differentiated velocity is reported either way;
+* **decimation** of long records (``decimate``; ``auto``: records of more than
+  :data:`AUTO_DECIMATE_SAMPLES` samples, docs/long-records.md): the uniform angles, torques and
+  logged velocities pass a zero-phase anti-alias low-pass FIR and keep every ``D``-th sample.
+  The cut-off is chosen from the friction bandwidth (:func:`friction_bandwidth`):
+  ``f_c = max(K_HARMONICS * f_v, F_C_MIN)`` where ``f_v`` holds 99 % of the power of the moving
+  joints' velocities, so that the first ten harmonics of a Coulomb step ``sgn(qd)`` pass; the
+  new rate is at least ``2.5 f_c`` (the filter's stop band starts at the new Nyquist
+  frequency). The record then keeps the decimated uniform grid;
 * **coupling**: ``q_urdf = C q_log``, ``tau_urdf = C^-T tau_log`` (FORMAT.md); the log
   coordinates are kept (``qd_log``, ``qdd_log``) for friction that acts on motor coordinates.
 """
@@ -25,6 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import firwin, kaiserord, resample_poly, welch
 
 from mocap.io.errors import InputError
 
@@ -32,21 +41,39 @@ from ident.signals.smoothing import differentiate
 
 BRAKED_TOL_RAD = 5e-3          # peak-to-peak motion above which a braked joint "moves"
 DERIVATIVES = ("savgol", "logged")
+#: ``decimate = auto`` decimates records longer than this many samples (200 s at 1 kHz)
+AUTO_DECIMATE_SAMPLES = 200_000
+#: the anti-alias cut-off passes this many harmonics of the velocity bandwidth: a Coulomb step
+#: ``sgn(qd)`` of a periodic motion keeps about 96 % of its power in its first ten harmonics
+K_HARMONICS = 10.0
+#: the lowest anti-alias cut-off, Hz: a slow motion still keeps friction transients of 50 ms
+F_C_MIN = 10.0
+#: the new rate is at least this many times the cut-off (Nyquist 1.25 f_c: room for the filter's
+#: transition band)
+RATE_PER_CUTOFF = 2.5
+#: stop-band attenuation of the anti-alias filter, dB
+STOPBAND_DB = 60.0
 
 
 @dataclass(frozen=True)
 class RecordSettings:
     """Preprocessing of a record: ``derivatives`` ``savgol`` or ``logged`` (see the module
     docstring); Savitzky-Golay ``window_s``; ``resample``: ``auto`` (when irregular) or
-    ``never``; ``drop_repeated``; ``braked_tol``: rad, peak to peak."""
+    ``never``; ``drop_repeated``; ``braked_tol``: rad, peak to peak; ``decimate``: ``auto`` (records
+    longer than :data:`AUTO_DECIMATE_SAMPLES`), ``never``, or a rate in Hz (the cut-off then
+    ``rate / 2.5``)."""
 
     derivatives: str = "savgol"
     window_s: float | str = "auto"
     resample: str = "auto"
     drop_repeated: bool = True
     braked_tol: float = BRAKED_TOL_RAD
+    decimate: str | float = "auto"
 
     def __post_init__(self):
+        if self.decimate not in ("auto", "never") and not (
+                isinstance(self.decimate, (int, float)) and self.decimate > 0):
+            raise InputError(f"decimate must be 'auto', 'never' or a rate > 0 Hz, got {self.decimate!r}")
         if self.derivatives not in DERIVATIVES:
             raise InputError(f"derivatives must be one of {', '.join(DERIVATIVES)}, got {self.derivatives!r}")
         if self.resample not in ("auto", "never"):
@@ -182,9 +209,12 @@ def prepare_record(log, trial, n: int, coupling=None, settings: RecordSettings |
         "derivatives": st.derivatives, "window_s": st.window_s, "resample": st.resample,
         "drop_repeated": st.drop_repeated}}
     keep = ~log.repeated_rows() if st.drop_repeated else np.ones(log.n_samples, bool)
-    t = log.time[keep]
-    qm, tau = log.qm[keep], log.tau[keep]
-    qd_log = log.qd[keep] if log.qd is not None else None
+    if keep.all():                      # no copy of a long log
+        t, qm, tau, qd_log = log.time, log.qm, log.tau, log.qd
+    else:
+        t = log.time[keep]
+        qm, tau = log.qm[keep], log.tau[keep]
+        qd_log = log.qd[keep] if log.qd is not None else None
     unlogged = tuple(getattr(trial, "unlogged_torque", ()))      # FORMAT.md: tau ignored
     missing = [j + 1 for j in range(n) if np.all(np.isnan(qm[:, j]))
                or (np.all(np.isnan(tau[:, j])) and j + 1 not in unlogged)]
@@ -218,6 +248,20 @@ def prepare_record(log, trial, n: int, coupling=None, settings: RecordSettings |
     q_grid = grid[0]                    # the log is in URDF joints already (Campaign.read_log)
     has_qd = qd_log is not None
     back = (lambda x: x) if tu is t else (lambda x: _interp_cols(t_keep, tu, x))
+    dec = _decimation(q_grid, dt, trial, n, st)
+    rep["decimation"] = dec
+    if dec["factor"] > 1:
+        D = dec["factor"]
+        taps = dec.pop("_taps")
+        tau_grid = tau if tu is t else _interp_cols(tu, t, tau)
+        grid = [_decimate(x, D, taps) for x in (grid[0], tau_grid) + tuple(grid[2:])]
+        q_grid, tau = grid[0], grid[1]
+        if has_qd:
+            sig = [None, None, grid[2]]
+        t_keep = tu = tu[::D]
+        back = (lambda x: x)
+        dt = dt * D
+        steps.append(dec["text"])
     win = (auto_windows(q_grid, dt) if st.window_s == "auto"
            else np.full(n, float(st.window_s)))
     rep["window_s"] = {str(j + 1): float(win[j]) for j in range(n)}
@@ -258,8 +302,66 @@ def prepare_record(log, trial, n: int, coupling=None, settings: RecordSettings |
                             tuple(trial.joints), rep, unlogged)
 
 
+def friction_bandwidth(q: np.ndarray, dt: float, joints) -> tuple[float, float]:
+    """``(f_v, f_c)`` Hz: ``f_v`` the frequency below which 99 % of the power of the velocity
+    ``diff(q_j) / dt`` lies (Welch periodogram), the largest over the 1-based ``joints``;
+    ``f_c = max(K_HARMONICS f_v, F_C_MIN)`` the anti-alias cut-off that keeps the friction
+    torque's band (the harmonics a Coulomb step ``sgn(qd)`` adds to the motion's)."""
+    fs = 1.0 / dt
+    f_v = 0.0
+    for j in joints:
+        v = np.diff(q[:, j - 1]) * fs
+        f, P = welch(v, fs=fs, nperseg=min(v.size, 1 << 15), detrend=False)
+        c = np.cumsum(P)
+        if c[-1] > 0:
+            f_v = max(f_v, float(f[min(np.searchsorted(c, 0.99 * c[-1]), f.size - 1)]))
+    return f_v, max(K_HARMONICS * f_v, F_C_MIN)
+
+
+def _decimation(q: np.ndarray, dt: float, trial, n: int, st: RecordSettings) -> dict:
+    """The decimation of a uniform record (``factor`` 1: none) and its anti-alias FIR: a
+    Kaiser-window low-pass (:data:`STOPBAND_DB`) passing ``f_c`` and stopping at the new Nyquist
+    frequency; ``text`` says it for the report."""
+    T, fs = q.shape[0], 1.0 / dt
+    if st.decimate == "never" or (st.decimate == "auto" and T <= AUTO_DECIMATE_SAMPLES):
+        why = "never" if st.decimate == "never" else f"{T} samples <= {AUTO_DECIMATE_SAMPLES}"
+        return {"factor": 1, "reason": why}
+    joints = [j for j in trial.joints if 1 <= j <= n] or list(range(1, n + 1))
+    if st.decimate == "auto":
+        f_v, f_c = friction_bandwidth(q, dt, joints)
+        D = int(np.floor(fs / (RATE_PER_CUTOFF * f_c) * (1 + 1e-9)))   # time-stamp rounding
+        how = (f"cut-off {f_c:.3g} Hz = max({K_HARMONICS:g} x the velocity bandwidth {f_v:.3g} Hz "
+               f"(99 % of the moving joints' velocity power), {F_C_MIN:g} Hz)")
+    else:
+        f_v, f_c = None, float(st.decimate) / RATE_PER_CUTOFF
+        D = int(np.floor(fs / float(st.decimate) * (1 + 1e-9)))
+        how = f"cut-off {f_c:.3g} Hz (decimate = {float(st.decimate):g} Hz / {RATE_PER_CUTOFF:g})"
+    if D < 2:
+        return {"factor": 1, "reason": f"the log rate {fs:.4g} Hz is below {RATE_PER_CUTOFF:g} x the "
+                f"cut-off {f_c:.3g} Hz", "velocity_bandwidth_hz": f_v, "cutoff_hz": f_c}
+    nyq_new = fs / (2 * D)
+    numtaps, beta = kaiserord(STOPBAND_DB, (nyq_new - f_c) / (fs / 2))
+    numtaps |= 1
+    taps = firwin(numtaps, f_c, window=("kaiser", beta), fs=fs)
+    text = (f"decimated by {D}: {fs:.4g} Hz -> {fs / D:.4g} Hz ({T} -> {-(-T // D)} samples) after a "
+            f"zero-phase anti-alias low-pass FIR ({numtaps} taps, Kaiser, {STOPBAND_DB:g} dB from "
+            f"{nyq_new:.3g} Hz) on angles, torques and logged velocities; {how}")
+    return {"factor": D, "rate_in_hz": fs, "rate_hz": fs / D, "cutoff_hz": f_c,
+            "velocity_bandwidth_hz": f_v, "stopband_hz": nyq_new, "stopband_db": STOPBAND_DB,
+            "taps": int(numtaps), "text": text, "_taps": taps}
+
+
+def _decimate(x: np.ndarray, D: int, taps: np.ndarray) -> np.ndarray:
+    """Every ``D``-th sample of the columns of ``x`` after the zero-phase FIR ``taps``
+    (polyphase, the filter's delay compensated; the ends extended by a straight line)."""
+    return resample_poly(x, 1, D, axis=0, window=taps, padtype="line")
+
+
 def _interp_cols(tu, t, x):
-    """Columns of ``x`` (T, k) on ``t`` linearly interpolated at ``tu``; NaN cells skipped."""
+    """Columns of ``x`` (T, k) on ``t`` linearly interpolated at ``tu``; NaN cells skipped
+    (``x`` itself when it has no NaN and ``tu`` is ``t``)."""
+    if tu is t and not np.isnan(x).any():
+        return x
     out = np.empty((tu.size, x.shape[1]))
     for k in range(x.shape[1]):              # loop over joints, not samples
         ok = np.isfinite(x[:, k])

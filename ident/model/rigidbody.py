@@ -278,6 +278,7 @@ class RigidBodyIdentifier:
         Yb = Y[:, :, self.base.idx]
         del Y
         A, names, F = self._design(rec, Yb)
+        del Yb                              # A holds the columns kept (long records: memory)
         M, v0 = self._mask(rec)
         if not M.any():
             raise ValueError(f"trial {rec.trial_id!r}: no joint moves faster than v_zero")
@@ -325,7 +326,8 @@ class RigidBodyIdentifier:
         tall and thin: T n rows, about 10 n + 4 n columns); rank deficiency is handled by the
         pseudo-inverse of the small Gram matrix."""
         keep = w > 0
-        Aw = A2[keep] * w[keep, None]
+        Aw = A2[keep]                       # a copy, weighted in place
+        Aw *= w[keep, None]
         yw = y[keep] * w[keep]
         cn = np.linalg.norm(Aw, axis=0)
         cn = np.where(cn > 0, cn, 1.0)

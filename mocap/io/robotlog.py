@@ -12,6 +12,7 @@ from mocap.io.errors import InputError, check_control_chars, read_text
 _QM = re.compile(r"^qm_(\d+)$")
 _TAU = re.compile(r"^tau_(\d+)$")
 _QD = re.compile(r"^qd_(\d+)$")
+_ROW_BLOCK = 1 << 20          # rows per block where a whole-log check would copy the table
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,7 @@ class RobotLog:
     tau: np.ndarray
     extra: dict = field(default_factory=dict)
     source: Path | None = None
-    line_numbers: np.ndarray | None = None   # (T,) the file line of each sample, for messages
+    line_numbers: np.ndarray | range | None = None   # (T,) the file line of each sample, for messages
 
     def line_of(self, i: int) -> int | None:
         """The file line of sample ``i`` (None for a log not read from a file)."""
@@ -74,7 +75,8 @@ class RobotLog:
 
     @property
     def rate_hz(self) -> float:
-        return float(1.0 / np.median(np.diff(self.time))) if self.n_samples > 1 else float("nan")
+        return (float(1.0 / np.median(np.diff(self.time), overwrite_input=True))
+                if self.n_samples > 1 else float("nan"))
 
     def coupled(self, coupling) -> "RobotLog":
         """The log in URDF joints for a controller with coupled joints (FORMAT.md ``[robot]
@@ -160,20 +162,38 @@ class RobotLog:
 
     def repeated_rows(self) -> np.ndarray:
         """(T,) True where a row repeats the previous row's values (all but ``time``; NaN equal
-        to NaN): a stale sample logged again."""
-        sig = [self.qm, self.tau] + ([self.qd] if self.qd is not None else [])
-        X = np.column_stack(sig)
-        same = (X[1:] == X[:-1]) | (np.isnan(X[1:]) & np.isnan(X[:-1]))
-        return np.concatenate([[False], same.all(axis=1)])
+        to NaN): a stale sample logged again. The first signal is compared over a block of rows,
+        the others only on the rows still equal, so that a long log needs no copy of its table."""
+        cols = [self.qm[:, j] for j in range(self.n_joints)] + \
+               [self.tau[:, j] for j in range(self.n_joints)] + \
+               [np.asarray(v, float) for k, v in self.extra.items()
+                for m in [_QD.match(k)] if m and 1 <= int(m.group(1)) <= self.n_joints]
+        T = self.n_samples
+        out = np.zeros(T, bool)
+        if not cols:
+            out[1:] = True
+            return out
+        for a in range(1, T, _ROW_BLOCK):
+            b = min(T, a + _ROW_BLOCK)
+            cur, prev = cols[0][a:b], cols[0][a - 1:b - 1]
+            i = a + np.flatnonzero((cur == prev) | (np.isnan(cur) & np.isnan(prev)))
+            for x in cols[1:]:
+                if not i.size:
+                    break
+                cur, prev = x[i], x[i - 1]
+                i = i[(cur == prev) | (np.isnan(cur) & np.isnan(prev))]
+            out[i] = True
+        return out
 
     def sampling(self) -> SamplingStats:
         dt = np.diff(self.time)
         if dt.size == 0:
             return SamplingStats(self.n_samples, float("nan"), float("nan"), float("nan"), 0, False)
-        med = float(np.median(dt))
-        irregular = bool(np.any(np.abs(dt - med) > 0.01 * med))
-        return SamplingStats(self.n_samples, float(dt.min()), med, float(dt.max()),
-                             int(self.repeated_rows().sum()), irregular)
+        lo, hi = float(dt.min()), float(dt.max())
+        med = float(np.median(dt, overwrite_input=True))
+        irregular = max(hi - med, med - lo) > 0.01 * med        # the largest |dt - median|
+        return SamplingStats(self.n_samples, lo, med, hi, int(self.repeated_rows().sum()),
+                             bool(irregular))
 
     def columns(self) -> dict[str, np.ndarray]:
         cols = {"time": self.time}
@@ -289,6 +309,130 @@ def _check_values(data: np.ndarray, header: list[str], path: Path, line_no: np.n
                          path=path, line=int(line_no[i]), label=header[k])
 
 
+#: cells the streaming reader reads as a missing sample (the careful parser: empty or ``nan`` in
+#: any case); every other cell must be a number pyarrow's float parser takes whole
+_NAN_SPELLINGS = ["", "nan", "naN", "nAn", "nAN", "Nan", "NaN", "NAn", "NAN"]
+_CHUNK = 1 << 24
+#: files from this size on stream through :func:`_read_fast`
+STREAM_MIN_BYTES = 1 << 20
+
+
+def _count_rows(fh, first: bytes) -> int | None:
+    """Lines below the header of an open file positioned after it (``first``: bytes already read
+    past the header), counted by their line feeds in blocks of 16 MiB; None when a carriage
+    return is not followed by a line feed (a line break the count would miss)."""
+    n_lf, n_cr, n_crlf, prev, last = 0, 0, 0, b"", b""
+    chunk = first
+    while chunk:
+        n_lf += chunk.count(b"\n")
+        n_cr += chunk.count(b"\r")
+        n_crlf += chunk.count(b"\r\n") + (prev == b"\r" and chunk[:1] == b"\n")
+        prev = last = chunk[-1:]
+        chunk = fh.read(_CHUNK)
+    if n_cr != n_crlf:
+        return None
+    return n_lf + (0 if last in (b"\n", b"") else 1)
+
+
+def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
+    """The streaming reader: the log read block by block by pyarrow's CSV reader straight into
+    the float64 arrays of the :class:`RobotLog` (no text copy of the file, no per-cell Python
+    object). It takes only a well-formed log: a valid header (:func:`check_header`), rows of
+    numbers or missing cells (:data:`_NAN_SPELLINGS`) as wide as the header, no blank line,
+    finite values, signals within :data:`ABSURD`, strictly increasing time. Anything
+    else returns None and :func:`read_robot_log` reads the file with the careful parser, which
+    names the file, the line and the cell at fault."""
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ImportError:                                  # pragma: no cover - pyarrow optional
+        return None
+    with open(path, "rb") as fh:
+        head = fh.read(_CHUNK)
+        if head.startswith(b"\xef\xbb\xbf"):
+            head = head[3:]
+        cut = head.find(b"\n")
+        if cut < 0:
+            return None
+        try:
+            line1 = head[:cut].decode("utf-8")
+        except UnicodeDecodeError:
+            return None
+        line1 = line1[:-1] if line1.endswith("\r") else line1
+        if any(c in line1 for c in "\r\x85\u2028\u2029") or not line1.strip():
+            return None
+        header = [h.strip() for h in line1.split(",")]
+        try:
+            check_control_chars(line1, path)
+            if "time" not in header:
+                return None
+            check_header(header, path, n_joints)
+        except InputError:
+            return None
+        T = _count_rows(fh, head[cut + 1:])
+    if not T:
+        return None
+    joint_cols = [(h, m) for h in header for m in [_QM.match(h) or _TAU.match(h)] if m]
+    n_found = max((int(m.group(1)) for _, m in joint_cols), default=0)
+    if n_joints is None:
+        n_joints = n_found
+    elif n_found > n_joints:
+        return None
+    time = np.empty(T)
+    qm, tau = np.empty((T, n_joints)), np.empty((T, n_joints))
+    extra, dest = {}, []
+    for h in header:
+        m_q, m_t = _QM.match(h), _TAU.match(h)
+        if h == "time":
+            dest.append(time)
+        elif m_q:
+            dest.append(qm[:, int(m_q.group(1)) - 1])
+        elif m_t:
+            dest.append(tau[:, int(m_t.group(1)) - 1])
+        else:
+            extra[h] = np.empty(T)
+            dest.append(extra[h])
+    for X, p in ((qm, _QM), (tau, _TAU)):
+        have = {int(m.group(1)) for h in header for m in [p.match(h)] if m}
+        for j in range(n_joints):
+            if j + 1 not in have:
+                X[:, j] = np.nan
+    names = [f"c{k}" for k in range(len(header))]
+    kind = [0 if h == "time" else 1 if _CANONICAL.match(h) else 2 for h in header]
+    pool = pa.system_memory_pool()                      # gives freed blocks back at once
+    try:
+        reader = pacsv.open_csv(
+            path, memory_pool=pool,
+            read_options=pacsv.ReadOptions(column_names=names, skip_rows=1, block_size=1 << 20),
+            parse_options=pacsv.ParseOptions(delimiter=",", quote_char=False,
+                                             ignore_empty_lines=False),
+            convert_options=pacsv.ConvertOptions(column_types={c: pa.float64() for c in names},
+                                                 null_values=_NAN_SPELLINGS,
+                                                 strings_can_be_null=False))
+        pos = 0
+        for batch in reader:
+            n = batch.num_rows
+            if pos + n > T:
+                return None
+            for k, col in enumerate(batch.columns):
+                c = col.to_numpy(zero_copy_only=False)
+                if kind[k] == 0 and not (np.isfinite(c).all() and (pos == 0 or c[0] > time[pos - 1])
+                                         and (c[1:] > c[:-1]).all()):
+                    return None                         # a missing time, time not increasing
+                with np.errstate(invalid="ignore"):
+                    if (kind[k] == 1 and (np.abs(c) > ABSURD).any()) or (kind[k] == 2 and np.isinf(c).any()):
+                        return None                     # infinite or absurd values
+                dest[k][pos:pos + n] = c
+            pos += n
+    except pa.ArrowException:
+        return None                                     # a cell that is no number, a row's width
+    finally:
+        pool.release_unused()
+    if pos != T:
+        return None
+    return RobotLog(time, qm, tau, extra, path, range(2, T + 2))
+
+
 def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
     """Read a robot log CSV.
 
@@ -296,10 +440,23 @@ def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
     beyond it is an error. Without it, the width is the highest joint index found. The header
     is checked by :func:`check_header`; every row must have as many cells as the header has
     names (never shifted); infinite cells and absurd signal values (:data:`ABSURD`) are errors.
+
+    A well-formed log streams through :func:`_read_fast` (memory: the float64 arrays only);
+    any other goes through :func:`_read_careful`, whose errors name the file and the line.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError("robot log not found", path=path)
+    try:   # small files: the careful parser is as quick
+        fast = _read_fast(path, n_joints) if path.stat().st_size >= STREAM_MIN_BYTES else None
+    except OSError:
+        fast = None
+    return fast if fast is not None else _read_careful(path, n_joints)
+
+
+def _read_careful(path: Path, n_joints: int | None) -> RobotLog:
+    """The careful reader: the whole text checked and parsed line by line, every error naming
+    the file, the line and the cell (the reader of any log the streaming reader declines)."""
     text = read_text(path, "utf-8-sig")
     check_control_chars(text, path, also="\x85\u2028\u2029")   # splitlines would break there
     lines = text.splitlines()

@@ -103,9 +103,150 @@ def read_trc(path: str | Path) -> MarkerRecording:
     path = Path(path)
     if not path.is_file():
         raise InputError("TRC file not found", path=path)
+    try:   # small files: the careful parser is as quick
+        fast = _read_fast(path) if path.stat().st_size >= STREAM_MIN_BYTES else None
+    except OSError:
+        fast = None
+    if fast is not None:
+        return fast
     text = _decode(path)
     check_control_chars(text, path)
     lines = text.split("\n")
+    h = _parse_header(lines, path)
+    sep, n_markers, labels, data_start = h["sep"], h["n_markers"], h["labels"], h["data_start"]
+
+    # ---- data rows (blank lines, such as the usual line 6 and a final newline, are skipped)
+    n_cols = 2 + 3 * n_markers
+    body_text, line_no, n_cells = _scan_body("\n".join(lines[data_start:]), sep, data_start + 1)
+    short = np.flatnonzero(n_cells < n_cols)
+    if short.size:
+        i = short[0]
+        raise InputError(f"row has {n_cells[i]} cells, expected {n_cols} (Frame#, Time and 3 per "
+                         f"marker for {n_markers} markers)", path=path, line=int(line_no[i]))
+    values = None
+    if line_no.size and np.all(n_cells == n_cells[0]):
+        values = _fast_values(body_text, sep, line_no.size)   # C parser; None if a cell needs care
+        if values is not None and values.shape[1] > n_cols:
+            bad_rows = np.flatnonzero(np.any(~np.isnan(values[:, n_cols:]), axis=1))
+            if bad_rows.size:
+                _raise_extra(n_cells, bad_rows[0], n_cols, n_markers, line_no, path)
+            values = values[:, :n_cols]
+    if values is None:
+        body = body_text.split("\n") if line_no.size else []
+        values = _careful_values(body, n_cells, sep, n_cols, n_markers, labels, line_no, path)
+    return _finish(values, n_cells, line_no, h, path)
+
+
+_LINE_END = re.compile(rb"\r\n|\r|\n")
+#: files from this size on stream through :func:`_read_fast`
+STREAM_MIN_BYTES = 1 << 20
+#: cells the streaming reader reads as an occlusion (empty or ``nan`` in any case)
+_NAN_SPELLINGS = ["", "nan", "naN", "nAn", "nAN", "Nan", "NaN", "NAn", "NAN"]
+
+
+def _read_fast(path: Path) -> MarkerRecording | None:
+    """The streaming reader: the header's five lines parsed by :func:`_parse_header`, the data
+    rows by pyarrow's CSV reader in blocks straight into one float64 array (no text copy of the
+    file). It takes only a well-formed file: UTF-8 header lines, every row as wide as the first
+    (at least ``2 + 3 * markers`` cells, the ones beyond empty), cells that are numbers or
+    occlusions (:data:`_NAN_SPELLINGS`), finite values within :data:`ABSURD_M`, a strictly
+    increasing time, and no partly empty marker in rows wider than the header. Anything else
+    returns None and :func:`read_trc` reads the file with its careful parser, which names the
+    line and the cell at fault."""
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+    except ImportError:                                  # pragma: no cover - pyarrow optional
+        return None
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 20)
+    start = 3 if head.startswith(b"\xef\xbb\xbf") else 0
+    ends = []
+    for m in _LINE_END.finditer(head, start):   # the header's lines and the first rows
+        ends.append(m)
+        if len(ends) == 64:
+            break
+    if len(ends) < 6:
+        return None
+    try:
+        lines, pos = [], start
+        for m in ends[:5]:
+            lines.append(head[pos:m.start()].decode("utf-8"))
+            pos = m.end()
+        check_control_chars("\n".join(lines), path)
+        h = _parse_header(lines, path)
+    except (UnicodeDecodeError, InputError):
+        return None
+    body_at = ends[h["data_start"] - 1].end()
+    n_cols = 2 + 3 * h["n_markers"]
+    sep = h["sep"]
+    first = next((head[a.end():b.start()] for a, b in zip(ends[h["data_start"] - 1:], ends[h["data_start"]:])
+                  if head[a.end():b.start()].strip(b" \t,")), None)
+    if first is None:
+        return None
+    k = first.count(sep.encode()) + 1
+    if k < n_cols:
+        return None
+    names = [f"c{i}" for i in range(k)]
+    with open(path, "rb") as fh:                # rows at most: the line ends below the header
+        fh.seek(body_at)
+        n_lf = n_cr = 0
+        while True:
+            chunk = fh.read(1 << 24)
+            if not chunk:
+                break
+            n_lf += chunk.count(b"\n")
+            n_cr += chunk.count(b"\r")
+        rows_max = n_lf + n_cr + 1
+    values = np.empty((rows_max, n_cols))
+    pool = pa.system_memory_pool()
+    try:
+        with open(path, "rb") as fh:
+            fh.seek(body_at)
+            reader = pacsv.open_csv(
+                fh, memory_pool=pool,
+                read_options=pacsv.ReadOptions(column_names=names, block_size=1 << 20),
+                parse_options=pacsv.ParseOptions(delimiter=sep, quote_char=False,
+                                                 ignore_empty_lines=True),
+                convert_options=pacsv.ConvertOptions(column_types={c: pa.float64() for c in names},
+                                                     null_values=_NAN_SPELLINGS,
+                                                     strings_can_be_null=False))
+            n = 0
+            for batch in reader:
+                b = batch.num_rows
+                if n + b > rows_max:
+                    return None
+                for i, col in enumerate(batch.columns):
+                    if i < n_cols:
+                        values[n:n + b, i] = col.to_numpy(zero_copy_only=False)
+                    elif col.null_count != b:
+                        return None                     # values beyond the last marker
+                n += b
+    except pa.ArrowException:
+        return None                                     # a cell that is no number, a row's width
+    finally:
+        pool.release_unused()
+    values = values[:n]
+    if n == 0:
+        return None
+    scale = UNIT_SCALE[h["units"]]
+    with np.errstate(invalid="ignore"):
+        if np.isinf(values).any() or (np.abs(values[:, 2:]) * scale > ABSURD_M).any():
+            return None
+    t = values[:, 1]
+    if not np.isfinite(t).all() or (np.diff(t) <= 0).any():
+        return None
+    if k > n_cols:
+        fin = np.isfinite(values[:, 2:].reshape(n, -1, 3)).sum(axis=2)
+        if ((fin > 0) & (fin < 3)).any():
+            return None                                 # partly empty marker in a wide row
+    return _finish(values, np.full(n, k), np.arange(n), h, path)
+
+
+def _parse_header(lines: list[str], path: Path) -> dict:
+    """Lines 1-5 of a TRC file (``lines``: at least its first five, newline-free): the separator,
+    the header fields (``meta``), rate, units, labels, the number of markers and the index of
+    the first line after the header (``data_start``, 0-based)."""
     if len(lines) < 4 or not lines[0].strip():
         raise InputError("too short for a TRC file (needs at least 4 header lines)", path=path)
     sep = _sniff_delimiter(lines, path)
@@ -177,25 +318,16 @@ def read_trc(path: str | Path) -> MarkerRecording:
         raise InputError(f"header NumMarkers is {header['NumMarkers']} but line 4 names {n_markers} "
                          f"markers ({', '.join(labels[:5])}...)", path=path, line=3)
 
-    # ---- data rows (blank lines, such as the usual line 6 and a final newline, are skipped)
+    return {"sep": sep, "meta": meta, "header": header, "rate": rate, "units": units,
+            "labels": labels, "n_markers": n_markers, "data_start": data_start}
+
+
+def _finish(values, n_cells, line_no, h: dict, path: Path) -> MarkerRecording:
+    """The recording from the parsed data cells ``values`` (rows, 2 + 3 markers): checks of the
+    cells and the time, occlusions, units, the header's agreement with the rows."""
+    labels, n_markers, header, meta = h["labels"], h["n_markers"], h["header"], h["meta"]
+    units, rate = h["units"], h["rate"]
     n_cols = 2 + 3 * n_markers
-    body_text, line_no, n_cells = _scan_body("\n".join(lines[data_start:]), sep, data_start + 1)
-    short = np.flatnonzero(n_cells < n_cols)
-    if short.size:
-        i = short[0]
-        raise InputError(f"row has {n_cells[i]} cells, expected {n_cols} (Frame#, Time and 3 per "
-                         f"marker for {n_markers} markers)", path=path, line=int(line_no[i]))
-    values = None
-    if line_no.size and np.all(n_cells == n_cells[0]):
-        values = _fast_values(body_text, sep, line_no.size)   # C parser; None if a cell needs care
-        if values is not None and values.shape[1] > n_cols:
-            bad_rows = np.flatnonzero(np.any(~np.isnan(values[:, n_cols:]), axis=1))
-            if bad_rows.size:
-                _raise_extra(n_cells, bad_rows[0], n_cols, n_markers, line_no, path)
-            values = values[:, :n_cols]
-    if values is None:
-        body = body_text.split("\n") if line_no.size else []
-        values = _careful_values(body, n_cells, sep, n_cols, n_markers, labels, line_no, path)
     if values.shape[0] == 0:
         raise InputError("no data rows: the file has only its header", path=path)
     _check_finite(values, UNIT_SCALE[units], labels, line_no, path)
