@@ -392,6 +392,11 @@ def coupled_motor_columns(joint: int, qd: np.ndarray, qdd: np.ndarray, coupling:
     return np.column_stack(cols) if cols else np.zeros((qd.shape[0], 0))
 
 
+#: most held-out folds of a continuous record: beyond this many motion cycles, the folds are
+#: this many groups of consecutive whole cycles (the test's blocks stay the cycles)
+MAX_RECORD_FOLDS = 20
+
+
 def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                             tau: np.ndarray, robot, armature=None, n_segments: int | None = None,
                             v_zero: float = 0.02, coupling: np.ndarray | None = None) -> JointData:
@@ -422,6 +427,8 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     seg = np.zeros(t.shape[0], int)
     if keep.any():
         cyc = motion_cycles(qd[keep, j0], v_zero)
+        if n_segments is None and int(cyc.max()) + 1 > MAX_RECORD_FOLDS:
+            n_segments = MAX_RECORD_FOLDS   # a long record: folds of whole cycles, not one per cycle
         if n_segments is not None:
             piece = np.minimum((np.flatnonzero(keep) * n_segments) // t.shape[0], n_segments - 1)
             first = np.r_[True, cyc[1:] != cyc[:-1]]
