@@ -46,6 +46,8 @@ class BasePlacement:
     p_value: float = float("nan")  # of chi2 on dof
     inflation: float = 1.0        # factor applied to cov's std when chi2 says the model does not fit
     warnings: tuple = ()
+    region95: dict = None         # 95 % region thresholds and effective degrees of freedom (region95())
+    model_error_mm: float = 0.0   # random-effect line offset per URDF axis line (0: chi2 <= dof)
 
     @staticmethod
     def _stds(C):
@@ -86,11 +88,44 @@ class BasePlacement:
             "chi2_per_dof": self.chi2 / self.dof if self.dof > 0 else None,
             "p_value": self.p_value,
             "std_inflation": self.inflation,
+            "region95": self.region95,
+            "model_error_mm": self.model_error_mm,
             "warnings": list(self.warnings),
             "iterations": self.iterations,
             "converged": self.converged,
             "cond": self.cond,
         }
+
+
+def region95(parts, nus, level: float = 0.95) -> dict:
+    """The 95 % region of ``T_camera_base`` when its covariance is a sum of ``parts`` (6x6) each
+    scaled by a variance estimated with ``nus`` degrees of freedom (inf: known).
+
+    The effective degrees of freedom of each block (origin, rotation, the 6-D pose) follow
+    Welch-Satterthwaite on the whitened traces, ``nu = (sum t_j)^2 / sum(t_j^2 / nu_j)`` with
+    ``t_j = tr(C_block^-1 P_j,block)``; the threshold on the squared Mahalanobis distance is
+    Hotelling's ``p F(level; p, nu)`` (``chi2(level; p)`` at ``nu = inf``), and ``k95`` the
+    Student factor ``t(0.975; nu)`` that turns a 1-D standard deviation into its 95 % interval.
+    """
+    from scipy.stats import chi2 as chi2_dist
+    from scipy.stats import f as f_dist
+    from scipy.stats import t as t_dist
+
+    C = sum(parts)
+    out = {"level": level}
+    for name, idx in (("origin", slice(3, 6)), ("rotation", slice(0, 3)), ("pose", slice(0, 6))):
+        Wi = np.linalg.inv(C[idx, idx])
+        t = np.array([np.trace(Wi @ P[idx, idx]) for P in parts])
+        nu_arr = np.asarray(nus, float)
+        fin = np.isfinite(nu_arr)
+        den = float(np.sum(t[fin] ** 2 / np.maximum(nu_arr[fin], 1e-9)))
+        nu = float(np.sum(t) ** 2 / den) if den > 0 else float("inf")
+        p = C[idx, idx].shape[0]
+        q = float(p * f_dist.ppf(level, p, nu)) if np.isfinite(nu) else float(chi2_dist.ppf(level, p))
+        out[f"{name}_dof"] = nu if np.isfinite(nu) else None
+        out[f"{name}_d2"] = q
+        out[f"{name}_k95"] = float(t_dist.ppf(0.5 + level / 2, nu)) if np.isfinite(nu) else 1.959963984540054
+    return out
 
 
 def pose_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
@@ -119,12 +154,17 @@ def _initial_pose(meas, urdf):
     return R, np.linalg.solve(M, rhs)
 
 
-#: below this p-value of the base solve's chi2 the axes do not fit the URDF: the covariance is
-#: scaled by chi2/dof (the Birge ratio) and a warning names the mismatch
+#: below this p-value of the base solve's chi2 the axes do not fit the URDF: a warning names the
+#: mismatch
 MISFIT_P = 0.01
+#: below this p-value a model-error term is estimated and added to the covariance
+MODEL_ERROR_P = 0.05
+#: lever arm (m) that turns the model error's line shift tau into a tilt tau / L of the axis
+MODEL_ERROR_LENGTH_M = 1.0
 
 
-def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P) -> BasePlacement:
+def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
+               model_error_p: float = MODEL_ERROR_P) -> BasePlacement:
     """Solve ``T_camera_base`` from measured axes and the URDF's axis lines.
 
     ``axes``: fitted :class:`calib.axis.AxisFit` (camera frame, with ``joint`` set, the
@@ -173,30 +213,62 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P) -
         T[:3, :3] = R
         T[:3, 3] = p0 + sol.x[3:]
         r = resid(sol.x).reshape(len(axes), 4)
-        return T, cov, r, sol, float(np.linalg.cond(JtJ))
+        # unwhitened chart Jacobians A_j = L_j^-1 J_j, for splitting the covariance by source
+        A = [np.linalg.solve(L, Jj) for L, Jj in zip(Ls, J.reshape(len(axes), 4, 6))]
+        return T, cov, r, sol, float(np.linalg.cond(JtJ)), A, Ls
 
-    covs = [f.cov if use == "cov" else f.crb for f in axes]
-    T, cov, r, sol, cond = solve(covs)
-    if all(np.all(np.isfinite(f.crb)) for f in axes):
-        # the bound at the same estimate: rebuild the whitened Jacobian with the CRB weights
-        _, crb, _, _, _ = solve([f.crb for f in axes])
-    else:
-        crb = np.full((6, 6), np.nan)
+    def split(cov, A, Ls, blocks):
+        """cov = sum_j G A_j' W_j B_j W_j A_j G for covariance blocks B_j (W_j = L_j' L_j)."""
+        out = []
+        for Aj, L, B in zip(A, Ls, blocks):
+            W = L.T @ L
+            out.append(cov @ Aj.T @ W @ B @ W @ Aj @ cov)
+        return out
+
+    from scipy.optimize import brentq
     from scipy.stats import chi2 as chi2_dist
 
-    chi2 = float(np.sum(r ** 2))
+    covs = [f.cov if use == "cov" else f.crb for f in axes]
     dof = 4 * len(axes) - 6
+    T, cov, r, sol, cond, A, Ls = solve(covs)
+    chi2 = float(np.sum(r ** 2))
     p_value = float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan")
-    inflation, warnings = 1.0, []
+    if all(np.all(np.isfinite(f.crb)) for f in axes):
+        # the bound at the same estimate: rebuild the whitened Jacobian with the CRB weights
+        crb = solve([f.crb for f in axes])[1]
+    else:
+        crb = np.full((6, 6), np.nan)
+    # model error (random effect): each URDF axis line is off the real one by an unknown line
+    # offset of covariance tau^2 S (S = diag(1/L^2, 1/L^2, 1, 1): tilt tau/L, shift tau per
+    # direction); tau^2 is the value at which the re-solved chi2 equals its degrees of freedom
+    # (Paule-Mandel); estimated where chi2 rejects the URDF at ``model_error_p``
+    tau = 0.0
+    S = np.diag([1.0 / MODEL_ERROR_LENGTH_M ** 2] * 2 + [1.0, 1.0])
+    nus = [f.dof for f in axes] if use == "cov" else [np.inf] * len(axes)
+    if use == "cov" and dof > 0 and p_value < model_error_p:
+        def excess(log_tau):
+            t2 = np.exp(2 * log_tau)
+            return float(np.sum(solve([C + t2 * S for C in covs])[2] ** 2)) - dof
+
+        scale = max(np.sqrt(max(np.trace(C[2:, 2:]) for C in covs)), 1e-9)
+        lo, hi = np.log(scale * 1e-4), np.log(scale * 1e4)
+        if excess(lo) > 0 > excess(hi):
+            tau = float(np.exp(brentq(excess, lo, hi, xtol=1e-6)))
+            T, cov, r, sol, cond, A, Ls = solve([C + tau ** 2 * S for C in covs])
+    parts = split(cov, A, Ls, covs)
+    if tau > 0:
+        parts.append(sum(split(cov, A, Ls, [tau ** 2 * S] * len(axes))))
+        nus = list(nus) + [float(dof)]
+    inflation = float(np.sqrt(np.trace(cov) / max(np.trace(sum(parts[:len(axes)])), 1e-300)))
+    warnings = []
     if dof > 0 and p_value < misfit_p:
-        inflation = float(np.sqrt(chi2 / dof))
-        cov = cov * inflation ** 2
         j1, j2 = axes[0].joint, axes[1].joint
         warnings.append(
             f"the measured axes do not fit the URDF: chi2 = {chi2:.1f} on {dof} degrees of freedom "
             f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
-            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; standard deviations inflated "
-            f"x{inflation:.2f}")
+            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; a model error of {1e3 * tau:.3f} mm "
+            f"per axis line is added (standard deviations x{inflation:.2f})")
+    reg = region95(parts, nus)
     if not sol.success:
         warnings.append(f"the base solve did not converge ({sol.message})")
     return BasePlacement(T_camera_base=T, cov=cov, crb=crb,
@@ -204,4 +276,5 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P) -
                          axis_distance_mm=1e3 * dist_m, urdf_axis_distance_mm=1e3 * dist_u,
                          axis_angle_deg=ang_m, urdf_axis_angle_deg=ang_u_signed,
                          chi2=chi2, iterations=int(sol.nfev), converged=bool(sol.success),
-                         cond=cond, dof=dof, p_value=p_value, inflation=inflation, warnings=tuple(warnings))
+                         cond=cond, dof=dof, p_value=p_value, inflation=inflation, warnings=tuple(warnings),
+                         region95=reg, model_error_mm=1e3 * tau)

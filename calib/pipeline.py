@@ -104,6 +104,7 @@ class CalibResult:
             "origin_std_mm": self.origin_std_mm,
             "rotation_std_deg": self.rotation_std_deg,
             "origin_cov_mm2": (1e6 * self.base.cov[3:, 3:]).tolist(),
+            "region95": self.base.region95,
             "warnings": list(self.warnings),
             "crb": {"origin_std_mm": b["crb_origin_std_mm"], "rotation_std_deg": b["crb_rotation_std_deg"],
                     "noise_mm": self.noise_used_mm,
