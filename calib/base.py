@@ -164,13 +164,15 @@ MODEL_ERROR_LENGTH_M = 1.0
 
 
 def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
-               model_error_p: float = MODEL_ERROR_P) -> BasePlacement:
+               model_error_p: float = MODEL_ERROR_P, urdf_tol_m: float = 0.0) -> BasePlacement:
     """Solve ``T_camera_base`` from measured axes and the URDF's axis lines.
 
     ``axes``: fitted :class:`calib.axis.AxisFit` (camera frame, with ``joint`` set, the
     direction's sign matching the joint's positive rotation); ``urdf_lines``: for each, the
     ``(point, direction)`` of the same joint's axis in the base frame at the sweep's held
-    angles. ``use`` picks the weights (``"cov"`` or ``"crb"``).
+    angles. ``use`` picks the weights (``"cov"`` or ``"crb"``). ``urdf_tol_m`` is the declared
+    standard uncertainty of each URDF axis line's placement (a type-B model error, the floor of
+    the one estimated from chi2).
     """
     if len(axes) < 2 or len(axes) != len(urdf_lines):
         raise InputError(f"base placement needs at least two swept joints, got {len(axes)}")
@@ -254,12 +256,19 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
         lo, hi = np.log(scale * 1e-4), np.log(scale * 1e4)
         if excess(lo) > 0 > excess(hi):
             tau = float(np.exp(brentq(excess, lo, hi, xtol=1e-6)))
-            T, cov, r, sol, cond, A, Ls = solve([C + tau ** 2 * S for C in covs])
+    # the declared URDF tolerance (type B, known) is the floor of the model error
+    tau_b = float(urdf_tol_m) if use == "cov" else 0.0
+    typeb = tau_b >= tau and tau_b > 0
+    tau = max(tau, tau_b)
+    if tau > 0:
+        T, cov, r, sol, cond, A, Ls = solve([C + tau ** 2 * S for C in covs])
     parts = split(cov, A, Ls, covs)
     if tau > 0:
         parts.append(sum(split(cov, A, Ls, [tau ** 2 * S] * len(axes))))
-        nus = list(nus) + [float(dof)]
-    inflation = float(np.sqrt(np.trace(cov) / max(np.trace(sum(parts[:len(axes)])), 1e-300)))
+        nus = list(nus) + [float("inf") if typeb else float(dof)]
+    inflation = 1.0
+    if tau > 0:     # RMS growth of the standard deviations over the noise-only solve
+        inflation = float(np.sqrt(np.trace(cov) / max(np.trace(sum(parts[:len(axes)])), 1e-300)))
     warnings = []
     if dof > 0 and p_value < misfit_p:
         j1, j2 = axes[0].joint, axes[1].joint
