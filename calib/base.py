@@ -97,31 +97,50 @@ class BasePlacement:
         }
 
 
-def region95(parts, nus, level: float = 0.95) -> dict:
+#: draws of the Monte Carlo reference distribution behind the 95 % thresholds (fixed seed)
+REGION_DRAWS = 20000
+
+
+def region95(parts, nus, level: float = 0.95, draws: int = REGION_DRAWS) -> dict:
     """The 95 % region of ``T_camera_base`` when its covariance is a sum of ``parts`` (6x6) each
     scaled by a variance estimated with ``nus`` degrees of freedom (inf: known).
 
-    The effective degrees of freedom of each block (origin, rotation, the 6-D pose) follow
-    Welch-Satterthwaite on the whitened traces, ``nu = (sum t_j)^2 / sum(t_j^2 / nu_j)`` with
-    ``t_j = tr(C_block^-1 P_j,block)``; the threshold on the squared Mahalanobis distance is
-    Hotelling's ``p F(level; p, nu)`` (``chi2(level; p)`` at ``nu = inf``), and ``k95`` the
-    Student factor ``t(0.975; nu)`` that turns a 1-D standard deviation into its 95 % interval.
+    The threshold on the squared Mahalanobis distance ``x' C^-1 x`` of each block (origin,
+    rotation, the 6-D pose) is the ``level`` quantile of its reference distribution, drawn by
+    Monte Carlo (GUM Supplement 1 style, fixed seed): ``x ~ N(0, sum_j P_j)`` and the estimated
+    ``C = sum_j u_j P_j`` with ``u_j ~ chi2(nu_j) / nu_j`` (1 for known variances); with one part
+    this is Hotelling's ``p F(level; p, nu)``, with all variances known ``chi2(level; p)``. The
+    effective degrees of freedom of each block follow Welch-Satterthwaite on the whitened traces,
+    ``nu = (sum t_j)^2 / sum(t_j^2 / nu_j)`` with ``t_j = tr(C_block^-1 P_j,block)``, and ``k95``
+    is the Student factor ``t(0.975; nu)`` for one coordinate.
     """
     from scipy.stats import chi2 as chi2_dist
-    from scipy.stats import f as f_dist
     from scipy.stats import t as t_dist
 
     C = sum(parts)
+    nu_arr = np.asarray(nus, float)
+    fin = np.isfinite(nu_arr)
+    rng = np.random.default_rng(20260528)
+    u = np.ones((draws, len(parts)))
+    if fin.any():
+        u[:, fin] = rng.chisquare(np.maximum(nu_arr[fin], 1e-3), (draws, int(fin.sum()))) / np.maximum(nu_arr[fin], 1e-3)
+    z = rng.standard_normal((draws, 6))
     out = {"level": level}
     for name, idx in (("origin", slice(3, 6)), ("rotation", slice(0, 3)), ("pose", slice(0, 6))):
-        Wi = np.linalg.inv(C[idx, idx])
-        t = np.array([np.trace(Wi @ P[idx, idx]) for P in parts])
-        nu_arr = np.asarray(nus, float)
-        fin = np.isfinite(nu_arr)
+        Cb = C[idx, idx]
+        p = Cb.shape[0]
+        Pb = np.stack([P[idx, idx] for P in parts])                     # (J, p, p)
+        Wi = np.linalg.inv(Cb)
+        t = np.einsum("ij,kji->k", Wi, Pb)
         den = float(np.sum(t[fin] ** 2 / np.maximum(nu_arr[fin], 1e-9)))
         nu = float(np.sum(t) ** 2 / den) if den > 0 else float("inf")
-        p = C[idx, idx].shape[0]
-        q = float(p * f_dist.ppf(level, p, nu)) if np.isfinite(nu) else float(chi2_dist.ppf(level, p))
+        if fin.any():
+            x = z[:, :p] @ np.linalg.cholesky(Cb + 1e-30 * np.eye(p)).T  # (D, p) ~ N(0, Cb)
+            Chat = np.einsum("dk,kij->dij", u, Pb)                       # (D, p, p)
+            d2 = np.einsum("di,di->d", x, np.linalg.solve(Chat, x[..., None])[..., 0])
+            q = float(np.quantile(d2, level))
+        else:
+            q = float(chi2_dist.ppf(level, p))
         out[f"{name}_dof"] = nu if np.isfinite(nu) else None
         out[f"{name}_d2"] = q
         out[f"{name}_k95"] = float(t_dist.ppf(0.5 + level / 2, nu)) if np.isfinite(nu) else 1.959963984540054
@@ -164,7 +183,8 @@ MODEL_ERROR_LENGTH_M = 1.0
 
 
 def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
-               model_error_p: float = MODEL_ERROR_P, urdf_tol_m: float = 0.0) -> BasePlacement:
+               model_error_p: float = MODEL_ERROR_P, urdf_tol_m: float = 0.0,
+               with_region: bool = True) -> BasePlacement:
     """Solve ``T_camera_base`` from measured axes and the URDF's axis lines.
 
     ``axes``: fitted :class:`calib.axis.AxisFit` (camera frame, with ``joint`` set, the
@@ -172,7 +192,7 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
     ``(point, direction)`` of the same joint's axis in the base frame at the sweep's held
     angles. ``use`` picks the weights (``"cov"`` or ``"crb"``). ``urdf_tol_m`` is the declared
     standard uncertainty of each URDF axis line's placement (a type-B model error, the floor of
-    the one estimated from chi2).
+    the one estimated from chi2). ``with_region`` computes the 95 % region (:func:`region95`).
     """
     if len(axes) < 2 or len(axes) != len(urdf_lines):
         raise InputError(f"base placement needs at least two swept joints, got {len(axes)}")
@@ -277,7 +297,7 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
             f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
             f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; a model error of {1e3 * tau:.3f} mm "
             f"per axis line is added (standard deviations x{inflation:.2f})")
-    reg = region95(parts, nus)
+    reg = region95(parts, nus) if with_region else None
     if not sol.success:
         warnings.append(f"the base solve did not converge ({sol.message})")
     return BasePlacement(T_camera_base=T, cov=cov, crb=crb,

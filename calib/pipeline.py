@@ -367,7 +367,7 @@ def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
         for flip in hyps:
             alt_fits = [f.with_joint(f.joint, flip=f.joint in flip) for f in fits]
             try:
-                alt = place_base(alt_fits, lines)
+                alt = place_base(alt_fits, lines, with_region=False)
             except InputError:
                 continue
             there = marker_offset_m(sweeps, chain, alt.T_camera_base, flip)
