@@ -107,3 +107,37 @@ def test_reported_region_covers_the_truth(bench, tmp_path, cell):
         assert 85.0 <= s[k] <= 100.0, (k, s)
     if cell.startswith("3x"):
         assert all(1 / 1.5 < x < 1.5 for x in s["std_ratio"]), s["std_ratio"]
+
+
+def test_region_thresholds_are_hotelling_for_one_part_and_chi2_when_known():
+    """The Monte Carlo reference distribution reproduces Hotelling's p F(0.95; p, nu) for one
+    estimated variance (within the draws' scatter) and chi2 when the variance is known."""
+    from scipy.stats import chi2, f
+
+    from calib.base import region95
+
+    A = np.random.default_rng(4).normal(size=(6, 6))
+    P = A @ A.T
+    for nu in (4.0, 12.0):
+        r = region95([P], [nu])
+        assert r["origin_d2"] == pytest.approx(3 * f.ppf(0.95, 3, nu), rel=0.04)
+        assert r["pose_d2"] == pytest.approx(6 * f.ppf(0.95, 6, nu), rel=0.04)
+        assert r["pose_dof"] == pytest.approx(nu)
+    r = region95([P, 0.5 * P], [np.inf, np.inf])
+    assert r["rotation_d2"] == pytest.approx(chi2.ppf(0.95, 3)) and r["pose_dof"] is None
+
+
+def test_a_declared_urdf_tolerance_is_a_floor_of_the_model_error(bench, tmp_path, capsys):
+    from ident.cli.main import main
+
+    bench.make_campaign(tmp_path / "camp", seed=2, n_poses=6, n_reflectors=3, mismatch=False)
+    assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "a")]) == 0
+    assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "b"), "--urdf-tol-mm", "0.5"]) == 0
+    a = json.loads((tmp_path / "a" / "calib.json").read_text())
+    b = json.loads((tmp_path / "b" / "calib.json").read_text())
+    assert a["base_solve"]["model_error_mm"] == 0.0
+    assert b["base_solve"]["model_error_mm"] == pytest.approx(0.5)
+    assert b["origin_std_mm"] > 3 * a["origin_std_mm"]
+    capsys.readouterr()
+    assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "c"), "--urdf-tol-mm", "-1"]) == 2
+    assert "--urdf-tol-mm" in capsys.readouterr().err
