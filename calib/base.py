@@ -176,8 +176,9 @@ def _initial_pose(meas, urdf):
 #: below this p-value of the base solve's chi2 the axes do not fit the URDF: a warning names the
 #: mismatch
 MISFIT_P = 0.01
-#: below this p-value a model-error term is estimated and added to the covariance
-MODEL_ERROR_P = 0.05
+#: below this p-value (chi2 of the base solve) a model-error term is estimated and added to the
+#: covariance: the same evidence that raises the misfit warning
+MODEL_ERROR_P = 0.01
 #: lever arm (m) that turns the model error's line shift tau into a tilt tau / L of the axis
 MODEL_ERROR_LENGTH_M = 1.0
 
