@@ -44,10 +44,10 @@ class BasePlacement:
     cond: float
     dof: int = 0                  # 4 per axis - 6
     p_value: float = float("nan")  # of chi2 on dof
-    inflation: float = 1.0        # factor applied to cov's std when chi2 says the model does not fit
+    inflation: float = 1.0        # RMS growth of the std from the model-error term (1: none)
     warnings: tuple = ()
     region95: dict = None         # 95 % region thresholds and effective degrees of freedom (region95())
-    model_error_mm: float = 0.0   # random-effect line offset per URDF axis line (0: chi2 <= dof)
+    model_error_mm: float = 0.0   # model-error line offset per URDF axis line (0: no misfit, none declared)
 
     @staticmethod
     def _stds(C):
@@ -123,7 +123,8 @@ def region95(parts, nus, level: float = 0.95, draws: int = REGION_DRAWS) -> dict
     rng = np.random.default_rng(20260528)
     u = np.ones((draws, len(parts)))
     if fin.any():
-        u[:, fin] = rng.chisquare(np.maximum(nu_arr[fin], 1e-3), (draws, int(fin.sum()))) / np.maximum(nu_arr[fin], 1e-3)
+        nu_f = np.maximum(nu_arr[fin], 1e-3)
+        u[:, fin] = rng.chisquare(nu_f, (draws, int(fin.sum()))) / nu_f
     z = rng.standard_normal((draws, 6))
     out = {"level": level}
     for name, idx in (("origin", slice(3, 6)), ("rotation", slice(0, 3)), ("pose", slice(0, 6))):

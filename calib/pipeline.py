@@ -378,7 +378,8 @@ def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
         sw = next(s for s in sweeps if s.joint == flip[0])
         which = " and ".join(f"qm_{j}" for j in flip)
         ratio = angle_ratio(sw, fits[joints.index(sw.joint)])
-        raise InputError(f"calibration sweep of joint {sw.joint}: the logged {which} turn{'s' if len(flip) == 1 else ''} "
+        verb = "turns" if len(flip) == 1 else "turn"
+        raise InputError(f"calibration sweep of joint {sw.joint}: the logged {which} {verb} "
                          f"opposite to the markers (measured ratio markers/encoder {-ratio:.4f}): with the "
                          f"sign as logged the markers sit {here:.3f} m from their links' origins, {there:.3f} m "
                          "with it flipped (sign flipped in the log or in [robot] coupling?)", path=sw.log_path)
