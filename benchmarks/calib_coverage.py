@@ -21,7 +21,7 @@ estimator is used to make them. The campaign is then calibrated with ``calib.pip
 * cells: ``NxM-exact`` (N poses per joint, M reflectors, the URDF exact), ``NxM-mismatch`` (the
   real J1-J2 offset 0-1 mm off the URDF's, default settings: only the misfit the data show is
   added as model error), ``NxM-declared`` (the same robots, the user declares the URDF's
-  tolerance with ``--urdf-tol-mm 0.577``, the RMS of the offsets drawn).
+  tolerance with ``--urdf-tol-mm 0.289``, the RMS of the offsets drawn per line and direction).
 * at 3 poses: the reported per-axis standard deviation (RMS over runs) against the empirical
   spread of the error on that axis (origin x, y, z; rotation x, y, z); goal: within 1.5x.
 
@@ -55,9 +55,10 @@ PA10 = REPO / "fixtures" / "robots" / "pa10"
 
 #: 95 % quantiles of chi2 with 3 and 6 degrees of freedom (fallback when no region95 is reported)
 CHI2_95 = {3: 7.814727903251178, 6: 12.591587243743977}
-#: the URDF tolerance the user declares in the ``declared`` cells (``jointlab calib --urdf-tol-mm``):
-#: the RMS of the 0-1 mm offset drawn, 1/sqrt(3) mm
-URDF_TOL_MM = 1.0 / np.sqrt(3.0)
+#: the URDF tolerance the user declares in the ``declared`` cells (``jointlab calib --urdf-tol-mm``,
+#: a standard uncertainty per axis line and per direction across it): the 0-1 mm offset drawn has
+#: an RMS of 1/sqrt(3) mm and falls on one of the 2 lines x 2 directions, 1/sqrt(3)/2 mm each
+URDF_TOL_MM = 1.0 / np.sqrt(3.0) / 2.0
 #: line-of-sight noise over transverse noise of the simulated tracker
 LOS_RATIO = 0.5
 CELLS = [f"{n}x{m}-{w}" for w in ("exact", "mismatch") for m in (1, 3) for n in (4, 6, 8)] + \

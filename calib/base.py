@@ -281,6 +281,8 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
     # the declared URDF tolerance (type B, known) is the floor of the model error
     tau_b = float(urdf_tol_m) if use == "cov" else 0.0
     typeb = tau_b >= tau and tau_b > 0
+    if typeb:       # a declared length tolerance shifts the lines; it does not tilt them
+        S = np.diag([0.0, 0.0, 1.0, 1.0])
     tau = max(tau, tau_b)
     if tau > 0:
         T, cov, r, sol, cond, A, Ls = solve([C + tau ** 2 * S for C in covs])
