@@ -17,7 +17,8 @@ estimator is used to make them. The campaign is then calibrated with ``calib.pip
 * coverage: the true ``T_camera_base`` inside the reported 95 % region - origin (3-D), rotation
   (3-D) and the 6-D pose - using the reported covariance ``base_solve.cov_rotvec_origin`` and
   the reported region thresholds ``region95`` (Mahalanobis squared distances; chi2 quantiles
-  when a result does not report them). Goal: 90-98 % in every cell.
+  when a result does not report them). Goal: 90-98 % in every ``exact`` and ``mismatch`` cell,
+  at least 90 % in the ``declared`` cells (a declared tolerance is a conservative type-B bound).
 * cells: ``NxM-exact`` (N poses per joint, M reflectors, the URDF exact), ``NxM-mismatch`` (the
   real J1-J2 offset 0-1 mm off the URDF's, default settings: only the misfit the data show is
   added as model error), ``NxM-declared`` (the same robots, the user declares the URDF's
@@ -29,8 +30,8 @@ The truth is the real robot's base frame (where the URDF's J1-J2 geometry is off
 the URDF's axis lines cannot know which of the two is wrong: the reported region must cover
 that too).
 
-    python benchmarks/calib_coverage.py            # 200 runs per cell (about an hour on one core)
-    python benchmarks/calib_coverage.py --quick    # 40 runs per cell, a few minutes
+    python benchmarks/calib_coverage.py            # 200 runs per cell (~5 min on one free core)
+    python benchmarks/calib_coverage.py --quick    # 40 runs per cell, about a minute
     python benchmarks/calib_coverage.py --runs 300 --cells 6x1-exact,3x3-mismatch
 """
 from __future__ import annotations
@@ -257,26 +258,34 @@ def main(argv=None) -> int:
     print("cell            runs refused  origin rotation   pose | reported/empirical std: "
           "rot x,y,z  origin x,y,z | rms err mm  deg   s")
     t_all = time.time()
-    fails = []
+    fails = {"exact": [], "mismatch": [], "declared": []}
     with tempfile.TemporaryDirectory() as td:
         for ci, cell in enumerate(cells):
             t0 = time.time()
+            kind = cell.split("-")[1]
             rows = [run_one(cell, 100000 * (ci + 1) + args.seed * 10007 + s, Path(td)) for s in range(runs)]
             s = summarise(cell, rows)
             if "origin" not in s:
                 print(f"{cell:15s} {s['runs']:4d} {s['refused']:7d}  (all refused)")
-                fails.append(cell)
+                fails[kind].append(cell)
                 continue
             ratio = " ".join(f"{x:4.2f}" for x in s["std_ratio"])
             print(f"{cell:15s} {s['runs']:4d} {s['refused']:7d} {s['origin']:6.1f}% {s['rotation']:7.1f}% "
                   f"{s['pose']:5.1f}% | {ratio} | {s['origin_err_mm']:9.4f} {s['rot_err_deg']:.5f} "
                   f"{time.time() - t0:4.0f}", flush=True)
-            cov_ok = all(90.0 <= s[k] <= 98.0 for k in ("origin", "rotation", "pose"))
-            std_ok = not cell.startswith("3x") or all(1 / 1.5 <= x <= 1.5 for x in s["std_ratio"])
+            cov = [s[k] for k in ("origin", "rotation", "pose")]
+            # declared tolerances are type-B bounds: judged as conservative (>= 90 %) only
+            cov_ok = all(90.0 <= c <= (100.0 if kind == "declared" else 98.0) for c in cov)
+            std_ok = not cell.startswith("3x") or kind == "declared" or \
+                all(1 / 1.5 <= x <= 1.5 for x in s["std_ratio"])
             if not (cov_ok and std_ok and s["refused"] == 0):
-                fails.append(cell)
-    print(f"goal: 95 % coverage within 90-98 % (origin, rotation, pose) in every cell, no refusal; "
-          f"at 3 poses per-axis std within 1.5x of the spread: {'PASS' if not fails else 'FAIL ' + ', '.join(fails)}")
+                fails[kind].append(cell)
+    for kind, what in (("exact", "URDF exact: coverage 90-98 % (origin, rotation, pose), at 3 poses std within "
+                                 "1.5x of the spread"),
+                       ("mismatch", "J1-J2 offset 0-1 mm off the URDF, default settings: coverage 90-98 %"),
+                       ("declared", "the same with --urdf-tol-mm declared: coverage >= 90 % (conservative)")):
+        if any(c.endswith("-" + kind) for c in cells):
+            print(f"goal: {what}: {'PASS' if not fails[kind] else 'FAIL ' + ', '.join(fails[kind])}")
     print(f"total {time.time() - t_all:.0f} s")
     return 0
 
