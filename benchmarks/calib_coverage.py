@@ -215,7 +215,7 @@ def run_one(cell: str, seed: int, tmp: Path) -> dict:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)      # a leaking numpy warning fails the run
-            res = calibrate(load_campaign(root), urdf_tol_mm=URDF_TOL_MM if kind == "declared" else 0.0)
+            res = calibrate(load_campaign(root), **({"urdf_tol_mm": URDF_TOL_MM} if kind == "declared" else {}))
         doc = json.loads(json.dumps(res.to_dict()))
     except InputError as exc:
         return {"refused": str(exc)}
