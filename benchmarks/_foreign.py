@@ -228,11 +228,14 @@ def _moving_span(q_ref: np.ndarray) -> slice:
 
 
 def truth_reference(campaign: Path, joint: int | None = None, trial_ids=None,
-                    truth_stem: Path | None = None) -> TruthReference:
+                    truth_stem: Path | None = None, rigid_free: bool = False) -> TruthReference:
     """The reference for `campaign` (its truth files lie beside it, or at ``truth_stem`` +
     ``.truth.json/.npz``) on `joint` (default: the first moving joint), over ``trial_ids`` (default:
     every trial of the joint). With one trial the fit is not held out (leave-one-trial-out needs
-    two): it is the in-sample reduction, which the true structure's one gain barely inflates."""
+    two): it is the in-sample reduction, which the true structure's one gain barely inflates.
+    ``rigid_free``: both models also get free rigid-body corrections ``[qdd, sin q, cos q]`` of the
+    link (what any estimator must fit when the URDF's inertial parameters are not exact): a torque
+    gain on a record with one payload is then, rightly, not showable."""
     campaign = Path(campaign)
     stem = Path(truth_stem) if truth_stem is not None else campaign
     truth = json.loads(stem.with_name(stem.name + ".truth.json").read_text())
@@ -258,7 +261,11 @@ def truth_reference(campaign: Path, joint: int | None = None, trial_ids=None,
         cmd, applied = npz[f"{tid}/tau_cmd"][s, c], npz[f"{tid}/tau_applied"][s]
         n = npz[f"{tid}/tau_noise"][s, c]
         rigid = applied - fr
-        X.append(np.column_stack([np.tanh(qd / eps), qd]))
+        cols = [np.tanh(qd / eps), qd]
+        if rigid_free:
+            ql_, qdl_ = npz[f"{tid}/q_link"][s, c], npz[f"{tid}/qd_link"][s]
+            cols += [np.gradient(qdl_, npz[f"{tid}/time"][s]), np.sin(ql_), np.cos(ql_)]
+        X.append(np.column_stack(cols))
         y.append(cmd + n - rigid)
         e.append(fr - fr_nom + cmd - applied)
         noise.append(n)

@@ -34,6 +34,10 @@ DEFAULT_NOISE_MM = 0.85
 MIN_POSES = 3
 #: iteration cap of the refinements (a tracker's few poses can need ~60 Gauss-Newton steps)
 MAX_ITER = 500
+#: fewest frames per marker for data-driven weights (Huber IRLS, per-marker noise weights): with
+#: fewer (stop-and-go poses) a residual scale or a marker's own variance rests on a handful of
+#: residuals, and weights built from it make the covariance overconfident; plain least squares then
+WEIGHTS_MIN_FRAMES = 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,6 +69,7 @@ class AxisFit:
     method: str
     joint: int | None = None
     extra: dict = field(default_factory=dict)
+    dof: float = float("inf")    # degrees of freedom of the noise estimate behind ``cov`` (inf: noise given)
 
     def with_joint(self, joint: int, flip: bool = False) -> "AxisFit":
         """A copy labelled with its joint; ``flip`` reverses the direction (same line)."""
@@ -75,7 +80,7 @@ class AxisFit:
         return AxisFit(self.point, d, basis, cov, crb, self.rms_mm, self.sigma_mm,
                        self.marker_rms_mm, self.marker_radius_m, self.sweep_deg, self.n_frames,
                        self.n_observations, self.n_outliers, self.iterations, self.converged,
-                       self.cond, self.method, joint, dict(self.extra))
+                       self.cond, self.method, joint, dict(self.extra), self.dof)
 
     @property
     def direction_std_deg(self) -> float:
@@ -109,6 +114,7 @@ class AxisFit:
             "iterations": self.iterations,
             "converged": self.converged,
             "cond": float(self.cond),
+            "dof": float(self.dof) if np.isfinite(self.dof) else None,
             **self.extra,
         }
 
@@ -375,9 +381,10 @@ class ClusterAxisEstimator:
         P, labels, vis = _prepare(positions, labels, self.min_frames, 3)
         model = _RigidSweep(P, vis)
         a, n, theta, s, ref = model.init(P, vis)
+        many = int(vis.sum(axis=0).min()) >= WEIGHTS_MIN_FRAMES
         a, n, theta, s, r, w_rob, w_mk, it, conv, (Jg, Jt, u, v) = model.solve(
-            a, n, theta, s, ref, robust=self.robust, huber_k=self.huber_k,
-            marker_weights=self.marker_weights, max_iter=self.max_iter)
+            a, n, theta, s, ref, robust=self.robust and many, huber_k=self.huber_k,
+            marker_weights=self.marker_weights and many, max_iter=self.max_iter)
         w = w_rob * w_mk[model.k_idx]
         K = len(model.t_idx)
         dof = max(3 * K - (model.G + int(np.sum(np.bincount(model.t_idx, minlength=model.T) > 0)) - 1), 1)
@@ -400,7 +407,8 @@ class ClusterAxisEstimator:
                        n_frames=int(used.sum()), n_observations=K, n_outliers=outl,
                        iterations=it, converged=conv, cond=float(np.linalg.cond(info)),
                        method=self.method,
-                       extra={"marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}})
+                       extra={"marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}},
+                       dof=float(dof))
 
 
 # ---------------------------------------------------------------------------------------
@@ -498,6 +506,7 @@ class CircleAxisEstimator:
         w_mk = np.ones(M)
         it, conv = 0, False
         iters = self.max_iter if self.refine else 1
+        many = int(vis.sum(axis=0).min()) >= WEIGHTS_MIN_FRAMES
         for it in range(1, iters + 1):
             a = a + ((c - a) @ n) * n
             u, v = perp_basis(n)
@@ -505,9 +514,9 @@ class CircleAxisEstimator:
             if not self.refine:
                 break
             rn = np.linalg.norm(r, axis=1)
-            if self.robust and it > 1:
+            if self.robust and many and it > 1:
                 w_rob = _huber_weights(rn, _robust_scale(rn, 2), self.huber_k)
-            if it > 2:
+            if many and it > 2:
                 ss = np.bincount(k_idx, weights=w_rob * rn ** 2, minlength=M)
                 cnt = np.bincount(k_idx, weights=w_rob, minlength=M)
                 var = ss / np.maximum(2 * cnt, 1e-12)
@@ -529,10 +538,11 @@ class CircleAxisEstimator:
         w = w_rob * w_mk[k_idx]
         H = np.einsum("k,kig,kih->gh", w, J, J)
         dof = 2 * len(k_idx) - (4 + 2 * M)
+        nu = float(dof)
         if dof >= 1:
             sig2 = float(np.sum(w * np.sum(r ** 2, axis=1)) / dof)
         elif self.noise_mm is not None:
-            sig2 = (self.noise_mm * 1e-3) ** 2 / 3.0
+            sig2, nu = (self.noise_mm * 1e-3) ** 2 / 3.0, float("inf")
         else:
             raise InputError(f"{len(k_idx)} observations of {M} marker(s) leave no residual to estimate "
                              "the noise from: give the noise (--noise-mm) or add poses")
@@ -566,7 +576,8 @@ class CircleAxisEstimator:
                        iterations=it, converged=conv or not self.refine,
                        cond=float(np.linalg.cond(H[:4, :4])), method=self.method,
                        extra={"bcls_radius_m": {lb: c[2] for lb, c in zip(labels, circles)},
-                              "marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}})
+                              "marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}},
+                       dof=nu)
 
     @staticmethod
     def _residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c):

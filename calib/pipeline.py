@@ -8,6 +8,7 @@ the encoder angles held during each sweep (:func:`calib.base.place_base`).
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -104,6 +105,7 @@ class CalibResult:
             "origin_std_mm": self.origin_std_mm,
             "rotation_std_deg": self.rotation_std_deg,
             "origin_cov_mm2": (1e6 * self.base.cov[3:, 3:]).tolist(),
+            "region95": self.base.region95,
             "warnings": list(self.warnings),
             "crb": {"origin_std_mm": b["crb_origin_std_mm"], "rotation_std_deg": b["crb_rotation_std_deg"],
                     "noise_mm": self.noise_used_mm,
@@ -167,7 +169,8 @@ def prepare_sweep(joint: int, rec, log, chain, markers: dict, min_sweep_deg: flo
     if others:
         desc = ", ".join(f"joint {j} {rng[j - 1]:.1f} deg" for j in [joint] + others)
         raise InputError(f"calibration sweep of joint {joint}: more than one joint moves ({desc}); "
-                         f"a sweep must move joint {joint} alone with the others held", path=lpath)
+                         f"a sweep must move joint {joint} alone with the others held (a joint logged relative to "
+                         "another, e.g. J3 on J2, needs [robot] coupling in campaign.toml)", path=lpath)
     if rng[joint - 1] < min_sweep_deg:
         raise InputError(f"calibration sweep of joint {joint} covers only {rng[joint - 1]:.1f} deg; "
                          f"the axis fit needs at least {min_sweep_deg:g} deg", path=lpath)
@@ -213,8 +216,12 @@ def load_sweeps(campaign, robot, min_sweep_deg: float = 15.0, joints=(1, 2)) -> 
     out = []
     for j in joints:
         c = found[j]
-        rec = campaign.read_markers(c, robot)
-        log = campaign.read_log(c, robot)
+        with warnings.catch_warnings():
+            # a reflector missing from a whole sweep is reported by the marker check below; numpy's
+            # nan-reductions over its empty column must not leak "All-NaN slice" warnings
+            warnings.filterwarnings("ignore", message="All-NaN slice", category=RuntimeWarning)
+            rec = campaign.read_markers(c, robot)
+            log = campaign.read_log(c, robot)
         out.append(prepare_sweep(j, rec, log, robot.chain, campaign.markers, min_sweep_deg))
     return out
 
@@ -255,15 +262,152 @@ def fit_axes(sweeps, method: str = "auto", noise_mm: float | None = None, frame_
     return fits
 
 
+#: largest relative difference between the rotation the markers show and the logged swept angle
+SCALE_TOL = 0.015
+#: a URDF is implausible for the markers when a marker link's origin lies further than this
+#: factor times the markers' radius (plus URDF_SLACK_M) from the swept axis
+URDF_SCALE_FACTOR = 10.0
+URDF_SLACK_M = 1.0
+
+
+def angle_ratio(sw: SweepData, fit: AxisFit) -> float:
+    """The markers' rotation about the fitted axis per unit of logged angle: the least-squares
+    slope of each marker's angle on the swept joint's logged angle, pooled over the markers with
+    weights ``radius^2`` (1 when the log's scale is right; the axis is oriented with the log)."""
+    th = marker_angles(sw.positions, fit.point, fit.direction)              # (T, M)
+    d = sw.positions - fit.point
+    rad = np.linalg.norm(d - (d @ fit.direction)[..., None] * fit.direction, axis=2)
+    num = den = 0.0
+    for k in range(th.shape[1]):  # loop over markers (few)
+        ok = np.isfinite(th[:, k]) & np.isfinite(sw.q_joint)
+        if ok.sum() < 2:
+            continue
+        a, b = th[ok, k] - th[ok, k].mean(), sw.q_joint[ok] - sw.q_joint[ok].mean()
+        w = float(np.median(rad[ok, k])) ** 2
+        num += w * float(a @ b)
+        den += w * float(b @ b)
+    return num / den if den > 0 else float("nan")
+
+
+def check_angle_scale(sweeps, fits, tol: float = SCALE_TOL) -> None:
+    """Refuse a sweep whose logged angle does not turn as the markers do (scale off by > ``tol``)."""
+    for sw, f in zip(sweeps, fits):
+        k = angle_ratio(sw, f)
+        if np.isfinite(k) and abs(k - 1.0) > tol:
+            enc = float(np.nanmax(sw.q_joint) - np.nanmin(sw.q_joint))
+            raise InputError(f"calibration sweep of joint {sw.joint}: the markers turn {np.degrees(k * enc):.2f} deg "
+                             f"while the logged angle qm_{sw.joint} sweeps {np.degrees(enc):.2f} deg (measured "
+                             f"ratio markers/encoder {k:.4f}, {100 * (k - 1):+.1f} %): the log's angle scale is "
+                             "off (gear ratio, [robot] coupling or units)", path=sw.log_path)
+
+
+def check_urdf_scale(sweeps, fits, chain, urdf_path=None) -> None:
+    """Refuse a URDF whose lengths cannot hold the marker cloud: a marker link's origin far
+    further from the swept axis than its markers turn (units suspected, e.g. a URDF in mm)."""
+    for sw, f in zip(sweeps, fits):
+        p, d = chain.joint_axis_lines(sw.q_held)
+        p, d = p[sw.joint - 1], d[sw.joint - 1]
+        radii = list(f.marker_radius_m.values())
+        if not radii:
+            continue
+        r_m = float(np.median(radii))
+        for lk in sw.links:
+            o = chain.frame_transform(lk, sw.q_held)[:3, 3]
+            v = o - p
+            d_u = float(np.linalg.norm(v - (v @ d) * d))
+            if d_u > URDF_SCALE_FACTOR * r_m + URDF_SLACK_M:
+                raise InputError(f"calibration sweep of joint {sw.joint}: the URDF puts {lk}'s origin "
+                                 f"{d_u:.4g} m from joint {sw.joint}'s axis while its markers turn at "
+                                 f"{r_m:.4g} m (ratio {d_u / max(r_m, 1e-9):.3g}): the URDF's lengths do not "
+                                 "fit the marker cloud (units suspected: a URDF in millimetres?)",
+                                 path=urdf_path if urdf_path is not None else sw.markers_path)
+
+
+def marker_offset_m(sweeps, chain, T_camera_base, flip=()) -> float:
+    """Median distance of the markers from their link's origin (link frame, averaged over the
+    poses) when the base is ``T_camera_base`` and the logged angles of the joints in ``flip``
+    are mirrored about their held value (the sign-flip hypothesis)."""
+    Tinv = np.linalg.inv(T_camera_base)
+    out = []
+    for sw in sweeps:
+        if sw.q_frames is None:
+            continue
+        q = sw.q_frames.copy()
+        for j in flip:
+            q[:, j - 1] = 2 * sw.q_held[j - 1] - q[:, j - 1]
+        ok = np.all(np.isfinite(q), axis=1)
+        if ok.sum() < 1:
+            continue
+        xb = sw.positions[ok] @ Tinv[:3, :3].T + Tinv[:3, 3]                # (T, M, 3) base frame
+        for lk in sw.links:
+            Tl = chain.frame_transform(lk, q[ok])                            # (T, 4, 4)
+            s = np.einsum("tji,tmj->tmi", Tl[:, :3, :3], xb - Tl[:, None, :3, 3])
+            seen = np.all(np.isfinite(s), axis=2)                            # (T, M)
+            for k in np.flatnonzero(seen.any(axis=0)):  # loop over markers (few)
+                out.append(float(np.linalg.norm(np.median(s[seen[:, k], k], axis=0))))
+    out = np.asarray(out, float)
+    out = out[np.isfinite(out)]
+    return float(np.median(out)) if out.size else float("nan")
+
+
+def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
+    """Refuse a log whose swept angle turns the wrong way: with the sign of a joint's logged angle
+    flipped the base turns 180 deg and the axis lines fit as well, but the markers end up far
+    from the links they sit on. A sweep is refused when mirroring its logged angle puts the
+    markers less than half as far from their links' origins (and at least 5 cm closer)."""
+    if any(sw.q_frames is None for sw in sweeps):
+        return
+    with np.errstate(all="ignore"):
+        here = marker_offset_m(sweeps, chain, base.T_camera_base)
+        if not np.isfinite(here):
+            return
+        joints = [sw.joint for sw in sweeps]
+        hyps = [(j,) for j in joints] + ([tuple(joints)] if len(joints) > 1 else [])
+        best = None
+        for flip in hyps:
+            alt_fits = [f.with_joint(f.joint, flip=f.joint in flip) for f in fits]
+            try:
+                alt = place_base(alt_fits, lines, with_region=False)
+            except InputError:
+                continue
+            there = marker_offset_m(sweeps, chain, alt.T_camera_base, flip)
+            if np.isfinite(there) and (best is None or there < best[1]):
+                best = (flip, there)
+    if best is not None and best[1] < 0.5 * here and here - best[1] > 0.05:
+        flip, there = best
+        sw = next(s for s in sweeps if s.joint == flip[0])
+        which = " and ".join(f"qm_{j}" for j in flip)
+        ratio = angle_ratio(sw, fits[joints.index(sw.joint)])
+        verb = "turns" if len(flip) == 1 else "turn"
+        raise InputError(f"calibration sweep of joint {sw.joint}: the logged {which} {verb} "
+                         f"opposite to the markers (measured ratio markers/encoder {-ratio:.4f}): with the "
+                         f"sign as logged the markers sit {here:.3f} m from their links' origins, {there:.3f} m "
+                         "with it flipped (sign flipped in the log or in [robot] coupling?)", path=sw.log_path)
+
+
 def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None = None,
-                     frame_step: int = 1, **options) -> CalibResult:
-    """Axes from prepared sweeps, then the base from the URDF axis lines (no file I/O)."""
+                     frame_step: int = 1, urdf_path=None, checks: bool = True, urdf_tol_mm: float = 0.0,
+                     **options) -> CalibResult:
+    """Axes from prepared sweeps, then the base from the URDF axis lines (no file I/O).
+
+    ``checks`` runs the boundary checks that refuse silent mistakes (exit 2): the logged swept
+    angle against the markers' rotation (:func:`check_angle_scale`), the URDF's lengths against
+    the marker cloud (:func:`check_urdf_scale`) and the sign of the logged angles
+    (:func:`check_angle_sign`). ``urdf_tol_mm`` is the standard uncertainty of the URDF's axis
+    placement (see :func:`calib.base.place_base`)."""
+    if not (np.isfinite(urdf_tol_mm) and urdf_tol_mm >= 0):
+        raise InputError(f"--urdf-tol-mm must be a finite length >= 0 (mm), got {urdf_tol_mm}")
     fits = fit_axes(sweeps, method, noise_mm, frame_step, **options)
+    if checks:
+        check_urdf_scale(sweeps, fits, chain, urdf_path)
+        check_angle_scale(sweeps, fits)
     lines = []
     for sw in sweeps:
         p, d = chain.joint_axis_lines(sw.q_held)
         lines.append((p[sw.joint - 1], d[sw.joint - 1]))
-    base = place_base(fits, lines)
+    base = place_base(fits, lines, urdf_tol_m=1e-3 * urdf_tol_mm)
+    if checks:
+        check_angle_sign(sweeps, fits, chain, lines, base)
     return CalibResult(base.T_camera_base, tuple(fits), base, method, noise_mm, tuple(sweeps))
 
 
@@ -286,7 +430,7 @@ def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
 
 def calibrate(campaign, robot=None, method: str = "auto", sink=None,
               noise_mm: float | None = None, min_sweep_deg: float = 15.0, joints=(1, 2),
-              cross_check: bool = False, **options) -> CalibResult:
+              cross_check: bool = False, urdf_tol_mm: float = 0.0, **options) -> CalibResult:
     """Calibrate ``T_camera_base`` for a loaded campaign (:func:`mocap.io.campaign.load_campaign`).
 
     ``method`` is ``"cluster"`` (rigid-cluster screw axis + ML refinement), ``"circle"``
@@ -299,7 +443,8 @@ def calibrate(campaign, robot=None, method: str = "auto", sink=None,
     if robot is None:
         robot = campaign.load_robot()
     sweeps = load_sweeps(campaign, robot, min_sweep_deg, joints)
-    result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm, **options)
+    result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm,
+                              urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
     if cross_check:
         from calib.base import pose_errors
 
@@ -335,7 +480,9 @@ def log_calibration(sink, result: CalibResult, prefix: str = "calib") -> None:
     sink.text(f"{prefix}/summary", summary_markdown(result))
 
 
-def summary_markdown(result: CalibResult) -> str:
+def summary_markdown(result: CalibResult, warnings: bool = True) -> str:
+    """The calibration's summary (markdown); ``warnings`` appends the warnings (the command line
+    prints them once, on stderr, and passes False)."""
     b = result.base
     T = result.T_camera_base
     noise = (f"{result.noise_used_mm:.4f} mm (given)" if result.noise_mm is not None
@@ -351,14 +498,23 @@ def summary_markdown(result: CalibResult) -> str:
               f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |", "",
               f"marker noise {noise}; base solve {chi}, "
               f"{'converged' if b.converged else 'NOT converged'} in {b.iterations} evaluations"
-              + (f"; std inflated x{b.inflation:.2f}" if b.inflation > 1 else ""), "",
-              "| joint | method | rms (mm) | sweep (deg) | markers | frames | point std (mm) | dir std (deg) | iterations |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              + (f"; model error {b.model_error_mm:.3f} mm per axis line, std x{b.inflation:.2f}"
+                 if b.model_error_mm > 0 else ""), ""]
+    reg = b.region95 or {}
+    if reg:
+        dof = {k: reg.get(f"{k}_dof") for k in ("origin", "rotation", "pose")}
+        lines += [f"95 % region: Mahalanobis^2 of the origin <= {reg['origin_d2']:.2f}, rotation <= "
+                  f"{reg['rotation_d2']:.2f}, 6-D pose <= {reg['pose_d2']:.2f} (effective dof "
+                  + ", ".join("inf" if v is None else f"{v:.1f}" for v in dof.values())
+                  + f"); one coordinate: +-{reg['origin_k95']:.2f} std", ""]
+    lines += ["| joint | method | rms (mm) | sweep (deg) | markers | frames | point std (mm) | dir std (deg) "
+              "| iterations |", "|---|---|---|---|---|---|---|---|---|"]
     for f in result.axes:
         lines.append(f"| {f.joint} | {f.method} | {f.rms_mm:.3f} | {f.sweep_deg:.1f} | {len(f.marker_rms_mm)} | "
                      f"{f.n_frames} | {f.point_std_mm:.4f} | {f.direction_std_deg:.5f} | "
                      f"{f.iterations}{'' if f.converged else ' (NOT converged)'} |")
     lines += ["", f"measured axes {b.axis_distance_mm:.3f} mm apart at {b.axis_angle_deg:.3f} deg; "
               f"URDF {b.urdf_axis_distance_mm:.3f} mm at {b.urdf_axis_angle_deg:.3f} deg"]
-    lines += [f"\nwarning: {w}" for w in result.warnings]
+    if warnings:
+        lines += [f"\nwarning: {w}" for w in result.warnings]
     return "\n".join(lines)

@@ -134,7 +134,7 @@ def test_without_the_coupling_two_joints_move(pa10_dir, tmp_path, capsys):
     toml.write_text("\n".join(ln for ln in toml.read_text().splitlines() if not ln.startswith("coupling")))
     assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert "joint-2.csv" in err and "more than one joint moves" in err
+    assert "joint-2.csv" in err and "more than one joint moves" in err and "[robot] coupling" in err
 
 
 def test_a_j1_j2_offset_missing_from_the_urdf_is_flagged(pa10_dir, tmp_path, capsys):
@@ -146,7 +146,8 @@ def test_a_j1_j2_offset_missing_from_the_urdf_is_flagged(pa10_dir, tmp_path, cap
     out = tmp_path / "out"
     assert main(["calib", str(tmp_path / "camp"), "--out", str(out)]) == 0
     cap = capsys.readouterr()
-    assert "warning: the measured axes do not fit the URDF" in cap.out
+    assert "the measured axes do not fit the URDF" not in cap.out        # warnings once, on stderr
+    assert cap.err.count("warning: the measured axes do not fit the URDF") == 1
     assert "J1-J2 offset measured 0.5" in cap.err and "URDF 0.000 mm" in cap.err
     doc = json.loads((out / "calib.json").read_text())
     assert doc["base_solve"]["std_inflation"] > 2
