@@ -395,6 +395,8 @@ def coupled_motor_columns(joint: int, qd: np.ndarray, qdd: np.ndarray, coupling:
 #: most held-out folds of a continuous record: beyond this many motion cycles, the folds are
 #: this many groups of consecutive whole cycles (the test's blocks stay the cycles)
 MAX_RECORD_FOLDS = 20
+#: most samples per joint of a continuous record that the diagnosis keeps (evenly thinned beyond)
+MAX_RECORD_SAMPLES = 40000
 
 
 def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
@@ -424,6 +426,12 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     grav = robot.gravity_torque(q)[:, j0]
     y = tau[:, j0] - arm * qdd[:, j0]
     keep = ~standstill(t, qd[:, j0]) & (np.abs(qd[:, j0]) >= v_zero)
+    if keep.sum() > MAX_RECORD_SAMPLES:
+        # an hour-long record: every k-th kept sample (the test's power is far beyond its need;
+        # the cost of every candidate's Gram matrices grows with the samples)
+        idx = np.flatnonzero(keep)
+        keep = np.zeros_like(keep)
+        keep[idx[::int(np.ceil(idx.size / MAX_RECORD_SAMPLES))]] = True
     seg = np.zeros(t.shape[0], int)
     if keep.any():
         cyc = motion_cycles(qd[keep, j0], v_zero)
