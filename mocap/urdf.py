@@ -44,6 +44,16 @@ def _parse(urdf: Path) -> ET.ElementTree:
     return tree
 
 
+def check_urdf_limits(robot, urdf) -> None:
+    """Refuse a revolute joint whose URDF ``<limit lower upper>`` is inverted (lower > upper)."""
+    lo, hi = np.asarray(robot.lower, float), np.asarray(robot.upper, float)
+    bad = np.flatnonzero(lo > hi)
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"joint {robot.joint_names[k]!r} has limit lower={lo[k]:g} above upper={hi[k]:g}",
+                         path=urdf, label=robot.joint_names[k])
+
+
 def _floats(elem, attr: str, n: int, default: float, urdf: Path, what: str) -> np.ndarray:
     if elem is None or elem.get(attr) is None:
         return np.full(n, float(default))

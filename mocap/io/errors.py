@@ -12,6 +12,7 @@ from pathlib import Path
 
 #: characters no text input holds: C0 controls but tab, newline and carriage return, and DEL
 _CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+_BREAKS = re.compile(r"[ \t]*[\r\n\x85\u2028\u2029]+[ \t]*")
 
 
 class InputError(ValueError):
@@ -30,7 +31,14 @@ class InputError(ValueError):
             where += ": "
         if label is not None and label not in message:
             message = f"{message} (marker/key {label!r})"
-        super().__init__(where + message)
+        super().__init__(one_line(where + message))
+
+
+def one_line(text: str) -> str:
+    """``text`` on one line: line breaks (a library's multi-line message, a name holding a
+    newline) become `` | ``, other control characters their escapes."""
+    text = _BREAKS.sub(" | ", str(text).strip())
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
 class InputWarning(UserWarning):

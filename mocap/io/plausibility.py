@@ -1,0 +1,381 @@
+"""Plausibility of inputs that parse but are wrong (issue 29): checks run on what the readers
+return, before any estimate is computed, so that a unit or a column swap cannot pass silently.
+
+Every check refuses with one :class:`~mocap.io.errors.InputError` line naming the file (or the
+option) and the measured ratio. The thresholds are orders of magnitude (a unit off by 1000, a
+swap), never a tuning of what a real recording may look like: a 5 kHz industrial log, a 100 Hz
+service-robot log and stop-and-go recordings all pass.
+
+* robot logs (:func:`check_log`): one row; all rows identical; a moving joint that never moves;
+  time in milliseconds (the sampling interval against a controller's, the joint's peak speed
+  against ``vmax_frac`` times ``max_velocity``); torque in mN m (its 99th percentile against
+  ``max_torque`` and against the URDF's gravity torque); ``qm_j``/``tau_j`` swapped (an angle
+  column that moves faster than the drive and is rougher than the torque column); a coast-down
+  trial whose drive torque never cuts.
+* drives against the URDF (:func:`check_drives_order`): drive names that are the URDF's joint
+  names in another order.
+* marker files against their log and the static poses (:func:`check_marker_timing`,
+  :func:`check_marker_shapes`): a marker file whose time span disagrees with its log (a changed
+  rate); links whose marker distances do not match the static recording (markers collapsed, a
+  unit declared wrong).
+* ``calib.json`` (:func:`check_calib_json`) and option-driven allocations
+  (:func:`check_allocation`).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from mocap.io.errors import InputError, read_text
+
+#: a controller logs at 1 Hz or faster while a joint moves (a trial log): a median step above
+#: this is a clock in another unit
+MAX_TRIAL_STEP_S = 1.0
+#: unit factors are 1000 (ms, mN m): a ratio beyond this is a unit, not a recording
+UNIT_RATIO = 30.0
+
+
+def _p99(x) -> float:
+    x = np.abs(np.asarray(x, float))
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, 99)) if x.size else float("nan")
+
+
+def _fmt_ratio(r: float) -> str:
+    return f"{r:.3g}"
+
+
+def check_log(log, rec, robot=None, kind: str = "trial") -> None:
+    """Refuse a robot log that parses but cannot be what FORMAT.md says (module docstring).
+
+    ``rec`` is the manifest's recording (a Trial has ``joints``, ``vmax_frac``, ``kind``);
+    ``kind`` is ``trial``, ``calib`` or ``static``; ``robot`` gives the drive limits and the
+    gravity torque (optional: the checks that need it are skipped)."""
+    path = log.source
+    T = log.n_samples
+    joints = tuple(getattr(rec, "joints", ()) or ())
+    if kind == "trial" and T < 2:
+        raise InputError(f"the robot log has {T} sample row(s); a trial needs a recording over time",
+                         path=path)
+    if T < 2:
+        return
+    if kind == "trial":
+        X = np.column_stack([log.qm, log.tau])
+        same = (X == X[:1]) | (np.isnan(X) & np.isnan(X[:1]))
+        if same.all():
+            raise InputError(f"all {T} rows hold the same angles and torques: the trial records no "
+                             "motion (a stale or repeated sample?)", path=path)
+        _check_moving(log, joints, robot, path)
+        _check_time_unit(log, rec, joints, robot, path)
+        if robot is not None:
+            _check_swap(log, joints, robot, path)
+            _check_torque_unit(log, joints, robot, path)
+        if getattr(rec, "kind", "") == "coastdown":
+            _check_torque_cut(log, joints, path)
+
+
+def _check_moving(log, joints, robot, path) -> None:
+    for j in joints:
+        if j > log.qm.shape[1]:
+            continue
+        q = log.qm[:, j - 1]
+        q = q[np.isfinite(q)]
+        if q.size < 2:
+            continue
+        span = float(q.max() - q.min())
+        res = 0.0
+        if robot is not None and j <= len(robot.drives):
+            res = float(robot.drives[j - 1].encoder_resolution or 0.0)
+        if span <= max(2.0 * res, 1e-9):
+            raise InputError(f"joint {j} is listed as moving but qm_{j} never moves (range "
+                             f"{span:.3g} rad over {q.size} samples)", path=path, label=f"qm_{j}")
+
+
+def _check_time_unit(log, rec, joints, robot, path) -> None:
+    dt = np.diff(log.time)
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    if not dt.size:
+        return
+    step = float(np.median(dt))
+    if step > MAX_TRIAL_STEP_S:
+        raise InputError(f"the median sampling interval is {step:.4g} s ({1.0 / step:.3g} Hz) in a trial "
+                         "log: time in milliseconds suspected (FORMAT.md: seconds)", path=path,
+                         label="time")
+    if robot is None or step < 0.02:
+        return
+    vf = float(getattr(rec, "vmax_frac", 1.0) or 1.0)
+    for j in joints:
+        if j > log.qm.shape[1] or j > len(robot.drives):
+            continue
+        vmax = float(robot.drives[j - 1].max_velocity)
+        if not (np.isfinite(vmax) and vmax > 0):
+            continue
+        ok = np.isfinite(log.qm[:, j - 1])
+        t, q = log.time[ok], log.qm[ok, j - 1]
+        if t.size < 3:
+            continue
+        v = _p99(np.diff(q) / np.diff(t))
+        ratio = v / (vf * vmax)
+        if ratio < 1.0 / UNIT_RATIO ** 2:
+            raise InputError(f"joint {j} peaks at {v:.3g} rad/s, {_fmt_ratio(ratio)} times the declared "
+                             f"{vf:g} x max_velocity ({vmax:g} rad/s), with samples {step:.3g} s apart: "
+                             "time in milliseconds suspected (FORMAT.md: seconds)", path=path,
+                             label="time")
+
+
+def _roughness(x) -> float:
+    """Median absolute second difference over the signal's 1-99 % spread (dimensionless)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size < 5:
+        return float("nan")
+    spread = float(np.percentile(x, 99) - np.percentile(x, 1))
+    if spread <= 0:
+        return float("nan")
+    return float(np.median(np.abs(np.diff(x, 2)))) / spread
+
+
+def _check_swap(log, joints, robot, path) -> None:
+    for j in joints:
+        if j > log.qm.shape[1] or j > log.tau.shape[1] or j > len(robot.drives):
+            continue
+        vmax = float(robot.drives[j - 1].max_velocity)
+        if not (np.isfinite(vmax) and vmax > 0):
+            continue
+        ok = np.isfinite(log.qm[:, j - 1])
+        t, q = log.time[ok], log.qm[ok, j - 1]
+        if t.size < 5:
+            continue
+        dt = np.diff(t)
+        v = _p99(np.diff(q) / np.where(dt > 0, dt, np.nan))
+        rq, rt = _roughness(q), _roughness(log.tau[:, j - 1])
+        if v > 3.0 * vmax and np.isfinite(rq) and np.isfinite(rt) and rq > 3.0 * rt:
+            raise InputError(f"qm_{j} changes at {v:.3g} rad/s ({_fmt_ratio(v / vmax)} times max_velocity "
+                             f"{vmax:g} rad/s) and is {_fmt_ratio(rq / rt)} times rougher than tau_{j}: "
+                             f"qm_{j} and tau_{j} swapped?", path=path, label=f"qm_{j}")
+
+
+def _check_torque_unit(log, joints, robot, path) -> None:
+    n = min(log.tau.shape[1], len(robot.drives))
+    for j in joints:
+        if j > n:
+            continue
+        tmax = float(robot.drives[j - 1].max_torque)
+        peak = _p99(log.tau[:, j - 1])
+        if np.isfinite(tmax) and tmax > 0 and np.isfinite(peak) and peak > UNIT_RATIO * tmax:
+            raise InputError(f"tau_{j} reaches {peak:.4g} N m (99th percentile), {_fmt_ratio(peak / tmax)} "
+                             f"times the drive's max_torque {tmax:g} N m: torque in mN m suspected "
+                             "(FORMAT.md: N m)", path=path, label=f"tau_{j}")
+    # against the URDF's gravity torque, at up to 200 logged postures
+    if log.qm.shape[1] != robot.n:
+        return
+    ok = np.flatnonzero(np.isfinite(log.qm).all(axis=1))
+    if ok.size < 2:
+        return
+    pick = ok[np.linspace(0, ok.size - 1, min(200, ok.size)).astype(int)]
+    try:
+        G = np.atleast_2d(robot.gravity_torque(log.qm[pick]))
+    except Exception:   # a posture pinocchio cannot evaluate: no gravity evidence
+        return
+    for j in joints:
+        if j > n:
+            continue
+        g = float(np.median(np.abs(G[:, j - 1])))
+        tau = log.tau[pick, j - 1]
+        tau = tau[np.isfinite(tau)]
+        if not tau.size or g < 0.5:
+            continue
+        m = float(np.median(np.abs(tau)))
+        if m > UNIT_RATIO * 10.0 * g:
+            raise InputError(f"tau_{j} is {m:.4g} N m in the median, {_fmt_ratio(m / g)} times the URDF's "
+                             f"gravity torque ({g:.3g} N m) at the logged postures: torque in mN m "
+                             "suspected (FORMAT.md: N m)", path=path, label=f"tau_{j}")
+
+
+def _check_torque_cut(log, joints, path) -> None:
+    """FORMAT.md coastdown: the drive torque is cut and the joint coasts; the logged torque is ~0
+    from the cut on. Refused when no stretch of at least 0.2 s (and 10 samples) holds the torque
+    below 5 % of its 99th percentile."""
+    for j in joints:
+        if j > log.tau.shape[1]:
+            continue
+        tau = log.tau[:, j - 1]
+        ok = np.isfinite(tau)
+        t, tau = log.time[ok], tau[ok]
+        if tau.size < 10:
+            continue
+        thr = 0.05 * _p99(tau)
+        low = np.abs(tau) <= thr
+        # longest run of low torque, in samples and seconds
+        edges = np.diff(np.concatenate([[0], low.astype(np.int8), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        if starts.size:
+            lengths = ends - starts
+            dur = t[ends - 1] - t[starts]
+            if np.any((lengths >= 10) & (dur >= 0.2)):
+                continue
+        longest = float(np.max(t[ends - 1] - t[starts])) if starts.size else 0.0
+        raise InputError(f"coast-down trial: tau_{j} never drops to ~0 (|tau| <= {thr:.3g} N m for at most "
+                         f"{longest:.3g} s): the drive torque is never cut", path=path, label=f"tau_{j}")
+
+
+def check_drives_order(robot, drives_path) -> None:
+    """Drive tables hold one joint each in joint order (FORMAT.md): drive names that are the URDF's
+    revolute joint names in another order are refused (a name that is no URDF joint is allowed)."""
+    names = tuple(robot.joint_names)
+    got = tuple(d.name for d in robot.drives)
+    pos = {nm: k for k, nm in enumerate(names)}
+    for k, nm in enumerate(got):
+        if nm in pos and pos[nm] != k:
+            raise InputError(f"[[joint]] number {k + 1} is {nm!r}, which is URDF joint {pos[nm] + 1} "
+                             f"({names[k]!r} is joint {k + 1}): the tables are not in joint order",
+                             path=drives_path, label=nm)
+
+
+def check_drives_count(drives_path, n_urdf: int) -> None:
+    """One ``[[joint]]`` table per URDF revolute joint, named by the drives file."""
+    from mocap.robot import read_drives
+
+    dr = read_drives(drives_path)
+    if len(dr) != n_urdf:
+        raise InputError(f"drives describe {len(dr)} joints but the URDF has {n_urdf} revolute joints",
+                         path=drives_path)
+
+
+def check_marker_timing(markers, log) -> None:
+    """A marker file and the robot log of the same recording cover about the same time span
+    (FORMAT.md: they need not start or end together): a span ratio beyond 3 is a rate declared
+    wrong (a C3D whose point rate was changed, a TRC DataRate edited)."""
+    tm, tl = np.asarray(markers.time, float), np.asarray(log.time, float)
+    if tm.size < 10 or tl.size < 10:
+        return
+    sm, sl = float(tm[-1] - tm[0]), float(tl[-1] - tl[0])
+    if sm <= 0 or sl <= 0:
+        return
+    r = sm / sl
+    if r > 3.0 or r < 1.0 / 3.0:
+        raise InputError(f"the marker file spans {sm:.4g} s ({markers.rate_hz:g} Hz declared), its robot "
+                         f"log {log.source.name if log.source else 'log'} {sl:.4g} s (ratio "
+                         f"{_fmt_ratio(r)}): the marker rate is wrong", path=markers.source,
+                         label="rate")
+
+
+def _distances(P) -> np.ndarray:
+    """(M, M) median over frames of the distances between markers ``P`` (T, M, 3)."""
+    D = np.linalg.norm(P[:, :, None, :] - P[:, None, :, :], axis=-1)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return np.nanmedian(D, axis=0)
+
+
+def check_marker_shapes(markers, reference, link_labels: dict) -> None:
+    """Each link's markers keep the distances they have in the static ``reference`` recording
+    (a rigid link): a link whose median distances are off by more than 20 mm RMS (markers
+    collapsed to one point, a unit declared wrong) is refused with that residual."""
+    for link, labels in link_labels.items():
+        idx = [k for k, lb in enumerate(markers.labels) if lb in labels]
+        ref = [reference.labels.index(markers.labels[k]) for k in idx
+               if markers.labels[k] in reference.labels]
+        idx = [k for k in idx if markers.labels[k] in reference.labels]
+        if len(idx) < 2:
+            continue
+        A = _distances(markers.positions[:, idx])
+        B = _distances(reference.positions[:, ref])
+        iu = np.triu_indices(len(idx), 1)
+        a, b = A[iu], B[iu]
+        ok = np.isfinite(a) & np.isfinite(b)
+        if not ok.any() or float(np.max(b[ok])) < 5e-3:
+            continue
+        rms = float(np.sqrt(np.mean((a[ok] - b[ok]) ** 2)))
+        if rms > 0.02 + 0.2 * float(np.max(b[ok])):
+            ratio = float(np.median(a[ok]) / np.median(b[ok])) if np.median(b[ok]) > 0 else float("nan")
+            raise InputError(f"link {link}: its markers' distances differ from the static recording "
+                             f"{reference.source.name if reference.source else ''} by {1e3 * rms:.4g} mm "
+                             f"RMS (scale {ratio:.3g}): a rigid fit to the static reference is "
+                             "implausible (markers collapsed, or the declared unit wrong)",
+                             path=markers.source, label=link)
+
+
+def check_calib_json(path) -> np.ndarray:
+    """``T_camera_base`` of a ``calib.json``: an :class:`InputError` naming the file for
+    anything but a finite rigid 4x4 transform with a translation under 1 km."""
+    path = Path(path)
+    try:
+        doc = json.loads(read_text(path))
+    except json.JSONDecodeError as exc:
+        raise InputError(f"not valid JSON: {exc.msg}", path=path, line=exc.lineno) from None
+    except RecursionError:
+        raise InputError("not valid JSON (nested too deep)", path=path) from None
+    if not isinstance(doc, dict) or "T_camera_base" not in doc:
+        raise InputError("no 4x4 'T_camera_base' in the calibration (expected a JSON object)",
+                         path=path, label="T_camera_base")
+    rows = doc["T_camera_base"]
+    ok = (isinstance(rows, list) and len(rows) == 4 and
+          all(isinstance(r, list) and len(r) == 4 and
+              all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in r) for r in rows))
+    if not ok:
+        raise InputError("'T_camera_base' must be 4 rows of 4 numbers", path=path, label="T_camera_base")
+    T = np.array(rows, float)
+    if not np.all(np.isfinite(T)):
+        raise InputError("'T_camera_base' holds a NaN or infinite value", path=path, label="T_camera_base")
+    R = T[:3, :3]
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if err > 1e-6 or abs(float(np.linalg.det(R)) - 1.0) > 1e-6 or not np.allclose(T[3], [0, 0, 0, 1]):
+        raise InputError(f"'T_camera_base' is not a rigid transform (|R^T R - I| = {err:.3g}, det "
+                         f"{float(np.linalg.det(R)):.4g})", path=path, label="T_camera_base")
+    if float(np.linalg.norm(T[:3, 3])) > 1000.0:
+        raise InputError(f"'T_camera_base' puts the base {float(np.linalg.norm(T[:3, 3])):.4g} m from "
+                         "the camera (millimetres written as metres?)", path=path, label="T_camera_base")
+    return T
+
+
+def available_memory() -> int:
+    """Bytes of memory available now (``MemAvailable``; physical memory where unknown)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 8 << 30
+
+
+def check_allocation(n_bytes: float, what: str) -> None:
+    """Refuse an option value whose arrays (``n_bytes``, an estimate) exceed the available
+    memory: one line with the estimate, naming the option(s) in ``what``."""
+    avail = available_memory()
+    if not math.isfinite(n_bytes) or n_bytes > avail:
+        est = "an unbounded amount" if not math.isfinite(n_bytes) else f"about {n_bytes / 2**30:.3g} GiB"
+        raise InputError(f"{what}: the arrays would need {est} of memory, {avail / 2**30:.3g} GiB "
+                         "is available; choose a coarser value")
+
+
+def check_number(value, option: str, lo=None, hi=None, lo_open: bool = False,
+                 hi_open: bool = False) -> float:
+    """``value`` as a finite float inside [lo, hi] (open ends where asked), else a one-line
+    :class:`InputError` naming the option."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{option}: expected a number, got {value!r}") from None
+    bad = not math.isfinite(v)
+    if lo is not None:
+        bad |= v <= lo if lo_open else v < lo
+    if hi is not None:
+        bad |= v >= hi if hi_open else v > hi
+    if bad:
+        left = "" if lo is None else ("> " if lo_open else ">= ") + f"{lo:g}"
+        right = "" if hi is None else ("< " if hi_open else "<= ") + f"{hi:g}"
+        rng = " and ".join(x for x in (left, right) if x) or "finite"
+        raise InputError(f"{option} must be a finite number {rng}, got {value!r}")
+    return v
