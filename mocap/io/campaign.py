@@ -161,7 +161,10 @@ class Campaign:
         from mocap.io.markers import read_markers
         from mocap.quality import check_marker_units
 
+        from mocap.io.plausibility import check_marker_time
+
         m = read_markers(rec.markers)
+        check_marker_time(m)
         ours = [k for k, lb in enumerate(m.labels) if lb in self.link_of_label()]
         if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
             check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,

@@ -63,6 +63,7 @@ def check_log(log, rec, robot=None, kind: str = "trial") -> None:
                          path=path)
     if T < 2:
         return
+    _check_time_jump(np.asarray(log.time, float), path, "the robot log's time", log.line_of)
     if kind == "trial":
         X = np.column_stack([log.qm, log.tau])
         same = (X == X[:1]) | (np.isnan(X) & np.isnan(X[:1]))
@@ -76,6 +77,22 @@ def check_log(log, rec, robot=None, kind: str = "trial") -> None:
             _check_torque_unit(log, joints, robot, path)
         if getattr(rec, "kind", "") == "coastdown":
             _check_torque_cut(log, joints, path)
+
+
+def _check_time_jump(t, path, what: str, line_of=None) -> None:
+    """Refuse one step of the clock beyond a day and 10^5 median steps (a damaged time cell such
+    as 1e308, which would otherwise overflow every resampling grid)."""
+    dt = np.diff(t)
+    dt = dt[np.isfinite(dt)]
+    if dt.size < 1:
+        return
+    med = float(np.median(dt))
+    k = int(np.argmax(np.diff(t)))
+    big = float(t[k + 1] - t[k])
+    if big > max(86400.0, 1e5 * med):
+        line = line_of(k + 1) if line_of is not None else None
+        raise InputError(f"{what} jumps by {big:.4g} s between two samples (the median step is "
+                         f"{med:.3g} s): a damaged time value", path=path, line=line, label="time")
 
 
 def _check_moving(log, joints, robot, path) -> None:
@@ -251,6 +268,8 @@ def check_marker_timing(markers, log) -> None:
     (FORMAT.md: they need not start or end together): a span ratio beyond 3 is a rate declared
     wrong (a C3D whose point rate was changed, a TRC DataRate edited)."""
     tm, tl = np.asarray(markers.time, float), np.asarray(log.time, float)
+    _check_time_jump(tm, markers.source, "the marker file's time")
+    _check_time_jump(tl, log.source, "the robot log's time", log.line_of)
     if tm.size < 10 or tl.size < 10:
         return
     sm, sl = float(tm[-1] - tm[0]), float(tl[-1] - tl[0])
@@ -262,6 +281,11 @@ def check_marker_timing(markers, log) -> None:
                          f"log {log.source.name if log.source else 'log'} {sl:.4g} s (ratio "
                          f"{_fmt_ratio(r)}): the marker rate is wrong", path=markers.source,
                          label="rate")
+
+
+def check_marker_time(markers) -> None:
+    """A marker file's clock: no step beyond a day and 10^5 median steps (a damaged cell)."""
+    _check_time_jump(np.asarray(markers.time, float), markers.source, "the marker file's time")
 
 
 def _distances(P) -> np.ndarray:
@@ -379,3 +403,96 @@ def check_number(value, option: str, lo=None, hi=None, lo_open: bool = False,
         rng = " and ".join(x for x in (left, right) if x) or "finite"
         raise InputError(f"{option} must be a finite number {rng}, got {value!r}")
     return v
+
+
+#: rerun's .rrd stream: "RRF2", a version and options word, then messages (kind, length) as two
+#: little-endian u64 each; kinds 0 (end), 1 (store info), 2 (arrow data), 3 (blueprint activation)
+_RRD_MAGIC = b"RRF2"
+_RRD_KINDS = (0, 1, 2, 3)
+
+
+def check_rrd(path, verify: bool = True) -> None:
+    """Refuse a damaged rerun recording before a viewer opens it: the stream's framing (magic,
+    message kinds and lengths inside the file) and, where the ``rerun`` executable is at hand,
+    ``rerun rrd verify`` (one line naming the file with its first complaint)."""
+    import struct
+
+    from mocap.io.errors import read_bytes
+
+    path = Path(path)
+    raw = read_bytes(path)
+    if raw[:4] != _RRD_MAGIC or len(raw) < 12:
+        raise InputError(f"not a rerun recording (the file starts with {raw[:4]!r}, expected "
+                         f"{_RRD_MAGIC!r})", path=path)
+    pos, n_msg = 12, 0
+    while pos + 16 <= len(raw):
+        kind, length = struct.unpack_from("<QQ", raw, pos)
+        if kind not in _RRD_KINDS or pos + 16 + length > len(raw):
+            raise InputError(f"damaged rerun recording: message {n_msg + 1} at byte {pos} "
+                             f"({'unknown kind ' + str(kind) if kind not in _RRD_KINDS else f'{length} bytes past the end'})",
+                             path=path)
+        pos += 16 + length
+        n_msg += 1
+        if kind == 0:
+            break
+    else:
+        if pos != len(raw) or n_msg == 0:
+            raise InputError(f"damaged rerun recording: truncated after {n_msg} messages (byte {pos} of "
+                             f"{len(raw)})", path=path)
+    if not verify:
+        return
+    from viz.screenshot import viewer_executable
+
+    exe = viewer_executable()
+    if exe is None:
+        return
+    import subprocess
+
+    try:
+        r = subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True,
+                           timeout=120, stdin=subprocess.DEVNULL,
+                           env={**os.environ, "RERUN_ANALYTICS": "0"})
+    except (OSError, subprocess.TimeoutExpired):
+        return
+    if r.returncode != 0:
+        why = [ln.strip() for ln in (r.stderr or r.stdout).splitlines() if ln.strip()]
+        raise InputError(f"damaged rerun recording: {why[-1] if why else 'rerun rrd verify failed'}",
+                         path=path)
+
+
+def check_trial_rigid_fit(markers, log, refs, robot, trial) -> None:
+    """The markers of links that no joint of ``trial`` moves (links before its first moving
+    joint) stand where the static references put them: ``T_camera_base @ T_base_link(q) @
+    p_link`` at the trial's median logged angles. A median residual over 50 mm and 20 times the
+    static fit RMS (a mirrored marker file, a wrong unit, another robot's markers) is refused
+    with the residual. ``refs``: :class:`mocap.references.References`."""
+    first = min(trial.joints) - 1                                   # 0-based first moving joint
+    frames = robot.chain.frames
+    q = np.nanmedian(np.where(np.isfinite(log.qm), log.qm, np.nan), axis=0)
+    if q.shape[0] != robot.n or not np.all(np.isfinite(q[:max(first, 0)])):
+        return
+    q = np.where(np.isfinite(q), q, 0.0)
+    T_cb = np.asarray(refs.T_camera_base, float)
+    res, names = [], []
+    for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
+        if link not in frames or frames[link][0] >= first or lb not in markers.labels:
+            continue
+        P = markers.positions[:, markers.labels.index(lb)]
+        ok = np.all(np.isfinite(P), axis=1)
+        if ok.sum() < 1:
+            continue
+        meas = np.median(P[ok], axis=0)
+        p = T_cb @ robot.frame_transform(link, q) @ np.append(refs.p_link[k], 1.0)
+        res.append(float(np.linalg.norm(meas - p[:3])))
+        names.append(lb)
+    if len(res) < 3:
+        return
+    med = float(np.median(res))
+    tol = max(0.05, 20.0 * float(refs.fit_rms_m or 0.0))
+    if med > tol:
+        k = int(np.argmax(res))
+        raise InputError(f"markers of the links the trial does not move ({len(res)} markers) sit "
+                         f"{1e3 * med:.4g} mm (median; {names[k]!r} {1e3 * res[k]:.4g} mm) from where the "
+                         "static references put them: a rigid fit to the static reference is "
+                         "implausible (mirrored coordinates, a wrong unit?)", path=markers.source,
+                         label=names[k])
