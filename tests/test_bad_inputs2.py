@@ -375,3 +375,39 @@ def test_c_labels_cannot_inject_code(tmp_path):
     L.jl_friction_find.restype = ctypes.c_void_p
     L.jl_friction_find.argtypes = [ctypes.c_char_p]
     assert L.jl_friction_find(evil.encode())                 # the label survives byte for byte
+
+
+# ---- a malformed --angles folder
+def _angles(tmp_path, name, text):
+    d = tmp_path / "angles"
+    d.mkdir(exist_ok=True)
+    if name is not None:
+        (d / name).write_bytes(text if isinstance(text, bytes) else text.encode())
+    return d
+
+
+_T = "\n".join(f"{1305.4 + 0.01 * k:.3f},{0.3 + 0.001 * k:.4f},0.8,12" for k in range(50))
+
+
+@pytest.mark.parametrize("name,text,names_file,says", [
+    (None, "", False, "holds no <trial id>.csv"),
+    ("j5-load0-v50-r1.csv", "time,q_5,rms_mm,n_markers\n" + _T.replace(",0.3", ",57.3"), True,
+     "degrees suspected"),
+    ("j5-load0-v50-r1.csv", b"time,q_5\n1.0,\xff\n", True, "is not utf-8"),
+    ("j5-load0-v50-r1.csv", "time,q_4,rms_mm,n_markers\n" + _T, True, "no q_5 column"),
+    ("j5-load0-v50-r1.csv", "time,q_5,rms_mm,n_markers\n1.0,abc,0,1\n", True, "not a number"),
+])
+def test_malformed_angles_folder_is_one_line(name, text, names_file, says, camp, tmp_path, capsys):
+    d = _angles(tmp_path, name, text)
+    before = _digest(camp)
+    assert main(["diagnose", str(camp), "--out", str(tmp_path / "g"), "--angles", str(d)]) == 2
+    line = _one_line_option(capsys, str(d / name) if names_file else str(d))
+    assert says in line, line
+    assert _digest(camp) == before and not (tmp_path / "g").exists()
+
+
+def test_angles_argument_that_is_a_file(camp, tmp_path, capsys):
+    f = tmp_path / "angles.csv"
+    f.write_text("time,q_5\n")
+    assert main(["diagnose", str(camp), "--out", str(tmp_path / "g"), "--angles", str(f)]) == 2
+    assert "must be a folder" in _one_line_option(capsys, str(f))

@@ -496,3 +496,49 @@ def check_trial_rigid_fit(markers, log, refs, robot, trial) -> None:
                          "static references put them: a rigid fit to the static reference is "
                          "implausible (mirrored coordinates, a wrong unit?)", path=markers.source,
                          label=names[k])
+
+
+def check_angles_dir(angles_dir, campaign, robot=None) -> None:
+    """An ``--angles`` folder (``angles/<trial id>.csv``, FORMAT.md) before any work: a folder,
+    holding a readable angles file for at least one trial, each with a ``q_<j>`` column of every
+    joint its trial moves, in radians within the URDF's limits (an :class:`InputError` naming
+    the folder or the file)."""
+    from ident.signals.smoothing import read_angles
+
+    d = Path(angles_dir)
+    if not d.is_dir():
+        raise InputError("--angles must be a folder of angles/<trial id>.csv files", path=d)
+    found = 0
+    for t in campaign.trials:
+        p = d / f"{t.id}.csv"
+        if not p.is_file():
+            continue
+        found += 1
+        read_text(p)                       # names the file for an unreadable or non-UTF-8 one
+        try:
+            tr = read_angles(p)
+        except InputError:
+            raise
+        except (ValueError, IndexError, TypeError) as exc:
+            raise InputError(f"not an angles file ({type(exc).__name__}: {exc})", path=p) from None
+        missing = [j for j in t.joints if j not in tr.q]
+        if missing:
+            raise InputError(f"no q_{missing[0]} column, but trial {t.id!r} moves joint {missing[0]}",
+                             path=p, line=1, label=f"q_{missing[0]}")
+        if robot is None:
+            continue
+        for j, q in tr.q.items():
+            if not 1 <= j <= robot.n:
+                raise InputError(f"column q_{j}: the robot has joints 1..{robot.n}", path=p, line=1,
+                                 label=f"q_{j}")
+            lo, hi = float(robot.lower[j - 1]), float(robot.upper[j - 1])
+            span = hi - lo if np.isfinite(hi - lo) else 0.0
+            qq = q[np.isfinite(q)]
+            if qq.size and (qq.max() > hi + 0.05 + 0.1 * span or qq.min() < lo - 0.05 - 0.1 * span):
+                v = float(qq.max() if qq.max() > hi + 0.05 + 0.1 * span else qq.min())
+                raise InputError(f"column q_{j} reaches {v:.4g} rad, beyond the URDF limits [{lo:.3f}, "
+                                 f"{hi:.3f}] rad: degrees suspected (FORMAT.md: radians)", path=p,
+                                 label=f"q_{j}")
+    if not found:
+        raise InputError(f"holds no <trial id>.csv for any of the campaign's {len(campaign.trials)} "
+                         "trials", path=d)

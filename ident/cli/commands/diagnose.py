@@ -103,6 +103,10 @@ def run(args) -> int:
     bad = [j for j in args.joints or () if not 1 <= j <= robot.n]
     if bad:
         raise InputError(f"--joints {bad[0]}: the robot has joints 1..{robot.n}")
+    if args.angles is not None:
+        from mocap.io.plausibility import check_angles_dir
+
+        check_angles_dir(args.angles, camp, robot)
     out = check_out_dir(args.out, [camp.root])
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
         no_markers = args.no_markers or not camp.has_markers   # marker-less campaigns
