@@ -460,7 +460,7 @@ def check_rrd(path, verify: bool = True) -> None:
                          path=path)
 
 
-def check_trial_rigid_fit(markers, log, refs, robot, trial) -> None:
+def check_trial_rigid_fit(markers, log, refs, robot, trial, T_camera_base=None) -> None:
     """The markers of links that no joint of ``trial`` moves (links before its first moving
     joint) stand where the static references put them: ``T_camera_base @ T_base_link(q) @
     p_link`` at the trial's median logged angles. A median residual over 50 mm and 20 times the
@@ -468,11 +468,15 @@ def check_trial_rigid_fit(markers, log, refs, robot, trial) -> None:
     with the residual. ``refs``: :class:`mocap.references.References`."""
     first = min(trial.joints) - 1                                   # 0-based first moving joint
     frames = robot.chain.frames
-    q = np.nanmedian(np.where(np.isfinite(log.qm), log.qm, np.nan), axis=0)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)              # a column without values
+        q = np.nanmedian(np.where(np.isfinite(log.qm), log.qm, np.nan), axis=0)
     if q.shape[0] != robot.n or not np.all(np.isfinite(q[:max(first, 0)])):
         return
     q = np.where(np.isfinite(q), q, 0.0)
-    T_cb = np.asarray(refs.T_camera_base, float)
+    T_cb = np.asarray(refs.T_camera_base if T_camera_base is None else T_camera_base, float)
     res, names = [], []
     for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
         if link not in frames or frames[link][0] >= first or lb not in markers.labels:
@@ -542,3 +546,104 @@ def check_angles_dir(angles_dir, campaign, robot=None) -> None:
     if not found:
         raise InputError(f"holds no <trial id>.csv for any of the campaign's {len(campaign.trials)} "
                          "trials", path=d)
+
+
+# ---- option values of the commands (one line naming the option, exit 2) ---------------------
+def check_synth_options(args) -> None:
+    """``jointlab synth``: values in range and one trial's arrays within the available memory
+    (log: time + 3 signals x 6 joints; markers: up to 8 x 7 links x 3; float64, a few copies)."""
+    check_number(args.magnitude, "--magnitude", lo=0.0, hi=1e3)
+    check_number(args.duration, "--duration", lo=2.0, hi=1e5)
+    check_number(args.marker_rate, "--marker-rate", lo=0.0, lo_open=True, hi=1e5)
+    check_number(args.log_rate, "--log-rate", lo=0.0, lo_open=True, hi=1e6)
+    if not 1 <= args.reps <= 1000:
+        raise InputError(f"--reps must be in 1..1000, got {args.reps}")
+    if args.label_swaps < 0:
+        raise InputError(f"--label-swaps must be >= 0, got {args.label_swaps}")
+    seconds = args.duration + 2 * 4.0
+    n_bytes = 8 * 4 * seconds * (args.log_rate * 19 + args.marker_rate * 8 * 7 * 3)
+    check_allocation(n_bytes, f"--log-rate {args.log_rate:g} / --marker-rate {args.marker_rate:g} "
+                              f"over --duration {args.duration:g} s")
+
+
+def check_design_options(args) -> None:
+    """``jointlab design``: period, harmonics, starts, dt (and the trajectory's arrays within
+    the available memory: t, q, qd, qdd and their copies), amax."""
+    check_number(args.period, "--period", lo=0.0, lo_open=True, hi=1e5)
+    if not 1 <= args.harmonics <= 200:
+        raise InputError(f"--harmonics must be in 1..200, got {args.harmonics}")
+    if not 1 <= args.starts <= 10000:
+        raise InputError(f"--starts must be in 1..10000, got {args.starts}")
+    check_number(args.dt, "--dt", lo=0.0, lo_open=True, hi=args.period / 4)
+    if args.amax is not None:
+        check_number(args.amax, "--amax", lo=0.0, lo_open=True)
+    check_allocation(8 * 4 * 4 * (args.period / args.dt + 1), f"--dt {args.dt:g} over --period {args.period:g} s")
+
+
+def check_mocap_options(args) -> None:
+    """``jointlab mocap``: ``--trial`` ids (FORMAT.md), ``--reject-sigma`` > 0, ``--min-markers``
+    >= 1, a valid ``--calib`` file."""
+    from mocap.io.campaign import check_trial_id
+
+    for t in args.trial or ():
+        check_trial_id(t, "--trial")
+    check_number(args.reject_sigma, "--reject-sigma", lo=0.0, lo_open=True)
+    if args.min_markers < 1:
+        raise InputError(f"--min-markers must be >= 1, got {args.min_markers}")
+    if args.calib:
+        check_calib_json(args.calib)
+
+
+def check_calib_options(args) -> None:
+    """``jointlab calib``: ``--noise-mm`` > 0 (at most a metre), ``--min-sweep-deg`` in 0..360."""
+    if args.noise_mm is not None:
+        check_number(args.noise_mm, "--noise-mm", lo=0.0, lo_open=True, hi=1e3)
+    check_number(args.min_sweep_deg, "--min-sweep-deg", lo=0.0, hi=360.0)
+
+
+def check_joints_option(joints, robot, option: str = "--joints") -> None:
+    """Every joint of a ``--joints`` list is a joint of the robot."""
+    bad = [j for j in joints or () if not 1 <= j <= robot.n]
+    if bad:
+        raise InputError(f"{option} {bad[0]}: the robot has joints 1..{robot.n}")
+
+
+def check_held_nominal(spec: str) -> None:
+    """Held shape parameters of ``--nominal NAME:k=v,...`` are positive scales (a Stribeck
+    velocity, tanh slopes, a bristle stiffness, an arctan sharpness)."""
+    from ident.friction import MODELS
+
+    name, sep, rest = str(spec).partition(":")
+    if not sep or name not in MODELS or Path(spec).is_file():
+        return
+    for part in rest.split(","):
+        k, _, v = part.partition("=")
+        try:
+            val = float(v)
+        except ValueError:
+            continue                      # the nominal's own parser names it
+        if not val > 0:
+            raise InputError(f"--nominal {spec}: {k.strip()} is a shape parameter of {name} and must be "
+                             f"> 0, got {v.strip()}", label=k.strip())
+
+
+def check_coastdown_campaign(campaign, joints=()) -> None:
+    """``jointlab coastdown``: ``--joints`` of the robot, and every ``kind = "coastdown"``
+    trial's log through :meth:`Campaign.read_log` (units, swaps, a torque that is never cut)."""
+    robot = campaign.load_robot()
+    check_joints_option(joints, robot)
+    for t in campaign.trials:
+        if t.kind == "coastdown":
+            campaign.read_log(t, robot)
+
+
+def check_diagnose_options(args, campaign) -> None:
+    """``jointlab diagnose``: held ``--nominal`` values, ``--joints`` of the robot, an
+    ``--angles`` folder that fits the campaign."""
+    check_held_nominal(args.nominal)
+    if not args.joints and args.angles is None:
+        return
+    robot = campaign.load_robot()
+    check_joints_option(args.joints, robot)
+    if args.angles is not None:
+        check_angles_dir(args.angles, campaign, robot)

@@ -32,11 +32,9 @@ def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from viz import make_sink
 
-    from mocap.io.plausibility import check_number
+    from mocap.io.plausibility import check_calib_options
 
-    if args.noise_mm is not None:
-        check_number(args.noise_mm, "--noise-mm", lo=0.0, lo_open=True, hi=1e3)
-    check_number(args.min_sweep_deg, "--min-sweep-deg", lo=0.0, hi=360.0)
+    check_calib_options(args)
     camp = load_campaign(args.campaign)
     existed = Path(args.out).exists()
     out = check_out_dir(args.out, [camp.root])

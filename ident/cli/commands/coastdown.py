@@ -24,19 +24,12 @@ def run(args) -> int:
 
     from ident.coastdown.campaign import CoastdownSettings, analyse_campaign, write_coastdown
 
-    from mocap.io.errors import InputError
-
-    from ident.coastdown.campaign import coastdown_trials
+    from mocap.io.plausibility import check_coastdown_campaign
 
     camp = load_campaign(args.campaign)
-    robot = camp.load_robot()
-    bad = [j for j in args.joints if not 1 <= j <= robot.n]
-    if bad:
-        raise InputError(f"--joints {bad[0]}: the robot has joints 1..{robot.n}")
-    for tr in coastdown_trials(camp):       # units, swaps, a torque that is never cut
-        camp.read_log(tr, robot)
+    check_coastdown_campaign(camp, args.joints)   # --joints, and every coast-down trial's log
     out = check_out_dir(args.out, [camp.root])
-    report = analyse_campaign(camp, robot=robot, settings=CoastdownSettings(joints=tuple(args.joints)),
+    report = analyse_campaign(camp, settings=CoastdownSettings(joints=tuple(args.joints)),
                               progress=not args.json)
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-coastdown") as sink:
         paths = write_coastdown(report, out, sink, plots=not args.no_plots)

@@ -53,18 +53,9 @@ def load_robot_arg(path: Path):
 def run(args) -> int:
     from ident.excitation.design import ExcitationDesigner, limits_from_robot
 
-    from mocap.io.plausibility import check_allocation, check_number
+    from mocap.io.plausibility import check_design_options
 
-    check_number(args.period, "--period", lo=0.0, lo_open=True, hi=1e5)
-    if not 1 <= args.harmonics <= 200:
-        raise InputError(f"--harmonics must be in 1..200, got {args.harmonics}")
-    if not 1 <= args.starts <= 10000:
-        raise InputError(f"--starts must be in 1..10000, got {args.starts}")
-    check_number(args.dt, "--dt", lo=0.0, lo_open=True, hi=args.period / 4)
-    if args.amax is not None:
-        check_number(args.amax, "--amax", lo=0.0, lo_open=True)
-    check_allocation(8 * 4 * 4 * (args.period / args.dt + 1),     # t, q, qd, qdd and copies
-                     f"--dt {args.dt:g} over --period {args.period:g} s")
+    check_design_options(args)             # ranges and a memory estimate, before any work
     robot = load_robot_arg(args.robot)
     if not 1 <= args.joint <= robot.n:
         raise InputError(f"--joint {args.joint}: the robot has joints 1..{robot.n}", path=args.robot)

@@ -63,27 +63,6 @@ def _diagnose(camp, robot, angles, settings, joints):
     return report, series
 
 
-def _check_held(spec: str) -> None:
-    """Held shape parameters of ``--nominal NAME:k=v,...`` are positive scales (a Stribeck
-    velocity, tanh slopes, a bristle stiffness): one line naming the option otherwise."""
-    from mocap.io.errors import InputError
-
-    from ident.friction import MODELS
-
-    name, sep, rest = str(spec).partition(":")
-    if not sep or name not in MODELS or Path(spec).is_file():
-        return
-    for part in rest.split(","):
-        k, _, v = part.partition("=")
-        try:
-            val = float(v)
-        except ValueError:
-            continue                      # check_nominal names it
-        if not val > 0:
-            raise InputError(f"--nominal {spec}: {k.strip()} is a shape parameter of {name} and must be "
-                             f"> 0, got {v.strip()}", label=k.strip())
-
-
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from viz import make_sink
@@ -93,21 +72,14 @@ def run(args) -> int:
 
     from ident.gap.nominal import check_nominal
 
-    from mocap.io.errors import InputError
-
     camp = load_campaign(args.campaign)
     joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
     check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
-    _check_held(args.nominal)
-    robot = camp.load_robot()
-    bad = [j for j in args.joints or () if not 1 <= j <= robot.n]
-    if bad:
-        raise InputError(f"--joints {bad[0]}: the robot has joints 1..{robot.n}")
-    if args.angles is not None:
-        from mocap.io.plausibility import check_angles_dir
+    from mocap.io.plausibility import check_diagnose_options
 
-        check_angles_dir(args.angles, camp, robot)
+    check_diagnose_options(args, camp)       # held --nominal values, --joints, --angles
     out = check_out_dir(args.out, [camp.root])
+    robot = camp.load_robot()
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
         no_markers = args.no_markers or not camp.has_markers   # marker-less campaigns
         angles = None if no_markers else link_angles(camp, robot, args.angles, sink)

@@ -12,8 +12,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from mocap.io.errors import InputError
-
 from ident.cli.main import add_common, check_out_dir
 
 
@@ -45,16 +43,9 @@ def run(args) -> int:
     from mocap.solve import solve_trial
     from viz import make_sink
 
-    from mocap.io.campaign import check_trial_id
-    from mocap.io.plausibility import check_calib_json, check_number
+    from mocap.io.plausibility import check_mocap_options
 
-    for t in args.trial or ():
-        check_trial_id(t, "--trial")
-    check_number(args.reject_sigma, "--reject-sigma", lo=0.0, lo_open=True)
-    if args.min_markers < 1:
-        raise InputError(f"--min-markers must be >= 1, got {args.min_markers}")
-    if args.calib:
-        check_calib_json(args.calib)
+    check_mocap_options(args)              # --trial ids, ranges, --calib, before any work
     camp = load_campaign(args.campaign)
     out = check_out_dir(args.out, [camp.root] + ([args.calib] if args.calib else []))
     robot = camp.load_robot()
@@ -73,12 +64,6 @@ def run(args) -> int:
 
             # world = the robot base frame; the camera entity's pose in it is T_base_camera
             sink.transform("world/camera", invert_transform(refs.T_camera_base))
-        from mocap.io.plausibility import check_trial_rigid_fit
-
-        for tr in trials:        # every marker file checked against the references first
-            if tr.markers is not None:
-                check_trial_rigid_fit(camp.read_markers(tr, robot), camp.read_log(tr, robot), refs,
-                                      robot, tr)
         for tr in trials:
             res = solve_trial(camp, tr, refs, sink=sink, robot=robot, refine=args.refine,
                               refine_geometry=args.refine_geometry,

@@ -95,32 +95,12 @@ def canonical_command(args, out: str = "OUT") -> str:
     return shlex.join(parts)
 
 
-def check_options(args) -> None:
-    """Option values in range (one line naming the option, exit 2) and a campaign whose arrays
-    fit in memory (:func:`mocap.io.plausibility.check_allocation`, with the estimate)."""
-    from mocap.io.plausibility import check_allocation, check_number
-
-    check_number(args.magnitude, "--magnitude", lo=0.0, hi=1e3)
-    check_number(args.duration, "--duration", lo=2.0, hi=1e5)
-    check_number(args.marker_rate, "--marker-rate", lo=0.0, lo_open=True, hi=1e5)
-    check_number(args.log_rate, "--log-rate", lo=0.0, lo_open=True, hi=1e6)
-    if not 1 <= args.reps <= 1000:
-        raise InputError(f"--reps must be in 1..1000, got {args.reps}")
-    if args.label_swaps < 0:
-        raise InputError(f"--label-swaps must be >= 0, got {args.label_swaps}")
-    # one trial's arrays: log (time + 3 signals x 6 joints) and markers (up to 8 x 7 links x 3),
-    # float64, a few working copies each
-    seconds = args.duration + 2 * 4.0
-    n_bytes = 8 * 4 * seconds * (args.log_rate * 19 + args.marker_rate * 8 * 7 * 3)
-    check_allocation(n_bytes, f"--log-rate {args.log_rate:g} / --marker-rate {args.marker_rate:g} "
-                              f"over --duration {args.duration:g} s")
-
-
 def run(args) -> int:
+    from mocap.io.plausibility import check_synth_options
+
     from ident.sim.campaign import CampaignSynth, SynthConfig
 
-    check_options(args)
-
+    check_synth_options(args)              # ranges and a memory estimate, before any work
     cfg = SynthConfig(joints=_ints(args.joints, "--joints"), loads=_floats(args.loads, "--loads"),
                       vmax=_floats(args.vmax, "--vmax"), reps=args.reps, duration=args.duration,
                       kinds=tuple(k.strip() for k in args.kinds.split(",") if k.strip()),
