@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -291,12 +292,9 @@ def check_marker_time(markers) -> None:
 def _distances(P) -> np.ndarray:
     """(M, M) median over frames of the distances between markers ``P`` (T, M, 3)."""
     D = np.linalg.norm(P[:, :, None, :] - P[:, None, :, :], axis=-1)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            return np.nanmedian(D, axis=0)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(D, axis=0)
 
 
 def check_marker_shapes(markers, reference, link_labels: dict) -> None:
@@ -460,21 +458,17 @@ def check_rrd(path, verify: bool = True) -> None:
                          path=path)
 
 
-def check_trial_rigid_fit(markers, log, refs, robot, trial, T_camera_base=None) -> None:
-    """The markers of links that no joint of ``trial`` moves (links before its first moving
-    joint) stand where the static references put them: ``T_camera_base @ T_base_link(q) @
-    p_link`` at the trial's median logged angles. A median residual over 50 mm and 20 times the
-    static fit RMS (a mirrored marker file, a wrong unit, another robot's markers) is refused
-    with the residual. ``refs``: :class:`mocap.references.References`."""
+def braked_marker_residuals(markers, log, refs, robot, trial, T_camera_base=None):
+    """(residuals m, labels) of the markers on links that no joint of ``trial`` moves: the
+    distance of each marker's median position from ``T_camera_base @ T_base_link(q) @ p_link``
+    at the trial's median logged angles (empty where the trial moves joint 1)."""
     first = min(trial.joints) - 1                                   # 0-based first moving joint
     frames = robot.chain.frames
-    import warnings
-
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)              # a column without values
         q = np.nanmedian(np.where(np.isfinite(log.qm), log.qm, np.nan), axis=0)
     if q.shape[0] != robot.n or not np.all(np.isfinite(q[:max(first, 0)])):
-        return
+        return [], []
     q = np.where(np.isfinite(q), q, 0.0)
     T_cb = np.asarray(refs.T_camera_base if T_camera_base is None else T_camera_base, float)
     res, names = [], []
@@ -489,6 +483,16 @@ def check_trial_rigid_fit(markers, log, refs, robot, trial, T_camera_base=None) 
         p = T_cb @ robot.frame_transform(link, q) @ np.append(refs.p_link[k], 1.0)
         res.append(float(np.linalg.norm(meas - p[:3])))
         names.append(lb)
+    return res, names
+
+
+def check_trial_rigid_fit(markers, log, refs, robot, trial, T_camera_base=None) -> None:
+    """The markers of links that no joint of ``trial`` moves (links before its first moving
+    joint) stand where the static references put them: ``T_camera_base @ T_base_link(q) @
+    p_link`` at the trial's median logged angles. A median residual over 50 mm and 20 times the
+    static fit RMS (a mirrored marker file, a wrong unit, another robot's markers) is refused
+    with the residual. ``refs``: :class:`mocap.references.References`."""
+    res, names = braked_marker_residuals(markers, log, refs, robot, trial, T_camera_base)
     if len(res) < 3:
         return
     med = float(np.median(res))
