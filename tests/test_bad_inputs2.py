@@ -411,3 +411,32 @@ def test_angles_argument_that_is_a_file(camp, tmp_path, capsys):
     f.write_text("time,q_5\n")
     assert main(["diagnose", str(camp), "--out", str(tmp_path / "g"), "--angles", str(f)]) == 2
     assert "must be a folder" in _one_line_option(capsys, str(f))
+
+
+# ---- URDF problems: one line naming the URDF, never the C++ parser's own lines
+_URDF_DAMAGE = {
+    "missing child link": (lambda t: t.replace('<child link="link5"/>', '<child link="nolink"/>', 1),
+                           "is not a link of the URDF"),
+    "non-numeric origin": (lambda t: t.replace('<origin xyz="0 0 0.2"', '<origin xyz="0 0 abc"', 1),
+                           "is not 3 finite numbers"),
+    "truncated": (lambda t: t[: len(t) // 2], "not valid XML"),
+    "two roots": (lambda t: t.replace("</robot>", '<link name="orphan"/></robot>'), "2 root links"),
+    "repeated joint name": (lambda t: t.replace('name="joint2"', 'name="joint1"', 1), "is repeated"),
+    "nan limit": (lambda t: t.replace('upper="3.0892327760299634"', 'upper="nan"', 1), "finite"),
+    "negative mass": (lambda t: __import__("re").sub(r'<mass value="[^"]*"', '<mass value="-3"', t, count=1),
+                      "negative mass"),
+}
+
+
+@pytest.mark.parametrize("case", list(_URDF_DAMAGE))
+def test_urdf_problem_is_one_line(case, camp, capfd):
+    fn, says = _URDF_DAMAGE[case]
+    p = camp / "robot" / "arm.urdf"
+    text = p.read_text()
+    assert fn(text) != text
+    p.write_text(fn(text))
+    before = _digest(camp)
+    assert main(["info", str(camp)]) == 2
+    err = _error_lines(capfd.readouterr().err)           # file descriptor 2, C++ output included
+    assert len(err) == 1 and err[0].startswith(f"jointlab: error: {p}") and says in err[0], err
+    assert _digest(camp) == before

@@ -102,12 +102,15 @@ class Campaign:
     def load_robot(self):
         from mocap.io.plausibility import check_drives_count, check_drives_order
         from mocap.robot import Robot
-        from mocap.urdf import check_urdf_limits
+        from mocap.urdf import check_urdf, check_urdf_limits, quiet_stderr
 
-        bare = Robot.from_urdf(self.urdf, None, self.gravity)
+        check_urdf(self.urdf)                  # one line, before a C++ parser prints its own
+        with quiet_stderr():
+            bare = Robot.from_urdf(self.urdf, None, self.gravity)
         check_urdf_limits(bare, self.urdf)
         check_drives_count(self.drives, bare.n)
-        robot = Robot.from_urdf(self.urdf, self.drives, self.gravity)
+        with quiet_stderr():
+            robot = Robot.from_urdf(self.urdf, self.drives, self.gravity)
         check_drives_order(robot, self.drives)
         missing = [lk for lk in self.markers if lk not in robot.chain.frames]
         if missing:

@@ -47,6 +47,9 @@ def load_robot_arg(path: Path):
     if path.suffix.lower() != ".urdf":
         raise InputError("--robot must be a .urdf, a folder holding one, or a campaign", path=path)
     drives = path.parent / "drives.toml"
+    from mocap.urdf import check_urdf
+
+    check_urdf(path)                      # one line, before pinocchio prints its own
     return Robot.from_urdf(path, drives if drives.is_file() else None)
 
 
