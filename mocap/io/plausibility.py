@@ -651,3 +651,14 @@ def check_diagnose_options(args, campaign) -> None:
     check_joints_option(args.joints, robot)
     if args.angles is not None:
         check_angles_dir(args.angles, campaign, robot)
+
+
+def check_campaign_inputs(campaign, robot=None, markers: bool = True) -> None:
+    """Every recording of ``campaign`` through :meth:`Campaign.read_log` and (``markers``)
+    :meth:`Campaign.read_markers` once, before a long computation reads them by other routes:
+    the first parseable-but-wrong file ends the run in one line."""
+    robot = robot if robot is not None else campaign.load_robot()
+    for _, _, rec in campaign.recordings():
+        campaign.read_log(rec, robot)
+        if markers and rec.markers is not None:
+            campaign.read_markers(rec, robot)
