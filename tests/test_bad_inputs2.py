@@ -440,3 +440,32 @@ def test_urdf_problem_is_one_line(case, camp, capfd):
     err = _error_lines(capfd.readouterr().err)           # file descriptor 2, C++ output included
     assert len(err) == 1 and err[0].startswith(f"jointlab: error: {p}") and says in err[0], err
     assert _digest(camp) == before
+
+
+def test_coastdown_command_refuses_a_trial_without_a_torque_cut(tmp_path, capsys):
+    """The coast-down world of tests/coastdown_world.py with the drive torque kept on after
+    each cut (the logged torque held at its last driven value): exit 2 naming the log."""
+    from coastdown_world import write_campaign
+
+    root = tmp_path / "camp"
+    write_campaign(root, 3, f_log=200.0)
+    log = next((root / "trials").glob("*.csv"))
+    lines = log.read_text().split("\n")
+    head = lines[0].split(",")
+    k = head.index("tau_1")
+    cells = [ln.split(",") for ln in lines[1:] if ln]
+    tau = np.array([float(c[k]) if c[k] else np.nan for c in cells])
+    big = 0.3 * np.nanmax(np.abs(tau))
+    held = tau.copy()
+    for i in range(1, held.size):                      # below 30 % of the peak: hold the last
+        if not abs(held[i]) >= big:                    # driven value (the drive never lets go)
+            held[i] = held[i - 1]
+    for c, v in zip(cells, held):
+        c[k] = repr(float(v))
+    lines = [lines[0]] + [",".join(c) for c in cells]
+    log.write_text("\n".join(lines))
+    before = _digest(root)
+    assert main(["coastdown", str(root), "--out", str(tmp_path / "out")]) == 2
+    err = _error_lines(capsys.readouterr().err)
+    assert len(err) == 1 and str(log) in err[0] and "never cut" in err[0], err
+    assert _digest(root) == before and not (tmp_path / "out").exists()

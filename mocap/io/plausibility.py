@@ -216,30 +216,41 @@ def _check_torque_unit(log, joints, robot, path) -> None:
 
 
 def _check_torque_cut(log, joints, path) -> None:
-    """FORMAT.md coastdown: the drive torque is cut and the joint coasts; the logged torque is ~0
-    from the cut on. Refused when no stretch of at least 0.2 s (and 10 samples) holds the torque
-    below 5 % of its 99th percentile."""
+    """FORMAT.md coastdown: the drive torque is cut and the joint coasts to rest on friction, the
+    logged torque ~0 from the cut on. Refused when no stretch of at least 0.2 s (10 samples) of
+    low torque (a 5-sample running median of |tau| below 5 % of its 99th percentile) follows
+    motion (the joint moved more than 1 mrad in the 0.1 s before) and ends at rest (it moves less
+    than a fifth of that in the stretch's last 0.1 s). A rest before any motion, or a torque
+    merely crossing zero while the joint moves on, is no coast."""
     for j in joints:
-        if j > log.tau.shape[1]:
+        if j > log.tau.shape[1] or j > log.qm.shape[1]:
             continue
-        tau = log.tau[:, j - 1]
-        ok = np.isfinite(tau)
-        t, tau = log.time[ok], tau[ok]
+        ok = np.isfinite(log.tau[:, j - 1]) & np.isfinite(log.qm[:, j - 1])
+        t, tau, q = log.time[ok], log.tau[ok, j - 1], log.qm[ok, j - 1]
         if tau.size < 10:
             continue
         thr = 0.05 * _p99(tau)
-        low = np.abs(tau) <= thr
-        # longest run of low torque, in samples and seconds
+        med = np.median(np.lib.stride_tricks.sliding_window_view(np.pad(np.abs(tau), 2, mode="edge"), 5),
+                        axis=1)
+        low = med <= thr
         edges = np.diff(np.concatenate([[0], low.astype(np.int8), [0]]))
         starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-        if starts.size:
-            lengths = ends - starts
-            dur = t[ends - 1] - t[starts]
-            if np.any((lengths >= 10) & (dur >= 0.2)):
+        longest, found = 0.0, False
+        for s0, e0 in zip(starts, ends):
+            dur = float(t[e0 - 1] - t[s0])
+            longest = max(longest, dur)
+            if e0 - s0 < 10 or dur < 0.2:
                 continue
-        longest = float(np.max(t[ends - 1] - t[starts])) if starts.size else 0.0
-        raise InputError(f"coast-down trial: tau_{j} never drops to ~0 (|tau| <= {thr:.3g} N m for at most "
-                         f"{longest:.3g} s): the drive torque is never cut", path=path, label=f"tau_{j}")
+            before = q[(t >= t[s0] - 0.1) & (t <= t[s0])]
+            tail = q[s0:e0][t[s0:e0] >= t[e0 - 1] - 0.1]
+            moved = float(np.ptp(before)) if before.size > 1 else 0.0
+            if moved > 1e-3 and float(np.ptp(tail)) < 0.2 * moved:
+                found = True
+                break
+        if not found:
+            raise InputError(f"coast-down trial: tau_{j} never drops to ~0 while the joint coasts to rest "
+                             f"(|tau| <= {thr:.3g} N m for at most {longest:.3g} s): the drive torque is "
+                             "never cut", path=path, label=f"tau_{j}")
 
 
 def check_drives_order(robot, drives_path) -> None:
