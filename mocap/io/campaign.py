@@ -172,6 +172,9 @@ class Campaign:
         if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
             check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,
                                path=m.source, check_motion=False)
+            from mocap.io.plausibility import check_marker_extent
+
+            check_marker_extent(m, self.link_of_label(), robot.chain)
         if robot is not None and isinstance(rec, Trial):
             self._check_trial_markers(m, rec)
         return m

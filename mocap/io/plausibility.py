@@ -569,9 +569,9 @@ def check_synth_options(args) -> None:
     """``jointlab synth``: values in range and one trial's arrays within the available memory
     (log: time + 3 signals x 6 joints; markers: up to 8 x 7 links x 3; float64, a few copies)."""
     check_number(args.magnitude, "--magnitude", lo=0.0, hi=1e3)
-    check_number(args.duration, "--duration", lo=2.0, hi=1e5)
-    check_number(args.marker_rate, "--marker-rate", lo=0.0, lo_open=True, hi=1e5)
-    check_number(args.log_rate, "--log-rate", lo=0.0, lo_open=True, hi=1e6)
+    check_number(args.duration, "--duration", lo=2.0)
+    check_number(args.marker_rate, "--marker-rate", lo=0.0, lo_open=True)
+    check_number(args.log_rate, "--log-rate", lo=0.0, lo_open=True)
     if not 1 <= args.reps <= 1000:
         raise InputError(f"--reps must be in 1..1000, got {args.reps}")
     if args.label_swaps < 0:
@@ -674,3 +674,23 @@ def check_campaign_inputs(campaign, robot=None, markers: bool = True) -> None:
         campaign.read_log(rec, robot)
         if markers and rec.markers is not None:
             campaign.read_markers(rec, robot)
+
+
+def check_marker_extent(markers, labels, chain) -> None:
+    """The campaign's markers in a marker file span more than 0.5 % of the robot's reach (they
+    sit on links centimetres apart): a smaller cloud is metres declared as millimetres."""
+    from mocap.quality import chain_reach
+
+    idx = [k for k, lb in enumerate(markers.labels) if lb in labels]
+    if len(idx) < 2:
+        return
+    P = markers.positions[:, idx].reshape(-1, 3)
+    P = P[np.all(np.isfinite(P), axis=1)]
+    if P.shape[0] < 2:
+        return
+    ext = float(np.max(np.ptp(P, axis=0)))
+    reach = chain_reach(chain)
+    if reach > 0 and ext < 0.005 * reach:
+        raise InputError(f"the campaign's {len(idx)} markers span {1e3 * ext:.3g} mm, {ext / reach:.2g} of the "
+                         f"robot's reach ({reach:.3g} m): metres declared as {markers.units} suspected "
+                         "(check the Units the marker file declares)", path=markers.source, label="Units")

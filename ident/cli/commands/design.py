@@ -47,9 +47,12 @@ def load_robot_arg(path: Path):
     if path.suffix.lower() != ".urdf":
         raise InputError("--robot must be a .urdf, a folder holding one, or a campaign", path=path)
     drives = path.parent / "drives.toml"
+    from mocap.io.plausibility import check_drives_count
     from mocap.urdf import check_urdf
 
     check_urdf(path)                      # one line, before pinocchio prints its own
+    if drives.is_file():                  # a count that differs names drives.toml
+        check_drives_count(drives, Robot.from_urdf(path).n)
     return Robot.from_urdf(path, drives if drives.is_file() else None)
 
 
