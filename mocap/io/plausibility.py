@@ -569,6 +569,18 @@ def check_synth_options(args) -> None:
     """``jointlab synth``: values in range and one trial's arrays within the available memory
     (log: time + 3 signals x 6 joints; markers: up to 8 x 7 links x 3; float64, a few copies)."""
     check_number(args.magnitude, "--magnitude", lo=0.0, hi=1e3)
+    check_seed(args.seed)
+    for opt, text in (("--loads", args.loads), ("--vmax", args.vmax)):
+        for x in str(text).split(","):
+            try:
+                v = float(x)
+            except ValueError:
+                continue                  # the command's own parser names it
+            if not math.isfinite(v):
+                raise InputError(f"{opt}: {x.strip()!r} is not a finite number")
+    _distinct_tags(args.joints, "--joints", lambda v: int(float(v)), "")
+    _distinct_tags(args.loads, "--loads", lambda v: int(float(v) * 10 + 1e-9), "load", "tenths of a kg")
+    _distinct_tags(args.vmax, "--vmax", lambda v: int(round(float(v) * 100)), "v", "per cent")
     check_number(args.duration, "--duration", lo=2.0)
     check_number(args.marker_rate, "--marker-rate", lo=0.0, lo_open=True)
     check_number(args.log_rate, "--log-rate", lo=0.0, lo_open=True)
@@ -582,9 +594,34 @@ def check_synth_options(args) -> None:
                               f"over --duration {args.duration:g} s")
 
 
+def _distinct_tags(text, option: str, tag, prefix: str, unit: str = "") -> None:
+    """Values of a comma-separated synth option that give one trial id tag (a repeated joint,
+    loads within a tenth of a kg, speed fractions within a per cent) would write two trials with
+    one id: refused."""
+    seen = {}
+    for x in str(text).split(","):
+        if not x.strip():
+            continue
+        try:
+            k = tag(x)
+        except (ValueError, OverflowError):
+            return                        # the command's own parser names it
+        if k in seen:
+            how = f" (trial ids carry {prefix}{k}, in {unit})" if unit else ""
+            raise InputError(f"{option}: {seen[k]!r} and {x.strip()!r} give the same trial ids{how}")
+        seen[k] = x.strip()
+
+
+def check_seed(seed, option: str = "--seed") -> None:
+    """A random seed is an integer in 0 .. 2**63 - 1 (numpy's generators refuse others)."""
+    if not 0 <= int(seed) < 2 ** 63:
+        raise InputError(f"{option} must be an integer >= 0, got {seed}")
+
+
 def check_design_options(args) -> None:
     """``jointlab design``: period, harmonics, starts, dt (and the trajectory's arrays within
-    the available memory: t, q, qd, qdd and their copies), amax."""
+    the available memory: t, q, qd, qdd and their copies), amax, seed."""
+    check_seed(args.seed)
     check_number(args.period, "--period", lo=0.0, lo_open=True, hi=1e5)
     if not 1 <= args.harmonics <= 200:
         raise InputError(f"--harmonics must be in 1..200, got {args.harmonics}")
@@ -657,6 +694,7 @@ def check_diagnose_options(args, campaign) -> None:
     """``jointlab diagnose``: held ``--nominal`` values, ``--joints`` of the robot, an
     ``--angles`` folder that fits the campaign."""
     check_held_nominal(args.nominal)
+    check_seed(args.seed)
     if not args.joints and args.angles is None:
         return
     robot = campaign.load_robot()
