@@ -181,6 +181,9 @@ CASES = {
     "ids 1 and \"1\"": (lambda c: (set_first_trial_key(c / "campaign.toml", "id", "1"),
                                    _second_trial_key(c, "id", '"1"'))[0],
                         ["info"], "duplicate trial id '1'"),
+    "ids differing only in case": (lambda c: (set_first_trial_key(c / "campaign.toml", "id", '"Run-A"'),
+                                              _second_trial_key(c, "id", '"run-a"'))[0],
+                                   ["info"], "differ only in case"),
     "two trials share a log": (lambda c: _second_trial_key(c, "log", f'"{TRIAL}.csv"'), ["info"],
                                "read the same log file"),
     # silent-wrong logs

@@ -330,6 +330,10 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
         if tid in ids:
             raise InputError(f"[[trial]] number {k}: duplicate trial id {tid!r} (ids are compared "
                              "as text)", path=manifest, label=tid)
+        same = [i for i in ids if i.lower() == tid.lower()]
+        if same:   # a tool's file names would collide on a case-insensitive file system
+            raise InputError(f"[[trial]] number {k}: trial ids {same[0]!r} and {tid!r} differ only in "
+                             "case", path=manifest, label=tid)
         ids.add(tid)
         joints = _req(tab, "joints", w, manifest)
         if not (isinstance(joints, list) and joints and
