@@ -12,14 +12,19 @@ service-robot log and stop-and-go recordings all pass.
   ``max_torque`` and against the URDF's gravity torque); ``qm_j``/``tau_j`` swapped (an angle
   column that moves faster than the drive and is rougher than the torque column); a coast-down
   trial whose drive torque never cuts.
-* drives against the URDF (:func:`check_drives_order`): drive names that are the URDF's joint
-  names in another order.
-* marker files against their log and the static poses (:func:`check_marker_timing`,
-  :func:`check_marker_shapes`): a marker file whose time span disagrees with its log (a changed
-  rate); links whose marker distances do not match the static recording (markers collapsed, a
-  unit declared wrong).
-* ``calib.json`` (:func:`check_calib_json`) and option-driven allocations
-  (:func:`check_allocation`).
+* drives against the URDF (:func:`check_drives_order`, :func:`check_drives_count`): a table
+  count that differs from the URDF, drive names that are the URDF's joint names in another order.
+* marker files (:func:`check_marker_time`, :func:`check_marker_extent`,
+  :func:`check_marker_timing`, :func:`check_marker_shapes`, :func:`check_trial_rigid_fit`): a
+  damaged clock; a cloud smaller than 0.5 % of the robot's reach (metres declared as mm); a time
+  span that disagrees with the log's (a changed rate); links whose marker distances differ from
+  the static recording (markers collapsed or rescaled); markers of braked links away from where
+  the static references put them (a mirrored file).
+* other inputs: ``calib.json`` (:func:`check_calib_json`), an ``--angles`` folder
+  (:func:`check_angles_dir`), a rerun recording (:func:`check_rrd`), every recording of a
+  campaign before a long run (:func:`check_campaign_inputs`).
+* option values of the commands (``check_*_options``, :func:`check_number`) and the memory an
+  option would allocate (:func:`check_allocation`, with the estimate).
 """
 from __future__ import annotations
 
