@@ -96,6 +96,16 @@ def _shrink(link):
     return fn
 
 
+def _mirror_links(*links):
+    """Mirror the markers of ``links`` through a plane across their centroid, frame by frame."""
+    def fn(labels, xyz):
+        ks = [k for k, lb in enumerate(labels) if lb.startswith(links)]
+        c = np.nanmean(xyz[:, ks, 0], axis=1, keepdims=True)
+        xyz[:, ks, 0] = 2 * c - xyz[:, ks, 0]
+        return xyz
+    return fn
+
+
 def _mirror(labels, xyz):
     xyz[:, :, 0] *= -1.0
     return xyz
@@ -220,6 +230,9 @@ CASES = {
                                   "rigid fit to the static reference is implausible"),
     "static trc in metres declared as mm": (lambda c: _trc_map(c, lambda lb, x: x / 1000.0, "static/pose-01"),
                                             ["info"], "metres declared as mm suspected"),
+    "moving links' markers mirrored": (lambda c: _trc_map(c, _mirror_links("L5", "L6")),
+                                       ["mocap", "--out", "{t}/m"],
+                                       "rigid fit to the static reference is implausible"),
     "trc mirrored": (lambda c: _trc_map(c, _mirror), ["mocap", "--out", "{t}/m"],
                      "rigid fit to the static reference is implausible"),
     "c3d point rate changed": (lambda c: _c3d_rate(c, 10.0), ["info"], "the marker rate is wrong"),

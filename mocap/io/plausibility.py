@@ -503,17 +503,70 @@ def braked_marker_residuals(markers, log, refs, robot, trial, T_camera_base=None
     return res, names
 
 
+def _kabsch_rms(A, B) -> float:
+    """RMS residual of the best proper rigid motion (rotation with det +1, translation) taking
+    points ``A`` (k, 3) onto ``B`` (k, 3) (Kabsch; a mirror image cannot be matched)."""
+    a, b = A - A.mean(axis=0), B - B.mean(axis=0)
+    U, _, Vt = np.linalg.svd(a.T @ b)
+    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    R = (U @ np.diag([1.0, 1.0, d]) @ Vt).T
+    return float(np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
+
+
+def moving_group_residual(markers, log, refs, robot, trial, n_frames: int = 60):
+    """(RMS m, markers used) of the markers on the links a single-joint ``trial`` moves (all
+    carried rigidly by its one moving joint while the others are braked) against their static
+    references posed at the trial's median logged angles: a proper rigid fit per frame at up to
+    ``n_frames`` frames (no clock needed), the 10th percentile over the frames. (nan, n) when it
+    does not apply (several moving joints, fewer than 4 markers)."""
+    if len(trial.joints) != 1:
+        return float("nan"), 0
+    first = trial.joints[0] - 1
+    frames = robot.chain.frames
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        q = np.nanmedian(np.where(np.isfinite(log.qm), log.qm, np.nan), axis=0)
+    if q.shape[0] != robot.n or not np.all(np.isfinite(np.delete(q, first))):
+        return float("nan"), 0
+    q = np.where(np.isfinite(q), q, 0.0)
+    ks, pred = [], []
+    for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
+        if link in frames and frames[link][0] >= first and lb in markers.labels:
+            ks.append(markers.labels.index(lb))
+            pred.append((robot.frame_transform(link, q) @ np.append(refs.p_link[k], 1.0))[:3])
+    if len(ks) < 4:
+        return float("nan"), len(ks)
+    pred = np.array(pred)
+    P = markers.positions[:, ks]
+    ok = np.flatnonzero(np.all(np.isfinite(P), axis=(1, 2)))
+    if ok.size == 0:
+        return float("nan"), len(ks)
+    pick = ok[np.linspace(0, ok.size - 1, min(n_frames, ok.size)).astype(int)]
+    # the best tenth of the frames: label swaps spoil some frames, a mirrored file every frame
+    return float(np.percentile([_kabsch_rms(pred, P[i]) for i in pick], 10)), len(ks)
+
+
 def check_trial_rigid_fit(markers, log, refs, robot, trial, T_camera_base=None) -> None:
-    """The markers of links that no joint of ``trial`` moves (links before its first moving
-    joint) stand where the static references put them: ``T_camera_base @ T_base_link(q) @
-    p_link`` at the trial's median logged angles. A median residual over 50 mm and 20 times the
-    static fit RMS (a mirrored marker file, a wrong unit, another robot's markers) is refused
-    with the residual. ``refs``: :class:`mocap.references.References`."""
+    """Refuse a trial marker file that no rigid motion fits to the static references, with the
+    residual. The markers a single-joint trial's joint carries (:func:`moving_group_residual`)
+    must fit within 8 mm and 8 times the markers' noise while still; the markers of links no
+    joint of the trial moves stand where the static references put them (``T_camera_base @
+    T_base_link(q) @ p_link`` at the median logged angles) within 50 mm and 20 times the static
+    fit RMS. A mirrored file, a wrong unit, another robot's markers fail. ``refs``:
+    :class:`mocap.references.References`."""
     res, names = braked_marker_residuals(markers, log, refs, robot, trial, T_camera_base)
+    tol = max(0.05, 20.0 * float(refs.fit_rms_m or 0.0))
+    rms, n = moving_group_residual(markers, log, refs, robot, trial)
+    scatter = np.asarray(getattr(refs, "scatter_m", []), float)
+    noise = float(np.nanmedian(scatter)) if scatter.size and np.isfinite(scatter).any() else 0.0
+    if np.isfinite(rms) and rms > max(0.008, 8.0 * noise):    # 8 x the markers' noise while still
+        raise InputError(f"the {n} markers the trial's joint {trial.joints[0]} carries fit their static "
+                         f"references by {1e3 * rms:.4g} mm RMS at best (a proper rigid motion per "
+                         "frame): a rigid fit to the static reference is implausible (mirrored "
+                         "coordinates, a wrong unit, swapped links?)", path=markers.source)
     if len(res) < 3:
         return
     med = float(np.median(res))
-    tol = max(0.05, 20.0 * float(refs.fit_rms_m or 0.0))
     if med > tol:
         k = int(np.argmax(res))
         raise InputError(f"markers of the links the trial does not move ({len(res)} markers) sit "
