@@ -1,6 +1,7 @@
 """The campaign manifest (FORMAT.md, ``campaign.toml``) and its validation."""
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
@@ -182,13 +183,14 @@ class Campaign:
     def _check_trial_markers(self, m, rec) -> None:
         """A trial's marker file against its log's time span and each link's marker distances
         against the first static recording (:mod:`mocap.io.plausibility`)."""
-        from mocap.io.markers import read_markers
         from mocap.io.plausibility import check_marker_shapes, check_marker_timing
         from mocap.io.robotlog import read_robot_log
 
         check_marker_timing(m, read_robot_log(rec.log))
         if self.static and self.static[0].markers is not None:
-            check_marker_shapes(m, read_markers(self.static[0].markers), self.markers)
+            p = self.static[0].markers
+            st = p.stat()
+            check_marker_shapes(m, _static_markers(str(p), st.st_mtime_ns, st.st_size), self.markers)
 
     def recordings(self):
         """Every (kind, name, Recording) in the manifest."""
@@ -198,6 +200,15 @@ class Campaign:
             yield "calib", f"calib-joint-{c.joint}", c
         for t in self.trials:
             yield "trial", t.id, t
+
+
+@functools.lru_cache(maxsize=4)
+def _static_markers(path: str, mtime_ns: int, size: int):
+    """A static pose's marker file, read once per version (the reference of every trial's
+    marker distances)."""
+    from mocap.io.markers import read_markers
+
+    return read_markers(path)
 
 
 def _req(tab: dict, key: str, where: str, path: Path):
