@@ -103,7 +103,8 @@ class Campaign:
     def load_robot(self):
         from mocap.io.plausibility import check_drives_count, check_drives_order
         from mocap.robot import Robot
-        from mocap.urdf import check_urdf, check_urdf_limits, quiet_stderr
+        from mocap.io.errors import quiet_stderr
+        from mocap.urdf import check_urdf, check_urdf_limits
 
         check_urdf(self.urdf)                  # one line, before a C++ parser prints its own
         with quiet_stderr():

@@ -7,7 +7,9 @@ showing a traceback.
 """
 from __future__ import annotations
 
+import os
 import re
+import sys
 from pathlib import Path
 
 #: characters no text input holds: C0 controls but tab, newline and carriage return, and DEL
@@ -96,3 +98,24 @@ def check_control_chars(text: str, path: str | Path, also: str = "") -> None:
     col = i - (text.rfind("\n", 0, i) + 1) + 1
     raise InputError(f"control character {text[i]!r} in column {col} (a damaged file?)", path=path,
                      line=line)
+
+
+class quiet_stderr:
+    """Silence file descriptor 2 (a C++ library's own messages) inside the ``with`` block."""
+
+    def __enter__(self):
+        try:
+            sys.stderr.flush()
+            self._saved = os.dup(2)
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 2)
+            os.close(null)
+        except OSError:
+            self._saved = None
+        return self
+
+    def __exit__(self, *exc):
+        if self._saved is not None:
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+        return False
