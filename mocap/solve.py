@@ -753,6 +753,9 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
                          "not in the static pose)", path=campaign.manifest, label=norefs[0])
     rec = campaign.read_markers(trial, robot)
     log = campaign.read_log(trial, robot)
+    from mocap.io.plausibility import check_trial_rigid_fit   # mirrored / rescaled marker files
+
+    check_trial_rigid_fit(rec, log, references, robot, trial, T_cb)
     absent = tuple(lb for lb in used if lb not in rec.labels)
     if len(absent) == len(used):
         raise InputError(f"none of the markers on the moving links ({', '.join(used[:6])}) is in the "

@@ -494,3 +494,78 @@ def load_link_meshes(urdf: str | Path, *, kind: str = "visual", fallback_collisi
             offset += V.shape[0]
         out[link] = (np.concatenate(verts), np.concatenate(faces))
     return out
+
+
+# ---- validation before a URDF library reads the file (issue 29) -------------------------------
+_JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "planar")
+
+
+def check_urdf(urdf) -> None:
+    """Validate a URDF before a library reads it, in one :class:`InputError` line naming the
+    element: XML, unique link and joint names, joints whose parent and child are links, one
+    root, known joint types, finite numbers in origins, axes, limits, masses and inertias,
+    ``lower <= upper``, non-negative effort, velocity and mass. (A C++ URDF parser otherwise
+    prints several lines of its own, or reads ``xyz="0 0 abc"`` as a number.)"""
+    urdf = Path(urdf)
+    root = _parse(urdf).getroot()
+    links = [ln.get("name") for ln in root.findall("link")]
+    seen = set()
+    for nm in links:
+        if not nm or nm in seen:
+            raise InputError(f"link name {nm!r} is {'empty' if not nm else 'repeated'}", path=urdf, label=nm)
+        seen.add(nm)
+    jnames, children = set(), set()
+    for j in root.findall("joint"):
+        nm, what = j.get("name"), f"joint {j.get('name')!r}"
+        if not nm or nm in jnames:
+            raise InputError(f"joint name {nm!r} is {'empty' if not nm else 'repeated'}", path=urdf, label=nm)
+        jnames.add(nm)
+        if j.get("type") not in _JOINT_TYPES:
+            raise InputError(f"{what} has type {j.get('type')!r}, not one of {', '.join(_JOINT_TYPES)}",
+                             path=urdf, label=nm)
+        for tag in ("parent", "child"):
+            e = j.find(tag)
+            ln = None if e is None else e.get("link")
+            if ln not in seen:
+                raise InputError(f"{what}: <{tag} link={ln!r}> is not a link of the URDF", path=urdf, label=nm)
+        child = j.find("child").get("link")
+        if child in children:
+            raise InputError(f"{what}: link {child!r} is the child of two joints", path=urdf, label=nm)
+        children.add(child)
+        _floats(j.find("origin"), "xyz", 3, 0.0, urdf, what)
+        _floats(j.find("origin"), "rpy", 3, 0.0, urdf, what)
+        _floats(j.find("axis"), "xyz", 3, 1.0, urdf, what)
+        lim = j.find("limit")
+        if lim is not None:
+            vals = {a: _floats(lim, a, 1, 0.0, urdf, what)[0] for a in ("lower", "upper", "effort", "velocity")}
+            if lim.get("lower") is not None and lim.get("upper") is not None and vals["lower"] > vals["upper"]:
+                raise InputError(f"{what} has limit lower={vals['lower']:g} above upper={vals['upper']:g}",
+                                 path=urdf, label=nm)
+            for a in ("effort", "velocity"):
+                if vals[a] < 0:
+                    raise InputError(f"{what}: limit {a}={vals[a]:g} is negative", path=urdf, label=nm)
+    roots = [ln for ln in links if ln not in children]
+    if len(roots) != 1:
+        raise InputError(f"{len(roots)} root links ({', '.join(map(repr, roots[:4]))}); a URDF is one tree",
+                         path=urdf)
+    for ln in root.findall("link"):
+        what = f"link {ln.get('name')!r}"
+        for inertial in ln.findall("inertial"):
+            _floats(inertial.find("origin"), "xyz", 3, 0.0, urdf, what)
+            _floats(inertial.find("origin"), "rpy", 3, 0.0, urdf, what)
+            m = _floats(inertial.find("mass"), "value", 1, 0.0, urdf, what)[0]
+            if m < 0:
+                raise InputError(f"{what} has a negative mass {m:g} kg", path=urdf, label=ln.get("name"))
+            ine = inertial.find("inertia")
+            for a in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+                _floats(ine, a, 1, 0.0, urdf, what)
+
+
+def check_urdf_limits(robot, urdf) -> None:
+    """Refuse a revolute joint whose URDF ``<limit lower upper>`` is inverted (lower > upper)."""
+    lo, hi = np.asarray(robot.lower, float), np.asarray(robot.upper, float)
+    bad = np.flatnonzero(lo > hi)
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"joint {robot.joint_names[k]!r} has limit lower={lo[k]:g} above upper={hi[k]:g}",
+                         path=urdf, label=robot.joint_names[k])

@@ -29,13 +29,15 @@ def campaign(pa10, pa10_dir, tmp_path_factory):
 
 
 def _manifest(path, camp_root, calib, markers):
-    """A variant manifest in its own folder, the campaign's data linked in (FORMAT.md: paths
-    are relative and stay inside the campaign folder)."""
+    """A variant manifest in its own folder, the campaign's data copied in (FORMAT.md: paths
+    are relative and stay inside the campaign folder; links leading out of it are refused)."""
+    import shutil
+
     from mocap.io.campaign import write_manifest
 
     path.mkdir(parents=True, exist_ok=True)
     for sub in ("robot", "calib"):
-        (path / sub).symlink_to(camp_root.resolve() / sub, target_is_directory=True)
+        shutil.copytree(camp_root / sub, path / sub)
     doc = {"format": 1, "name": "variant",
            "robot": {"urdf": "robot/arm.urdf", "drives": "robot/drives.toml"},
            "markers": markers,

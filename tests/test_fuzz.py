@@ -361,3 +361,117 @@ def test_fuzzed_c3d_parses_or_fails_in_one_line(tmp_path):
         path.write_bytes(raw)
         outcomes[_check_c3d(path, raw, base, P)] += 1
     assert outcomes["read"] >= 5 and outcomes["error"] >= 5, outcomes
+
+
+# ---------------------------------------------------------------------------------------------
+# parseable but wrong (issue 29): mutations that keep every file readable but change its meaning.
+# The oracle is the mutation itself: a unit change (x1000), a column swap or a mirrored marker
+# file must be refused with one line naming the file; a benign change of the same size class
+# (a clock shift of both streams, a torque scaled within 25 %, 0.3 mm marker jitter) must pass.
+WRONG = ("time_ms", "torque_mNm", "swap_q_tau", "mirror_x", "metres_as_mm")
+BENIGN = ("clock_shift", "torque_scale", "marker_jitter")
+
+
+def _edit_csv(path: Path, fn) -> None:
+    lines = [ln for ln in path.read_text().split("\n") if ln]
+    head = lines[0].split(",")
+    rows = np.array([[float(c) if c else np.nan for c in ln.split(",")] for ln in lines[1:]])
+    head, rows = fn(head, rows)
+    path.write_text("\n".join([",".join(head)] + [",".join("" if np.isnan(v) else repr(float(v)) for v in r)
+                                                  for r in rows]) + "\n")
+
+
+def _edit_trc(path: Path, fn) -> None:
+    lines = path.read_text().split("\n")
+    data = [ln.split("\t") for ln in lines[6:] if ln.strip()]
+    n = max(len(r) for r in data)
+    X = np.array([[float(c) if c.strip() else np.nan for c in r[1:]] + [np.nan] * (n - len(r))
+                  for r in data])             # time, then x y z per marker
+    X = fn(X)
+    out = lines[:6] + ["\t".join([r[0]] + ["" if np.isnan(v) else f"{v:.6f}" for v in X[i]])
+                       for i, r in enumerate(data)]
+    path.write_text("\n".join(out) + "\n")
+
+
+def _parseable_mutation(kind: str, camp: Path, trial: str, rng) -> None:
+    csv, trc = camp / f"trials/{trial}.csv", camp / f"trials/{trial}.trc"
+    if kind == "time_ms":
+        _edit_csv(csv, lambda h, r: (h, np.column_stack([r[:, :1] * 1000.0, r[:, 1:]])))
+    elif kind == "torque_mNm":
+        def fn(h, r):
+            r = r.copy()
+            r[:, h.index("tau_5")] *= 1000.0
+            return h, r
+        _edit_csv(csv, fn)
+    elif kind == "swap_q_tau":
+        def fn(h, r):
+            h = list(h)
+            i, j = h.index("qm_5"), h.index("tau_5")
+            h[i], h[j] = h[j], h[i]
+            return h, r
+        _edit_csv(csv, fn)
+    elif kind == "mirror_x":
+        def fn(X):
+            X = X.copy()
+            X[:, 1::3] *= -1.0
+            return X
+        _edit_trc(trc, fn)
+    elif kind == "metres_as_mm":
+        _edit_trc(trc, lambda X: np.column_stack([X[:, :1], X[:, 1:] / 1000.0]))
+    elif kind == "clock_shift":
+        s = float(rng.uniform(-100.0, 100.0))
+        _edit_csv(csv, lambda h, r: (h, np.column_stack([r[:, :1] + s, r[:, 1:]])))
+        _edit_trc(trc, lambda X: np.column_stack([X[:, :1] + s, X[:, 1:]]))
+    elif kind == "torque_scale":
+        k = float(rng.uniform(0.8, 1.25))
+
+        def fn(h, r):
+            r = r.copy()
+            r[:, h.index("tau_5")] *= k
+            return h, r
+        _edit_csv(csv, fn)
+    elif kind == "marker_jitter":
+        _edit_trc(trc, lambda X: np.column_stack([X[:, :1], X[:, 1:] + 0.3 * rng.standard_normal(X[:, 1:].shape)]))
+
+
+@pytest.fixture(scope="module")
+def demo_refs(tmp_path_factory):
+    """The demo's static references (camera pose and marker positions in link frames), once."""
+    from ident.study.angles import campaign_references
+
+    camp = load_campaign(DEMO)
+    robot = camp.load_robot()
+    refs, _ = campaign_references(camp, robot, None)
+    return robot, refs
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_parseable_but_wrong_inputs_are_refused(seed, tmp_path, demo_refs):
+    import shutil
+
+    from mocap.io.plausibility import check_trial_rigid_fit
+
+    robot, refs = demo_refs
+    rng = np.random.default_rng(100 + seed)
+    trials = [t.id for t in load_campaign(DEMO).trials]
+    kinds = list(WRONG + BENIGN)
+    for k in range(8):
+        kind = kinds[(seed * 8 + k) % len(kinds)]
+        trial = trials[int(rng.integers(len(trials)))]
+        camp = tmp_path / f"c{k}"
+        shutil.copytree(DEMO, camp)
+        _parseable_mutation(kind, camp, trial, rng)
+        c = load_campaign(camp)
+        tr = c.trial(trial)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", InputWarning)
+                log = c.read_log(tr, robot)
+                m = c.read_markers(tr, robot)
+                check_trial_rigid_fit(m, log, refs, robot, tr)
+        except InputError as exc:
+            assert kind in WRONG, f"{kind} on {trial} refused: {exc}"
+            where = camp / f"trials/{trial}.{'trc' if kind in ('mirror_x', 'metres_as_mm') else 'csv'}"
+            _one_line_naming(exc, where)
+        else:
+            assert kind in BENIGN, f"{kind} on {trial} passed"

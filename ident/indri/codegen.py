@@ -221,7 +221,7 @@ def _lit(x) -> str:
 
 def c_identifier(name: str) -> str:
     """A C identifier from a model label (non-alphanumerics -> '_', no leading digit)."""
-    s = re.sub(r"[^0-9A-Za-z_]", "_", str(name))
+    s = re.sub(r"[^0-9A-Za-z_]", "_", str(name), flags=re.ASCII)
     if not s or s[0].isdigit():
         s = "m_" + s
     return s
@@ -259,9 +259,33 @@ def model_params(model: FrictionModel, dt: float | None) -> dict:
                      "supported are cv, arctan, dm1, dm2")
 
 
+def c_string(text: str) -> str:
+    """The body of a C string literal holding ``text`` (UTF-8): printable ASCII as is, but
+    backslash, double quote and '?' (trigraphs) escaped; every other byte (newlines, controls,
+    non-ASCII) as a three-digit octal escape, so no label can end the literal or the line."""
+    out = []
+    for b in str(text).encode("utf-8", "backslashreplace"):
+        ch = chr(b)
+        if ch in '\\"?':
+            out.append("\\" + ch)
+        elif 0x20 <= b < 0x7f:
+            out.append(ch)
+        else:
+            out.append(f"\\{b:03o}")
+    return "".join(out)
+
+
+def c_comment(text: str, limit: int = 120) -> str:
+    """``text`` safe inside a C block comment on one line: printable ASCII only (others become
+    '?'), no comment delimiters and no trailing backslash, at most ``limit`` characters."""
+    s = re.sub(r"[^ -~]", "?", str(text))[:limit]
+    s = s.replace("*/", "*_/").replace("/*", "/_*")
+    return s.rstrip("\\")
+
+
 def _instance(cname: str, label: str, p: dict) -> str:
     vals = ",\n".join(f"    .{k} = {_lit(p[k])}" for k in _FIELDS)
-    lab = label.replace("\\", "\\\\").replace('"', '\\"')
+    lab = c_string(label)
     return (f"const jl_friction_params JL_{cname.upper()} = {{\n"
             f"    .name = \"{lab}\",\n    .kind = {p['kind']},\n    .damping = {p['damping']},\n"
             f"{vals},\n    .has_z0 = {int(p['has_z0'])},\n    .hold = {int(p['hold'])}\n}};")
@@ -282,13 +306,13 @@ def export_c(models: dict, out_dir, *, dt: float | None = None,
         m = getattr(m, "model", m)
         if not isinstance(m, FrictionModel):
             raise ValueError(f"export_c: {label!r} is not a friction model or fit")
-        cname = re.sub(r"[^0-9A-Za-z_]", "_", str(label)) or "model"   # after the JL_ prefix
+        cname = re.sub(r"[^0-9A-Za-z_]", "_", str(label), flags=re.ASCII) or "model"   # after JL_
         if cname.upper() in seen:
             raise ValueError(f"export_c: labels {seen[cname.upper()]!r} and {label!r} give the same "
                              f"C name JL_{cname.upper()}")
         seen[cname.upper()] = label
         inst.append(_instance(cname, str(label), model_params(m, dt)))
-        externs.append(f"extern const jl_friction_params JL_{cname.upper()};   /* {label} */")
+        externs.append(f"extern const jl_friction_params JL_{cname.upper()};   /* {c_comment(label)} */")
         names.append(f"&JL_{cname.upper()}")
     h = out / f"{base}.h"
     c = out / f"{base}.c"

@@ -320,6 +320,10 @@ def read_c3d(path: str | Path, *, isolate: bool = True, timeout_s: float = 60.0)
     rate = float(rate_l[0]) if len(rate_l) and float(rate_l[0]) > 0 else info["frame_rate"]
     if not (np.isfinite(rate) and rate > 0):
         raise InputError(f"the point rate is {rate!r}; expected a positive number", path=path)
+    hdr_rate = float(info["frame_rate"])
+    if np.isfinite(hdr_rate) and hdr_rate > 0 and abs(hdr_rate - rate) > 0.01 * rate:
+        raise InputError(f"POINT:RATE is {rate:g} Hz but the header says {hdr_rate:g} Hz (ratio "
+                         f"{rate / hdr_rate:.3g}): the point rate was changed", path=path, label="RATE")
 
     xyz = np.transpose(pts[:, keep, :], (2, 1, 0)).copy()              # (T, M, 3)
     invalid = (res[keep, :].T < 0) | ~np.all(np.isfinite(xyz), axis=2)

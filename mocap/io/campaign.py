@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,6 +13,33 @@ from pathlib import Path
 from mocap.io.errors import InputError, read_text
 
 TRIAL_KINDS = ("excitation", "coastdown", "reversals", "constant_velocity")
+
+#: FORMAT.md: a trial id is letters, digits, '.', '_' and '-', at most 100 characters, and does
+#: not start with '.' (a tool may use it in a file name)
+TRIAL_ID = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
+#: environment variable that lets a campaign's inputs be symbolic links leading out of it
+FOLLOW_LINKS_ENV = "JOINTLAB_FOLLOW_LINKS"
+
+
+def links_allowed() -> bool:
+    """True when the user allows inputs reached through symbolic links that leave the campaign
+    folder (``JOINTLAB_FOLLOW_LINKS=1``; docs/inputs.md)."""
+    return os.environ.get(FOLLOW_LINKS_ENV, "").strip().lower() not in ("", "0", "no", "false", "off")
+
+
+def check_trial_id(tid, what: str, path: Path | None = None) -> str:
+    """``tid`` as text when it is a FORMAT.md trial id (a TOML integer counts as its digits),
+    else an :class:`InputError` naming ``what`` (``--trial`` or the manifest's trial)."""
+    if isinstance(tid, bool) or not isinstance(tid, (str, int)):
+        raise InputError(f"{what}: a trial id must be text, got {type(tid).__name__} {tid!r}",
+                         path=path, label="id")
+    text = str(tid)
+    if TRIAL_ID.fullmatch(text) is None:
+        shown = repr(text if len(text) <= 40 else text[:40] + "...")
+        raise InputError(f"{what}: trial id {shown} ({len(text)} characters) is not made of letters, "
+                         "digits, '.', '_' and '-' (at most 100 characters, not starting with '.')",
+                         path=path, label="id")
+    return text
 
 
 @dataclass(frozen=True)
@@ -67,6 +96,7 @@ class Campaign:
         return self.root / "campaign.toml"
 
     def trial(self, trial_id: str) -> Trial:
+        check_trial_id(trial_id, "trial", path=self.manifest)
         for t in self.trials:
             if t.id == trial_id:
                 return t
@@ -76,10 +106,22 @@ class Campaign:
         return {lb: link for link, labels in self.markers.items() for lb in labels}
 
     def load_robot(self):
+        from mocap.io.plausibility import check_drives_count, check_drives_order
         from mocap.robot import Robot
+        from mocap.io.errors import quiet_stderr
+        from mocap.urdf import check_urdf, check_urdf_limits
 
-        robot = Robot.from_urdf(self.urdf, self.drives, self.gravity, base_link=self.base_link,
-                                tip_link=self.tip_link, fixed=self.fixed, where=self.manifest)
+        check_urdf(self.urdf)                  # one line, before a C++ parser prints its own
+        chain = dict(base_link=self.base_link, tip_link=self.tip_link, fixed=self.fixed, where=self.manifest)
+        with quiet_stderr():
+            bare = Robot.from_urdf(self.urdf, None, self.gravity, **chain)
+        check_urdf_limits(bare, self.urdf)
+        if self.drives is not None:
+            check_drives_count(self.drives, bare.n)
+        with quiet_stderr():
+            robot = Robot.from_urdf(self.urdf, self.drives, self.gravity, **chain)
+        if self.drives is not None:
+            check_drives_order(robot, self.drives)
         missing = [lk for lk in self.markers if lk not in robot.chain.frames]
         if missing:
             raise InputError(f"[markers] names link {missing[0]!r}, which is not in the URDF "
@@ -113,9 +155,13 @@ class Campaign:
         n = None if robot is None else robot.n
         if n is None and self.coupling is not None:
             n = len(self.coupling)
+        from mocap.io.plausibility import check_log
+
         log = read_robot_log(rec.log, n_joints=n)
         if self.coupling is not None:
             log = log.coupled(self.coupling)
+        kind = "trial" if isinstance(rec, Trial) else "calib" if isinstance(rec, CalibSweep) else "static"
+        check_log(log, rec, robot, kind)       # units, swaps, no motion (mocap.io.plausibility)
         if robot is not None:
             log.check_limits(robot.lower, robot.upper, robot.joint_names)
             log.check_drive_limits(robot.max_torque, robot.max_velocity, robot.joint_names)
@@ -150,12 +196,32 @@ class Campaign:
         from mocap.io.markers import read_markers
         from mocap.quality import check_marker_units
 
+        from mocap.io.plausibility import check_marker_time
+
         m = read_markers(rec.markers)
+        check_marker_time(m)
         ours = [k for k, lb in enumerate(m.labels) if lb in self.link_of_label()]
         if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
             check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,
                                path=m.source, check_motion=False)
+            from mocap.io.plausibility import check_marker_extent
+
+            check_marker_extent(m, self.link_of_label(), robot.chain)
+        if robot is not None and isinstance(rec, Trial):
+            self._check_trial_markers(m, rec)
         return m
+
+    def _check_trial_markers(self, m, rec) -> None:
+        """A trial's marker file against its log's time span and each link's marker distances
+        against the first static recording (:mod:`mocap.io.plausibility`)."""
+        from mocap.io.plausibility import check_marker_shapes, check_marker_timing
+        from mocap.io.robotlog import read_robot_log
+
+        check_marker_timing(m, read_robot_log(rec.log))
+        if self.static and self.static[0].markers is not None:
+            p = self.static[0].markers
+            st = p.stat()
+            check_marker_shapes(m, _static_markers(str(p), st.st_mtime_ns, st.st_size), self.markers)
 
     def recordings(self):
         """Every (kind, name, Recording) in the manifest."""
@@ -165,6 +231,15 @@ class Campaign:
             yield "calib", f"calib-joint-{c.joint}", c
         for t in self.trials:
             yield "trial", t.id, t
+
+
+@functools.lru_cache(maxsize=4)
+def _static_markers(path: str, mtime_ns: int, size: int):
+    """A static pose's marker file, read once per version (the reference of every trial's
+    marker distances)."""
+    from mocap.io.markers import read_markers
+
+    return read_markers(path)
 
 
 def _req(tab: dict, key: str, where: str, path: Path):
@@ -218,6 +293,12 @@ def _inside(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
     if norm == ".." or norm.startswith("../"):   # lexical: a campaign may link its data in
         raise InputError(f"{where}: {key} path {rel!r} leaves the campaign folder", path=manifest,
                          label=key)
+    if not links_allowed():
+        real, home = p.resolve(), root.resolve()
+        if real != home and home not in real.parents:
+            raise InputError(f"{where}: {key} path {rel!r} is reached through a symbolic link that "
+                             f"leads out of the campaign folder; set {FOLLOW_LINKS_ENV}=1 to follow it",
+                             path=manifest, label=key)
     return p
 
 
@@ -295,10 +376,16 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
     known = {"id", "joints", "load_kg", "vmax_frac", "repetition", "markers", "log", "kind", "note",
              "unlogged_torque"}
     for k, tab in enumerate(doc.get("trial", []), 1):
-        tid = _req(tab, "id", f"[[trial]] number {k}", manifest)
+        tid = check_trial_id(_req(tab, "id", f"[[trial]] number {k}", manifest),
+                             f"[[trial]] number {k}", manifest)
         w = f"trial {tid!r}"
         if tid in ids:
-            raise InputError(f"duplicate trial id {tid!r}", path=manifest, label=str(tid))
+            raise InputError(f"[[trial]] number {k}: duplicate trial id {tid!r} (ids are compared "
+                             "as text)", path=manifest, label=tid)
+        same = [i for i in ids if i.lower() == tid.lower()]
+        if same:   # a tool's file names would collide on a case-insensitive file system
+            raise InputError(f"[[trial]] number {k}: trial ids {same[0]!r} and {tid!r} differ only in "
+                             "case", path=manifest, label=tid)
         ids.add(tid)
         joints = _req(tab, "joints", w, manifest)
         if not (isinstance(joints, list) and joints and
@@ -329,6 +416,7 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
             extra={kk: vv for kk, vv in tab.items() if kk not in known},
             unlogged_torque=_joint_list(tab.get("unlogged_torque", []), "unlogged_torque", w,
                                         manifest)))
+    _refuse_shared_files(trials, manifest)
     top_known = {"format", "name", "robot", "markers", "static", "calib", "trial"}
     return Campaign(root=root, name=str(doc.get("name", root.name)), urdf=urdf, drives=drives,
                     gravity=grav, markers=markers, static=tuple(static), calib=tuple(calib),
@@ -340,6 +428,22 @@ def _joint_list(v, key: str, where: str, manifest: Path) -> tuple:
     if not (isinstance(v, list) and all(isinstance(j, int) and not isinstance(j, bool) for j in v)):
         raise InputError(f"{where}: '{key}' must be a list of joint numbers", path=manifest, label=key)
     return tuple(v)
+
+
+def _refuse_shared_files(trials, manifest: Path) -> None:
+    """Two trials reading the same log or marker file (after links are resolved) would pose as
+    two repetitions of one recording: refused."""
+    owner = {}
+    for t in trials:
+        for key, p in (("log", t.log), ("markers", t.markers)):
+            if p is None:
+                continue
+            real = p.resolve()
+            if real in owner and owner[real] != t.id:
+                raise InputError(f"trials {owner[real]!r} and {t.id!r} read the same {key} file "
+                                 f"{p.name!r}; each trial is its own recording", path=manifest,
+                                 label=t.id)
+            owner[real] = t.id
 
 
 def _coupling(rows, manifest: Path):

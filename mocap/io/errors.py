@@ -7,11 +7,14 @@ showing a traceback.
 """
 from __future__ import annotations
 
+import os
 import re
+import sys
 from pathlib import Path
 
 #: characters no text input holds: C0 controls but tab, newline and carriage return, and DEL
 _CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+_BREAKS = re.compile(r"[ \t]*[\r\n\x85\u2028\u2029]+[ \t]*")
 
 
 class InputError(ValueError):
@@ -30,7 +33,14 @@ class InputError(ValueError):
             where += ": "
         if label is not None and label not in message:
             message = f"{message} (marker/key {label!r})"
-        super().__init__(where + message)
+        super().__init__(one_line(where + message))
+
+
+def one_line(text: str) -> str:
+    """``text`` on one line: line breaks (a library's multi-line message, a name holding a
+    newline) become `` | ``, other control characters their escapes."""
+    text = _BREAKS.sub(" | ", str(text).strip())
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
 class InputWarning(UserWarning):
@@ -88,3 +98,24 @@ def check_control_chars(text: str, path: str | Path, also: str = "") -> None:
     col = i - (text.rfind("\n", 0, i) + 1) + 1
     raise InputError(f"control character {text[i]!r} in column {col} (a damaged file?)", path=path,
                      line=line)
+
+
+class quiet_stderr:
+    """Silence file descriptor 2 (a C++ library's own messages) inside the ``with`` block."""
+
+    def __enter__(self):
+        try:
+            sys.stderr.flush()
+            self._saved = os.dup(2)
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 2)
+            os.close(null)
+        except OSError:
+            self._saved = None
+        return self
+
+    def __exit__(self, *exc):
+        if self._saved is not None:
+            os.dup2(self._saved, 2)
+            os.close(self._saved)
+        return False

@@ -38,6 +38,9 @@ def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from viz import make_sink
 
+    from mocap.io.plausibility import check_calib_options
+
+    check_calib_options(args)
     camp = load_campaign(args.campaign)
     with OutputDir(args.out, "calib", [camp.root]) as od:
         od.check_early(["calib.json"])

@@ -25,7 +25,10 @@ def run(args) -> int:
 
     from ident.coastdown.campaign import CoastdownSettings, analyse_campaign, write_coastdown
 
+    from mocap.io.plausibility import check_coastdown_campaign
+
     camp = load_campaign(args.campaign)
+    check_coastdown_campaign(camp, args.joints)   # --joints, and every coast-down trial's log
     with OutputDir(args.out, "coastdown", [camp.root]) as od:
         out = od.root
         report = analyse_campaign(camp, settings=CoastdownSettings(joints=tuple(args.joints)),

@@ -48,12 +48,21 @@ def load_robot_arg(path: Path):
     if path.suffix.lower() != ".urdf":
         raise InputError("--robot must be a .urdf, a folder holding one, or a campaign", path=path)
     drives = path.parent / "drives.toml"
+    from mocap.io.plausibility import check_drives_count
+    from mocap.urdf import check_urdf
+
+    check_urdf(path)                      # one line, before pinocchio prints its own
+    if drives.is_file():                  # a count that differs names drives.toml
+        check_drives_count(drives, Robot.from_urdf(path).n)
     return Robot.from_urdf(path, drives if drives.is_file() else None)
 
 
 def run(args) -> int:
     from ident.excitation.design import ExcitationDesigner, limits_from_robot
 
+    from mocap.io.plausibility import check_design_options
+
+    check_design_options(args)             # ranges and a memory estimate, before any work
     robot = load_robot_arg(args.robot)
     if not 1 <= args.joint <= robot.n:
         raise InputError(f"--joint {args.joint}: the robot has joints 1..{robot.n}", path=args.robot)

@@ -76,6 +76,9 @@ def run(args) -> int:
     camp = load_campaign(args.campaign)
     joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
     check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
+    from mocap.io.plausibility import check_diagnose_options
+
+    check_diagnose_options(args, camp)       # held --nominal values, --joints, --angles
     with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:
         od.check_early(["diagnosis.json", "diagnosis.md"])
         out = od.root

@@ -84,6 +84,9 @@ def run(args) -> int:
     from ident.model.record import check_campaign_motion
 
     check_campaign_motion(camp, camp.load_robot().n)    # braked joints must stay still
+    from mocap.io.plausibility import check_campaign_inputs
+
+    check_campaign_inputs(camp, markers=False)          # units, swaps, no motion: one line
     multi = multijoint_trials(camp)
     if multi:
         import dataclasses

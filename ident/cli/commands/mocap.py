@@ -39,7 +39,9 @@ def register(sub):
 
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
+    from mocap.io.plausibility import check_mocap_options
 
+    check_mocap_options(args)              # --trial ids, ranges, --calib, before any work
     camp = load_campaign(args.campaign)
     trials = [camp.trial(t) for t in args.trial] if args.trial else list(camp.trials)
     with OutputDir(args.out, "mocap", [camp.root] + ([args.calib] if args.calib else [])) as od:

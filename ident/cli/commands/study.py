@@ -64,7 +64,9 @@ def run_from_args(args, campaign_path: Path) -> int:
     settings = settings_from_args(args)
     camp = load_campaign(campaign_path)
     from ident.outputs import check_out_dir as check_study_out
+    from mocap.io.plausibility import check_campaign_inputs
 
+    check_campaign_inputs(camp, markers=settings.mocap)      # parseable-but-wrong inputs, first
     out = check_study_out(args.out, [camp.root])
     if args.rrd is not None:
         check_out_dir(Path(args.rrd).resolve().parent, [camp.root])

@@ -96,8 +96,11 @@ def canonical_command(args, out: str = "OUT") -> str:
 
 
 def run(args) -> int:
+    from mocap.io.plausibility import check_synth_options
+
     from ident.sim.campaign import CampaignSynth, SynthConfig
 
+    check_synth_options(args)              # ranges and a memory estimate, before any work
     cfg = SynthConfig(joints=_ints(args.joints, "--joints"), loads=_floats(args.loads, "--loads"),
                       vmax=_floats(args.vmax, "--vmax"), reps=args.reps, duration=args.duration,
                       kinds=tuple(k.strip() for k in args.kinds.split(",") if k.strip()),

@@ -40,6 +40,9 @@ def run(args) -> int:
             raise InputError("recording not found", path=path)
         if args.calib is not None or args.rrd is not None:
             raise InputError("--calib and --rrd apply to a campaign, not to an .rrd file", path=path)
+        from mocap.io.plausibility import check_rrd
+
+        check_rrd(path)
         return open_rrd(path)
     from mocap.io.campaign import load_campaign
     from mocap.references import read_calib
@@ -48,6 +51,10 @@ def run(args) -> int:
     from ident.study.view import log_campaign
 
     camp = load_campaign(path)
+    if args.calib is not None:
+        from mocap.io.plausibility import check_calib_json
+
+        check_calib_json(args.calib)
     T_cb = read_calib(args.calib) if args.calib is not None else None
     spawn = args.spawn or args.rrd is None   # nothing asked for: show it
     if args.rrd is not None:
