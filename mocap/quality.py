@@ -240,3 +240,21 @@ def check_marker_units(positions, labels, chain, path=None, joint: int | None = 
         raise InputError(f"{what}: the markers move at most {1e3 * ext_m[k]:.3g} mm for a robot that reaches "
                          f"{reach:.2f} m: units suspected (marker {labels[k]!r}; check the Units the marker "
                          "file declares)", path=path, label=labels[k])
+
+
+def check_marker_extent(markers, labels, chain) -> None:
+    """The campaign's markers in a marker file span more than 0.5 % of the robot's reach (they
+    sit on links centimetres apart): a smaller cloud is metres declared as millimetres."""
+    idx = [k for k, lb in enumerate(markers.labels) if lb in labels]
+    if len(idx) < 2:
+        return
+    P = markers.positions[:, idx].reshape(-1, 3)
+    P = P[np.all(np.isfinite(P), axis=1)]
+    if P.shape[0] < 2:
+        return
+    ext = float(np.max(np.ptp(P, axis=0)))
+    reach = chain_reach(chain)
+    if reach > 0 and ext < 0.005 * reach:
+        raise InputError(f"the campaign's {len(idx)} markers span {1e3 * ext:.3g} mm, {ext / reach:.2g} of the "
+                         f"robot's reach ({reach:.3g} m): metres declared as {markers.units} suspected "
+                         "(check the Units the marker file declares)", path=markers.source, label="Units")

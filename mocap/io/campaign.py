@@ -11,12 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mocap.io.errors import InputError, read_text
+from mocap.io.ids import TRIAL_ID, check_trial_id  # noqa: F401  (re-exported)
 
 TRIAL_KINDS = ("excitation", "coastdown", "reversals", "constant_velocity")
 
-#: FORMAT.md: a trial id is letters, digits, '.', '_' and '-', at most 100 characters, and does
-#: not start with '.' (a tool may use it in a file name)
-TRIAL_ID = re.compile(r"[A-Za-z0-9_-][A-Za-z0-9._-]{0,99}")
 #: environment variable that lets a campaign's inputs be symbolic links leading out of it
 FOLLOW_LINKS_ENV = "JOINTLAB_FOLLOW_LINKS"
 
@@ -25,21 +23,6 @@ def links_allowed() -> bool:
     """True when the user allows inputs reached through symbolic links that leave the campaign
     folder (``JOINTLAB_FOLLOW_LINKS=1``; docs/inputs.md)."""
     return os.environ.get(FOLLOW_LINKS_ENV, "").strip().lower() not in ("", "0", "no", "false", "off")
-
-
-def check_trial_id(tid, what: str, path: Path | None = None) -> str:
-    """``tid`` as text when it is a FORMAT.md trial id (a TOML integer counts as its digits),
-    else an :class:`InputError` naming ``what`` (``--trial`` or the manifest's trial)."""
-    if isinstance(tid, bool) or not isinstance(tid, (str, int)):
-        raise InputError(f"{what}: a trial id must be text, got {type(tid).__name__} {tid!r}",
-                         path=path, label="id")
-    text = str(tid)
-    if TRIAL_ID.fullmatch(text) is None:
-        shown = repr(text if len(text) <= 40 else text[:40] + "...")
-        raise InputError(f"{what}: trial id {shown} ({len(text)} characters) is not made of letters, "
-                         "digits, '.', '_' and '-' (at most 100 characters, not starting with '.')",
-                         path=path, label="id")
-    return text
 
 
 @dataclass(frozen=True)
@@ -204,7 +187,7 @@ class Campaign:
         if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
             check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,
                                path=m.source, check_motion=False)
-            from mocap.io.plausibility import check_marker_extent
+            from mocap.quality import check_marker_extent
 
             check_marker_extent(m, self.link_of_label(), robot.chain)
         if robot is not None and isinstance(rec, Trial):

@@ -694,7 +694,7 @@ def check_design_options(args) -> None:
 def check_mocap_options(args) -> None:
     """``jointlab mocap``: ``--trial`` ids (FORMAT.md), ``--reject-sigma`` > 0, ``--min-markers``
     >= 1, a valid ``--calib`` file."""
-    from mocap.io.campaign import check_trial_id
+    from mocap.io.ids import check_trial_id
 
     for t in args.trial or ():
         check_trial_id(t, "--trial")
@@ -772,21 +772,3 @@ def check_campaign_inputs(campaign, robot=None, markers: bool = True) -> None:
             campaign.read_markers(rec, robot)
 
 
-def check_marker_extent(markers, labels, chain) -> None:
-    """The campaign's markers in a marker file span more than 0.5 % of the robot's reach (they
-    sit on links centimetres apart): a smaller cloud is metres declared as millimetres."""
-    from mocap.quality import chain_reach
-
-    idx = [k for k, lb in enumerate(markers.labels) if lb in labels]
-    if len(idx) < 2:
-        return
-    P = markers.positions[:, idx].reshape(-1, 3)
-    P = P[np.all(np.isfinite(P), axis=1)]
-    if P.shape[0] < 2:
-        return
-    ext = float(np.max(np.ptp(P, axis=0)))
-    reach = chain_reach(chain)
-    if reach > 0 and ext < 0.005 * reach:
-        raise InputError(f"the campaign's {len(idx)} markers span {1e3 * ext:.3g} mm, {ext / reach:.2g} of the "
-                         f"robot's reach ({reach:.3g} m): metres declared as {markers.units} suspected "
-                         "(check the Units the marker file declares)", path=markers.source, label="Units")
