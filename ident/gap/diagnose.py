@@ -440,8 +440,13 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
             dloss = current_sse - cvr.sse
             if design.mode == "cycles":
                 p = sign_flip_pvalue(dloss, settings.n_perm, settings.seed)
+                se = float(np.std(dloss, ddof=1) / np.sqrt(dloss.size)) if dloss.size > 1 else np.inf
             else:
-                p = loss_differential_test(dloss)[0]
+                p, info = loss_differential_test(dloss)
+                se = info["se"] / max(info.get("hln", 1.0), 1e-12) if np.isfinite(info["se"]) else np.inf
+            # the size's one-sided 95 % lower bound: the removed variance per sample less 1.645
+            # standard errors of its mean over the units
+            lcb_mse = float((dloss.sum() - 1.645 * se * dloss.size) / n_tot)
             step_d[name] = dloss
             pvals[name] = p
             mse_e = float(cvr.sse.sum() / n_tot)
@@ -456,7 +461,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 share_step=_share(mse_cur - mse_e, mse_cur - noise),
                 p_value=p, p_min_attainable=p_min,
                 shape=cand.describe(hp) + ("; also times the selected effects' friction levels" if composed else ""),
-                evidence=_size_evidence(mse_cur - mse_e, noise, decl_ms)), cvr, cols)
+                evidence={**_size_evidence(mse_cur - mse_e, noise, decl_ms),
+                          "removed_variance_over_floor_lcb95": _over_floor(lcb_mse, noise)}), cvr, cols)
         adj = holm(pvals)
         for name, r in rows.items():
             if not r.test.identifiable:
@@ -467,7 +473,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                              significant=bool(
                 t.physical and adj[name] < settings.alpha and t.share_step >= settings.min_explained
                 and t.reduction_step >= settings.min_reduction
-                and t.evidence["removed_variance_over_floor"] >= floor))
+                and t.evidence["removed_variance_over_floor_lcb95"] >= floor))
         if tested_first is None:
             tested_first = rows
         sig = [r for r in rows.values() if r.test.significant]
