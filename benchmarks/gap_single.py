@@ -84,7 +84,8 @@ def run_one(job) -> dict:
         t0 = time.perf_counter()
         r = subprocess.run([sys.executable, "-m", "ident.cli", "diagnose", str(rec), "--out", str(Path(wd) / "out")],
                            capture_output=True, text=True, cwd=HERE.parent,
-                           env=dict(os.environ, PYTHONPATH=str(HERE.parent)))
+                           # the record links the campaign's files (docs/inputs.md: allowed explicitly)
+                           env=dict(os.environ, PYTHONPATH=str(HERE.parent), JOINTLAB_FOLLOW_LINKS="1"))
         res["diagnose_s"] = time.perf_counter() - t0
         if r.returncode != 0:
             return {**res, "error": (r.stderr or r.stdout).strip().splitlines()[-1:]}

@@ -106,11 +106,13 @@ def check_out_dir(out, inputs=(), flag: str = "--out", contain: bool = True) -> 
     return out
 
 
-class _Lock:
-    """``flock`` on ``--out/.jointlab-outputs.lock`` (a no-op where flock does not exist)."""
+class FolderLock:
+    """An exclusive ``flock`` on a lock file of an output folder (a no-op where flock does not
+    exist): a second command on the same folder waits for the first (``say`` tells the user it
+    waits), then finds its outputs."""
 
-    def __init__(self, path: Path):
-        self.path, self.fh = path, None
+    def __init__(self, path: Path, say=None):
+        self.path, self.say, self.fh = path, say, None
 
     def __enter__(self):
         try:
@@ -118,7 +120,12 @@ class _Lock:
         except ImportError:                                 # pragma: no cover (Windows)
             return self
         self.fh = open(self.path, "a+")
-        fcntl.flock(self.fh, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if self.say is not None:
+                self.say(f"another command is writing {self.path.parent}; waiting for it")
+            fcntl.flock(self.fh, fcntl.LOCK_EX)
         return self
 
     def __exit__(self, *exc):
@@ -166,7 +173,7 @@ class OutputDir:
 
     # the manifest ----------------------------------------------------------------------------
     def _lock(self):
-        return _Lock(self.root / LOCK)
+        return FolderLock(self.root / LOCK)
 
     def _load(self) -> dict:
         try:

@@ -126,8 +126,13 @@ def make_campaign(root: Path, vmax_fracs=(1.0, 0.5), reps=5, load=3.373, seed=0,
                 np.savetxt(root.parent / "angles" / f"{tid}.csv",
                            np.column_stack([tm, qa, np.full(tm.size, 0.9), np.full(tm.size, 3)]),
                            delimiter=",", header="time,q_1,rms_mm,n_markers", comments="", fmt="%.10g")
-    if coastdown:
-        trials.append({**trials[0], "id": "coast-1", "kind": "coastdown"})
+    if coastdown:   # its own recording (two trials never share a file), the first trial's data
+        import shutil
+
+        for ext in ("csv", "trc"):
+            shutil.copy(root / trials[0][{"csv": "log", "trc": "markers"}[ext]], root / f"trials/coast-1.{ext}")
+        trials.append({**trials[0], "id": "coast-1", "kind": "coastdown",
+                       "markers": "trials/coast-1.trc", "log": "trials/coast-1.csv"})
     write_manifest(root / "campaign.toml", {
         "format": 1, "name": "synthetic-one-link",
         "robot": {"urdf": "robot/arm.urdf", "drives": "robot/drives.toml", "gravity": [0.0, 0.0, -9.81]},

@@ -56,7 +56,7 @@ from ident.common import to_jsonable as _jsonable
 
 from mocap.io.errors import InputError
 
-from ident.outputs import OutputDir
+from ident.outputs import FolderLock, OutputDir
 from ident.study.records import dumps_record, read_record
 
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
@@ -481,7 +481,7 @@ class Study:
             od.rel(f"angles/{t.id}.csv")
         state = out / STATE_DIR
         state.mkdir(parents=True, exist_ok=True)
-        with _FolderLock(state / "lock", self._say):
+        with FolderLock(state / "lock", self._say):
             try:
                 return self._run_locked(camp, out, state, rrd, spawn, od)
             except BaseException:
@@ -929,36 +929,6 @@ class Study:
                       install=ctx.od.install if rrd_inside else None)
         up["report"] = {"hash": h, "outputs": outputs + ([str(rrd_path)] if rrd_path else [])}
         ctx.stages["report"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
-
-
-class _FolderLock:
-    """An exclusive lock on a study folder: a second study on the same ``--out`` waits for the
-    first, then resumes from its records (nothing computed twice, nothing half-written read).
-    POSIX ``flock``; where it is not available the lock is a no-op."""
-
-    def __init__(self, path: Path, say):
-        self.path, self.say, self.fh = path, say, None
-
-    def __enter__(self):
-        try:
-            import fcntl
-        except ImportError:                                 # pragma: no cover (Windows)
-            return self
-        self.fh = open(self.path, "a+")
-        try:
-            fcntl.flock(self.fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            self.say(f"another study is writing {self.path.parent.parent}; waiting for it")
-            fcntl.flock(self.fh, fcntl.LOCK_EX)
-        return self
-
-    def __exit__(self, *exc):
-        if self.fh is not None:
-            import fcntl
-
-            fcntl.flock(self.fh, fcntl.LOCK_UN)
-            self.fh.close()
-        return False
 
 
 @dataclass
