@@ -38,7 +38,7 @@ class InputError(ValueError):
 
 def one_line(text: str) -> str:
     """``text`` on one line: line breaks (a library's multi-line message, a name holding a
-    newline) become `` | ``, other control characters their escapes."""
+    newline) become a vertical bar between spaces, other control characters their escapes."""
     text = _BREAKS.sub(" | ", str(text).strip())
     return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
