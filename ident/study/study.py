@@ -56,7 +56,7 @@ from ident.common import to_jsonable as _jsonable
 
 from mocap.io.errors import InputError
 
-from ident.outputs import FolderLock, OutputDir
+from ident.outputs import FolderLock, OutputDir, file_sha256
 from ident.study.records import dumps_record, read_record
 
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
@@ -141,18 +141,6 @@ class StudyResult:
 # ---------------------------------------------------------------------------------------------
 # hashing and atomic writes
 # ---------------------------------------------------------------------------------------------
-def file_sha256(path: str | Path, chunk: int = 1 << 20) -> str:
-    """sha256 hex digest of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while True:
-            b = fh.read(chunk)
-            if not b:
-                break
-            h.update(b)
-    return h.hexdigest()
-
-
 class _Hasher:
     """File digests memoised by (path, size, mtime) for one run; combined digests of parts."""
 
