@@ -161,3 +161,39 @@ def test_two_friction_level_effects_are_both_found(foreign_cache, tmp_path):
     assert main(["diagnose", str(camp), "--out", str(tmp_path / "out")]) == 0
     jr = json.loads((tmp_path / "out" / "diagnosis.json").read_text())["joints"]["2"]
     assert set(jr["selected"][:2]) == {"load_dependent", "asymmetry"}, jr["selected"]
+
+
+def _single_record(camp: Path, trial_id: str, dest: Path) -> Path:
+    """``camp`` with only ``trial_id`` in its manifest, the other files linked."""
+    text = (camp / "campaign.toml").read_text()
+    head, *blocks = text.split("[[trial]]\n")
+    keep = [b for b in blocks if f'id = "{trial_id}"\n' in b]
+    assert len(keep) == 1
+    dest.mkdir(parents=True)
+    for sub in ("robot", "static", "calib", "trials"):
+        os.symlink(camp / sub, dest / sub)
+    (dest / "campaign.toml").write_text(head + "[[trial]]\n" + keep[0])
+    return dest
+
+
+@pytest.mark.parametrize("effect", ["nonlinear_viscous", "none"])
+def test_single_record_is_diagnosed_with_one_verdict_line(diagnosed, tmp_path, capsys, monkeypatch, effect):
+    """One excitation trial of a foreign campaign (the others removed from campaign.toml, as a robot
+    log users bring): a few motion cycles, so the power comes from the samples (HAC test,
+    hv-block folds over its cycles); the effect is named, the effect-free record is not
+    attributed, and the verdict line is the same in the console, diagnosis.json and .md."""
+    camp, _ = diagnosed(effect)
+    monkeypatch.setenv("JOINTLAB_FOLLOW_LINKS", "1")      # the record links the campaign's files
+    rec = _single_record(camp, "j2-exc-m1-v100-r1", tmp_path / "rec")
+    capsys.readouterr()
+    assert main(["diagnose", str(rec), "--out", str(tmp_path / "out")]) == 0
+    console = capsys.readouterr().out
+    jr = json.loads((tmp_path / "out" / "diagnosis.json").read_text())["joints"]["2"]
+    assert jr["n_trials"] == 1 and "HAC" in jr["tests"]["torque"] and jr["folds"].startswith("hv-block")
+    if effect == "none":
+        assert jr["verdict"] == "none" and jr["verdict_status"] == "none", jr["verdict_text"]
+    else:
+        assert jr["verdict"] == effect and jr["verdict_status"] == "effect", jr["verdict_text"]
+    assert f"joint 2: {jr['verdict_text']}" in console
+    assert jr["verdict_text"] in (tmp_path / "out" / "diagnosis.md").read_text()
+    assert 0 < jr["detectable_over_floor"]["torque"] < 0.3

@@ -1,7 +1,6 @@
 """The gap diagnosis's power from samples (issue 25): the HAC loss-differential test (size under
-autocorrelated nulls, power on a shifted mean), hv-block folds on a single record, and one
-verdict line, the same in the console, diagnosis.json and diagnosis.md."""
-import json
+autocorrelated nulls, power on a shifted mean, the Newey-West variance against an AR(1)'s known
+long-run variance). Single records of the independent foreign world: tests/test_gap_foreign.py."""
 
 import numpy as np
 import pytest
@@ -38,24 +37,3 @@ def test_loss_differential_test_has_power_and_nw_variance_is_right():
     x = _ar1(np.random.default_rng(1), 200000, 0.6)
     lrv, m = newey_west_lrv(x)
     assert lrv == pytest.approx(1 / 0.4 ** 2, rel=0.1) and m > 5
-
-
-def test_single_trial_campaign_is_diagnosed_with_one_verdict_line(tmp_path, capsys):
-    """One excitation trial (no repetition): folds are its motion cycles (hv-block), the test is
-    the sample-level one; the verdict line is the same in the console, the JSON and the report."""
-    from ident.cli.main import main
-
-    camp = tmp_path / "camp"
-    assert main(["synth", str(camp), "--effect", "stribeck", "--seed", "3", "--reps", "1", "--duration", "12",
-                 "--vmax", "1.0", "--loads", "0", "--quiet"]) == 0
-    out = tmp_path / "out"
-    capsys.readouterr()
-    assert main(["diagnose", str(camp), "--out", str(out), "--no-markers"]) == 0
-    console = capsys.readouterr().out
-    rep = json.loads((out / "diagnosis.json").read_text())["joints"]["5"]
-    assert rep["n_trials"] == 1 and "HAC" in rep["tests"]["torque"] and rep["folds"].startswith("hv-block")
-    assert rep["verdict"] == "stribeck", rep["verdict_text"]
-    assert rep["verdict_status"] == "effect"
-    assert f"joint 5: {rep['verdict_text']}" in console
-    assert rep["verdict_text"] in (out / "diagnosis.md").read_text()
-    assert 0 < rep["detectable_over_floor"]["torque"] < 0.3

@@ -18,11 +18,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import cached_property
+from types import SimpleNamespace
 
 import numpy as np
 
 from mocap.io.payload import payload_com
 
+from ident.gap.candidates import ssign
 from ident.gap.channels import _transmission_channel, motion_cycles, nominal_heldout_rms
 from ident.signals.smoothing import differentiate
 
@@ -109,8 +111,6 @@ class JointData:
         builder had the full-rate signal (``sgn_filtered``), else the plain smoothed sign."""
         if self.sgn_filtered is not None:
             return self.sgn_filtered
-        from ident.gap.candidates import ssign
-
         return ssign(self.qd)
 
     @property
@@ -260,8 +260,6 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
     # (about 3 sigma of that error) have no reliable friction direction and are left out
     vz = 3.0 * v_zero if (k_declared > 0 and friction_side == "link") else v_zero
     offsets = campaign_clock(logs)
-    from ident.gap.candidates import ssign
-
     cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "q_hf", "y", "tau_urdf", "tau_grav", "regs", "load",
                             "trial_m", "dq_m", "qd_m", "y_m", "t_m", "tau_m", "tau_mf")}
     cache = {}
@@ -385,8 +383,6 @@ def coupled_motor_columns(joint: int, qd: np.ndarray, qdd: np.ndarray, coupling:
     Ci = np.linalg.inv(coupling)
     CiT = Ci.T
     u, udd = qd @ Ci.T, qdd @ Ci.T
-    from ident.gap.candidates import ssign
-
     cols = [CiT[joint - 1, k] * np.column_stack([ssign(u[:, k]), u[:, k], udd[:, k]])
             for k in range(n) if np.sum(np.abs(Ci[k]) > 1e-12) > 1 and abs(CiT[joint - 1, k]) > 1e-12]
     return np.column_stack(cols) if cols else np.zeros((qd.shape[0], 0))
@@ -418,8 +414,6 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     11-40 blocks and turned `none` into `load_dependent` on joint 3 (10) and `nonlinear_viscous`
     on joints 1 and 2 (20, 40); ``benchmarks/segmentation.py``). Torque channel only.
     """
-    from types import SimpleNamespace
-
     j0 = joint - 1
     arm = 0.0 if armature is None else float(np.asarray(armature)[j0])
     tau_rb = robot.rnea(q, qd, qdd)[:, j0]
@@ -464,8 +458,6 @@ def concat_joint_data(parts: list, offsets=None) -> JointData:
     :func:`build_joint_data_record` on separate records): their blocks and held-out folds side by
     side (never across records), times shifted by ``offsets`` onto one clock
     (:func:`campaign_clock`)."""
-    from types import SimpleNamespace
-
     if len(parts) == 1:
         return parts[0]
     offsets = [0.0] * len(parts) if offsets is None else list(offsets)

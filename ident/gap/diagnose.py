@@ -205,7 +205,7 @@ class _ChannelRun:
     p_min: float = 1.0            # smallest p the block sign-flip test can give
     n_tested: int = 0             # identifiable candidates (Holm's multiplier at the first step)
     design: _TestDesign | None = None
-    first_d: dict | None = None   # effect -> per-unit held-out loss differential at the last step
+    last_d: dict | None = None    # effect -> per-unit held-out loss differential at the last step
 
     def powerless(self, alpha: float) -> bool:
         """True when even the most extreme outcome cannot pass Holm's first threshold."""
@@ -220,12 +220,12 @@ class _ChannelRun:
         the sign-flip test). Infinite when the test cannot reach the threshold at all."""
         from scipy.stats import norm, t as student_t
 
-        if self.powerless(alpha) or not self.first_d or not np.isfinite(self.noise_floor_mse) \
+        if self.powerless(alpha) or not self.last_d or not np.isfinite(self.noise_floor_mse) \
                 or self.noise_floor_mse <= 0:
             return float("inf")
+        n = next(iter(self.last_d.values())).shape[0]   # units (the same for every candidate)
         ses = []
-        for dl in self.first_d.values():   # one standard error per candidate
-            n = dl.shape[0]
+        for dl in self.last_d.values():   # one standard error per candidate
             if self.design is not None and self.design.mode == "samples":
                 _, info = loss_differential_test(dl)
                 ses.append(info["se"] / max(info.get("hln", 1.0), 1e-12))
@@ -313,9 +313,8 @@ MAX_UNITS = 600
 
 
 def _sample_units(blocks: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each motion cycle of ``blocks`` cut into consecutive units of about ``length`` samples (a
-    remnant shorter than half a unit joins the previous one). Returns (units (n, 2), parent
-    block of each unit)."""
+    """Each motion cycle of ``blocks`` cut into ``round(n / length)`` (at least one) equal
+    consecutive units. Returns (units (n, 2), parent block of each unit)."""
     units, parent = [], []
     for k, (s, e) in enumerate(blocks):   # loop over cycles
         n = int(e - s)
@@ -338,12 +337,11 @@ def _guard_masks(units: np.ndarray, unit_trial: np.ndarray, fold: np.ndarray, h:
         for tr in np.unique(unit_trial[test]):   # loop over the trials the fold touches
             same = (unit_trial == tr) & ~test
             ts, te = units[test & (unit_trial == tr), 0], units[test & (unit_trial == tr), 1]
-            lo, hi = ts.min() - h, te.max() + h
-            # units overlapping [lo, start of a test unit) or (end of a test unit, hi]
+            # units reaching within h samples of a test unit
             near = np.zeros(fold.shape[0], bool)
             for a, b in zip(ts, te):   # loop over the fold's test units in this trial
                 near |= (units[:, 1] > a - h) & (units[:, 0] < b + h)
-            g |= same & near & (units[:, 1] > lo) & (units[:, 0] < hi)
+            g |= same & near
         if g.any():
             out[f] = g
     return out
@@ -358,7 +356,6 @@ class _TestDesign:
     fold: np.ndarray          # (n,) held-out fold of each unit
     guard: dict               # fold -> units left out of its training (hv-block)
     n_cycles: int
-    correlation_samples: int = 0
     text: str = ""
 
 
@@ -391,7 +388,7 @@ def _test_design(d: JointData, ch: Channel, n_effects: int, settings: "Diagnosis
     else:
         fold, ftext = parent.copy(), "cycles"
     guard = _guard_masks(units, unit_trial, fold, h)
-    return _TestDesign("samples", units, fold, guard, n_cycles, h,
+    return _TestDesign("samples", units, fold, guard, n_cycles,
                        text=f"HAC loss-differential test (Diebold-Mariano, Newey-West, HLN correction) over "
                             f"{units.shape[0]} units of ~{length} samples; folds: {ftext} "
                             f"(hv-block, guard {h} samples: the residual's correlation length)")
@@ -666,7 +663,7 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
                     {cd.family for cd in cands if cd.channel == c} or {""})
         power[c] = max(r.detectable(settings.alpha), floor)
     spectrum = residual_spectrum(resid, tch.trial, dt, tres.noise_floor_mse)
-    status, insufficient, next_exp = _status(verdict, runs, chres, power, settings, d, spectrum, localisation)
+    status, insufficient, next_exp = _status(verdict, runs, power, settings, d, spectrum, localisation)
     alternatives = _alternatives(verdict, runs, d)
     if alternatives and not next_exp:
         next_exp = {"why": f"{verdict} and {', '.join(a['effect'] for a in alternatives)} explain the same term",
@@ -695,7 +692,6 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
 #: residue); a gap of a full noise variance is beyond what an adequate nominal leaves.
 UNEXPLAINED_EXCESS = 1.0
 #: effect -> the experiment that separates it from its confounders (the registry's)
-REGISTRY_SEPARATION = {n: confounders(n)[1] for n in ("load_dependent", "torque_scale")}
 #: the size (noise-variance units) below which a channel is called powerful enough: an effect
 #: removing less than this is what the acceptance calls too small for any method to see
 POWER_TARGET = 0.3
@@ -743,7 +739,7 @@ def _folds_text(d: JointData, runs: dict) -> str:
     return "leave-one-repetition-out" if len(set(d.fold.tolist())) < d.n_trials else "leave-one-trial-out"
 
 
-def _status(verdict: str, runs: dict, chres: dict, power: dict, settings: DiagnosisSettings, d: JointData,
+def _status(verdict: str, runs: dict, power: dict, settings: DiagnosisSettings, d: JointData,
             spectrum: dict, localisation) -> tuple:
     """(status, text, next experiment) of the verdict: ``effect``; ``none`` (the gap is at the
     noise floor, and the data could have shown an effect of the stated size); ``unexplained``
@@ -794,32 +790,25 @@ def _alternatives(verdict: str, runs: dict, d: JointData) -> tuple:
     if verdict == "none":
         return ()
     for r in runs.values():
-        for st in r.steps[:1]:
-            s0 = st[0]
-            if s0.effect != verdict:
+        row = r.first.get(verdict)
+        if not r.steps or r.steps[0][0].effect != verdict or row is None:
+            continue
+        for k, x in row.test.evidence.items():
+            if not k.startswith("unique_share_given_"):
                 continue
-            row = r.first.get(verdict)
-            if row is None:
-                continue
-            for k, x in row.test.evidence.items():
-                if not k.startswith("unique_share_given_"):
-                    continue
-                other = k[len("unique_share_given_"):]
-                o = r.first.get(other)
-                ub = o.test.evidence.get(f"unique_share_given_{verdict}") if o is not None else None
-                if o is not None and o.test.significant and x < 1 / 3 and ub is not None and ub < 1 / 3:
-                    _, exp = confounders(verdict)
-                    out.append({"effect": other, "why": f"explains the same term (unique shares {x:.2f} / {ub:.2f})",
-                                "separate_by": exp})
-    # a gear efficiency (FORMAT.md's torque_scale) is friction proportional to the torque the gear
-    # passes, i.e. a load-dependent friction in the friction literature: say so when it wins
-    tq = runs.get("torque")
-    st = tq.steps[0][0] if tq is not None and tq.steps else None
-    if (verdict == "torque_scale" and st is not None and st.effect == verdict and "efficiency" in st.shape
-            and not any(a["effect"] == "load_dependent" for a in out)):
-        out.append({"effect": "load_dependent", "why": "a direction-dependent gear efficiency is friction "
-                    "proportional to the torque the gear passes (FORMAT.md names it torque_scale)",
-                    "separate_by": REGISTRY_SEPARATION.get("load_dependent", "")})
+            other = k[len("unique_share_given_"):]
+            o = r.first.get(other)
+            ub = o.test.evidence.get(f"unique_share_given_{verdict}") if o is not None else None
+            if o is not None and o.test.significant and x < 1 / 3 and ub is not None and ub < 1 / 3:
+                out.append({"effect": other, "why": f"explains the same term (unique shares {x:.2f} / {ub:.2f})",
+                            "separate_by": confounders(verdict)[1]})
+        # a gear efficiency (FORMAT.md's torque_scale) is friction proportional to the torque the
+        # gear passes, i.e. a load-dependent friction in the friction literature: say so when it wins
+        if (verdict == "torque_scale" and row.cv is not None and row.cv.hp_all[1] == "efficiency"
+                and not any(a["effect"] == "load_dependent" for a in out)):
+            out.append({"effect": "load_dependent", "why": "a direction-dependent gear efficiency is friction "
+                        "proportional to the torque the gear passes (FORMAT.md names it torque_scale)",
+                        "separate_by": confounders("load_dependent")[1]})
     loaded = [tr for tr in d.trials if getattr(tr, "load_kg", 0) > 0]
     com = [(getattr(tr, "extra", None) or {}).get("payload_com") for tr in loaded]
     if verdict in ("torque_scale", "load_dependent") and loaded and any(c is None or c == "unknown" for c in com):

@@ -27,27 +27,6 @@ class Grams:
     n: np.ndarray   # (n_blocks,) samples
 
 
-def _block_sums(F: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-    """Sums of the rows of ``F`` over each block ``[s, e)`` of ``bounds`` (sorted, non-empty,
-    contiguous blocks by ``np.add.reduceat`` in chunks of samples; any other layout by a loop)."""
-    nt = bounds.shape[0]
-    out = np.zeros((nt,) + F.shape[1:])
-    if nt == 0:
-        return out
-    s, e = bounds[:, 0], bounds[:, 1]
-    if np.all(e > s) and np.all(s[1:] == e[:-1]):
-        # chunks of whole blocks of at most ~2e5 samples: bounded temporaries
-        cuts = np.searchsorted(s, np.arange(s[0], e[-1], 200000), side="right") - 1
-        cuts = np.unique(np.r_[cuts, nt])
-        for a, b in zip(cuts[:-1], cuts[1:]):
-            lo, hi = s[a], e[b - 1]
-            out[a:b] = np.add.reduceat(F[lo:hi], s[a:b] - lo, axis=0)
-        return out
-    for i, (a, b) in enumerate(bounds):  # loop over blocks
-        out[i] = F[a:b].sum(axis=0)
-    return out
-
-
 def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     """Per block ``A_blk^T B_blk``: (n_blocks, p, k)."""
     nt, p, k = bounds.shape[0], A.shape[1], B.shape[1]
@@ -75,7 +54,7 @@ def grams(X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> Grams:
     """Per-block Gram matrices ``X^T X``, ``X^T r`` and ``r^T r`` (vectorised over samples)."""
     G = _outer_sums(X, X, bounds)
     b = _outer_sums(X, r[:, None], bounds)[:, :, 0]
-    yy = _block_sums(r * r, bounds)
+    yy = _outer_sums(r[:, None], r[:, None], bounds)[:, 0, 0]
     return Grams(G, b, yy, bounds[:, 1] - bounds[:, 0])
 
 
