@@ -132,22 +132,32 @@ def _check_time_unit(log, rec, joints, robot, path) -> None:
         return
     vf = float(getattr(rec, "vmax_frac", 1.0) or 1.0)
     for j in joints:
-        if j > log.qm.shape[1] or j > len(robot.drives):
+        peak = _peak_speed(log, j, robot, 3)
+        if peak is None:
             continue
-        vmax = float(robot.drives[j - 1].max_velocity)
-        if not (np.isfinite(vmax) and vmax > 0):
-            continue
-        ok = np.isfinite(log.qm[:, j - 1])
-        t, q = log.time[ok], log.qm[ok, j - 1]
-        if t.size < 3:
-            continue
-        v = _p99(np.diff(q) / np.diff(t))
+        v, vmax, _ = peak
         ratio = v / (vf * vmax)
         if ratio < 1.0 / UNIT_RATIO ** 2:
             raise InputError(f"joint {j} peaks at {v:.3g} rad/s, {_fmt_ratio(ratio)} times the declared "
                              f"{vf:g} x max_velocity ({vmax:g} rad/s), with samples {step:.3g} s apart: "
                              "time in milliseconds suspected (FORMAT.md: seconds)", path=path,
                              label="time")
+
+
+def _peak_speed(log, j: int, robot, min_samples: int):
+    """(99th-percentile speed of ``qm_j`` in rad/s, the drive's max_velocity, the finite angles)
+    of joint ``j``, or None when the log, the drive or the samples cannot say."""
+    if j > log.qm.shape[1] or j > len(robot.drives):
+        return None
+    vmax = float(robot.drives[j - 1].max_velocity)
+    if not (np.isfinite(vmax) and vmax > 0):
+        return None
+    ok = np.isfinite(log.qm[:, j - 1])
+    t, q = log.time[ok], log.qm[ok, j - 1]
+    if t.size < min_samples:
+        return None
+    dt = np.diff(t)
+    return _p99(np.diff(q) / np.where(dt > 0, dt, np.nan)), vmax, q
 
 
 def _roughness(x) -> float:
@@ -164,17 +174,10 @@ def _roughness(x) -> float:
 
 def _check_swap(log, joints, robot, path) -> None:
     for j in joints:
-        if j > log.qm.shape[1] or j > log.tau.shape[1] or j > len(robot.drives):
+        peak = _peak_speed(log, j, robot, 5) if j <= log.tau.shape[1] else None
+        if peak is None:
             continue
-        vmax = float(robot.drives[j - 1].max_velocity)
-        if not (np.isfinite(vmax) and vmax > 0):
-            continue
-        ok = np.isfinite(log.qm[:, j - 1])
-        t, q = log.time[ok], log.qm[ok, j - 1]
-        if t.size < 5:
-            continue
-        dt = np.diff(t)
-        v = _p99(np.diff(q) / np.where(dt > 0, dt, np.nan))
+        v, vmax, q = peak
         rq, rt = _roughness(q), _roughness(log.tau[:, j - 1])
         if v > 3.0 * vmax and np.isfinite(rq) and np.isfinite(rt) and rq > 3.0 * rt:
             raise InputError(f"qm_{j} changes at {v:.3g} rad/s ({_fmt_ratio(v / vmax)} times max_velocity "
