@@ -195,7 +195,7 @@ class DiagnosisResult:
 
     References
     ----------
-    .. [1] jointlab data format (docs/format.md), diagnosis.json.
+    .. [1] jointlab data format (docs/format.md), sec. What the workbench writes.
     .. [2] jointlab gap diagnosis (docs/gap-diagnosis.md).
     """
 
