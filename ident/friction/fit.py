@@ -81,7 +81,7 @@ class FrictionFit:
     names : tuple
         ``param_names`` then the extra names.
     rms : float
-        RMS of the residual (N m; the weighted mean square with weights).
+        RMS of the residual (N m), weighted by ``weights`` when given.
     n : int
         Samples used.
     cond : float
