@@ -72,13 +72,52 @@ __all__ = ["CoastdownResult", "CoastdownBound", "CoastdownSim", "coast_velocity"
 # -- results ------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CoastdownResult:
-    """Identified ``Kv`` (N m s/rad), ``Kc`` (N m) and the initial speed ``v0`` (rad/s).
+    r"""Identified viscous and Coulomb friction of a coast-down, and the release speed.
 
-    ``stderr`` maps parameter names to standard errors (from the time-domain residuals and
-    the analytic Jacobian; NaN where the method gives none), ``rms`` is the RMS of the
-    velocity residual of eq. 4 with the stop (rad/s), ``t_stop`` the predicted stop time
-    after ``t0`` (the release time on the caller's clock), ``direction`` the sign of the
-    coasting velocity in the caller's data.
+    The parameters of the coast-down's velocity, eq. 4 of the coast-down paper [1]_ with the
+    stop,
+
+    .. math::
+
+        v(t) = \max\left((v_0 + K_c/K_v)\, e^{-K_v t / J} - K_c/K_v,\; 0\right)
+
+    as every estimator of this module returns them (:func:`tdm`, :func:`fdm`, :func:`nls`).
+
+    Attributes
+    ----------
+    Kv : float
+        Viscous coefficient (N m s/rad).
+    Kc : float
+        Coulomb level (N m).
+    v0 : float
+        Speed at the release (rad/s).
+    stderr : dict
+        Parameter name -> standard error (from the time-domain residuals and the analytic
+        Jacobian; NaN where the method gives none).
+    rms : float
+        RMS of the velocity residual of eq. 4 with the stop (rad/s).
+    method : str
+        The estimator (``"tdm"``, ``"fdm"``, ``"nls"``).
+    converged : bool
+        Whether the estimator's iteration converged.
+    iterations : int
+        Its iterations.
+    cond : float
+        Condition number of the estimator's normal matrix (NaN: none).
+    t_stop : float
+        Predicted stop time after ``t0`` (s).
+    t0 : float
+        The release time on the caller's clock (s).
+    n_samples : int
+        Samples used.
+    direction : int
+        Sign of the coasting velocity in the caller's data.
+    diagnostics : dict
+        Estimator-specific details.
+
+    References
+    ----------
+    .. [1] Coast-down friction identification (seeds 000), eq. 1-4.
     """
 
     Kv: float
@@ -604,10 +643,11 @@ def _initial_guess(tr, v, J, v0):
 
 
 def nls(t, v, J: float, v0: float | None = None, *, x0=None, max_nfev: int = 200) -> CoastdownResult:
-    """Maximum likelihood (white Gaussian noise) = nonlinear least squares on eq. 4 WITH the
-    stop time: ``v = max((v0 + Kc/Kv) exp(-Kv t/J) - Kc/Kv, 0)``; estimates (Kv, Kc) and
-    ``v0`` unless ``v0`` is given. The record may extend past the stop. ``x0`` optionally
-    starts the solver at (Kv, Kc[, v0]).
+    """Fit a coast-down's friction by nonlinear least squares on eq. 4 with the stop.
+
+    Maximum likelihood in white Gaussian noise: ``v = max((v0 + Kc/Kv) exp(-Kv t/J) - Kc/Kv,
+    0)`` [1]_; estimates (Kv, Kc) and ``v0`` unless ``v0`` is given. The record may extend
+    past the stop. ``x0`` optionally starts the solver at (Kv, Kc[, v0]).
 
     Parameters
     ----------
@@ -629,8 +669,7 @@ def nls(t, v, J: float, v0: float | None = None, *, x0=None, max_nfev: int = 200
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), sec. 3, eq. 4 with the stop.
+    .. [1] Coast-down friction identification (seeds 000), eq. 4 with the stop.
 
     Examples
     --------
@@ -686,9 +725,16 @@ def nls(t, v, J: float, v0: float | None = None, *, x0=None, max_nfev: int = 200
 # -- Cramer-Rao bound ---------------------------------------------------------------------
 def crb(t, J: float, Kv: float, Kc: float, v0: float, sigma: float, *,
         estimate_v0: bool = False) -> CoastdownBound:
-    """Cramer-Rao bound for (Kv, Kc[, v0]) from samples at ``t`` (release at ``t[0]``) of
-    eq. 4 with the stop, in white Gaussian noise of std ``sigma``:
-    ``cov >= (G^T G / sigma^2)^-1`` with ``G`` the analytic Jacobian of the model.
+    r"""Cramer-Rao bound of the coast-down parameters (Kv, Kc[, v0]).
+
+    For samples at ``t`` (release at ``t[0]``) of eq. 4 with the stop [1]_, in white
+    Gaussian noise of standard deviation ``sigma``:
+
+    .. math::
+
+        \operatorname{cov} \succeq \left(G^T G / \sigma^2\right)^{-1}
+
+    with ``G`` the analytic Jacobian of the model.
 
     Parameters
     ----------
@@ -708,8 +754,8 @@ def crb(t, J: float, Kv: float, Kc: float, v0: float, sigma: float, *,
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), Table 2 (the relative errors this bounds).
+    .. [1] Coast-down friction identification (seeds 000), eq. 4 and Table 2 (the relative
+       errors this bounds).
 
     Examples
     --------
