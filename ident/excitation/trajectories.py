@@ -352,6 +352,11 @@ def min_jerk_path(waypoints, vmax: float, amax: float, hold: float = 0.5) -> Min
     MinJerkPath
         The trajectory.
 
+    References
+    ----------
+    .. [1] Flash & Hogan 1985, the minimum-jerk model of point-to-point movements.
+    .. [2] jointlab data format (docs/format.md), sec. Campaign format (trial kinds).
+
     Examples
     --------
     >>> path = min_jerk_path([0.0, 1.0, 0.0], vmax=1.0, amax=2.0)
