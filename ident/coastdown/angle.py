@@ -193,8 +193,8 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3 (the rigid coast this extends to two masses).
+    .. [1] Coast-down friction identification (seeds 000), eq. 3 (the rigid coast this extends to
+       two masses).
     """
     tau = np.asarray(tau, float)
     kk = np.arange(tau.size) if kk is None else np.asarray(kk)
@@ -638,8 +638,8 @@ class AngleCoastFit:
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), sec. 3 (maximum likelihood on eq. 4, here integrated to the angle).
+    .. [1] Coast-down friction identification (seeds 000), sec. 3 (maximum likelihood on eq. 4,
+       here integrated to the angle).
 
     Examples
     --------

@@ -210,8 +210,7 @@ def stop_time(J: float, Kv: float, Kc: float, v0: float) -> float:
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3-4.
+    .. [1] Coast-down friction identification (seeds 000), eq. 3-4.
 
     Examples
     --------
@@ -248,8 +247,7 @@ def coast_velocity(t, J: float, Kv: float, Kc: float, v0: float, stop: bool = Tr
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+    .. [1] Coast-down friction identification (seeds 000), eq. 3-4.
 
     Examples
     --------
@@ -377,8 +375,7 @@ def tdm(t, v, J: float, v0: float | None = None, *, kv_range=None, n_grid: int =
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 4-6 and Table 2.
+    .. [1] Coast-down friction identification (seeds 000), eq. 4-6 and Table 2.
 
     Examples
     --------
@@ -477,8 +474,7 @@ def record_spectrum(t, v, w_max: float, pad: int = 64):
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 7-8.
+    .. [1] Coast-down friction identification (seeds 000), eq. 7-8.
 
     Examples
     --------
@@ -538,8 +534,7 @@ def fdm_batch(t, v, J: float, v0, *, w_max: float = 30.0, pad: int = 64):
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 9-11.
+    .. [1] Coast-down friction identification (seeds 000), eq. 9-11.
     """
     v = np.atleast_2d(np.asarray(v, float))
     _check(t, v[0], "fdm", uniform=True)
@@ -589,8 +584,7 @@ def fdm(t, v, J: float, v0: float | None = None, *, w_max: float | None = None,
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 7-11.
+    .. [1] Coast-down friction identification (seeds 000), eq. 7-11.
 
     Examples
     --------
@@ -805,8 +799,8 @@ def simulate_sdof_coastdown(J: float, Kv: float, Kc: float, v0: float, fs: float
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), Table 1 (the simulated rotor) and Table 2 (the SNRs).
+    .. [1] Coast-down friction identification (seeds 000), Table 1 (the simulated rotor) and Table
+       2 (the SNRs).
 
     Examples
     --------
@@ -926,8 +920,7 @@ def coastdown_from_trial(t, qd, J: float, tau=None, coasting=None, *, method: st
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+    .. [1] Coast-down friction identification (seeds 000), eq. 3-4.
 
     Examples
     --------
