@@ -376,8 +376,7 @@ def fit_references(chain, labels, links, poses, T_camera_base=None) -> Reference
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-4.
+    .. [1] PA10 thesis (seeds 002), eq. 3-4.
 
     Examples
     --------
@@ -531,8 +530,7 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-4.
+    .. [1] PA10 thesis (seeds 002), eq. 3-4.
     """
 
     check_marker_links(campaign)

@@ -63,8 +63,7 @@ def regressor_cond(q, qd, qdd) -> float:
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eqs. 2-4, 2-5 and 3-1.
+    .. [1] PA10 thesis (seeds 002), eq. 2-4, 2-5 and 3-1.
 
     Examples
     --------
@@ -162,8 +161,7 @@ class ExcitationDesigner:
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eqs. 3-1 and 3-2.
+    .. [1] PA10 thesis (seeds 002), eq. 3-1 and 3-2.
 
     Examples
     --------

@@ -94,8 +94,7 @@ def fourier_excitation(rng: np.random.Generator, vmax: float, vmax_frac: float, 
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-2.
+    .. [1] PA10 thesis (seeds 002), eq. 3-2.
 
     Examples
     --------
