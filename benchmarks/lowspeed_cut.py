@@ -9,6 +9,14 @@ Coulomb estimate as a ratio to the reference (TX40: the published figaroh values
 ../shared/data/real/README.md, for comparison, not for tuning; arm7: the simulated truth), and
 the spread of those ratios over the cuts (the bound on the cut's effect).
 
+The TX40 part then looks at the data below the cut (``analyse``): the rows each cut keeps, the
+friction the record shows per speed band as a ratio to the Coulomb + viscous line fitted above
+the noise floor, the friction around the moving velocity reversals (time-aligned on the zero
+crossing: a torque lag would shift the step, a smooth friction transition is symmetric), the
+width of a smoothed-sign fit ``c tanh(|qd|/vs) + fv |qd|`` against the speed range it is fitted
+on, and two alternative cut rules (the noise floor alone; the first speed from which the mean
+signed residual of each speed band is within the band's own scatter, one pass and iterated).
+
     python benchmarks/lowspeed_cut.py            # both records (about 1 min)
     python benchmarks/lowspeed_cut.py --quick    # TX40 only
 """
@@ -64,14 +72,131 @@ def sweep(name, camp, ref):
     print(f"{'auto: |ratio - 1|':<34}" + "".join(f"  {abs(x - 1):.3f}" for x in ratios[0]))
 
 
+def _fit_at(rec, chain, base, v0):
+    """(Coulomb per joint, signed friction residual rows) of the cv fit with the cut ``v0``."""
+    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier
+
+    idt = RigidBodyIdentifier(chain, base, model="cv", folds=0, v_zero=v0)
+    A, names, F, M, _, sigma, idt._dropped = idt._prepared(rec)
+    idt._names = names
+    sol = idt._solve(rec, A, F, M, np.ones(rec.t.size, bool), sigma=sigma, quick=True)
+    resid = rec.tau - idt._predict(rec, A, F, sol)
+    _PREPARED.clear()
+    return sol["bf"][0::2], sol["bf"][1::2], resid
+
+
+def _band_effect(qd, r, lo, sp, n_bins=15):
+    """Per log-spaced speed band from ``lo`` to ``sp``: mean of sign(qd) r over its scatter."""
+    a, y = np.abs(qd), np.sign(qd) * r
+    edges = np.geomspace(lo, sp, n_bins + 1)
+    k = np.searchsorted(edges, a, side="right") - 1
+    ok = (k >= 0) & (k < n_bins)
+    cnt = np.bincount(k[ok], minlength=n_bins)
+    m1 = np.bincount(k[ok], y[ok], n_bins) / np.maximum(cnt, 1)
+    m2 = np.bincount(k[ok], y[ok] ** 2, n_bins) / np.maximum(cnt, 1)
+    sd = np.sqrt(np.maximum(m2 - m1 ** 2, 1e-300))
+    return edges, np.where(cnt >= 10, m1 / sd, 0.0)
+
+
+def analyse(camp, ref):
+    """What the TX40 record shows below and around the cut (see the module docstring)."""
+    from ident.model.multijoint import _auto_cut, multijoint_trials
+    from ident.model.record import load_record
+    from ident.model.regressor import ChainDynamics, base_parameters
+
+    robot = camp.load_robot()
+    chain = ChainDynamics.from_model(robot.model)
+    base = base_parameters(chain, robot.lower, robot.upper, seed=0)
+    tr = multijoint_trials(camp)[0]
+    rec = load_record(camp, tr, robot)
+    n, qd = rec.n, rec.qd
+    sp = np.percentile(np.abs(qd), 99, axis=0)
+    cut = _auto_cut(camp, tr, robot, rec, chain, base, 0, {})
+    floor = np.asarray(cut["noise_floor"])
+    print("\nTX40 velocity noise: angle noise sigma_q (rad) / sigma_v through the derivative "
+          "(rad/s) / 3 sigma_v as % of speed / derivative window (ms)")
+    for j in range(n):
+        print(f"  j{j + 1}: {cut['sigma_q'][j]:.2g} / {cut['sigma_v'][j]:.2g} / "
+              f"{100 * floor[j] / sp[j]:.2g} % / {1e3 * rec.preprocessing['window_s'][str(j + 1)]:.3g}")
+    fracs = (0.0, 0.0025, 0.005, 0.01, 0.02, 0.05)
+    print("rows kept per cut (of " + str(rec.t.size) + "; the record rests for about "
+          f"{int(np.sum(np.all(np.abs(qd) < 0.0025 * sp, axis=1)))} rows at its ends)")
+    for f in fracs:
+        print(f"  {100 * f:5.2g} %: " + " ".join(f"{int(np.sum(np.abs(qd[:, j]) > f * sp[j])):5d}"
+                                                 for j in range(n)))
+    c0, v0, r0 = _fit_at(rec, chain, base, floor)
+    fr = r0 + c0[None, :] * np.sign(qd) + v0[None, :] * qd        # friction the record shows
+    bands = (0.001, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.1, 0.16, 0.4, 1.0)
+    print("friction / (Coulomb + viscous line fitted above the noise floor), per speed band "
+          "(% of the 99th-percentile speed; rows)")
+    for j in range(min(n, 5)):
+        a = np.abs(qd[:, j])
+        line = c0[j] + v0[j] * a
+        cells = []
+        for lo, hi in zip(bands[:-1], bands[1:]):
+            m = (a >= lo * sp[j]) & (a < hi * sp[j])
+            cells.append(f"{np.mean(np.sign(qd[m, j]) * fr[m, j] / line[m]):.2f} ({m.sum()})"
+                         if m.sum() >= 5 else "-")
+        print(f"  j{j + 1}: " + "  ".join(f"{100 * lo:g}-{100 * hi:g}: {c}"
+                                          for lo, hi, c in zip(bands[:-1], bands[1:], cells)))
+    lags = np.arange(-10, 15, 4)
+    print("friction / Coulomb at the moving reversals (time from the velocity zero crossing, ms; "
+          "sign of the new direction)")
+    for j in range(min(n, 5)):
+        s = np.sign(qd[:, j])
+        z = np.flatnonzero(s[1:] != s[:-1]) + 1
+        z = z[(z > 40) & (z < rec.t.size - 40)]
+        z = np.array([k for k in z if np.abs(qd[k - 40:k, j]).max() > 0.05 * sp[j]
+                      and np.abs(qd[k:k + 40, j]).max() > 0.05 * sp[j]], int)
+        if z.size == 0:
+            continue
+        M = np.array([s[z] * fr[z + k, j] / c0[j] for k in lags]).mean(axis=1)
+        print(f"  j{j + 1} ({z.size} reversals): " + " ".join(
+            f"{2 * k:+d}: {m:.2f}" for k, m in zip(lags, M)))
+    print("smoothed-sign fit c tanh(|qd|/vs) + fv |qd|: vs as % of speed against the upper end "
+          "of the fitted range (10, 25, 50, 100 % of speed)")
+    for j in range(min(n, 5)):
+        a, y = np.abs(qd[:, j]), np.sign(qd[:, j]) * fr[:, j]
+        out = []
+        for up in (0.1, 0.25, 0.5, 1.0):
+            m = (a >= floor[j]) & (a <= up * sp[j])
+            best = None
+            for vs in np.geomspace(1e-4, 1.0, 161) * sp[j]:        # grid over the width
+                X = np.column_stack([np.tanh(a[m] / vs), a[m]])
+                b, *_ = np.linalg.lstsq(X, y[m], rcond=None)
+                rss = float(np.sum((y[m] - X @ b) ** 2))
+                if best is None or rss < best[0]:
+                    best = (rss, vs)
+            out.append(f"{100 * best[1] / sp[j]:.2g} %")
+        print(f"  j{j + 1}: " + ", ".join(out))
+    print("alternative rules: Coulomb / reference")
+    print(f"  {'noise floor alone':<44}" + "".join(f"  {x:.3f}" for x in c0[:ref.size] / ref))
+    v = floor.copy()
+    for it in range(3):
+        _, _, r = _fit_at(rec, chain, base, v)
+        knee = floor.copy()
+        for j in range(n):
+            edges, eff = _band_effect(qd[:, j], r[:, j], floor[j], sp[j])
+            k = 0
+            while k < eff.size and eff[k] < -1.0:
+                k += 1
+            knee[j] = edges[k]
+        v = np.maximum(floor, knee)
+        c, _, _ = _fit_at(rec, chain, base, v)
+        label = f"band mean within its scatter, pass {it + 1}"
+        print(f"  {label:<44}" + "".join(f"  {x:.3f}" for x in c[:ref.size] / ref)
+              + "   (cut " + ", ".join(f"{100 * x:.2g}" for x in v / sp) + " %)")
+
+
 def main(argv=None):
     from mocap.io.campaign import load_campaign
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true")
     a = ap.parse_args(argv)
-    sweep("TX40 (fixtures/real/tx40, published figaroh values)",
-          load_campaign(REPO / "fixtures" / "real" / "tx40"), TX40_COULOMB)
+    tx40 = load_campaign(REPO / "fixtures" / "real" / "tx40")
+    sweep("TX40 (fixtures/real/tx40, published figaroh values)", tx40, TX40_COULOMB)
+    analyse(tx40, TX40_COULOMB)
     if not a.quick:
         import test_multijoint as tm
 

@@ -52,7 +52,7 @@ class MultiJointFits:
                         "params": e["params"], "stderr": e.get("stderr", {}), "rms": e["rms"],
                         "heldout_rms": e["heldout_rms"], "offset": e["offset"],
                         "armature": e["armature"], "model": m, "method": "multi-joint rigid-body",
-                        "flags": e.get("flags", {}),
+                        "flags": e.get("flags", {}), "v_zero": e.get("v_zero"),
                         **({"implausible": e["implausible"]} if e.get("implausible") else {})}
         return out
 
@@ -183,7 +183,13 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
                 "angle noise " + ", ".join(f"{x:.2g}" for x in cut["sigma_q"]) + " rad through the "
                 "derivative filter, " + ", ".join(f"{x:.3g}" for x in cut["noise_floor"]) + " rad/s) "
                 "and the speed below which a Coulomb + viscous fit's residual grows past 1.5 times "
-                "its level at speed (" + ", ".join(f"{x:.3g}" for x in cut["knee"]) + " rad/s)"]
+                "its level at speed (" + ", ".join(f"{x:.3g}" for x in cut["knee"]) + " rad/s); "
+                "Coulomb from the noise floor to twice the cut, relative to the level at the cut: "
+                + ", ".join(f"j{j + 1} {100 * lo:+.0f}/{100 * hi:+.0f} %"
+                            for j, (lo, hi) in enumerate(cut["coulomb_range"])
+                            if lo is not None and hi is not None)
+                + " (docs/vendor.md: below some speed the friction is less than the Coulomb + "
+                "viscous line)"]
         else:
             kw["v_zero_frac"] = float(v_zero)
         fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **kw).fit(rec)
@@ -198,7 +204,8 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     the larger of the velocity noise floor (:func:`ident.model.rigidbody.low_speed_cut`) and
     the residual knee of a Coulomb + viscous fit above that floor
     (:func:`ident.model.rigidbody.residual_knee`)."""
-    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier, low_speed_cut, residual_knee
+    from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
+                                       low_speed_cut, residual_knee)
 
     cut = low_speed_cut(campaign.read_log(tr, robot), rec, robot.drives)
     floor = cut["v_zero"]
@@ -208,14 +215,28 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     idt._names = names
     sol = idt._solve(rec, A, F, M, np.ones(rec.t.size, bool), sigma=sigma, quick=True)
     resid = rec.tau - idt._predict(rec, A, F, sol)
-    _PREPARED.clear()
     knee = np.array([residual_knee(rec.qd[:, j], np.where(M[:, j], resid[:, j], 0.0), floor[j])
                      if M[:, j].any() else floor[j] for j in range(rec.n)])
     v0 = np.maximum(floor, knee)
+    # the cut's effect on Coulomb: the levels at the noise floor, half, once and twice the cut
+    cuts = np.stack([floor, np.maximum(floor, 0.5 * v0), v0, 2.0 * v0])
+    cc = coulomb_over_cuts(idt, rec, A, F, M, sigma, cuts)
+    _PREPARED.clear()
+    ref = np.where(np.abs(cc[2]) > 0, np.abs(cc[2]), np.nan)
+    with np.errstate(invalid="ignore"):
+        lo, hi = (np.nanmin(cc, axis=0) - cc[2]) / ref, (np.nanmax(cc, axis=0) - cc[2]) / ref
     sp = np.percentile(np.abs(rec.qd), 99, axis=0)
     return {"v_zero": v0, "noise_floor": floor, "knee": knee, "sigma_q": cut["sigma_q"],
             "sigma_v": cut["sigma_v"], "k": cut["k"],
-            "fraction_of_speed": np.where(sp > 0, v0 / np.where(sp > 0, sp, 1.0), 0.0)}
+            "fraction_of_speed": np.where(sp > 0, v0 / np.where(sp > 0, sp, 1.0), 0.0),
+            "coulomb_over_cuts": {"cuts": ["noise floor", "0.5 x cut", "cut", "2 x cut"],
+                                  "v_zero": cuts.tolist(), "c": _finite_or_none(cc)},
+            "coulomb_range": _finite_or_none(np.stack([lo, hi], axis=1))}
+
+
+def _finite_or_none(x: np.ndarray) -> list:
+    """Nested lists of ``x`` with None for NaN (JSON)."""
+    return np.where(np.isfinite(x), x, None).tolist()
 
 
 def continuous_records(campaign, trials, logs) -> list[list[int]]:

@@ -162,6 +162,24 @@ def residual_knee(qd, resid, v_floor, n_bins: int = 15, factor: float = 1.5) -> 
     return float(edges[good[0]]) if good.size else float(v_floor)
 
 
+def coulomb_over_cuts(idt, rec, A, F, M, sigma, cuts) -> np.ndarray:
+    """The Coulomb level of every joint (Coulomb + viscous, in the same weighted linear system as
+    the fit) for each per-joint low-speed cut in ``cuts`` (k, n), rad/s: ``(k, n)``, NaN where a
+    joint keeps no row. ``A, F, M, sigma``: the design, the cv columns, the row mask and the row
+    weights of ``idt`` (a ``cv`` :class:`RigidBodyIdentifier`) at a cut no higher than any of
+    ``cuts``; a higher cut only removes rows (``|qd_j| < cut_j``) from ``M``. The spread of
+    these levels over plausible cuts bounds the cut's effect on Coulomb."""
+    out = np.full((len(cuts), rec.n), np.nan)
+    ones = np.ones(rec.t.size, bool)
+    for i, cut in enumerate(cuts):                       # a handful of cuts
+        Mi = M & (np.abs(rec.qd) >= np.asarray(cut, float)[None, :])
+        if not Mi.any():
+            continue
+        sol = idt._solve(rec, A, F, Mi, ones, sigma=sigma, quick=True, linear=True)
+        out[i] = np.where(Mi.any(axis=0), sol["bf"][0::2], np.nan)
+    return out
+
+
 def without_unlogged(rec):
     """``rec`` with the torque of its unlogged joints (``rec.unlogged``, and any joint without a
     single finite torque sample) set to 0 and those joints named in ``unlogged``: the identifier
