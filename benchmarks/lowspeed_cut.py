@@ -2,8 +2,8 @@
 real TX40 record (fixtures/real/tx40, figaroh-examples) and the synthetic 7-joint arm of
 tests/test_multijoint.py (known truth).
 
-For each record: the cut chosen from the data (``--v-zero auto``: the velocity noise floor and the
-residual knee, ident.model.multijoint._auto_cut), then fixed fractions of each joint's
+For each record: the cut chosen from the data (``--v-zero auto``: the velocity noise floor, the
+residual knee and the end of the friction's sign transition, ident.model.multijoint._auto_cut), then fixed fractions of each joint's
 99th-percentile speed (0 .. 5 %) and multiples of the chosen cut (0.5x, 2x); per joint the
 Coulomb estimate as a ratio to the reference (TX40: the published figaroh values of
 ../shared/data/real/README.md, for comparison, not for tuning; arm7: the simulated truth), and
@@ -17,8 +17,14 @@ width of a smoothed-sign fit ``c tanh(|qd|/vs) + fv |qd|`` against the speed ran
 on, and two alternative cut rules (the noise floor alone; the first speed from which the mean
 signed residual of each speed band is within the band's own scatter, one pass and iterated).
 
-    python benchmarks/lowspeed_cut.py            # both records (about 1 min)
+``--foreign`` adds the foreign world's single-joint excitation records (independent simulator,
+true Coulomb level known; tri3 and ind6, no effect, Stribeck, presliding and nonlinear viscous
+friction, seeds 1-2): Coulomb / truth with the previous rule (noise floor and residual knee),
+the current one (with the friction's transition end) and fixed cuts.
+
+    python benchmarks/lowspeed_cut.py            # TX40 and arm7 (about 1 min)
     python benchmarks/lowspeed_cut.py --quick    # TX40 only
+    JOINTLAB_CORPUS=/work/corpus python benchmarks/lowspeed_cut.py --foreign   # + 48 records
 """
 from __future__ import annotations
 
@@ -188,11 +194,83 @@ def analyse(camp, ref):
               + "   (cut " + ", ".join(f"{100 * x:.2g}" for x in v / sp) + " %)")
 
 
+FOREIGN = [(robot, effect, seed) for robot in ("tri3", "ind6")
+           for effect in ("none", "stribeck", "presliding", "nonlinear_viscous") for seed in (1, 2)]
+
+
+def _load_foreign():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("jointlab_bench_foreign",
+                                                  Path(__file__).resolve().parent / "_foreign.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def foreign():
+    """The cut on the foreign world's single-joint excitation records (no payload; the moving
+    joint's true Coulomb level from the truth file; nonlinear_viscous: the Coulomb + viscous
+    law does not hold at any speed, its Coulomb level is not defined by the truth). Rules: the
+    noise floor and residual knee alone (``floor+knee``), the same with the friction's transition
+    end (``auto``), fixed 1 % and 5 % of the 99th-percentile speed."""
+    import json
+
+    from mocap.io.campaign import load_campaign
+    from ident.model.multijoint import _auto_cut
+    from ident.model.record import load_record
+    from ident.model.regressor import ChainDynamics, base_parameters
+
+    F = _load_foreign()
+    print(f"\nforeign world ({F.cache_dir()}): Coulomb / truth of the moving joint, "
+          "single-joint excitation records without payload")
+    print(f"{'record':<46}{'floor+knee':>11}{'auto':>8}{'1 %':>8}{'5 %':>8}   auto cut, transition")
+    err = {}
+    for robot, effect, seed in FOREIGN:
+        wa = F.WorldArgs(effect, seed, robot=robot, reps=1)
+        root, _ = F.ensure_campaign(wa)
+        truth = json.loads(root.with_name(root.name + ".truth.json").read_text())
+        j = wa.moving_joint
+        c_true = truth["joints"][j - 1]["coulomb"]
+        camp = load_campaign(root)
+        rob = camp.load_robot()
+        chain = ChainDynamics.from_model(rob.model)
+        base = base_parameters(chain, rob.lower, rob.upper, seed=0)
+        for tr in camp.trials:
+            if tr.kind != "excitation" or tr.load_kg:
+                continue
+            rec = load_record(camp, tr, rob)
+            sp = np.percentile(np.abs(rec.qd), 99, axis=0)
+            cut = _auto_cut(camp, tr, rob, rec, chain, base, 0, {})
+            before = np.maximum(cut["noise_floor"], cut["knee"])
+            row = []
+            for v in (before, cut["v_zero"], 0.01 * sp, 0.05 * sp):
+                try:
+                    c = _fit_at(rec, chain, base, v)[0][j - 1] / c_true
+                except ValueError:                      # no row above the cut
+                    c = float("nan")
+                row.append(c)
+            t = cut["transition"][j - 1] or {}
+            tx = (f"end {100 * cut['transition_end'][j - 1] / sp[j - 1]:.2g} %" if t.get("end")
+                  else f"none (ratio {t['width_ratio']:.2g})" if t.get("width_ratio") else "none")
+            print(f"{robot}-j{j}-{effect}-s{seed} {tr.id:<24}" + "".join(f"{x:8.3f}" for x in row)
+                  + f"   {100 * cut['fraction_of_speed'][j - 1]:.2g} %, {tx}")
+            err.setdefault(effect, []).append(row)
+    print("median and worst |ratio - 1| per effect (floor+knee, auto, 1 %, 5 %)")
+    for effect, rows in err.items():
+        e = np.abs(np.array(rows) - 1)
+        print(f"  {effect:<18}" + "".join(f"  {np.nanmedian(e[:, k]):.3f}/{np.nanmax(e[:, k]):.3f}"
+                                          for k in range(4)))
+
+
 def main(argv=None):
     from mocap.io.campaign import load_campaign
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--foreign", action="store_true",
+                    help="also the foreign world's records (JOINTLAB_CORPUS caches them)")
     a = ap.parse_args(argv)
     tx40 = load_campaign(REPO / "fixtures" / "real" / "tx40")
     sweep("TX40 (fixtures/real/tx40, published figaroh values)", tx40, TX40_COULOMB)
@@ -203,6 +281,8 @@ def main(argv=None):
         with tempfile.TemporaryDirectory() as d:
             tm._write_arm7_campaign(Path(d) / "c", duration=10.0)
             sweep("arm7 (synthetic, simulated truth)", load_campaign(Path(d) / "c"), tm.C_TRUE)
+    if a.foreign:
+        foreign()
 
 
 if __name__ == "__main__":
