@@ -3,8 +3,8 @@ real TX40 record (fixtures/real/tx40, figaroh-examples) and the synthetic 7-join
 tests/test_multijoint.py (known truth).
 
 For each record: the cut chosen from the data (``--v-zero auto``: the velocity noise floor, the
-residual knee and the end of the friction's sign transition, ident.model.multijoint._auto_cut), then fixed fractions of each joint's
-99th-percentile speed (0 .. 5 %) and multiples of the chosen cut (0.5x, 2x); per joint the
+residual knee and the end of the friction's sign transition, ident.model.multijoint._auto_cut),
+then fixed fractions of each joint's 99th-percentile speed (0 .. 5 %); per joint the
 Coulomb estimate as a ratio to the reference (TX40: the published figaroh values of
 ../shared/data/real/README.md, for comparison, not for tuning; arm7: the simulated truth), and
 the spread of those ratios over the cuts (the bound on the cut's effect).
@@ -122,8 +122,9 @@ def analyse(camp, ref):
     print("\nTX40 velocity noise: angle noise sigma_q (rad) / sigma_v through the derivative "
           "(rad/s) / 3 sigma_v as % of speed / derivative window (ms)")
     for j in range(n):
+        win = 1e3 * rec.preprocessing["window_s"][str(j + 1)]
         print(f"  j{j + 1}: {cut['sigma_q'][j]:.2g} / {cut['sigma_v'][j]:.2g} / "
-              f"{100 * floor[j] / sp[j]:.2g} % / {1e3 * rec.preprocessing['window_s'][str(j + 1)]:.3g}")
+              f"{100 * floor[j] / sp[j]:.2g} % / {win:.3g}")
     fracs = (0.0, 0.0025, 0.005, 0.01, 0.02, 0.05)
     print("rows kept per cut (of " + str(rec.t.size) + "; the record rests for about "
           f"{int(np.sum(np.all(np.abs(qd) < 0.0025 * sp, axis=1)))} rows at its ends)")
