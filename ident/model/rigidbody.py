@@ -168,6 +168,8 @@ TRANSITION_WIDTHS = 3.0
 #: scales with the range (the geometric midpoint between a fixed width, 1, and a width
 #: proportional to the range, 2): the friction has no finite transition but bends at every speed
 TRANSITION_STABLE = float(np.sqrt(2.0))
+#: rows the transition width is fitted on (longer records: every k-th row)
+TRANSITION_ROWS = 50_000
 
 
 def _tanh_width(a, y, lo, hi, n_grid: int = 121):
@@ -214,6 +216,8 @@ def friction_transition(qd, friction, v_floor) -> dict:
     a = np.abs(np.asarray(qd, float))
     y = np.sign(qd) * np.asarray(friction, float)
     sp = float(np.percentile(a, 99)) if a.size else 0.0
+    step = max(1, a.size // TRANSITION_ROWS)           # long records: every step-th row
+    a, y = a[::step], y[::step]
     vs_half, _ = _tanh_width(a, y, v_floor, 0.5 * sp)
     vs_full, c = _tanh_width(a, y, v_floor, sp)
     ok = np.isfinite(vs_half) and np.isfinite(vs_full) and c > 0
