@@ -297,6 +297,10 @@ def test_tx40_vendor_study_exit_0_with_multijoint_fits(tx40_vendor, tmp_path, ca
     assert "Coulomb from the noise floor to twice the cut" in md
     v0 = [doc["trials"]["excitation"][str(j)]["cv"]["v_zero"] for j in range(1, 7)]
     assert all(v is not None and v > 0 for v in v0)
+    lc = doc["trials"]["excitation"]["1"]["cv"]["low_speed_cut"]
+    assert lc["v_zero"] == v0[0] and lc["transition_end"] is None and lc["transition_width_ratio"] > 2
+    lo, hi = lc["coulomb_range"]
+    assert lo < 0 < hi
 
 
 # ---- the copied real marker files ----------------------------------------------------------

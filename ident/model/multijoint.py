@@ -46,6 +46,7 @@ class MultiJointFits:
         """The ``trials`` part of fits.json: trial -> joint -> model -> params/stderr/rms/..."""
         out = {}
         for tid, by_model in self.fits.items():
+            cut = self.preprocessing.get(tid, {}).get("low_speed_cut")
             for m, fit in by_model.items():
                 for j, e in fit.joints.items():
                     out.setdefault(tid, {}).setdefault(j, {})[m] = {
@@ -53,6 +54,7 @@ class MultiJointFits:
                         "heldout_rms": e["heldout_rms"], "offset": e["offset"],
                         "armature": e["armature"], "model": m, "method": "multi-joint rigid-body",
                         "flags": e.get("flags", {}), "v_zero": e.get("v_zero"),
+                        **({"low_speed_cut": _joint_cut(cut, int(j) - 1)} if cut else {}),
                         **({"implausible": e["implausible"]} if e.get("implausible") else {})}
         return out
 
@@ -261,6 +263,17 @@ def _cut_text(cut: dict) -> str:
                     for j, (lo, hi) in enumerate(cut["coulomb_range"])
                     if lo is not None and hi is not None)
         + " (docs/vendor.md)")
+
+
+def _joint_cut(cut: dict, j: int) -> dict:
+    """Joint ``j``'s (0-based) part of the data-chosen low-speed cut, for fits.json (rad/s; the
+    Coulomb range relative to the level at the cut; ``transition_end`` None where the friction
+    bends at every speed or shows no transition within the sampled speeds)."""
+    t = cut["transition"][j] or {}
+    return {"v_zero": cut["v_zero"][j], "noise_floor": cut["noise_floor"][j],
+            "knee": cut["knee"][j], "transition_end": t.get("end"),
+            "transition_width_ratio": t.get("width_ratio"),
+            "coulomb_range": cut["coulomb_range"][j]}
 
 
 def _finite_or_none(x: np.ndarray) -> list:
