@@ -15,6 +15,7 @@ import numpy as np
 
 from mocap.io.errors import InputError, read_text
 from mocap.kinematics import Chain
+from mocap.urdf import select_chain
 
 _POSITIVE_KEYS = ("gear_ratio", "max_velocity", "max_torque")
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
@@ -185,8 +186,6 @@ class Robot:
         link that carries them). ``gravity`` is given in ``base_link``'s frame; the robot's
         base frame is the URDF's root link (the same frame where ``base_link`` is the root)."""
         import pinocchio as pin
-
-        from mocap.urdf import select_chain
 
         urdf = Path(urdf)
         if not urdf.is_file():

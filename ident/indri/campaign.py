@@ -63,13 +63,15 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.payload import payload_com
+from mocap.io.angles import angles_path, read_angles
 
 from mocap.io.errors import InputError
 
 from ident.indri import framework as I
 from ident.model.linkstate import prepare_joint_signals
-from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread,
-                      read_angles)
+from ident.signals.smoothing import FourierSmoother, SavGolSmoother, one_blas_thread
+from ident.friction.plausibility import assess, to_json
+from ident.friction.static import s0
 
 __all__ = ["DYNAMIC_MODELS", "JointDynamicData", "PartialIndriResult", "DynamicFits",
            "split_reversals", "joint_dynamic_data", "fit_campaign_dynamic", "merge_fits_json"]
@@ -116,8 +118,6 @@ class TorqueConsistentBandwidth:
 
     def score(self, data: I.FrictionData) -> float:
         """RMS of the residual torque left by the smooth static regression (N m)."""
-        from ident.friction.static import s0
-
         v = np.asarray(data.qd, float)
         sv = s0(v, self.Kv)
         cols = [sv, v, v * v * sv, np.ones_like(v)]
@@ -539,8 +539,6 @@ class DynamicFits(Mapping):
         """fits.json entries of one joint: model -> {params, stderr, rms, ..., flags} (FORMAT.md
         names; ``flags``: :func:`ident.friction.plausibility.assess` over the speeds of the
         joint's trials)."""
-        from ident.friction.plausibility import assess, to_json
-
         fj = self._r[joint].fits_json()
         d = self.data.get(joint)
         qd = (np.concatenate([np.asarray(x.qd, float) for x in d.trials.values()])

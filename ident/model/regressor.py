@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from ident.signals.blas import one_blas_thread
+from mocap.robot import _joint_axis
 
 PARAM_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 
@@ -84,8 +86,6 @@ class ChainDynamics:
 
     @classmethod
     def from_model(cls, model) -> "ChainDynamics":
-        from mocap.robot import _joint_axis
-
         n = model.njoints - 1
         pl = np.array([model.jointPlacements[i].homogeneous for i in range(1, n + 1)])
         ax = np.array([_joint_axis(model.joints[i]) for i in range(1, n + 1)], float)
@@ -163,8 +163,6 @@ def base_parameters(chain: ChainDynamics, lower=None, upper=None, n_states: int 
     (positions within ``lower``/``upper`` or +-pi, velocities and accelerations standard normal).
     One BLAS thread: the matrices are small (200 n rows), where threads only add overhead (and on
     a loaded 2-core machine made this step take seconds)."""
-    from ident.signals.blas import one_blas_thread
-
     with one_blas_thread():
         return _base_parameters(chain, lower, upper, n_states, seed, tol)
 
