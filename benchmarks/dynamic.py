@@ -187,7 +187,7 @@ def heldout_comparison(campaign_dir, joint: int | None = None, by: str = "rep") 
     repetition). Returns ``{"joint", "train": kinds, "heldout": kinds}``."""
     import dataclasses
 
-    from ident.indri.campaign import DynamicFits, joint_dynamic_data
+    from ident.indri.campaign_fit import DynamicFits, joint_dynamic_data
     from mocap.io.campaign import load_campaign
 
     if by not in ("rep", "load"):
@@ -217,10 +217,10 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
     """DM2 vs arctan per trial kind on a campaign, for jointlab's procedure (phases 2-A, 2-B,
     2-C) and the paper's (2-A, 2-B); plus sigma0 and its truth where known. Returns
     ``{"joint", "kinds": {...}, "paper_kinds": {...}, "sigma0", "truth", "seconds"}`` with the
-    kinds as :meth:`ident.indri.campaign.DynamicFits.compare_by_kind` gives them."""
+    kinds as :meth:`ident.indri.campaign_fit.DynamicFits.compare_by_kind` gives them."""
     import dataclasses
 
-    from ident.indri.campaign import DynamicFits, joint_dynamic_data
+    from ident.indri.campaign_fit import DynamicFits, joint_dynamic_data
     from mocap.io.campaign import load_campaign
 
     camp = load_campaign(campaign_dir, check_files=False)

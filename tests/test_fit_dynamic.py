@@ -5,7 +5,7 @@ sigma0 = c / 2e-3 rad, constant sigma1), checked against the campaign's ground t
 The joint is flexible at its declared stiffness (drives.toml, PA10 j5: K = 5000 N m/rad) and
 the bristles act on the link, behind the spring: the motor encoder sees both in series. The
 DM2 (motor velocity) keeps the apparent sigma0; phase 2-A on the link velocity (the motor
-encoder's minus the spring's nominal deflection rate, ident.indri.campaign.nominal_link_state)
+encoder's minus the spring's nominal deflection rate, ident.indri.campaign_fit.nominal_link_state)
 gives the bristle's own.
 
 Measured (seed 3, declared K): bristle sigma0 1937 vs 1950 (-0.7 %), apparent (motor side)
@@ -30,7 +30,7 @@ from ident.friction import Arctan
 from ident.friction.data import FrictionData
 from ident.sim.friction import simulate_friction
 from ident.cli.main import main
-from ident.indri.campaign import fit_campaign_dynamic, split_reversals
+from ident.indri.campaign_fit import fit_campaign_dynamic, split_reversals
 from mocap.io.campaign import load_campaign
 from mocap.io.errors import InputError
 
@@ -381,7 +381,7 @@ def test_bandwidth_follows_13_hz_reversals_at_200_hz():
     tanh-regularised Coulomb + viscous friction (generator shares no form with the chooser's
     arctan regression): the chosen smoother leaves a residual-torque error near the torque
     noise, where the old fixed 50 ms window left several N m."""
-    from ident.indri.campaign import TorqueConsistentBandwidth
+    from ident.indri.campaign_fit import TorqueConsistentBandwidth
     from ident.signals.smoothing import SavGolSmoother
 
     rng = np.random.default_rng(5)

@@ -30,7 +30,7 @@ LOCAL_IMPORT_ALLOWED = {
     # the null sink of a run without --rrd/--spawn never loads rerun.
     ("viz/sink.py", "viz.rerun_sink"): "optional dependency: rerun",
     # costly dependency: viz.plots imports matplotlib, needed only when figures are written.
-    ("ident/coastdown/campaign.py", "viz.plots"): "import cost: matplotlib (figures only)",
+    ("ident/coastdown/campaign_analysis.py", "viz.plots"): "import cost: matplotlib (figures only)",
 }
 
 # Files owned by a concurrent change when the module-level rule was introduced (their imports

@@ -669,7 +669,7 @@ class _PrefixSink:
 
 def merge_fits_json(doc: dict, dyn: DynamicFits) -> dict:
     """Add the dynamic models of ``dyn`` to a fits.json document ``doc`` (e.g.
-    :meth:`ident.thesis.campaign.FitsResult.to_dict`): entries under ``trials`` next to the per-trial
+    :meth:`ident.thesis.campaign_fit.FitsResult.to_dict`): entries under ``trials`` next to the per-trial
     models, and the joint-level entries under ``joints``. Returns a new document."""
     out = {"format": doc.get("format", 1), "trials": json.loads(json.dumps(doc.get("trials", {}))),
            "summary": list(doc.get("summary", []))}

@@ -59,7 +59,7 @@ def friction_data_from_signals(sig, robot, q_rest, *, accel: float | None = None
     (link side), as in the paper; ``velocity="link"``: the link velocity and acceleration
     ``sig.qd``, ``sig.qdd`` instead (a flexible joint whose friction acts on the link: the
     link state of the encoder plus the declared spring's deflection, see
-    :func:`ident.indri.campaign.joint_dynamic_data`)."""
+    :func:`ident.indri.campaign_fit.joint_dynamic_data`)."""
     if velocity not in ("motor", "link"):
         raise ValueError(f"velocity must be 'motor' or 'link', got {velocity!r}")
     j0 = int(sig.joint) - 1

@@ -644,7 +644,7 @@ class IndriTrapani:
         ``stiffness``, ``link_datasets``: the declared transmission stiffness K (N m/rad) and
         the reversal data sets on the link velocity (the same spans, the motor encoder's
         velocity minus the spring's nominal deflection rate,
-        :func:`ident.indri.campaign.nominal_link_state`). The bristle acts on the link, behind
+        :func:`ident.indri.campaign_fit.nominal_link_state`). The bristle acts on the link, behind
         the spring, so the motor encoder sees both in series: the DM2 (on the motor velocity,
         the controller's signal) keeps the apparent sigma0, and phase 2-A on the link sets
         gives the bristle's own (:attr:`IndriResult.sigma0_bristle`). When that one is at the

@@ -24,7 +24,7 @@ service-robot log and stop-and-go recordings all pass.
   (:func:`check_angles_dir`), a rerun recording (:func:`check_rrd`), every recording of a
   campaign before a long run (:func:`check_campaign_inputs`).
 * option values of the commands (``check_*_options``, :func:`check_number`; ``jointlab
-  diagnose``'s in :func:`ident.gap.campaign.check_diagnose_options`) and the memory an
+  diagnose``'s in :func:`ident.gap.campaign_diagnosis.check_diagnose_options`) and the memory an
   option would allocate (:func:`check_allocation`, with the estimate).
 """
 from __future__ import annotations
