@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap.io.angles import read_angles
 from mocap.io.errors import InputError, read_bytes, read_text
 from mocap.io.ids import check_trial_id
 from mocap.robot import read_drives
