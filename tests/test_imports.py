@@ -11,6 +11,8 @@ dependency imported where it is used, or the command line's start-up time.
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from fnmatch import fnmatch
 from pathlib import Path
 
@@ -224,3 +226,14 @@ def test_allowlist_entries_are_used():
     unused = [k for k in LOCAL_IMPORT_ALLOWED
               if not any(fnmatch(rel, k[0]) and fnmatch(mod, k[1]) for rel, _, mod in found)]
     assert not unused
+
+
+def test_cli_start_up_loads_no_heavy_dependency():
+    """The reason for the command modules' allowlist entry: building ``jointlab``'s parser (what
+    ``jointlab --help`` does) imports none of the heavy dependencies."""
+    heavy = ("scipy", "matplotlib", "rerun", "pinocchio", "trimesh", "cv2", "pyarrow", "ezc3d")
+    code = ("import sys; from ident.cli.main import build_parser; build_parser(); "
+            f"print(sorted(m for m in {heavy!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=ROOT)
+    assert out.stdout.strip() == "[]", out.stdout
