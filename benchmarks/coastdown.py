@@ -22,7 +22,7 @@ whole record (the stop is in its model); TDM and FDM are given the record cut at
 measured sample <= 0 (eq. 4 has no stop), as :func:`ident.coastdown.estimators.coastdown_from_trial`.
 
 A third part ("--campaigns", on by default) prints the acceptance figures of the campaign
-command's estimator (:func:`ident.coastdown.campaign.analyse_campaign`: coast detection in the
+command's estimator (:func:`ident.coastdown.campaign_analysis.analyse_campaign`: coast detection in the
 log, J from the URDF, ML on the encoder angle with the declared transmission stiffness, a
 trial that cannot separate Kc from Kv reported at the joint's pooled Kv) on seeded campaigns of
 the independent numpy world (``tests/coastdown_world.py``: flexible joint with motor-side
@@ -233,7 +233,7 @@ def campaign_part(seeds, synth_seeds, synth_rates):
     sys.path.insert(0, str(_here.parent / "tests"))
     from coastdown_world import write_campaign  # noqa: E402
 
-    from ident.coastdown.campaign import analyse_campaign  # noqa: E402
+    from ident.coastdown.campaign_analysis import analyse_campaign  # noqa: E402
     from mocap.io.campaign import load_campaign  # noqa: E402
 
     print("\n=== Campaign estimator (jointlab coastdown) against the truth: acceptance figures ===")
@@ -262,7 +262,7 @@ def campaign_part(seeds, synth_seeds, synth_rates):
                     shutil.rmtree(root)
                 _summarise(f"world {label}, {f_log:g} Hz", rows)
         if synth_seeds:
-            from ident.sim.campaign import CampaignSynth, SynthConfig
+            from ident.sim.campaign_synth import CampaignSynth, SynthConfig
 
             for rate in synth_rates:
                 rows, rows_acc, pooled = [], [], []

@@ -46,7 +46,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # this checkout's
 
 import numpy as np  # noqa: E402
 
-from ident.indri import framework as I  # noqa: E402
+from ident.excitation.profiles import random_knots, static_knots  # noqa: E402
+from ident.indri.estimator import IndriTrapani  # noqa: E402
+from ident.sim.friction import simulate_friction, simulate_reversal_datasets  # noqa: E402
 from ident.friction import Arctan, LuGreDM2, s0, s1  # noqa: E402
 from ident.friction import dynamic as dyn  # noqa: E402
 
@@ -60,11 +62,11 @@ NOISE = 0.01 * float(STATIC.torque(np.array([2.0]))[0])
 
 def make_data(quick: bool, seed: int = 0):
     scale = 0.25 if quick else 1.0
-    sd = I.simulate_friction(TRUTH, I.static_knots(np.geomspace(0.02, 2.0, 10), settle_disp=0.02),
+    sd = simulate_friction(TRUTH, static_knots(np.geomspace(0.02, 2.0, 10), settle_disp=0.02),
                              noise_std=NOISE, seed=seed + 1, label="static")
-    rev = I.simulate_reversal_datasets(TRUTH, ACCELS, VMAX, noise_std=NOISE, seed=seed + 2,
+    rev = simulate_reversal_datasets(TRUTH, ACCELS, VMAX, noise_std=NOISE, seed=seed + 2,
                                        n_cycles=max(1, int(round(4 * scale))))
-    var = I.simulate_friction(TRUTH, I.random_knots(40.0 * scale, (0.02, 2.0), (1.0, 20.0),
+    var = simulate_friction(TRUTH, random_knots(40.0 * scale, (0.02, 2.0), (1.0, 20.0),
                                                     seed=seed + 3),
                               noise_std=NOISE, seed=seed + 4, label="variable")
     return sd, rev, var
@@ -185,7 +187,7 @@ def heldout_comparison(campaign_dir, joint: int | None = None, by: str = "rep") 
     repetition). Returns ``{"joint", "train": kinds, "heldout": kinds}``."""
     import dataclasses
 
-    from ident.indri.campaign import DynamicFits, joint_dynamic_data
+    from ident.indri.campaign_fit import DynamicFits, joint_dynamic_data
     from mocap.io.campaign import load_campaign
 
     if by not in ("rep", "load"):
@@ -201,7 +203,7 @@ def heldout_comparison(campaign_dir, joint: int | None = None, by: str = "rep") 
              for k, r in (("train", True), ("heldout", False))}
     data = {k: joint_dynamic_data(c, joint) for k, c in parts.items()}
     d = data["train"]
-    res = I.IndriTrapani().fit(d.static, d.reversals, d.variable,
+    res = IndriTrapani().fit(d.static, d.reversals, d.variable,
                                refine_datasets=list(d.trials.values()), stiffness=d.stiffness,
                                link_datasets=d.link_reversals)
     out = {"joint": joint}
@@ -215,10 +217,10 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
     """DM2 vs arctan per trial kind on a campaign, for jointlab's procedure (phases 2-A, 2-B,
     2-C) and the paper's (2-A, 2-B); plus sigma0 and its truth where known. Returns
     ``{"joint", "kinds": {...}, "paper_kinds": {...}, "sigma0", "truth", "seconds"}`` with the
-    kinds as :meth:`ident.indri.campaign.DynamicFits.compare_by_kind` gives them."""
+    kinds as :meth:`ident.indri.campaign_fit.DynamicFits.compare_by_kind` gives them."""
     import dataclasses
 
-    from ident.indri.campaign import DynamicFits, joint_dynamic_data
+    from ident.indri.campaign_fit import DynamicFits, joint_dynamic_data
     from mocap.io.campaign import load_campaign
 
     camp = load_campaign(campaign_dir, check_files=False)
@@ -230,7 +232,7 @@ def campaign_comparison(campaign_dir, joint: int | None = None, quick: bool = Fa
     d = joint_dynamic_data(camp, joint)
     t1 = time.perf_counter()
     out = {"joint": joint, "n_trials": len(d.trials)}
-    for key, est in (("kinds", I.IndriTrapani()), ("paper_kinds", I.IndriTrapani(refine=False))):
+    for key, est in (("kinds", IndriTrapani()), ("paper_kinds", IndriTrapani(refine=False))):
         res = est.fit(d.static, d.reversals, d.variable, refine_datasets=list(d.trials.values()),
                       stiffness=d.stiffness, link_datasets=d.link_reversals)
         fits = DynamicFits({joint: res}, {joint: d}, ("arctan", "dm1", "dm2"), camp.name)
@@ -407,7 +409,7 @@ def main(argv=None):
     print(f"data: {n} samples at 1 kHz (static {sd.n}, {len(rev)} reversal sets "
           f"{sum(d.n for d in rev)}, variable {var.n}); truth sigma0 {TRUTH.sigma0:g}, "
           f"alpha {TRUTH.alpha:g}, beta {TRUTH.beta:g}, gamma {TRUTH.gamma:g}")
-    est = I.IndriTrapani()
+    est = IndriTrapani()
 
     # ---- the recursion alone ----------------------------------------------------------------
     m = TRUTH

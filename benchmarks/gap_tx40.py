@@ -29,7 +29,7 @@ def fit_tx40_campaign(folder: Path = FIXTURE) -> str:
 
     from mocap.io.campaign import load_campaign
     from ident.model.multijoint import fit_multijoint_campaign
-    from ident.thesis.campaign import read_tx40_config
+    from ident.thesis.campaign_fit import read_tx40_config
 
     camp = load_campaign(folder)
     cfg = read_tx40_config(folder / "TX40_config.yaml")
@@ -52,7 +52,7 @@ def fit_tx40_campaign(folder: Path = FIXTURE) -> str:
 def diagnose_tx40(folder: Path, decimate: int = 5, n_segments: int | None = None, seed: int = 0) -> dict:
     import numpy as np
 
-    from ident.thesis.campaign import load_tx40
+    from ident.thesis.campaign_fit import load_tx40
     from ident.gap import DiagnosisSettings, diagnose_joint
     from ident.gap.data import build_joint_data_record
 

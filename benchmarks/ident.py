@@ -3,7 +3,7 @@
 Issue 13 item 5. Per world and joint it prints the Coulomb and viscous errors against the
 truth (median over trials of |estimate / truth - 1|) through
 
-* the MARKER path: ``jointlab mocap`` link angles -> :func:`ident.thesis.campaign.fit_trial_joint`
+* the MARKER path: ``jointlab mocap`` link angles -> :func:`ident.thesis.campaign_fit.fit_trial_joint`
   (link state = encoder + the deflection the markers support, :mod:`ident.model.linkstate`);
 * the ENCODER path: the same fit without angles (encoder + nominal deflection);
 
@@ -45,7 +45,7 @@ sys.path.insert(0, str(REPO))
 
 from mocap.io.campaign import load_campaign  # noqa: E402
 from ident.study.executor import make_executor  # noqa: E402
-from ident.thesis.campaign import campaign_tasks, fit_trial_joint  # noqa: E402
+from ident.thesis.campaign_fit import campaign_tasks, fit_trial_joint  # noqa: E402
 
 FOREIGN = Path(os.environ.get("JOINTLAB_CORPUS", Path.home() / ".cache" / "jointlab" / "foreign"))
 FOREIGN_WORLDS = ("ind6-j3-none-s1", "ind6-j5-none-s2", "tri3-j2-none-s4")

@@ -28,7 +28,7 @@ sys.path.insert(0, str(REPO))
 from ident.sim.effects import K_NOMINAL, Effect  # noqa: E402
 from ident.excitation.trajectories import fourier_excitation  # noqa: E402
 from ident.sim.plant import Controller, JointPlant, simulate_multi, simulate_reference  # noqa: E402
-from ident.sim.campaign import PA10_CV, REST_POSE, PA10_DIR  # noqa: E402
+from ident.sim.campaign_synth import PA10_CV, REST_POSE, PA10_DIR  # noqa: E402
 from mocap.robot import Robot  # noqa: E402
 
 

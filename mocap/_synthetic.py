@@ -15,6 +15,11 @@ import numpy as np
 
 from mocap.kinematics import make_transform, rotation_about_axis
 from mocap.synth import MarkerSet, add_noise, marker_positions
+from mocap.io.campaign import write_manifest
+from mocap.io.markers import write_markers
+from mocap.io.recording import MarkerRecording
+from mocap.io.robotlog import RobotLog, write_robot_log
+from mocap.robot import Robot
 
 PA10_DIR = Path(__file__).resolve().parents[1] / "fixtures" / "robots" / "pa10"
 
@@ -25,8 +30,6 @@ def pa10_robot(folder: str | Path, stiffness: bool = False):
     kinematic (held joints do not give, logged torques are zero), so the drives declare no
     ``stiffness`` (FORMAT.md: absent = rigid) unless ``stiffness``."""
     import re
-
-    from mocap.robot import Robot
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -136,11 +139,6 @@ def write_campaign(root: str | Path, *, seed: int = 0, trials=({"id": "j2-r1", "
                    n_static: int = 2, deflection_rad: float = 2e-3, units: str = "mm") -> dict:
     """Write a FORMAT v1 campaign with the fixture PA10; returns the truth
     (``T_camera_base``, marker positions, per-trial link angles at the marker times)."""
-    from mocap.io.campaign import write_manifest
-    from mocap.io.markers import write_markers
-    from mocap.io.recording import MarkerRecording
-    from mocap.io.robotlog import RobotLog, write_robot_log
-
     root = Path(root)
     rng = np.random.default_rng(seed)
     robot = pa10_robot(root / "robot")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from mocap.io.errors import InputError
+from mocap.solve import MarkerSolver, _Chain
 
 
 def cramer_rao_bound(chain, joints, marker_joint, p_joint, q: np.ndarray, sigma_axis: float,
@@ -60,8 +61,6 @@ def cramer_rao_bound(chain, joints, marker_joint, p_joint, q: np.ndarray, sigma_
     >>> b.round(6).tolist(), round(float(1e-3 / np.sqrt(0.03)), 6)
     ([[0.005774], [0.005774]], 0.005774)
     """
-    from mocap.solve import MarkerSolver, _Chain
-
     q = np.atleast_2d(np.asarray(q, float))
     solver = MarkerSolver(chain, joints, marker_joint, p_joint)
     model = _Chain(solver, q)

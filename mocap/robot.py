@@ -15,6 +15,7 @@ import numpy as np
 
 from mocap.io.errors import InputError, read_text
 from mocap.kinematics import Chain
+from mocap.urdf import select_chain
 
 _POSITIVE_KEYS = ("gear_ratio", "max_velocity", "max_torque")
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
@@ -295,8 +296,6 @@ class Robot:
         .. [2] Carpentier et al. 2019, the Pinocchio C++ library.
         """
         import pinocchio as pin
-
-        from mocap.urdf import select_chain
 
         urdf = Path(urdf)
         if not urdf.is_file():

@@ -34,6 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mocap.io.payload import payload_com
+from mocap.io.errors import InputError
+from mocap.io.plausibility import check_trial_rigid_fit
+from mocap.kinematics import (Chain, apply_transform, invert_transform, make_transform, perp_basis,
+                              rotation_about_axis)
 
 # flag bits of SolveResult.flags ---------------------------------------------------------------
 FLAG_TOO_FEW_MARKERS = 1
@@ -920,8 +924,6 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     .. [1] PA10 thesis (seeds 002), eq. 3-3 to 3-5.
     .. [2] jointlab data format (docs/format.md), sec. campaign.toml.
     """
-    from mocap.io.errors import InputError
-    from mocap.kinematics import apply_transform, invert_transform
 
     if isinstance(trial, str):
         trial = campaign.trial(trial)
@@ -944,7 +946,6 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
                          "not in the static pose)", path=campaign.manifest, label=norefs[0])
     rec = campaign.read_markers(trial, robot)
     log = campaign.read_log(trial, robot)
-    from mocap.io.plausibility import check_trial_rigid_fit   # mirrored / rescaled marker files
 
     check_trial_rigid_fit(rec, log, references, robot, trial, T_cb)
     absent = tuple(lb for lb in used if lb not in rec.labels)
@@ -992,8 +993,6 @@ def _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
     """Markers on links the trial does not move must stay at their static reference: their RMS
     distance from it (base frame, held angles; distances of 10 mm or more counted in ``far_frac``)
     checks the camera pose and that nothing was bumped."""
-    from mocap.kinematics import apply_transform, invert_transform
-
     labels = [lb for lb in link_of if chain.frames[link_of[lb]][0] < joints0[0]
               and lb in rec.labels and lb in references.labels]
     if not labels or rec.n_frames == 0:
@@ -1074,8 +1073,6 @@ def offset_chain(chain, joints, offsets):
     """A copy of ``chain`` whose solved joints' placements are corrected by ``offsets`` (S, 4):
     the joint frame tilted about the two directions e1, e2 perpendicular to its axis and shifted
     along them (the 4 placement errors that markers on the link cannot absorb)."""
-    from mocap.kinematics import Chain, make_transform, perp_basis, rotation_about_axis
-
     Tp = np.array(chain.T_parent_joint, float)
     for k, j in enumerate(joints):  # loop over solved joints
         e1, e2 = perp_basis(chain.axes[j])

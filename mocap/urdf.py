@@ -25,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, warn_input
 from mocap.kinematics import make_transform, rotation_about_axis
 
 _MOVING = ("revolute", "continuous", "prismatic")
@@ -511,8 +511,6 @@ def load_link_meshes(urdf: str | Path, *, kind: str = "visual", fallback_collisi
     if missing == "warn":
         gone = missing_meshes(urdf)
         if gone:
-            from mocap.io.errors import warn_input
-
             warn_input(f"{len(gone)} mesh file(s) not found (first: {gone[0]}); the robot is drawn "
                        "with the URDF's primitive shapes where it has them, else as link frames",
                        path=urdf)

@@ -11,7 +11,7 @@ import pytest
 from coastdown_world import write_campaign
 from ident.cli.main import main
 from ident.coastdown.angle import coast_angle, coast_speed
-from ident.coastdown.campaign import analyse_campaign
+from ident.coastdown.campaign_analysis import analyse_campaign
 from mocap.io.campaign import load_campaign
 
 
@@ -132,7 +132,7 @@ def test_campaign_without_coastdown_trials_is_one_line_exit_2(tmp_path, capsys):
 
 
 def _synth(tmp_path, loads, vmax, seed):
-    from ident.sim.campaign import CampaignSynth, SynthConfig
+    from ident.sim.campaign_synth import CampaignSynth, SynthConfig
 
     out = tmp_path / "cd"
     cfg = SynthConfig(joints=(5,), loads=loads, vmax=vmax, reps=1, kinds=("coastdown",), seed=seed)

@@ -9,7 +9,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from ident.indri import framework as I
+from ident.excitation.profiles import test_profile_knots
+from ident.sim.friction import simulate_friction
 from ident.indri.codegen import c_identifier, export_c, export_models_c
 from ident.friction import (Arctan, CoulombViscous, LuGreDM1, LuGreDM2, Stribeck, fit_arctan)
 
@@ -69,7 +70,7 @@ def lib(tmp_path_factory):
 def recorded(tmp_path_factory):
     """A recorded profile: simulated, written to a CSV file and read back (as a controller
     replay would), with measurement noise on the velocity and acceleration."""
-    d = I.simulate_friction(MODELS["dm2"], I.test_profile_knots("random", 8.0, seed=3))
+    d = simulate_friction(MODELS["dm2"], test_profile_knots("random", 8.0, seed=3))
     rng = np.random.default_rng(4)
     qd = d.qd + 1e-3 * rng.standard_normal(d.n)
     qdd = d.qdd + 0.05 * rng.standard_normal(d.n)

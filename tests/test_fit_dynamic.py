@@ -5,7 +5,7 @@ sigma0 = c / 2e-3 rad, constant sigma1), checked against the campaign's ground t
 The joint is flexible at its declared stiffness (drives.toml, PA10 j5: K = 5000 N m/rad) and
 the bristles act on the link, behind the spring: the motor encoder sees both in series. The
 DM2 (motor velocity) keeps the apparent sigma0; phase 2-A on the link velocity (the motor
-encoder's minus the spring's nominal deflection rate, ident.indri.campaign.nominal_link_state)
+encoder's minus the spring's nominal deflection rate, ident.indri.campaign_fit.nominal_link_state)
 gives the bristle's own.
 
 Measured (seed 3, declared K): bristle sigma0 1937 vs 1950 (-0.7 %), apparent (motor side)
@@ -25,9 +25,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from ident.indri import framework as I
+from ident.excitation.profiles import piecewise_linear_velocity, reversal_knots
+from ident.friction import Arctan
+from ident.friction.data import FrictionData
+from ident.sim.friction import simulate_friction
 from ident.cli.main import main
-from ident.indri.campaign import fit_campaign_dynamic, split_reversals
+from ident.indri.campaign_fit import fit_campaign_dynamic, split_reversals
 from mocap.io.campaign import load_campaign
 from mocap.io.errors import InputError
 
@@ -262,7 +265,7 @@ def test_exported_c_compiles_and_reproduces_dm2(fitted, camp):
                      rest_speed=e["settings"]["rest_speed"], **e["params"])
     assert e["params"]["alpha"] > 0                       # the acceleration term is exercised
     dt = fits["joints"]["5"]["dt"]
-    t, qd, qdd = I.piecewise_linear_velocity(*I.reversal_knots(5.0, 1.0, 2, 0.2), dt)
+    t, qd, qdd = piecewise_linear_velocity(*reversal_knots(5.0, 1.0, 2, 0.2), dt)
     qd, qdd = np.ascontiguousarray(qd), np.ascontiguousarray(qdd)
     buf = ctypes.create_string_buffer(L.jl_friction_size())
     L.jl_friction_init(buf, p)
@@ -300,13 +303,13 @@ def test_split_reversals_without_rests_and_with_dithers():
     kt += [kt[-1] + 0.5, kt[-1] + 1.0]
     kv += [0.0, 0.0]
     dt = 4e-3
-    t, qd, qdd = I.piecewise_linear_velocity(kt, kv, dt)
+    t, qd, qdd = piecewise_linear_velocity(kt, kv, dt)
     td = np.arange(0.0, 3.0, dt)                          # dither: 1 Hz, 0.01 rad amplitude
     w = 2 * np.pi
     t = np.concatenate([t, t[-1] + dt + td])
     qd = np.concatenate([qd, 0.01 * w * np.sin(w * td)])
     qdd = np.concatenate([qdd, 0.01 * w * w * np.cos(w * td)])
-    d = I.FrictionData(t, qd, qdd, np.zeros_like(t), label="x")
+    d = FrictionData(t, qd, qdd, np.zeros_like(t), label="x")
     sets = split_reversals(d)
     acc = [s.accel for s in sets]
     assert len(sets) == 3, acc
@@ -315,12 +318,12 @@ def test_split_reversals_without_rests_and_with_dithers():
 
 
 def test_split_reversals_on_an_exact_profile():
-    knots_a = I.reversal_knots(2.0, 1.0, 2, 0.2)
-    knots_b = I.reversal_knots(8.0, 1.0, 2, 0.2)
+    knots_a = reversal_knots(2.0, 1.0, 2, 0.2)
+    knots_b = reversal_knots(8.0, 1.0, 2, 0.2)
     # two blocks at 2 and 8 rad/s^2 separated by a 0.5 s rest
     kt = np.concatenate([knots_a[0], knots_a[0][-1] + 0.5 + knots_b[0]])
     kv = np.concatenate([knots_a[1], knots_b[1]])
-    d = I.simulate_friction(I.Arctan(tau_s=3.0, tau_sc=0.0, tau_v=1.0, tau_nlv=0.0, delta=0.0),
+    d = simulate_friction(Arctan(tau_s=3.0, tau_sc=0.0, tau_v=1.0, tau_nlv=0.0, delta=0.0),
                             (kt, kv), 5e-3, oversample=1, label="x")
     sets = split_reversals(d)
     assert [round(s.accel, 6) for s in sets] == [2.0, 8.0]
@@ -378,7 +381,7 @@ def test_bandwidth_follows_13_hz_reversals_at_200_hz():
     tanh-regularised Coulomb + viscous friction (generator shares no form with the chooser's
     arctan regression): the chosen smoother leaves a residual-torque error near the torque
     noise, where the old fixed 50 ms window left several N m."""
-    from ident.indri.campaign import TorqueConsistentBandwidth
+    from ident.indri.campaign_fit import TorqueConsistentBandwidth
     from ident.signals.smoothing import SavGolSmoother
 
     rng = np.random.default_rng(5)
@@ -397,7 +400,7 @@ def test_bandwidth_follows_13_hz_reversals_at_200_hz():
     def make(sm):
         fit = sm.fit(t, q_enc)
         _, v, a = fit.evaluate(t)
-        return I.FrictionData(t, v, a, tau - J * a, label="fast")
+        return FrictionData(t, v, a, tau - J * a, label="fast")
 
     bw = TorqueConsistentBandwidth()
     d, sm, score, _ = bw.select(make, dt, "reversals")

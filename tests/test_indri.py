@@ -14,7 +14,15 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from ident.indri import framework as I
+from ident.excitation.profiles import (TEST_PROFILES, figure1_knots, piecewise_linear_velocity,
+                                       random_knots, reversal_knots, static_knots,
+                                       test_profile_knots)
+from ident.friction.data import FrictionData
+from ident.indri.data import concat_data, friction_data_from_signals, residual_torques, steady_mask
+from ident.indri.estimator import IndriTrapani
+from ident.indri.report import (err_percent, figure_curves, model_torque, performance_indices,
+                                performance_table, save_figures, write_report)
+from ident.sim.friction import simulate_friction, simulate_reversal_datasets
 from ident.friction import Arctan, LuGreDM1, LuGreDM2, s0
 
 STATIC = Arctan(tau_s=5.0, tau_sc=-1.5, tau_v=2.0, tau_nlv=0.3, delta=15.0)
@@ -27,26 +35,26 @@ NOISE = 0.01 * float(STATIC.torque(np.array([2.0]))[0])
 
 @pytest.fixture(scope="module")
 def synth():
-    sd = I.simulate_friction(TRUTH, I.static_knots(settle_disp=0.02), noise_std=NOISE, seed=1,
+    sd = simulate_friction(TRUTH, static_knots(settle_disp=0.02), noise_std=NOISE, seed=1,
                              label="static")
-    rev = I.simulate_reversal_datasets(TRUTH, ACCELS, VMAX, noise_std=NOISE, seed=2)
-    var = I.simulate_friction(TRUTH, I.random_knots(20.0, (0.02, 2.0), (1.0, 20.0), seed=3),
+    rev = simulate_reversal_datasets(TRUTH, ACCELS, VMAX, noise_std=NOISE, seed=2)
+    var = simulate_friction(TRUTH, random_knots(20.0, (0.02, 2.0), (1.0, 20.0), seed=3),
                               noise_std=NOISE, seed=4, label="variable")
-    tests = {k: I.simulate_friction(TRUTH, I.test_profile_knots(k, 10.0, seed=10 + i),
+    tests = {k: simulate_friction(TRUTH, test_profile_knots(k, 10.0, seed=10 + i),
                                     noise_std=NOISE, seed=20 + i, label=k)
-             for i, k in enumerate(I.TEST_PROFILES)}
+             for i, k in enumerate(TEST_PROFILES)}
     return sd, rev, var, tests
 
 
 @pytest.fixture(scope="module")
 def result(synth):
     sd, rev, var, _ = synth
-    return I.IndriTrapani().fit(sd, rev, var)
+    return IndriTrapani().fit(sd, rev, var)
 
 
 @pytest.fixture(scope="module")
 def table(result, synth):
-    return I.performance_table(result.models, synth[3])
+    return performance_table(result.models, synth[3])
 
 
 # --------------------------------------------------------------------------------------------
@@ -100,9 +108,9 @@ def test_residual_single_joint_recovers_friction(robot, joint):
     fric = np.zeros_like(q)
     fric[:, joint] = STATIC.torque(qd[:, joint])
     tau_m = robot.rnea(q, qd, qdd) + fric
-    res = I.residual_torques(robot, q, qd, qdd, tau_m, joint=joint)      # single-joint form
+    res = residual_torques(robot, q, qd, qdd, tau_m, joint=joint)      # single-joint form
     np.testing.assert_allclose(res, fric[:, joint], atol=1e-9)
-    res_rnea = I.residual_torques(robot, q, qd, qdd, tau_m, joint=joint, still_tol=-1.0)
+    res_rnea = residual_torques(robot, q, qd, qdd, tau_m, joint=joint, still_tol=-1.0)
     np.testing.assert_allclose(res_rnea, fric[:, joint], atol=1e-9)
 
 
@@ -110,14 +118,14 @@ def test_residual_multi_joint(robot):
     q, qd, qdd = _motion(robot.n, [0, 1, 2], seed=7)
     fric = np.column_stack([STATIC.torque(qd[:, j]) * (j + 1) for j in range(robot.n)])
     tau_m = robot.rnea(q, qd, qdd) + fric
-    np.testing.assert_allclose(I.residual_torques(robot, q, qd, qdd, tau_m), fric, atol=1e-9)
+    np.testing.assert_allclose(residual_torques(robot, q, qd, qdd, tau_m), fric, atol=1e-9)
     # coupling matters: the single-joint form is not used when others move
-    np.testing.assert_allclose(I.residual_torques(robot, q, qd, qdd, tau_m, joint=1),
+    np.testing.assert_allclose(residual_torques(robot, q, qd, qdd, tau_m, joint=1),
                                fric[:, 1], atol=1e-9)
     with pytest.raises(ValueError, match="tau_m must be"):
-        I.residual_torques(robot, q, qd, qdd, tau_m[:, :2])
+        residual_torques(robot, q, qd, qdd, tau_m[:, :2])
     with pytest.raises(ValueError, match="joint must be"):
-        I.residual_torques(robot, q, qd, qdd, tau_m, joint=3)
+        residual_torques(robot, q, qd, qdd, tau_m, joint=3)
 
 
 def test_friction_data_from_signals(robot):
@@ -135,10 +143,10 @@ def test_friction_data_from_signals(robot):
     tau = rob.rnea(q, qd, qdd)[:, 1] + J * qmdd + B * qmd + fric
     sig = SimpleNamespace(joint=2, time=np.arange(600) * 1e-3, q=q[:, 1], qd=qd[:, 1],
                           qdd=qdd[:, 1], qm=q[:, 1], qmd=qmd, qmdd=qmdd, tau=tau)
-    d = I.friction_data_from_signals(sig, rob, q_rest, label="x")
+    d = friction_data_from_signals(sig, rob, q_rest, label="x")
     np.testing.assert_allclose(d.tau, fric + B * qmd, atol=1e-9)      # viscous B stays friction
     np.testing.assert_array_equal(d.qd, qmd)
-    d = I.friction_data_from_signals(sig, rob, q_rest, subtract_motor_viscous=True)
+    d = friction_data_from_signals(sig, rob, q_rest, subtract_motor_viscous=True)
     np.testing.assert_allclose(d.tau, fric, atol=1e-9)
 
 
@@ -146,34 +154,34 @@ def test_friction_data_from_signals(robot):
 # synthetic data
 # --------------------------------------------------------------------------------------------
 def test_profiles_have_the_asked_accelerations():
-    t, qd, qdd = I.piecewise_linear_velocity(*I.reversal_knots(8.0, VMAX, 2, 0.4), 1e-3)
+    t, qd, qdd = piecewise_linear_velocity(*reversal_knots(8.0, VMAX, 2, 0.4), 1e-3)
     assert np.max(np.abs(qdd)) == pytest.approx(8.0)
     assert np.max(np.abs(qd)) == pytest.approx(VMAX)
     np.testing.assert_allclose(np.diff(qd), qdd[:-1] * 1e-3, atol=8.0 * 1e-3 + 1e-12)
     assert np.sum(np.diff(np.sign(qd[np.abs(qd) > 1e-9])) != 0) == 4       # 2 cycles
-    d = I.simulate_reversal_datasets(TRUTH, (2.0, 20.0), VMAX, noise_std=0.1, seed=5)
+    d = simulate_reversal_datasets(TRUTH, (2.0, 20.0), VMAX, noise_std=0.1, seed=5)
     assert [x.accel for x in d] == [2.0, 20.0]
     np.testing.assert_allclose(np.std(d[0].tau - d[0].truth), 0.1, rtol=0.05)
     with pytest.raises(ValueError, match="shape"):
-        I.FrictionData(np.arange(5.0), np.zeros(5), np.zeros(4), np.zeros(5))
+        FrictionData(np.arange(5.0), np.zeros(5), np.zeros(4), np.zeros(5))
 
 
 def test_concat_data_for_step1(synth):
     sd = synth[0]
     half = sd.n // 2
-    parts = [I.FrictionData(sd.time[:half] + 100.0, sd.qd[:half], sd.qdd[:half], sd.tau[:half]),
-             I.FrictionData(sd.time[half:], sd.qd[half:], sd.qdd[half:], sd.tau[half:])]
-    cat = I.concat_data(parts)
+    parts = [FrictionData(sd.time[:half] + 100.0, sd.qd[:half], sd.qdd[:half], sd.tau[:half]),
+             FrictionData(sd.time[half:], sd.qd[half:], sd.qdd[half:], sd.tau[half:])]
+    cat = concat_data(parts)
     assert cat.n == sd.n and np.all(cat.dt > 0)
     np.testing.assert_array_equal(cat.tau, sd.tau)
-    a = I.IndriTrapani().fit_static(cat).model.params
-    b = I.IndriTrapani().fit_static(sd).model.params
+    a = IndriTrapani().fit_static(cat).model.params
+    b = IndriTrapani().fit_static(sd).model.params
     assert a == pytest.approx(b, rel=1e-3)
 
 
 def test_steady_mask_selects_settled_constant_speed(synth):
     sd = synth[0]
-    m = I.steady_mask(sd, 0.02)
+    m = steady_mask(sd, 0.02)
     assert m.sum() > 0.3 * sd.n
     # at the selected samples the bristles have settled: friction is the steady curve of eq. 5-9
     v = sd.qd[m]
@@ -225,7 +233,7 @@ def test_critical_acceleration_eq22(result):
 
 
 def test_table1_dm2_beats_dm1_and_sm(table):
-    for test in I.TEST_PROFILES:
+    for test in TEST_PROFILES:
         rms = {m: table.value(test, "RMS", m) for m in ("DM2", "DM1", "SM")}
         assert rms["DM2"] < 1.25 * NOISE                      # DM2 reaches the noise floor
         assert rms["DM2"] < rms["DM1"] and rms["DM2"] < rms["SM"]
@@ -237,8 +245,8 @@ def test_table1_dm2_beats_dm1_and_sm(table):
 
 
 def test_dm1_damping_peaks_figure5(result):
-    data = I.simulate_friction(TRUTH, I.figure1_knots(), noise_std=NOISE, seed=9)
-    c = I.figure_curves(result, data)
+    data = simulate_friction(TRUTH, figure1_knots(), noise_std=NOISE, seed=9)
+    c = figure_curves(result, data)
     fast = data.time > 15.0
     peak = {k: np.max(np.abs(v[fast])) for k, v in c["fig5"].items()}
     assert peak["eq. 11, max sigma1"] > 5.0 * peak["eq. 24 (DM2)"]
@@ -251,10 +259,10 @@ def test_dm1_damping_peaks_figure5(result):
 # indices, tables, report
 # --------------------------------------------------------------------------------------------
 def test_performance_indices_and_err_percent():
-    pi = I.performance_indices(np.array([1.0, 0.0, 5.0]), np.array([0.0, 2.0, 2.0]))
+    pi = performance_indices(np.array([1.0, 0.0, 5.0]), np.array([0.0, 2.0, 2.0]))
     assert pi == pytest.approx({"RMS": np.sqrt(14 / 3), "M": 2.0, "IN": 3.0})
-    assert I.err_percent(0.0889, 0.0904) == pytest.approx(-1.687, abs=1e-3)   # Table I, row 1
-    assert I.err_percent(0.08, 0.2077) == pytest.approx(-159.6, abs=0.05)
+    assert err_percent(0.0889, 0.0904) == pytest.approx(-1.687, abs=1e-3)   # Table I, row 1
+    assert err_percent(0.08, 0.2077) == pytest.approx(-159.6, abs=0.05)
 
 
 def test_table_layout_csv_markdown(table):
@@ -288,8 +296,8 @@ class _RecSink:
 def test_report_and_figures(result, table, synth, tmp_path):
     data = synth[3]["medium"]
     sink = _RecSink()
-    paths = I.write_report(result, tmp_path, tables={"table1": table},
-                           curves=I.figure_curves(result, data), sink=sink)
+    paths = write_report(result, tmp_path, tables={"table1": table},
+                           curves=figure_curves(result, data), sink=sink)
     for key in ("fig2", "fig4", "fig5"):
         assert paths[key].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     doc = json.loads(paths["json"].read_text())
@@ -319,11 +327,11 @@ def test_phase2c_returns_the_parameters_of_its_best_grid_point(result, synth):
     _, rev, var, _ = synth
     datasets = list(rev) + [var]
     st = result.static.model
-    r = I.IndriTrapani().refine_damping(st, result.sigma0, result.accel_ratio, datasets)
+    r = IndriTrapani().refine_damping(st, result.sigma0, result.accel_ratio, datasets)
     m = LuGreDM2(static=st, accel_ratio=result.accel_ratio, sigma0=result.sigma0,
                  alpha=r["alpha"], beta=r["beta"], gamma=r["gamma"],
                  accel_floor=r["accel_floor"], rest_speed=r["rest_speed"])
-    res = [d.tau - I.model_torque(m, d) for d in datasets]
+    res = [d.tau - model_torque(m, d) for d in datasets]
     ref = [d.tau - st.torque(d.qd) for d in datasets]
     assert np.sqrt(np.mean(np.concatenate(res) ** 2)) == pytest.approx(r["rms"], rel=1e-6)
     ratio2 = [np.mean(a ** 2) / np.mean(b ** 2) for a, b in zip(res, ref)]
@@ -344,12 +352,12 @@ def test_phase2c_falls_back_to_the_static_limit_without_bristles():
     lag at every velocity reversal is worse than the static model on some data set, and no
     damping or relaxation repairs it within the bound, so phase 2-C returns the static limit
     (no damping); every data set is then within 5 % of the static model."""
-    rev = I.simulate_reversal_datasets(STATIC, (2.0, 8.0, 20.0), VMAX, noise_std=NOISE, seed=31)
-    var = I.simulate_friction(STATIC, I.random_knots(10.0, (0.02, 2.0), (1.0, 20.0), seed=32),
+    rev = simulate_reversal_datasets(STATIC, (2.0, 8.0, 20.0), VMAX, noise_std=NOISE, seed=31)
+    var = simulate_friction(STATIC, random_knots(10.0, (0.02, 2.0), (1.0, 20.0), seed=32),
                               noise_std=NOISE, seed=33, label="variable")
     datasets = list(rev) + [var]
     g = float(STATIC.g(np.array([0.0]))[0])
-    est = I.IndriTrapani()
+    est = IndriTrapani()
     r = est.refine_damping(STATIC, g / 2e-3, 20.0 / VMAX, datasets)
     assert r["bristle"] == "static limit"
     assert r["alpha"] == 0.0 and r["beta"] == 0.0
@@ -358,30 +366,30 @@ def test_phase2c_falls_back_to_the_static_limit_without_bristles():
     m = LuGreDM2(static=STATIC, accel_ratio=20.0 / VMAX, sigma0=r["sigma0"], alpha=0.0,
                  beta=0.0, gamma=1.0)
     for d in datasets:
-        ratio = (np.sqrt(np.mean((d.tau - I.model_torque(m, d)) ** 2))
+        ratio = (np.sqrt(np.mean((d.tau - model_torque(m, d)) ** 2))
                  / np.sqrt(np.mean((d.tau - STATIC.torque(d.qd)) ** 2)))
         assert ratio <= 1.05, (d.label, ratio)
     # the paper's plain bristle at that sigma0 is what the fallback avoids
     plain = LuGreDM2(static=STATIC, accel_ratio=20.0 / VMAX, sigma0=g / 2e-3, alpha=0.0,
                      beta=0.0, gamma=1.0)
-    worst = max(np.sqrt(np.mean((d.tau - I.model_torque(plain, d)) ** 2))
+    worst = max(np.sqrt(np.mean((d.tau - model_torque(plain, d)) ** 2))
                 / np.sqrt(np.mean((d.tau - STATIC.torque(d.qd)) ** 2)) for d in datasets)
     assert worst > 1.5
 
 
 def test_estimator_validates():
     with pytest.raises(ValueError, match="dm1_damping"):
-        I.IndriTrapani(dm1_damping="eq99")
+        IndriTrapani(dm1_damping="eq99")
     with pytest.raises(ValueError, match="at least two"):
-        I.IndriTrapani.fit_trend([2.0], [1.0])
-    d = I.simulate_reversal_datasets(TRUTH, (2.0,), VMAX)
+        IndriTrapani.fit_trend([2.0], [1.0])
+    d = simulate_reversal_datasets(TRUTH, (2.0,), VMAX)
     with pytest.raises(ValueError, match="at least two"):
-        I.IndriTrapani().fit(d[0], d, d[0])
+        IndriTrapani().fit(d[0], d, d[0])
     t = np.arange(2000) * 1e-3
-    sine = I.FrictionData(t, 0.1 * np.sin(5 * t), 0.5 * np.cos(5 * t),
+    sine = FrictionData(t, 0.1 * np.sin(5 * t), 0.5 * np.cos(5 * t),
                           STATIC.torque(0.1 * np.sin(5 * t)))
     with pytest.raises(ValueError, match="steady"):
-        I.IndriTrapani().fit_static(sine)
+        IndriTrapani().fit_static(sine)
 
 
 def test_dm1_fit_recovers_its_own_truth():
@@ -392,15 +400,15 @@ def test_dm1_fit_recovers_its_own_truth():
     the fitted damping absorbed it (sigma1 + sigma0 Ts/2 = 10.5); the first-order hold of
     :mod:`ident.friction.dynamic` removes that bias."""
     m = LuGreDM1(static=STATIC, damping="constant", sigma0=5.0e3, sigma1=8.0)
-    est = I.IndriTrapani()
-    d = I.simulate_reversal_datasets(m, (3.0,), VMAX, noise_std=NOISE, seed=11, oversample=1)[0]
+    est = IndriTrapani()
+    d = simulate_reversal_datasets(m, (3.0,), VMAX, noise_std=NOISE, seed=11, oversample=1)[0]
     f = est.fit_dm1(STATIC, d, "constant")
     assert f.sigma0 == pytest.approx(5.0e3, rel=0.05)
     assert f.sigma1 == pytest.approx(8.0, abs=3 * f.fit.stderr["sigma1"])
     assert f.fit.stderr["sigma1"] < 0.1 * 8.0
     assert f.fit.rms < 1.01 * NOISE
     fine = LuGreDM1(static=STATIC, damping="constant", sigma0=5.0e3, sigma1=8.0, hold="zero")
-    d = I.simulate_reversal_datasets(fine, (3.0,), VMAX, noise_std=NOISE, seed=11,
+    d = simulate_reversal_datasets(fine, (3.0,), VMAX, noise_std=NOISE, seed=11,
                                      oversample=10)[0]
     f = est.fit_dm1(STATIC, d, "constant")
     assert f.sigma0 == pytest.approx(5.0e3, rel=0.05)
@@ -412,13 +420,13 @@ def test_first_order_hold_reduces_a_stiff_bristle_to_the_static_model():
     """A stiff bristle (sigma0 |v| Ts >> g) must give the static arctan model sample by sample
     whatever the damping: with eq. 29 (zero-order hold) the state is one sample late and the
     damping term multiplies a spike at every velocity change."""
-    d = I.simulate_friction(STATIC, I.test_profile_knots("random", 8.0, seed=3), dt=1e-3)
+    d = simulate_friction(STATIC, test_profile_knots("random", 8.0, seed=3), dt=1e-3)
     ref = STATIC.torque(d.qd)
     moving = np.abs(d.qd) > 0.05                  # away from the smooth sign's |v| < ~1/Kv zone
     err = {}
     for hold in ("first", "zero"):
         m = LuGreDM1(static=STATIC, damping="constant", sigma0=1e8, sigma1=100.0, hold=hold)
-        err[hold] = np.abs(I.model_torque(m, d) - ref)[moving].max()
+        err[hold] = np.abs(model_torque(m, d) - ref)[moving].max()
     assert err["first"] < 0.02 * np.abs(ref).max()
     assert err["zero"] > 10 * err["first"]
 
@@ -429,7 +437,7 @@ def test_figures_to_rerun(result, synth, tmp_path):
 
     rrd = tmp_path / "indri.rrd"
     with make_sink(rrd=str(rrd)) as sink:
-        I.save_figures(I.figure_curves(result, synth[3]["low"]), tmp_path, sink=sink)
+        save_figures(figure_curves(result, synth[3]["low"]), tmp_path, sink=sink)
     assert rrd.stat().st_size > 10_000
 
 
@@ -437,8 +445,8 @@ def test_figures_to_rerun(result, synth, tmp_path):
 def test_fit_dm1_damping_variants(damping, sigma1):
     """Prediction error recovers (sigma0, sigma1) for the damping variants eq. 10-12."""
     m = LuGreDM1(static=STATIC, damping=damping, sigma0=5.0e3, sigma1=sigma1)
-    d = I.simulate_reversal_datasets(m, (3.0,), VMAX, noise_std=NOISE, seed=12, oversample=1)[0]
-    f = I.IndriTrapani().fit_dm1(STATIC, d, damping)
+    d = simulate_reversal_datasets(m, (3.0,), VMAX, noise_std=NOISE, seed=12, oversample=1)[0]
+    f = IndriTrapani().fit_dm1(STATIC, d, damping)
     assert f.fit.model.damping == damping
     assert f.sigma0 == pytest.approx(5.0e3, rel=0.05)
     assert f.sigma1 == pytest.approx(sigma1, abs=4 * f.fit.stderr["sigma1"])
@@ -453,7 +461,7 @@ def test_residual_on_bundled_pa10(pa10_dir):
         q, qd, qdd = _motion(pa10.n, [j], T=200, seed=20 + j)
         tau_m = pa10.rnea(q, qd, qdd)
         tau_m[:, j] += STATIC.torque(qd[:, j])
-        np.testing.assert_allclose(I.residual_torques(pa10, q, qd, qdd, tau_m, joint=j),
+        np.testing.assert_allclose(residual_torques(pa10, q, qd, qdd, tau_m, joint=j),
                                    STATIC.torque(qd[:, j]), atol=1e-9)
 
 
@@ -462,13 +470,13 @@ def test_table2_layout_per_axis(result, synth):
     from ident.friction import CoulombViscous
 
     models = {"DM2": result.dm2, "SM": result.static.model, "CM": CoulombViscous(c=4.5, v=2.2)}
-    tab = I.performance_table(models, {"Axis 1": synth[3]["low"], "Axis 2": synth[3]["medium"]},
+    tab = performance_table(models, {"Axis 1": synth[3]["low"], "Axis 2": synth[3]["medium"]},
                               group="Axis")
     assert tab.columns == ("Axis", "PI", "DM2", "SM", "CM", "Err% SM", "Err% CM")
     assert tab.to_csv().splitlines()[0] == "Axis,PI,DM2,SM,CM,Err% SM,Err% CM"
     assert tab.value("Axis 1", "IN", "CM") > tab.value("Axis 1", "IN", "DM2")
     with pytest.raises(ValueError, match="reference"):
-        I.performance_table(models, {}, reference="DM1")
+        performance_table(models, {}, reference="DM1")
 
 
 def _constant_speed_runs(levels, dt=5e-3, accel=20.0):
@@ -480,7 +488,7 @@ def _constant_speed_runs(levels, dt=5e-3, accel=20.0):
             cruise = max(0.3, 0.3 / v) + 0.6
             kt += [t0 + v / accel, t0 + v / accel + cruise, t0 + 2 * v / accel + cruise]
             kv += [s * v, s * v, 0.0]
-    return I.piecewise_linear_velocity(np.array(kt), np.array(kv), dt)
+    return piecewise_linear_velocity(np.array(kt), np.array(kv), dt)
 
 
 def test_step1_drops_a_stribeck_term_the_data_do_not_support():
@@ -495,7 +503,7 @@ def test_step1_drops_a_stribeck_term_the_data_do_not_support():
 
     def fit(f, **kw):
         tau = f(qd) + 0.08 * rng.standard_normal(qd.size)
-        return I.IndriTrapani(**kw).fit_static(I.FrictionData(t, qd, qdd, tau, label="cv"))
+        return IndriTrapani(**kw).fit_static(FrictionData(t, qd, qdd, tau, label="cv"))
 
     plain = fit(lambda v: 3.9 * np.tanh(v / 1e-3) + 0.99 * v)
     ch = plain.diagnostics["static_choice"]

@@ -195,7 +195,7 @@ def test_tx40_fixture_fit_matches_published_friction(tmp_path, capsys):
     viscous term on joints 5 and 6 (tau_5 and tau_6 both carry fvm6 (qd5 + qd6)); published
     Coulomb fs_6 = 0.282 N m is 15 % of the wrist motor's fsm6 = 1.95 and shares its sign
     pattern, so only fsm6 is held to 10 % there (joint 6's own Coulomb to 30 %)."""
-    from ident.thesis.campaign import read_tx40_config
+    from ident.thesis.campaign_fit import read_tx40_config
 
     if not (TX40 / "trials" / "excitation.csv").is_file():
         pytest.skip("TX40 fixture absent")

@@ -137,7 +137,7 @@ def test_tx40_published_model_as_nominal(tmp_path, capsys):
     coupled wrist motor's own friction (fsm6 = 1.95 N m, on the motor velocity qd5 + qd6),
     which a Coulomb + viscous nominal fitted on the joint absorbs: with the published model fixed,
     joint 6's held-out gap must be clearly larger."""
-    from ident.thesis.campaign import read_tx40_config
+    from ident.thesis.campaign_fit import read_tx40_config
 
     if not (TX40 / "trials" / "excitation.csv").is_file():
         pytest.skip("TX40 fixture absent")

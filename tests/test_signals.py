@@ -1,5 +1,5 @@
 """ident.signals.smoothing: Fourier fits (eq. 3-2) with estimated fundamental and harmonics, the
-non-periodic fallback, clock offsets and the angles CSV reader, on seeded synthetic data."""
+non-periodic fallback, clock offsets and the angles CSV reader (:mod:`mocap.io.angles`), on seeded synthetic data."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,9 +7,9 @@ import pytest
 
 from ident.signals.fourier import FourierSeries
 from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, estimate_fundamental,
-                           estimate_time_offset, read_angles,
-                           select_harmonics)
+                                    estimate_time_offset, select_harmonics)
 from ident.model.linkstate import prepare_joint_signals
+from mocap.io.angles import read_angles
 from mocap.io.errors import InputError
 
 SERIES = FourierSeries(np.array([0.5, -0.3, 0.2, 0.1, -0.05]), np.array([0.2, 0.1, -0.3, 0.05, 0.02]),

@@ -1,4 +1,4 @@
-"""ident.thesis.tables and the campaign fit (ident.thesis.campaign, `jointlab fit`): thesis CV convention,
+"""ident.thesis.tables and the campaign fit (ident.thesis.campaign_fit, `jointlab fit`): thesis CV convention,
 table layout, and a seeded synthetic campaign without unmodelled effects (goal: Coulomb and
 viscous within 3 % of truth, CV% at or below the thesis's Table 5-1 for 5 repetitions)."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ident.thesis import tables as stats
-from ident.thesis.campaign import fit_campaign
+from ident.thesis.campaign_fit import fit_campaign
 from ident.signals.fourier import FourierSeries
 from mocap.io.campaign import load_campaign, write_manifest
 from mocap.io.robotlog import RobotLog, write_robot_log
@@ -214,7 +214,7 @@ def test_simulator_campaign_without_effects(tmp_path):
     """Integration with `jointlab synth` (the project's simulator, flexible joint, holds,
     quantisation, noise): Coulomb and viscous within 3 % of the truth file, CV% at or below the
     thesis's Table 5-1 (joint 5, loaded, 100 %: c 3.10 %, v 2.73 %)."""
-    pytest.importorskip("ident.sim.campaign")
+    pytest.importorskip("ident.sim.campaign_synth")
     from ident.cli.main import main
 
     camp = tmp_path / "sim"

@@ -161,7 +161,7 @@ def dataclass_replace(obj, **kw):
 
 def test_interrupted_study_leaves_no_half_files_and_resumes(tiny, serial_run, tmp_path, monkeypatch):
     camp, _, _ = tiny
-    import ident.thesis.campaign as fitting
+    import ident.thesis.campaign_fit as fitting
 
     real = fitting.fit_trial_joint
     calls = {"n": 0}

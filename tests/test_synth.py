@@ -1,4 +1,4 @@
-"""``jointlab synth``: the campaign writer (ident.sim.campaign) and the marker synthesis (mocap.synth)."""
+"""``jointlab synth``: the campaign writer (ident.sim.campaign_synth) and the marker synthesis (mocap.synth)."""
 from __future__ import annotations
 
 import json
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from ident.sim.campaign import CampaignSynth, SynthConfig, file_hashes
+from ident.sim.campaign_synth import CampaignSynth, SynthConfig, file_hashes
 
 SMALL = dict(joints=(5,), loads=(0.0,), vmax=(1.0,), reps=1, duration=4.0)
 

@@ -20,6 +20,7 @@ import rerun as rr
 from scipy.spatial.transform import Rotation
 
 from viz.sink import Sink
+from viz.blueprint import default_blueprint
 
 _STRICT = True  # raise on non-loggable data instead of warning (our bug, surface it)
 
@@ -116,8 +117,6 @@ class RerunSink(Sink):
 
     def __init__(self, rrd: str | Path | None = None, spawn: bool = False, app_id: str = "jointlab",
                  blueprint=None, recording_id: str | None = None, port: int = 9876):
-        from viz.blueprint import default_blueprint
-
         self.rrd = None if rrd is None else Path(rrd)
         self.spawn = bool(spawn)
         self.app_id = app_id
@@ -315,8 +314,6 @@ class RerunSink(Sink):
 
     # additions to the Sink interface -------------------------------------------------------
     def layout(self, series=None, world="/", text="/"):
-        from viz.blueprint import default_blueprint
-
         self.recording.send_blueprint(default_blueprint(world=world, series=series, text=text))
 
     # lifecycle ---------------------------------------------------------------------------

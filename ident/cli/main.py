@@ -16,6 +16,10 @@ from pathlib import Path
 
 from mocap.io.errors import InputError, InputWarning
 
+from ident.cli import commands
+from ident.outputs import LOCK, MANIFEST, STAGE_DIR, check_out_dir as _check_out_dir
+from ident.study.executor import WorkerLost
+
 
 def add_common(p: argparse.ArgumentParser, out: bool = True, out_required: bool = False,
                json: bool = True) -> None:
@@ -33,9 +37,7 @@ def check_out_dir(out: Path, inputs=()) -> Path:
     """Create ``out``; refuse an output folder that is an input folder or inside one (or inside
     an input's campaign). ``--out`` folders go through :class:`ident.outputs.OutputDir`, which
     also refuses one that contains an input."""
-    from ident.outputs import check_out_dir as _check
-
-    return _check(out, inputs, contain=False)
+    return _check_out_dir(out, inputs, contain=False)
 
 
 _INPUT_ARGS = ("campaign", "path", "calib", "angles", "robot", "nominal")
@@ -97,8 +99,6 @@ def guard_outputs(args) -> None:
 
 
 def _command_modules():
-    from ident.cli import commands
-
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         if not info.name.startswith("_"):
             yield importlib.import_module(f"{commands.__name__}.{info.name}")
@@ -155,8 +155,6 @@ def _os_error_line(exc: OSError) -> str:
 
 
 def _run(args) -> int:
-    from ident.study.executor import WorkerLost
-
     out = getattr(args, "out", None)
     out_existed = out is None or Path(out).exists()
     created = []                       # the folders a failed run may leave behind, deepest first
@@ -196,8 +194,6 @@ def _run(args) -> int:
 def _remove_if_empty(folder: Path) -> None:
     """A failed run leaves no empty output folder behind (never removes anything with content;
     the output bookkeeping of a run that wrote nothing goes with it)."""
-    from ident.outputs import LOCK, MANIFEST, STAGE_DIR
-
     try:
         names = {p.name for p in folder.iterdir()}
         if names <= {LOCK, MANIFEST, STAGE_DIR}:

@@ -62,6 +62,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
+from ident.signals.smoothing import one_blas_thread
 
 __all__ = ["Flex", "CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
            "free_response", "two_mass_coast",
@@ -724,8 +725,6 @@ class AngleCoastFit:
         AngleCoastResult
             The shared ``Kc``, ``Kv`` and the per-coast details.
         """
-        from ident.signals.smoothing import one_blas_thread
-
         recs = [tuple(r) + (None,) * (5 - len(r)) for r in records]
         rigid = [r[:4] + (None,) for r in recs]
         declared = any(r[4] is not None for r in recs)

@@ -1,1 +1,2 @@
-"""Excitation: trajectory design (thesis eq. 3-1) and reference trajectories."""
+"""Excitation: trajectory design (thesis eq. 3-1), reference trajectories and the velocity
+profiles of Indri & Trapani's acquisitions."""

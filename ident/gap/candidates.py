@@ -27,6 +27,7 @@ import numpy as np
 from ident.friction import laws
 
 from ident.effects import REGISTRY
+from ident.friction.dynamic import linear_scan
 
 V_EPS = 2e-3  # rad/s: width of the smoothed sign used for Coulomb-type terms
 
@@ -47,8 +48,6 @@ def bristle_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) ->
     ``s[k+1] = e^{-|dq|/x0} s[k] + (1 - e^{-|dq|/x0}) sign(dq)`` (rate independent, so samples
     left out of the channel in between are bridged exactly). Saturated at each trial's start.
     Vectorised with :func:`ident.friction.dynamic.linear_scan`."""
-    from ident.friction.dynamic import linear_scan
-
     n = q.shape[0]
     if n == 0:
         return np.zeros(0)
@@ -211,8 +210,6 @@ def _load(d, hp):
 def _heat(d, hp):
     """First-order thermal state driven by a power proxy (``src``: ``motion`` = |qd|, ``power`` =
     |y qd|) with time constant ``tau`` on the campaign clock (cooling between samples)."""
-    from ident.friction.dynamic import linear_scan
-
     src, tau = hp
     order = np.argsort(d.t, kind="stable")
     t = d.t[order]

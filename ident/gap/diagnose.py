@@ -28,7 +28,8 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from ident.gap.candidates import Candidate, candidate_effects, confounders, level_interactions, selected_levels
+from ident.gap.candidates import (REVERSAL_SHAPED, Candidate, candidate_effects, confounders,
+                                  level_interactions, selected_levels)
 from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmission,
                                _transmission_channel, nominal_heldout_rms, undeclared_payload_columns)
 from ident.gap.data import JointData
@@ -37,6 +38,7 @@ from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, gra
                               loss_differential_test, loss_test_min_p, repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
+from ident.signals.smoothing import one_blas_thread
 
 @dataclass(frozen=True)
 class DiagnosisSettings:
@@ -212,8 +214,6 @@ def effect_size_floor(channel: str, family: str, settings: "DiagnosisSettings", 
     test of a single record (``mode="samples"``) the reversal-shaped families get
     ``min_effect_to_floor_samples``: a single record's nominal error at its reversals is not
     averaged over the speeds and loads of a campaign (calibration: docs/gap-diagnosis.md)."""
-    from ident.gap.candidates import REVERSAL_SHAPED
-
     if channel == "transmission":
         return settings.min_effect_to_floor_transmission
     if family in REVERSAL_SHAPED:
@@ -667,8 +667,6 @@ class GapDiagnosis:
     def fit(self, data: JointData, gear_ratio: float | None = None) -> DiagnosisResult:
         """Diagnose ``data`` (:class:`ident.gap.data.JointData`); ``gear_ratio`` sets the ripple
         orders tested (the wave generator's and its harmonics)."""
-        from ident.signals.smoothing import one_blas_thread
-
         with one_blas_thread():
             return _diagnose_joint(data, self.settings, gear_ratio, self.families)
 

@@ -37,9 +37,11 @@ from typing import Callable
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, read_text
 
-from ident.friction import laws
+from ident.friction import MODELS, laws
+from ident.friction.fit import fit_arctan, fit_friction
+from ident.friction.static import s0
 
 RIGID_FREE = ("URDF rigid-body corrections (armature, gravity scale; torque offset on multi-joint "
               "records)", "feedback gain on the encoder's high-frequency part")
@@ -157,8 +159,6 @@ class _PerJoint:
 # registry models: shape fitted (or held), amplitudes free
 # --------------------------------------------------------------------------------------------
 def _registry_nominal(name: str, held: dict | None = None) -> NominalModel:
-    from ident.friction import MODELS
-
     cls = MODELS[name]
     held = dict(held or {})
     lin = tuple(getattr(cls, "linear_names", cls.param_names))
@@ -166,8 +166,6 @@ def _registry_nominal(name: str, held: dict | None = None) -> NominalModel:
     dynamic = bool(getattr(cls, "dynamic", False))
 
     def fit(d):
-        from ident.friction.fit import fit_arctan, fit_friction
-
         y = d.y - d.tau_urdf
         X = np.column_stack([d.urdf_regs] + _feedback_columns(d))
         names = tuple(f"rigid_{k + 1}" for k in range(X.shape[1]))
@@ -199,7 +197,6 @@ def _registry_nominal(name: str, held: dict | None = None) -> NominalModel:
         model, _ = fitted(d)
         if not dynamic:
             return _static_design(model, d)
-        from ident.friction.static import s0
 
         st = _steps(d)
         z = model.states(d.qd, st)
@@ -245,8 +242,6 @@ NOMINAL_MODELS["cv_asym"].summary["spec"] = "cv_asym"
 
 def registry_names() -> tuple:
     """Every friction model name ``--nominal`` takes by name."""
-    from ident.friction import MODELS
-
     return tuple(dict.fromkeys(list(NOMINAL_MODELS) + list(MODELS)))
 
 
@@ -265,8 +260,6 @@ class _Unphysical(InputError):
 
 def _model_from_entry(name: str, ent: dict, path, key: str):
     """A friction model instance from a fits.json entry ``{"params": ..., "settings": ...}``."""
-    from ident.friction import MODELS
-
     if name not in MODELS:
         raise InputError(f"unknown friction model {name!r} (known: {', '.join(MODELS)})", path=path,
                          label=key)
@@ -363,8 +356,6 @@ class FitsNominal:
     """The friction of every joint fixed to a fits.json's values (see the module docstring)."""
 
     def __init__(self, path: Path, model: str | None = None):
-        from mocap.io.errors import read_text
-
         self.path = Path(path)
         text = read_text(self.path)
         try:
@@ -461,8 +452,6 @@ class FitsNominal:
 
 # --------------------------------------------------------------------------------------------
 def _parse_held(name: str, text: str, spec: str) -> dict:
-    from ident.friction import MODELS
-
     cls = MODELS[name]
     lin = tuple(getattr(cls, "linear_names", cls.param_names))
     nonlin = [k for k in cls.param_names if k not in lin]
@@ -490,8 +479,6 @@ def nominal_model(spec: str = "cv") -> NominalModel:
     """The :class:`NominalModel` of a ``--nominal`` SPEC (see the module docstring); a bad SPEC
     or file is an :class:`InputError` naming the file and key. The same SPEC gives the same
     instance (a file's while it is unchanged), so per-joint fits are shared within a run."""
-    from ident.friction import MODELS
-
     spec = str(spec)
     if spec in NOMINAL_MODELS:
         return NOMINAL_MODELS[spec]
@@ -539,3 +526,20 @@ def check_nominal(spec: str, joints) -> NominalModel:
     if nm.check is not None:
         nm.check(joints)
     return nm
+
+
+def check_held_nominal(spec: str) -> None:
+    """Held shape parameters of ``--nominal NAME:k=v,...`` are positive scales (a Stribeck
+    velocity, tanh slopes, a bristle stiffness, an arctan sharpness)."""
+    name, sep, rest = str(spec).partition(":")
+    if not sep or name not in MODELS or Path(spec).is_file():
+        return
+    for part in rest.split(","):
+        k, _, v = part.partition("=")
+        try:
+            val = float(v)
+        except ValueError:
+            continue                      # the nominal's own parser names it
+        if not val > 0:
+            raise InputError(f"--nominal {spec}: {k.strip()} is a shape parameter of {name} and must be "
+                             f"> 0, got {v.strip()}", label=k.strip())

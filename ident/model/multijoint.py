@@ -10,7 +10,17 @@ from pathlib import Path
 import numpy as np
 
 from ident.common import to_jsonable
-from ident.model.record import RecordSettings, load_record
+from ident.model.record import RecordSettings, coupling_matrix, load_record, prepare_record
+from ident.friction.plausibility import Flag, fmt, meaning_line
+from ident.gap import diagnose_joint
+from ident.gap.data import build_joint_data_record, campaign_clock, concat_joint_data
+from ident.gap.nominal import check_nominal
+from ident.model.regressor import ChainDynamics, base_parameters
+from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
+                                   dynamic_data_note, friction_transition, low_speed_cut,
+                                   residual_knee, without_unlogged)
+from mocap.io.errors import warn_input
+from mocap.io.robotlog import RobotLog
 
 
 def _g(x) -> str:
@@ -19,8 +29,6 @@ def _g(x) -> str:
 
 def _pv(v, flag: dict | None) -> str:
     """A parameter with its plausibility flag (:func:`ident.friction.plausibility.fmt`)."""
-    from ident.friction.plausibility import Flag, fmt
-
     return fmt(v, None if not flag else Flag(flag["flag"], flag["reason"]))
 
 
@@ -115,8 +123,6 @@ class MultiJointFits:
         return doc
 
     def report(self) -> str:
-        from ident.friction.plausibility import meaning_line
-
         lines = ["# Multi-joint identification", ""]
         for tid, by_model in self.fits.items():
             pre = self.preprocessing[tid]
@@ -204,10 +210,6 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     """
     import time
 
-    from ident.model.regressor import ChainDynamics, base_parameters
-    from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, dynamic_data_note,
-                                       low_speed_cut, without_unlogged)
-
     robot = campaign.load_robot()
     chain = ChainDynamics.from_model(robot.model)
     base = base_parameters(chain, robot.lower, robot.upper, seed=seed)
@@ -250,8 +252,6 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     where it has a stable width (:func:`ident.model.rigidbody.friction_transition`, at most half
     the 99th-percentile speed); with the Coulomb levels over plausible cuts (noise floor, half,
     once and twice the cut)."""
-    from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
-                                       friction_transition, low_speed_cut, residual_knee)
 
     cut = low_speed_cut(campaign.read_log(tr, robot), rec, robot.drives)
     floor = cut["v_zero"]
@@ -364,8 +364,6 @@ def continuous_records(campaign, trials, logs) -> list[list[int]]:
 def _join_logs(logs):
     """One :class:`mocap.io.robotlog.RobotLog` from consecutive pieces of a record (the columns
     that every piece has)."""
-    from mocap.io.robotlog import RobotLog
-
     if len(logs) == 1:
         return logs[0]
     keys = [k for k in logs[0].extra if all(k in lg.extra for lg in logs[1:])]
@@ -422,11 +420,6 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
     """
     from types import SimpleNamespace
 
-    from ident.gap import diagnose_joint
-    from ident.gap.data import build_joint_data_record, campaign_clock, concat_joint_data
-    from ident.gap.nominal import check_nominal
-    from ident.model.record import coupling_matrix, prepare_record
-
     trials = multijoint_trials(campaign)
     nominal = check_nominal(settings.nominal, [j for tr in trials for j in tr.joints
                                                if not joints or j in joints])
@@ -447,8 +440,6 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
     unlogged = sorted({j for g, rec in recs for j in rec.unlogged
                        if not joints or j in joints})
     if unlogged:
-        from mocap.io.errors import warn_input
-
         warn_input(f"joints {unlogged} ({', '.join(robot.joint_names[j - 1] for j in unlogged)}): "
                    "torque not logged (unlogged_torque); their angles drive the kinematics, they "
                    "are not diagnosed", path=campaign.manifest)

@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from ident.signals.blas import one_blas_thread
+from mocap.robot import _joint_axis
 
 PARAM_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 
@@ -127,7 +129,6 @@ class ChainDynamics:
         ----------
         .. [1] Carpentier et al. 2019, the Pinocchio C++ library.
         """
-        from mocap.robot import _joint_axis
 
         n = model.njoints - 1
         pl = np.array([model.jointPlacements[i].homogeneous for i in range(1, n + 1)])
@@ -276,7 +277,6 @@ def base_parameters(chain: ChainDynamics, lower=None, upper=None, n_states: int 
        serial robots.
     .. [2] Gautier 1991, numerical calculation of the base inertial parameters of robots.
     """
-    from ident.signals.blas import one_blas_thread
 
     with one_blas_thread():
         return _base_parameters(chain, lower, upper, n_states, seed, tol)

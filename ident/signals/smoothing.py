@@ -32,7 +32,6 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from scipy.linalg import lapack
@@ -47,7 +46,7 @@ from ident.signals.fourier import FourierSeries, design_matrix
 
 __all__ = ["savgol_window", "differentiate", "SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundamental",
            "select_harmonics", "estimate_time_offset", "JointSignals",
-           "read_angles", "AngleTrack", "one_blas_thread"]
+           "one_blas_thread"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -714,72 +713,3 @@ class JointSignals:
                 "motor_fit_rms_deg": float(np.degrees(self.motor_fit.rms)),
                 "peak_speed": float(np.max(np.abs(self.qd))) if self.qd.size else float("nan"),
                 "max_abs_tau": float(np.max(np.abs(self.tau))) if self.tau.size else float("nan")}
-
-
-# ---------------------------------------------------------------------------------------------
-# angles/<trial>.csv (FORMAT.md)
-# ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class AngleTrack:
-    """``angles/<trial id>.csv``: ``time`` (marker clock), ``q`` {joint: (T,)}, ``rms_mm``,
-    ``n_markers``."""
-
-    time: np.ndarray
-    q: dict
-    rms_mm: np.ndarray
-    n_markers: np.ndarray
-    source: Path | None = None
-
-
-def angles_path(angles_dir: str | Path, trial_id: str) -> Path:
-    """``<angles_dir>/<trial id>.csv``, or a clear error when the angle solve has not run."""
-    p = Path(angles_dir) / f"{trial_id}.csv"
-    if not p.is_file():
-        raise InputError(f"no angles file for trial {trial_id!r} (run the angle solve first, "
-                         "or leave out --angles to use motor angles)", path=p)
-    return p
-
-
-def read_angles(path: str | Path) -> AngleTrack:
-    """Read an angles CSV (FORMAT.md: columns ``time``, ``q_<j>``, ``rms_mm``, ``n_markers``;
-    empty cells are NaN)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("angles file not found", path=path)
-    lines = path.read_text(encoding="utf-8").splitlines()
-    while lines and not lines[-1].strip():
-        lines.pop()
-    if not lines:
-        raise InputError("empty angles file", path=path)
-    header = [h.strip() for h in lines[0].split(",")]
-    if "time" not in header:
-        raise InputError("no 'time' column", path=path, line=1)
-    qcols = {int(h[2:]): k for k, h in enumerate(header) if h.startswith("q_") and h[2:].isdigit()}
-    if not qcols:
-        raise InputError("no q_<j> column", path=path, line=1)
-    body = np.array(lines[1:], dtype=str)
-    n_cells = np.char.count(body, ",") + 1 if body.size else np.zeros(0, int)
-    bad = np.flatnonzero(n_cells != len(header))
-    if bad.size:
-        i = int(bad[0])
-        raise InputError(f"{int(n_cells[i])} cells, header has {len(header)}", path=path, line=i + 2)
-    cells = np.char.strip(np.array(",".join(lines[1:]).split(",") if body.size else [], dtype=str))
-    cells = np.where(cells == "", "nan", cells)
-    try:
-        data = cells.astype(float).reshape(body.size, len(header))
-    except ValueError:
-        data = None
-    if data is None:                       # the error path only: find the offending cell
-        for k, cell in enumerate(cells):
-            try:
-                float(cell)
-            except ValueError:
-                raise InputError(f"not a number: {str(cell)!r}", path=path, line=k // len(header) + 2,
-                                 label=header[k % len(header)]) from None
-    time = data[:, header.index("time")]
-    if not np.all(np.diff(time) > 0):
-        bad = int(np.argmax(np.diff(time) <= 0)) + 3
-        raise InputError("time is not strictly increasing", path=path, line=bad)
-    col = lambda name: data[:, header.index(name)] if name in header else np.full(time.shape, np.nan)  # noqa: E731
-    return AngleTrack(time, {j: data[:, k] for j, k in sorted(qcols.items())}, col("rms_mm"),
-                      col("n_markers"), path)

@@ -1,1 +1,2 @@
-"""The simulated world: flexible-joint plant, withheld effects, campaign writer."""
+"""The simulated world: flexible-joint plant, withheld effects, a friction model along a velocity
+profile, campaign writer."""

@@ -40,7 +40,7 @@ _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 #: that has not been imported for other reasons)
 RESULT_MODULES = ("calib.pipeline", "calib.axis", "calib.base", "ident.friction.fit",
                   "ident.friction.base", "ident.friction.static", "ident.friction.dynamic",
-                  "ident.thesis.campaign")
+                  "ident.thesis.campaign_fit")
 _DTYPES = {"bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64",
            "float16", "float32", "float64", "complex64", "complex128"}
 

@@ -74,7 +74,7 @@ class StudySettings:
     """What a study computes. Everything here that changes a result is part of the input hashes.
 
     ``models``: friction models of the fits (eq. 2-4); ``n_starts``/``seed``/``sync``: see
-    :func:`ident.thesis.campaign.fit_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
+    :func:`ident.thesis.campaign_fit.fit_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
     ``mocap``/``diagnose``: run those stages; ``plots``: PNG plots; ``rrd``: write the study
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
     speed) condition to the recording (keeps it small), ``"all"`` every trial."""
@@ -267,8 +267,8 @@ class _FitJob:
 
 
 def _run_fit_job(job: _FitJob) -> dict:
-    """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign.fit_trial_joint`)."""
-    from ident.thesis.campaign import fit_trial_joint
+    """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign_fit.fit_trial_joint`)."""
+    from ident.thesis.campaign_fit import fit_trial_joint
 
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -293,8 +293,8 @@ class _DiagJob:
 
 
 def _run_diag_job(job: _DiagJob) -> dict:
-    """The gap diagnosis of one joint (:func:`ident.gap.campaign.diagnose_campaign`)."""
-    from ident.gap.campaign import diagnose_campaign, load_angles_dir
+    """The gap diagnosis of one joint (:func:`ident.gap.campaign_diagnosis.diagnose_campaign`)."""
+    from ident.gap.campaign_diagnosis import diagnose_campaign, load_angles_dir
     from ident.signals.smoothing import one_blas_thread
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -635,7 +635,7 @@ class Study:
 
     # stage 3: friction fits ------------------------------------------------------------------
     def _fits(self, ctx, angles_dir):
-        from ident.thesis.campaign import FitsResult, campaign_tasks
+        from ident.thesis.campaign_fit import FitsResult, campaign_tasks
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
@@ -833,9 +833,9 @@ class Study:
 
     # stage: coast-down friction (source 000) on kind = "coastdown" trials ------------------------
     def _coastdown(self, ctx) -> str:
-        """Run :mod:`ident.coastdown.campaign` on the coast-down trials into ``coastdown/``;
+        """Run :mod:`ident.coastdown.campaign_analysis` on the coast-down trials into ``coastdown/``;
         returns the report's section (empty without coast-down trials)."""
-        from ident.coastdown.campaign import (analyse_campaign, coastdown_table, coastdown_trials,
+        from ident.coastdown.campaign_analysis import (analyse_campaign, coastdown_table, coastdown_trials,
                                               write_coastdown)
 
         t0 = time.perf_counter()
@@ -1270,7 +1270,7 @@ def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report
 
             log_calibration(sink, calib_res, prefix="campaign/calib")
         if angles_dir is not None:
-            from ident.gap.campaign import read_angles_csv
+            from ident.gap.campaign_diagnosis import read_angles_csv
 
             for t in sub.trials:  # loop over logged trials
                 p = Path(angles_dir) / f"{t.id}.csv"
@@ -1280,7 +1280,7 @@ def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report
                         sink.scalars(f"mocap/{t.id}", ta, np.column_stack([q[j] for j in sorted(q)]),
                                      names=[f"q_{j}" for j in sorted(q)])
         if fits is not None and fits.entries:
-            from ident.thesis.campaign import FitsResult, log_fits
+            from ident.thesis.campaign_fit import FitsResult, log_fits
 
             log_fits(FitsResult(tuple(e for e in fits.entries if e.task.trial in ids), fits.models,
                                 fits.campaign, fits.skipped), sink)

@@ -22,6 +22,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from ident.friction.plausibility import meaning_line
 
 __all__ = ["mean_cv", "group_records", "summarize", "excluded_fits", "rms_summary", "param_table", "rms_table",
            "write_table", "write_tables", "plot_friction_vs_speed", "PARAM_NAMES", "MODEL_TITLES"]
@@ -251,7 +252,6 @@ def _footnotes(records, joint: int, models) -> str:
                      "and left out of their means:")
         lines += [f"- {tr} ({m}) {', '.join(ks)}: {kind} ({why})"
                   for (tr, m, kind, why), ks in pf.items()]
-    from ident.friction.plausibility import meaning_line
 
     lines += [meaning_line(m) + "." for m in models if meaning_line(m)]
     if eiv:

@@ -10,8 +10,15 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mocap.io.errors import InputError, read_text
+from mocap.io.errors import InputError, quiet_stderr, read_text
 from mocap.io.ids import TRIAL_ID, check_trial_id  # noqa: F401  (re-exported)
+from mocap.io.markers import read_markers
+from mocap.io.plausibility import (check_drives_count, check_drives_order, check_log,
+                                   check_marker_shapes, check_marker_time, check_marker_timing)
+from mocap.io.robotlog import read_robot_log
+from mocap.quality import check_marker_extent, check_marker_units
+from mocap.robot import Robot
+from mocap.urdf import check_urdf, check_urdf_limits
 
 TRIAL_KINDS = ("excitation", "coastdown", "reversals", "constant_velocity")
 
@@ -188,10 +195,6 @@ class Campaign:
         ----------
         .. [1] jointlab data format (docs/format.md), sec. campaign.toml, robot/drives.toml.
         """
-        from mocap.io.plausibility import check_drives_count, check_drives_order
-        from mocap.robot import Robot
-        from mocap.io.errors import quiet_stderr
-        from mocap.urdf import check_urdf, check_urdf_limits
 
         check_urdf(self.urdf)                  # one line, before a C++ parser prints its own
         chain = dict(base_link=self.base_link, tip_link=self.tip_link, fixed=self.fixed, where=self.manifest)
@@ -256,12 +259,10 @@ class Campaign:
         ----------
         .. [1] jointlab data format (docs/format.md), sec. Coupled joints.
         """
-        from mocap.io.robotlog import read_robot_log
 
         n = None if robot is None else robot.n
         if n is None and self.coupling is not None:
             n = len(self.coupling)
-        from mocap.io.plausibility import check_log
 
         log = read_robot_log(rec.log, n_joints=n)
         if self.coupling is not None:
@@ -299,18 +300,12 @@ class Campaign:
         campaign goes through here."""
         import numpy as np
 
-        from mocap.io.markers import read_markers
-        from mocap.quality import check_marker_units
-
-        from mocap.io.plausibility import check_marker_time
-
         m = read_markers(rec.markers)
         check_marker_time(m)
         ours = [k for k, lb in enumerate(m.labels) if lb in self.link_of_label()]
         if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
             check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,
                                path=m.source, check_motion=False)
-            from mocap.quality import check_marker_extent
 
             check_marker_extent(m, self.link_of_label(), robot.chain)
         if robot is not None and isinstance(rec, Trial):
@@ -320,9 +315,6 @@ class Campaign:
     def _check_trial_markers(self, m, rec) -> None:
         """A trial's marker file against its log's time span and each link's marker distances
         against the first static recording (:mod:`mocap.io.plausibility`)."""
-        from mocap.io.plausibility import check_marker_shapes, check_marker_timing
-        from mocap.io.robotlog import read_robot_log
-
         check_marker_timing(m, read_robot_log(rec.log))
         if self.static and self.static[0].markers is not None:
             p = self.static[0].markers
@@ -343,8 +335,6 @@ class Campaign:
 def _static_markers(path: str, mtime_ns: int, size: int):
     """A static pose's marker file, read once per version (the reference of every trial's
     marker distances)."""
-    from mocap.io.markers import read_markers
-
     return read_markers(path)
 
 

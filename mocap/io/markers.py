@@ -5,6 +5,8 @@ from pathlib import Path
 
 from mocap.io.errors import InputError, warn_input
 from mocap.io.recording import MarkerRecording
+from mocap.io.c3d import read_c3d, write_c3d
+from mocap.io.trc import read_trc, write_trc
 
 
 def read_markers(path: str | Path, **kw) -> MarkerRecording:
@@ -16,12 +18,8 @@ def read_markers(path: str | Path, **kw) -> MarkerRecording:
         raise InputError("marker file not found", path=path)
     ext = path.suffix.lower()
     if ext == ".trc":
-        from mocap.io.trc import read_trc
-
         rec = read_trc(path)
     elif ext == ".c3d":
-        from mocap.io.c3d import read_c3d
-
         rec = read_c3d(path, **kw)
     else:
         raise InputError(f"unknown marker file extension {ext!r} (expected .trc or .c3d)", path=path)
@@ -34,11 +32,7 @@ def write_markers(path: str | Path, rec: MarkerRecording, overwrite: bool = Fals
     path = Path(path)
     ext = path.suffix.lower()
     if ext == ".trc":
-        from mocap.io.trc import write_trc
-
         return write_trc(path, rec, overwrite=overwrite, **kw)
     if ext == ".c3d":
-        from mocap.io.c3d import write_c3d
-
         return write_c3d(path, rec, overwrite=overwrite, **kw)
     raise InputError(f"cannot write marker files with extension {ext!r}", path=path)

@@ -23,7 +23,8 @@ service-robot log and stop-and-go recordings all pass.
 * other inputs: ``calib.json`` (:func:`check_calib_json`), an ``--angles`` folder
   (:func:`check_angles_dir`), a rerun recording (:func:`check_rrd`), every recording of a
   campaign before a long run (:func:`check_campaign_inputs`).
-* option values of the commands (``check_*_options``, :func:`check_number`) and the memory an
+* option values of the commands (``check_*_options``, :func:`check_number`; ``jointlab
+  diagnose``'s in :func:`ident.gap.campaign_diagnosis.check_diagnose_options`) and the memory an
   option would allocate (:func:`check_allocation`, with the estimate).
 """
 from __future__ import annotations
@@ -36,7 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError, read_text
+from mocap.io.angles import read_angles
+from mocap.io.errors import InputError, read_bytes, read_text
+from mocap.io.ids import check_trial_id
+from mocap.robot import read_drives
+from viz.screenshot import viewer_executable
 
 #: a controller logs at 1 Hz or faster while a joint moves (a trial log): a median step above
 #: this is a clock in another unit
@@ -275,8 +280,6 @@ def check_drives_order(robot, drives_path) -> None:
 
 def check_drives_count(drives_path, n_urdf: int) -> None:
     """One ``[[joint]]`` table per URDF revolute joint, named by the drives file."""
-    from mocap.robot import read_drives
-
     dr = read_drives(drives_path)
     if len(dr) != n_urdf:
         raise InputError(f"drives describe {len(dr)} joints but the URDF has {n_urdf} revolute joints",
@@ -434,8 +437,6 @@ def check_rrd(path, verify: bool = True) -> None:
     ``rerun rrd verify`` (one line naming the file with its first complaint)."""
     import struct
 
-    from mocap.io.errors import read_bytes
-
     path = Path(path)
     raw = read_bytes(path)
     if raw[:4] != _RRD_MAGIC or len(raw) < 12:
@@ -458,7 +459,6 @@ def check_rrd(path, verify: bool = True) -> None:
                              f"{len(raw)})", path=path)
     if not verify:
         return
-    from viz.screenshot import viewer_executable
 
     exe = viewer_executable()
     if exe is None:
@@ -583,8 +583,6 @@ def check_angles_dir(angles_dir, campaign, robot=None) -> None:
     holding a readable angles file for at least one trial, each with a ``q_<j>`` column of every
     joint its trial moves, in radians within the URDF's limits (an :class:`InputError` naming
     the folder or the file)."""
-    from ident.signals.smoothing import read_angles
-
     d = Path(angles_dir)
     if not d.is_dir():
         raise InputError("--angles must be a folder of angles/<trial id>.csv files", path=d)
@@ -696,8 +694,6 @@ def check_design_options(args) -> None:
 def check_mocap_options(args) -> None:
     """``jointlab mocap``: ``--trial`` ids (FORMAT.md), ``--reject-sigma`` > 0, ``--min-markers``
     >= 1, a valid ``--calib`` file."""
-    from mocap.io.ids import check_trial_id
-
     for t in args.trial or ():
         check_trial_id(t, "--trial")
     check_number(args.reject_sigma, "--reject-sigma", lo=0.0, lo_open=True)
@@ -721,25 +717,6 @@ def check_joints_option(joints, robot, option: str = "--joints") -> None:
         raise InputError(f"{option} {bad[0]}: the robot has joints 1..{robot.n}")
 
 
-def check_held_nominal(spec: str) -> None:
-    """Held shape parameters of ``--nominal NAME:k=v,...`` are positive scales (a Stribeck
-    velocity, tanh slopes, a bristle stiffness, an arctan sharpness)."""
-    from ident.friction import MODELS
-
-    name, sep, rest = str(spec).partition(":")
-    if not sep or name not in MODELS or Path(spec).is_file():
-        return
-    for part in rest.split(","):
-        k, _, v = part.partition("=")
-        try:
-            val = float(v)
-        except ValueError:
-            continue                      # the nominal's own parser names it
-        if not val > 0:
-            raise InputError(f"--nominal {spec}: {k.strip()} is a shape parameter of {name} and must be "
-                             f"> 0, got {v.strip()}", label=k.strip())
-
-
 def check_coastdown_campaign(campaign, joints=()) -> None:
     """``jointlab coastdown``: ``--joints`` of the robot, and every ``kind = "coastdown"``
     trial's log through :meth:`Campaign.read_log` (units, swaps, a torque that is never cut)."""
@@ -748,19 +725,6 @@ def check_coastdown_campaign(campaign, joints=()) -> None:
     for t in campaign.trials:
         if t.kind == "coastdown":
             campaign.read_log(t, robot)
-
-
-def check_diagnose_options(args, campaign) -> None:
-    """``jointlab diagnose``: held ``--nominal`` values, ``--joints`` of the robot, an
-    ``--angles`` folder that fits the campaign."""
-    check_held_nominal(args.nominal)
-    check_seed(args.seed)
-    if not args.joints and args.angles is None:
-        return
-    robot = campaign.load_robot()
-    check_joints_option(args.joints, robot)
-    if args.angles is not None:
-        check_angles_dir(args.angles, campaign, robot)
 
 
 def check_campaign_inputs(campaign, robot=None, markers: bool = True) -> None:

@@ -23,7 +23,7 @@ def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from viz import make_sink
 
-    from ident.coastdown.campaign import CoastdownSettings, analyse_campaign, write_coastdown
+    from ident.coastdown.campaign_analysis import CoastdownSettings, analyse_campaign, write_coastdown
 
     from mocap.io.plausibility import check_coastdown_campaign
 

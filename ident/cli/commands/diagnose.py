@@ -29,7 +29,7 @@ def register(sub):
 
 def link_angles(campaign, robot, angles_dir=None, sink=None, progress=True):
     """trial id -> (t, {joint: q_link}): from an angles folder, or solved from the markers."""
-    from ident.gap.campaign import load_angles_dir
+    from ident.gap.campaign_diagnosis import load_angles_dir
 
     if angles_dir is not None:
         return load_angles_dir(angles_dir, campaign.trials)
@@ -41,7 +41,7 @@ def link_angles(campaign, robot, angles_dir=None, sink=None, progress=True):
 def _diagnose(camp, robot, angles, settings, joints):
     """Single-joint trials through ``diagnose_campaign``; multi-joint records (one continuous
     record of several joints) through :func:`ident.model.multijoint.diagnose_records`."""
-    from ident.gap.campaign import diagnose_campaign
+    from ident.gap.campaign_diagnosis import diagnose_campaign
     from ident.model.multijoint import diagnose_records, multijoint_trials
 
     from ident.model.record import check_campaign_motion
@@ -76,7 +76,7 @@ def run(args) -> int:
     camp = load_campaign(args.campaign)
     joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
     check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
-    from mocap.io.plausibility import check_diagnose_options
+    from ident.gap.campaign_diagnosis import check_diagnose_options
 
     check_diagnose_options(args, camp)       # held --nominal values, --joints, --angles
     with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:

@@ -2,12 +2,12 @@
 [--export-c DIR [--export-dt S]] [--rrd FILE]``:
 
 * ``cv``, ``stribeck``, ``hyperbolic``: friction fits through the one-link model (thesis eq. 2-4)
-  for every trial and moving joint (:func:`ident.thesis.campaign.fit_campaign`), written as
+  for every trial and moving joint (:func:`ident.thesis.campaign_fit.fit_campaign`), written as
   ``fits.json`` (FORMAT.md), ``fits_diagnostics.json``, the thesis tables (``tables/``: Tables
   5-1..5-3, A, B as CSV and Markdown) and friction-vs-speed plots (``plots/``);
 * ``arctan``, ``dm1``, ``dm2``: the Indri & Trapani 2020 identification per joint from the
   campaign's constant_velocity, reversals and excitation trials
-  (:func:`ident.indri.campaign.fit_campaign_dynamic`), merged into the same ``fits.json``
+  (:func:`ident.indri.campaign_fit.fit_campaign_dynamic`), merged into the same ``fits.json``
   (trial entries plus the joint-level ``joints`` key) with the Indri report in
   ``indri/joint<j>/``;
 * ``--export-c DIR``: C99 header and source (:func:`ident.indri.codegen.export_models_c`) with every
@@ -63,7 +63,7 @@ def register(sub):
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
 
-    from ident.indri.campaign import DYNAMIC_MODELS
+    from ident.indri.campaign_fit import DYNAMIC_MODELS
     from ident.model.onelink import model_class
 
     args.workers = cap_workers(args.workers)
@@ -108,7 +108,7 @@ def run(args) -> int:
                       "per trial through the one-link model (eq. 2-4) with the static laws")
     dyn_skip_note = None
     if dyn_models:
-        from ident.indri.campaign import feasible_models, missing_data_sets
+        from ident.indri.campaign_fit import feasible_models, missing_data_sets
 
         kinds = {t.kind for t in camp.trials if len(t.joints) == 1}
         if not feasible_models(dyn_models, kinds):
@@ -131,8 +131,8 @@ def run(args) -> int:
 
 
 def _run_single(args, camp, models, one_models, dyn_models, od, oc, notes=()) -> int:
-    from ident.thesis.campaign import fit_campaign
-    from ident.indri.campaign import fit_campaign_dynamic, merge_fits_json
+    from ident.thesis.campaign_fit import fit_campaign
+    from ident.indri.campaign_fit import fit_campaign_dynamic, merge_fits_json
 
     out, stage = od.root, od.stage()
     executor = None
@@ -333,7 +333,7 @@ def _export_c(out_dir, res, dyn, dt):
         elif any(abs(dt - x) > 1e-9 * max(dt, x) for x in ident_dt):
             note = (f"--export-dt {dt:g} s differs from the identification sample time "
                     f"{', '.join(f'{x:g}' for x in ident_dt)} s: the discrete damping absorbs "
-                    "Ts/2 (ident.indri.framework), re-identify at the controller's rate")
+                    "Ts/2 (ident.indri.estimator), re-identify at the controller's rate")
     if res is not None:
         for e in res.entries:
             tree.setdefault(e.task.trial, {}).setdefault(str(e.task.joint), {}).update(

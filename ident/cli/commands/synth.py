@@ -98,7 +98,7 @@ def canonical_command(args, out: str = "OUT") -> str:
 def run(args) -> int:
     from mocap.io.plausibility import check_synth_options
 
-    from ident.sim.campaign import CampaignSynth, SynthConfig
+    from ident.sim.campaign_synth import CampaignSynth, SynthConfig
 
     check_synth_options(args)              # ranges and a memory estimate, before any work
     cfg = SynthConfig(joints=_ints(args.joints, "--joints"), loads=_floats(args.loads, "--loads"),

@@ -1,4 +1,4 @@
-"""Campaign-level driver of the Indri & Trapani 2020 framework (paper 001; :mod:`ident.indri.framework`):
+"""Campaign-level driver of the Indri & Trapani 2020 framework (paper 001; :mod:`ident.indri.estimator`):
 ``jointlab fit CAMPAIGN --models arctan,dm1,dm2``.
 
 Per joint, from the campaign's trials in which that joint moves alone (trials moving several
@@ -8,7 +8,7 @@ joints are left out with a note: the residual of eq. 25-26 is built for one movi
    with the smoother that :class:`TorqueConsistentBandwidth` chooses from the data (a
    Savitzky-Golay window and order, or the Fourier fit of eq. 3-2 for ``excitation`` trials:
    the one whose residual torque a static function of the velocity explains best) and
-   :func:`ident.indri.framework.friction_data_from_signals`: residual torque
+   :func:`ident.indri.data.friction_data_from_signals`: residual torque
    ``tau - tau_dm - J qmdd`` (eq. 25-26) with the braked joints at the median of their logged
    motor angles and the trial's payload (``load_kg`` at the optional ``payload_com`` key, flange
    frame, as in :mod:`ident.gap.data`). With an angles folder the link angle comes from
@@ -18,11 +18,11 @@ joints are left out with a note: the residual of eq. 25-26 is built for one movi
    motor encoder's minus the spring's nominal deflection rate), cut into the same data sets:
    the bristle acts on the link behind the spring, so phase 2-A there gives the bristle's own
    sigma0, while the DM2 (motor velocity, what a controller measures) keeps the apparent one
-   (:meth:`ident.indri.framework.IndriTrapani.fit`, ``sigma0_bristle``).
+   (:meth:`ident.indri.estimator.IndriTrapani.fit`, ``sigma0_bristle``).
 2. **step 1** (static arctan model, eq. 1-2, 27-28): the ``constant_velocity`` trials, joined
-   end to end (:func:`ident.indri.framework.concat_data`; they start and end at rest), with
+   end to end (:func:`ident.indri.data.concat_data`; they start and end at rest), with
    or without the Stribeck term by Schwarz's criterion among the physically possible fits
-   (:meth:`ident.indri.framework.IndriTrapani._select_static`);
+   (:meth:`ident.indri.estimator.IndriTrapani._select_static`);
 3. **phase 2-A** (dm1, eq. 5-9 with constant sigma1): the ``reversals`` trials split into data
    sets of one acceleration each by :func:`split_reversals` (the simulator's reversal trials,
    :func:`ident.excitation.trajectories.reversals`, hold several blocks of reversals, each at one constant
@@ -30,7 +30,7 @@ joints are left out with a note: the residual of eq. 25-26 is built for one movi
 4. **phase 2-B** (dm2, eq. 23-24): alpha, beta over the phase 2-A sigma1 trend, ``a_max/v_max``
    from the fastest data set, gamma by prediction error on the ``excitation`` trials (joined
    end to end; each starts and ends at rest, so the bristle state is near zero at the joins);
-5. **phase 2-C** (jointlab's addition, :meth:`ident.indri.framework.IndriTrapani.refine_damping`):
+5. **phase 2-C** (jointlab's addition, :meth:`ident.indri.estimator.IndriTrapani.refine_damping`):
    alpha, beta >= 0, gamma, the floor and the standstill relaxation again, by prediction error
    over every trial used (each trial its own state scan, each weighted by its static-model
    residual), with no trial left more than 5 % worse than the static model, and with the
@@ -51,7 +51,7 @@ is left to the per-trial models (a joint-level value has no spread over repetiti
 
 Each joint's Indri report (``indri.json``, ``phase2a.csv``, Table I over the excitation trials
 as ``table1.csv``/``.md``, Figures 2/4/5 along the excitation data) goes to
-``OUT/indri/joint<j>/`` (:func:`ident.indri.framework.write_report`).
+``OUT/indri/joint<j>/`` (:func:`ident.indri.report.write_report`).
 """
 from __future__ import annotations
 
@@ -63,13 +63,19 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.payload import payload_com
+from mocap.io.angles import angles_path, read_angles
 
 from mocap.io.errors import InputError
 
-from ident.indri import framework as I
+from ident.common import to_jsonable as _jsonable
+from ident.friction.data import FrictionData
+from ident.indri.data import concat_data, friction_data_from_signals
+from ident.indri.estimator import IndriResult, IndriTrapani
+from ident.indri.report import figure_curves, model_torque, performance_table, write_report
 from ident.model.linkstate import prepare_joint_signals
-from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread,
-                      read_angles)
+from ident.signals.smoothing import FourierSmoother, SavGolSmoother, one_blas_thread
+from ident.friction.plausibility import assess, to_json
+from ident.friction.static import s0
 
 __all__ = ["DYNAMIC_MODELS", "JointDynamicData", "PartialIndriResult", "DynamicFits",
            "split_reversals", "joint_dynamic_data", "fit_campaign_dynamic", "merge_fits_json"]
@@ -114,10 +120,8 @@ class TorqueConsistentBandwidth:
         ws = [w for w in self.windows if w >= p + 2 and w * dt <= self.max_window_s]
         return ws or [max(min(self.windows), p + 2 + (p % 2 == 0))]
 
-    def score(self, data: I.FrictionData) -> float:
+    def score(self, data: FrictionData) -> float:
         """RMS of the residual torque left by the smooth static regression (N m)."""
-        from ident.friction.static import s0
-
         v = np.asarray(data.qd, float)
         sv = s0(v, self.Kv)
         cols = [sv, v, v * v * sv, np.ones_like(v)]
@@ -197,9 +201,9 @@ def _sign_runs(v, thr, min_len: int = 1):
     return sign, start, end
 
 
-def split_reversals(data: I.FrictionData, *, rest_speed: float = 0.002, level_tol: float = 0.25,
+def split_reversals(data: FrictionData, *, rest_speed: float = 0.002, level_tol: float = 0.25,
                     slow_frac: float = 0.5, min_reversals: int = 2,
-                    min_run_s: float = 0.02, min_rest: float = 0.25) -> list[I.FrictionData]:
+                    min_run_s: float = 0.02, min_rest: float = 0.25) -> list[FrictionData]:
     """Split one reversals acquisition into phase 2-A data sets of one acceleration each.
 
     Velocity reversals are the sign changes of ``qd`` (hysteresis at ``rest_speed * max|qd|`` or
@@ -259,7 +263,7 @@ def split_reversals(data: I.FrictionData, *, rest_speed: float = 0.002, level_to
         i0, i1 = peak_idx[g["first"]], peak_idx[g["last"] + 1]
         sl = slice(i0, i1 + 1)
         truth = None if data.truth is None else np.asarray(data.truth)[sl]
-        out.append(I.FrictionData(t[sl], v[sl], np.asarray(data.qdd, float)[sl],
+        out.append(FrictionData(t[sl], v[sl], np.asarray(data.qdd, float)[sl],
                                   np.asarray(data.tau, float)[sl],
                                   label=f"{data.label}@a{g['level']:.3g}", accel=g["level"],
                                   truth=truth))
@@ -278,9 +282,9 @@ class JointDynamicData:
     joint: int
     trials: dict
     kinds: dict
-    static: I.FrictionData | None
+    static: FrictionData | None
     reversals: tuple
-    variable: I.FrictionData | None
+    variable: FrictionData | None
     dt: float
     notes: tuple = ()
     stiffness: float | None = None   # declared K (drives.toml), None: rigid or link angles given
@@ -291,7 +295,7 @@ class JointDynamicData:
 
 
 def _trial_data(campaign, tr, joint: int, robot, angles_dir,
-                bandwidth: TorqueConsistentBandwidth | None = None) -> tuple[I.FrictionData, list[str]]:
+                bandwidth: TorqueConsistentBandwidth | None = None) -> tuple[FrictionData, list[str]]:
     j0 = joint - 1
     notes = []
     if not Path(tr.log).is_file():
@@ -324,7 +328,7 @@ def _trial_data(campaign, tr, joint: int, robot, angles_dir,
                                      smoother=smoother)
 
     def make(smoother):
-        return I.friction_data_from_signals(signals(smoother), rb, rest, label=tr.id)
+        return friction_data_from_signals(signals(smoother), rb, rest, label=tr.id)
 
     ok = np.isfinite(log.time) & np.isfinite(qm)
     dt = float(np.median(np.diff(np.asarray(log.time, float)[ok])))
@@ -335,20 +339,20 @@ def _trial_data(campaign, tr, joint: int, robot, angles_dir,
     if K is not None and tr.kind == "reversals":
         try:
             sig = nominal_link_state(signals(sm), sm, drive.motor_inertia, drive.motor_viscous, K)
-            link = I.friction_data_from_signals(sig, rb, rest, label=tr.id, velocity="link")
+            link = friction_data_from_signals(sig, rb, rest, label=tr.id, velocity="link")
         except (ValueError, InputError) as exc:
             notes.append(f"trial {tr.id!r}: no link state ({exc})")
     return fd, notes, link
 
 
-def _same_span(sets, data: I.FrictionData) -> list:
+def _same_span(sets, data: FrictionData) -> list:
     """The samples of ``data`` (the same trial on the link side) over the span of each data
     set of ``sets`` (split on the motor side), with the same acceleration and label."""
     t = np.asarray(data.time, float)
     out = []
     for r in sets:                                        # loop over data sets (few)
         m = (t >= r.time[0] - 1e-9) & (t <= r.time[-1] + 1e-9)
-        out.append(I.FrictionData(t[m], np.asarray(data.qd, float)[m],
+        out.append(FrictionData(t[m], np.asarray(data.qd, float)[m],
                                   np.asarray(data.qdd, float)[m], np.asarray(data.tau, float)[m],
                                   label=r.label + "@link", accel=r.accel))
     return out
@@ -452,9 +456,9 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
     if "excitation" in need and not by["excitation"]:
         raise InputError(f"dm2 needs excitation trials of {where} (variable-velocity data for gamma, "
                          "eq. 24); none found", path=campaign.manifest)
-    static = (I.concat_data(by["constant_velocity"], label="constant_velocity")
+    static = (concat_data(by["constant_velocity"], label="constant_velocity")
               if by.get("constant_velocity") else None)
-    variable = (I.concat_data(by["excitation"], label="excitation") if by.get("excitation")
+    variable = (concat_data(by["excitation"], label="excitation") if by.get("excitation")
                 else None)
     if variable is not None:
         variable = replace(variable, truth=None)
@@ -477,7 +481,7 @@ def joint_dynamic_data(campaign, joint: int, robot=None, angles_dir=None,
 class PartialIndriResult:
     """Step 1 (and the DM1 comparison model) alone, when dm2 is not asked for: the same
     ``static``, ``dm1``, ``models``, ``fits_json()``, ``to_dict()`` as
-    :class:`ident.indri.framework.IndriResult`."""
+    :class:`ident.indri.estimator.IndriResult`."""
 
     static: object                       # FrictionFit (arctan)
     dm1: object | None = None            # FrictionFit (LuGreDM1) or None
@@ -496,7 +500,7 @@ class PartialIndriResult:
         return out
 
     def to_dict(self) -> dict:
-        return I._jsonable({"static": self.static.to_dict(),
+        return _jsonable({"static": self.static.to_dict(),
                             "dm1": None if self.dm1 is None else self.dm1.to_dict(),
                             "diagnostics": self.diagnostics})
 
@@ -504,9 +508,9 @@ class PartialIndriResult:
 _MODEL_KEY = {"arctan": "SM", "dm1": "DM1", "dm2": "DM2"}
 
 
-def _rms(model, data: I.FrictionData) -> float | None:
+def _rms(model, data: FrictionData) -> float | None:
     try:
-        r = np.asarray(data.tau, float) - I.model_torque(model, data)
+        r = np.asarray(data.tau, float) - model_torque(model, data)
     except ValueError:
         return None
     v = float(np.sqrt(np.mean(r ** 2)))
@@ -514,7 +518,7 @@ def _rms(model, data: I.FrictionData) -> float | None:
 
 
 class DynamicFits(Mapping):
-    """Joint (1-based) -> :class:`ident.indri.framework.IndriResult` (or :class:`PartialIndriResult` when
+    """Joint (1-based) -> :class:`ident.indri.estimator.IndriResult` (or :class:`PartialIndriResult` when
     dm2 is not asked for), with the data behind each fit (``data[joint]``), the asked
     ``models`` and writers for fits.json, the Indri reports and the C export."""
 
@@ -539,8 +543,6 @@ class DynamicFits(Mapping):
         """fits.json entries of one joint: model -> {params, stderr, rms, ..., flags} (FORMAT.md
         names; ``flags``: :func:`ident.friction.plausibility.assess` over the speeds of the
         joint's trials)."""
-        from ident.friction.plausibility import assess, to_json
-
         fj = self._r[joint].fits_json()
         d = self.data.get(joint)
         qd = (np.concatenate([np.asarray(x.qd, float) for x in d.trials.values()])
@@ -582,7 +584,7 @@ class DynamicFits(Mapping):
                          f"rms_{reference}": float(np.median(a[:, 1])),
                          "ratio_median": float(np.median(r)), "ratio_max": float(np.max(r)),
                          "ratio_min": float(np.min(r)), "trials": tr}
-        return I._jsonable(out)
+        return _jsonable(out)
 
     def trial_entries(self) -> dict:
         """``{trial id: {joint: {model: {params, stderr, rms, scope}}}}``: the joint-level
@@ -596,7 +598,7 @@ class DynamicFits(Mapping):
                     e[m] = {"params": ent["params"], "stderr": ent["stderr"],
                             "rms": _rms(models[_MODEL_KEY[m]], d), "scope": "joint",
                             "flags": ent.get("flags", {})}
-        return I._jsonable(out)
+        return _jsonable(out)
 
     def joints_doc(self) -> dict:
         out = {}
@@ -609,7 +611,7 @@ class DynamicFits(Mapping):
                            "reversal_datasets": [{"label": r.label, "accel": r.accel,
                                                   "v_max": r.v_max, "n": r.n} for r in d.reversals],
                            "notes": list(d.notes)}
-        return I._jsonable(out)
+        return _jsonable(out)
 
     def fits_json(self) -> dict:
         """A complete fits.json document holding only these models."""
@@ -624,7 +626,7 @@ class DynamicFits(Mapping):
         return out
 
     def write_reports(self, out_dir, sink=None) -> dict:
-        """``OUT/indri/joint<j>/``: :func:`ident.indri.framework.write_report` with Table I over the
+        """``OUT/indri/joint<j>/``: :func:`ident.indri.report.write_report` with Table I over the
         joint's excitation trials and Figures 2/4/5 along its excitation data (full results);
         ``indri.json`` alone for step-1/DM1-only results. ``sink``: default the one given to
         :func:`fit_campaign_dynamic`. Returns joint -> written paths."""
@@ -633,12 +635,12 @@ class DynamicFits(Mapping):
         for j, res in self._r.items():
             d = self.data[j]
             od = Path(out_dir) / "indri" / f"joint{j}"
-            if isinstance(res, I.IndriResult):
+            if isinstance(res, IndriResult):
                 tests = {tid: d.trials[tid] for tid in d.used(["excitation"])}
-                tables = {"table1": I.performance_table(res.models, tests)} if tests else {}
-                curves = I.figure_curves(res, d.variable) if d.variable is not None else None
+                tables = {"table1": performance_table(res.models, tests)} if tests else {}
+                curves = figure_curves(res, d.variable) if d.variable is not None else None
                 s = _PrefixSink(sink, f"indri/joint{j}") if sink is not None else None
-                paths[j] = I.write_report(res, od, tables, curves, sink=s)
+                paths[j] = write_report(res, od, tables, curves, sink=s)
             else:
                 od.mkdir(parents=True, exist_ok=True)
                 p = od / "indri.json"
@@ -667,7 +669,7 @@ class _PrefixSink:
 
 def merge_fits_json(doc: dict, dyn: DynamicFits) -> dict:
     """Add the dynamic models of ``dyn`` to a fits.json document ``doc`` (e.g.
-    :meth:`ident.thesis.campaign.FitsResult.to_dict`): entries under ``trials`` next to the per-trial
+    :meth:`ident.thesis.campaign_fit.FitsResult.to_dict`): entries under ``trials`` next to the per-trial
     models, and the joint-level entries under ``joints``. Returns a new document."""
     out = {"format": doc.get("format", 1), "trials": json.loads(json.dumps(doc.get("trials", {}))),
            "summary": list(doc.get("summary", []))}
@@ -684,21 +686,21 @@ def merge_fits_json(doc: dict, dyn: DynamicFits) -> dict:
 # driver
 # ============================================================================================
 def fit_campaign_dynamic(campaign, joints=None, angles_dir=None, sink=None, *,
-                         models=DYNAMIC_MODELS, estimator: I.IndriTrapani | None = None,
+                         models=DYNAMIC_MODELS, estimator: IndriTrapani | None = None,
                          bandwidth: TorqueConsistentBandwidth | None = None) -> DynamicFits:
     """The Indri & Trapani identification of every studied joint of ``campaign`` (a
-    :class:`mocap.io.campaign.Campaign`): joint -> :class:`ident.indri.framework.IndriResult` (a
+    :class:`mocap.io.campaign.Campaign`): joint -> :class:`ident.indri.estimator.IndriResult` (a
     :class:`DynamicFits` mapping). ``joints``: 1-based joints (default: every joint that some
     trial moves); ``models``: any of arctan, dm1, dm2 (step 1 alone for arctan; step 1 + the DM1
     comparison model on the slowest reversal data set for dm1; everything for dm2);
-    ``estimator``: the :class:`ident.indri.framework.IndriTrapani` settings; ``bandwidth``: the
+    ``estimator``: the :class:`ident.indri.estimator.IndriTrapani` settings; ``bandwidth``: the
     choice of the motor-angle smoother per trial (:class:`TorqueConsistentBandwidth`). ``sink``: Figures 2/4/5 are
     logged when the reports are written (:meth:`DynamicFits.write_reports`)."""
     models = tuple(m for m in DYNAMIC_MODELS if m in set(models))
     unknown = set(models) - set(DYNAMIC_MODELS)
     if not models or unknown:
         raise InputError(f"fit_campaign_dynamic: models must be among {', '.join(DYNAMIC_MODELS)}")
-    est = estimator if estimator is not None else I.IndriTrapani()
+    est = estimator if estimator is not None else IndriTrapani()
     robot = campaign.load_robot()
     if joints is None:
         joints = sorted({j for tr in campaign.trials if tr.kind != "coastdown" for j in tr.joints})

@@ -41,6 +41,9 @@ from mocap.io.errors import InputError
 from ident.coastdown.angle import (AngleCoastFit, AngleCoastResult, Flex, coast_speed, find_coasts,
                                    interval_velocity)
 from ident.coastdown.estimators import fdm, tdm
+from ident.common import to_jsonable
+from mocap.io.robotlog import read_robot_log
+from viz.sink import NullSink
 
 __all__ = ["CoastdownSettings", "TrialCoastdown", "CoastdownReport", "analyse_campaign",
            "analyse_trial", "write_coastdown", "coastdown_table", "coastdown_trials"]
@@ -144,8 +147,6 @@ class CoastdownReport:
     settings: CoastdownSettings
 
     def to_dict(self) -> dict:
-        from ident.common import to_jsonable
-
         trials: dict = {}
         for r in self.trials:
             trials.setdefault(r.trial, {})[str(r.joint)] = r.to_format()
@@ -218,8 +219,6 @@ def _paper_methods(ml: AngleCoastResult, t, q, windows, J, min_samples: int):
 def analyse_trial(trial, robot, settings: CoastdownSettings | None = None, log=None) -> list:
     """The coast-downs of ``trial`` (one :class:`TrialCoastdown` per moving joint; the
     campaign's trials move one joint)."""
-    from mocap.io.robotlog import read_robot_log
-
     s = settings or CoastdownSettings()
     log = log if log is not None else read_robot_log(trial.log, robot.n)
     out = []
@@ -369,7 +368,7 @@ def coastdown_table(report: CoastdownReport) -> str:
 def _decay_figure(r: TrialCoastdown):
     """Velocity against time since the cut, every coast: interval-mean velocities of the
     encoder angle (dots) and the fitted eq. 4 (lines)."""
-    from viz.plots import new_figure
+    from viz.plots import new_figure  # optional dependency: matplotlib
 
     fig = new_figure(6.4, 4.0)
     ax = fig.add_subplot(111)
@@ -398,8 +397,6 @@ def write_coastdown(report: CoastdownReport, out, sink=None, plots: bool = True)
     """Write ``coastdown.json``, ``coastdown.md`` and ``plots/<trial>-j<joint>.png`` into
     ``out``; log the decay curves and the report to ``sink``. Returns the paths."""
     import json
-
-    from viz.sink import NullSink
 
     sink = sink or NullSink()
     out = Path(out)
@@ -435,7 +432,7 @@ def write_coastdown(report: CoastdownReport, out, sink=None, plots: bool = True)
                                                     abs(c["v_cut"]))
             sink.scalars(f"{base}/velocity_model", tm, vm[:, None], names=["ml_fit"])
         if plots or sink.enabled:
-            from viz.plots import figure_to_rgb, save_png
+            from viz.plots import figure_to_rgb, save_png  # optional dependency: matplotlib
 
             fig = _decay_figure(r)
             if plots:

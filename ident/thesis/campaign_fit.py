@@ -26,13 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-from mocap.io.errors import InputError
+from mocap.io.errors import InputError, warn_input
+from mocap.io.angles import angles_path, read_angles
 
 from ident.thesis import tables as stats
 from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
 from ident.model.linkstate import prepare_joint_signals
-from ident.signals.smoothing import (FourierSmoother, SavGolSmoother, angles_path, one_blas_thread,
-                      read_angles)
+from ident.signals.smoothing import FourierSmoother, SavGolSmoother, one_blas_thread
+from ident.friction.plausibility import assess, to_json
+from mocap.io.robotlog import read_robot_log
+from mocap.robot import Robot
 
 __all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
            "campaign_tasks", "log_fits", "read_tx40_config", "load_tx40"]
@@ -102,8 +105,6 @@ def fit_trial_joint(task: FitTask) -> TrialJointFit:
 
 
 def _fit_trial_joint(task: FitTask) -> TrialJointFit:
-    from mocap.io.robotlog import read_robot_log
-
     log = read_robot_log(task.log, n_joints=task.n_joints)
     if task.coupling is not None:
         log = log.coupled(task.coupling)
@@ -144,7 +145,6 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
         pr = X @ np.array([f.rigid[k] for k in ("I", "mglx", "mgly")]) + f.friction().torque(sig.qd)
         plot[f"pred_{m}"] = pr[::step]
     sd = sig.to_dict()
-    from ident.friction.plausibility import assess, to_json
 
     pflags = {m: to_json(assess(m, f.params, qd=sig.qd, stderr=f.stderr, model=f.friction(),
                                 form=f.form, tau_scale=float(np.max(np.abs(sig.tau)))))
@@ -266,7 +266,6 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
         unl = [j for j in tr.joints if j in tr.unlogged_torque]
         if unl and len(tr.joints) == 1:           # FORMAT.md unlogged_torque: said once
             # (a multi-joint record's unlogged joints are said by the rigid-body stage)
-            from mocap.io.errors import warn_input
 
             warn_input(f"trial {tr.id!r}: torque not logged on joint(s) {unl} (unlogged_torque): "
                        "not fitted", path=campaign.manifest)
@@ -362,8 +361,6 @@ def load_tx40(folder: str | Path, decimate: int = 5, window_s: float = 0.02):
     ``ts`` (0.2 ms). Conversion as in figaroh's TX40 tools: ``q = N^-1 qm`` with the wrist
     coupling ``N[5, 4] = r6``, joint offsets -pi/2 (joint 2) and +pi/2 (joint 3), joint torques
     ``tau = N_tau tau_m`` with ``N_tau[4, 5] = r6``."""
-    from mocap.robot import Robot
-
     folder = Path(folder)
     cfg = read_tx40_config(folder / "TX40_config.yaml")
     urdf = next(iter(sorted(folder.glob("*.urdf"))), None)

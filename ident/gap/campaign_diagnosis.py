@@ -5,17 +5,18 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap.io.angles import read_angles
 from mocap.io.errors import InputError
+from mocap.io.plausibility import check_angles_dir, check_joints_option, check_seed
 
 from ident.gap.data import build_joint_data
 from ident.gap.diagnose import DiagnosisSettings, diagnose_joint
+from ident.gap.nominal import check_held_nominal, check_nominal
 
 
 def read_angles_csv(path: str | Path) -> tuple[np.ndarray, dict]:
     """An ``angles/<trial id>.csv`` (FORMAT.md) -> (t, {j: q}), read by the one angles reader
-    :func:`ident.signals.smoothing.read_angles`."""
-    from ident.signals.smoothing import read_angles
-
+    :func:`mocap.io.angles.read_angles`."""
     tr = read_angles(path)
     return tr.time, tr.q
 
@@ -51,7 +52,6 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         by_joint = {j: v for j, v in by_joint.items() if j in set(joints)}
     if not by_joint:
         raise InputError("no single-joint trials to diagnose", path=campaign.manifest)
-    from ident.gap.nominal import check_nominal
 
     nominal = check_nominal(settings.nominal, by_joint)
     report = {"format": 1, "campaign": campaign.name, "settings": settings.to_dict(), "joints": {},
@@ -84,3 +84,16 @@ def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
         series[str(j)] = res.series
         report["joints"][str(j)] = rep
     return report, series
+
+
+def check_diagnose_options(args, campaign) -> None:
+    """``jointlab diagnose``: held ``--nominal`` values, ``--joints`` of the robot, an
+    ``--angles`` folder that fits the campaign."""
+    check_held_nominal(args.nominal)
+    check_seed(args.seed)
+    if not args.joints and args.angles is None:
+        return
+    robot = campaign.load_robot()
+    check_joints_option(args.joints, robot)
+    if args.angles is not None:
+        check_angles_dir(args.angles, campaign, robot)

@@ -33,6 +33,16 @@ from mocap.io.errors import InputError
 from ident.sim.effects import Effect, nominal_stiffness, truth_models
 from ident.sim.plant import (Controller, JointPlant, rest_state, simulate_coastdown, simulate_multi,
                   simulate_single)
+from ident.excitation.trajectories import (constant_velocity, fourier_excitation, min_jerk_path,
+                                           reversals)
+from mocap.io.campaign import write_manifest
+from mocap.io.robotlog import RobotLog
+from mocap.io.trc import write_trc
+from mocap.kinematics import invert_transform
+from mocap.robot import Robot
+from mocap.synth import MarkerErrors, place_markers, random_camera_pose, synthesize_recording
+from mocap.urdf import load_link_meshes, perturb_urdf
+from viz.sink import NullSink
 
 REPO = Path(__file__).resolve().parents[2]
 PA10_DIR = REPO / "fixtures" / "robots" / "pa10"
@@ -154,8 +164,6 @@ def _link_meshes(urdf: Path, robot) -> dict:
     """Link meshes from the URDF (mocap.urdf), else capsules along each link."""
     meshes = {}
     try:
-        from mocap.urdf import load_link_meshes
-
         meshes = load_link_meshes(urdf)
     except (ImportError, InputError, ValueError, OSError):
         meshes = {}
@@ -186,16 +194,12 @@ class CampaignSynth:
 
     # ---------------------------------------------------------------------------------------
     def _robots(self, work: Path):
-        from mocap.robot import Robot
-
         nominal = Robot.from_urdf(self.robot_dir / "pa10.urdf", self.robot_dir / "drives.toml")
         cfg = self.cfg
         cfg.validate(nominal.n)
         truth_urdf = self.robot_dir / "pa10.urdf"
         perturbation = None
         if cfg.robot == "perturbed":
-            from mocap.urdf import perturb_urdf
-
             truth_urdf = work
             perturb_urdf(self.robot_dir / "pa10.urdf", work, seed=cfg.seed, overwrite=True)
             perturbation = {"seed": cfg.seed, "function": "mocap.urdf.perturb_urdf"}
@@ -206,8 +210,6 @@ class CampaignSynth:
 
     def _plan(self, robot) -> list[_Plan]:
         cfg = self.cfg
-        from ident.excitation.trajectories import (constant_velocity, fourier_excitation, min_jerk_path,
-                                reversals)
 
         plans = [_Plan("static", "static-1", 0, 0.0, 0.0, 0, None, STATIC_POSE, 2.0 + 0.6,
                        "static/pose-01")]
@@ -266,10 +268,6 @@ class CampaignSynth:
         """Simulate and write the campaign to ``out`` and the truth to ``truth_prefix``
         (default: ``out`` itself, giving ``OUT.truth.json`` beside the folder). ``regenerate``
         (the exact command line) goes into ``OUT/REGENERATE.md``. Returns a summary dict."""
-        from mocap.io.campaign import write_manifest
-        from mocap.synth import MarkerErrors, place_markers, random_camera_pose
-        from viz.sink import NullSink
-
         sink = sink or NullSink()
         cfg = self.cfg
         out = Path(out)
@@ -302,8 +300,6 @@ class CampaignSynth:
         errors = MarkerErrors(label_swaps=cfg.label_swaps)
         self._meshes = meshes
         if sink.enabled:
-            from mocap.kinematics import invert_transform
-
             sink.transform("world/camera", invert_transform(T_camera_base))
             sink.text("synth/README", f"simulated campaign `{out.name}`: effect **{cfg.effect}** "
                                       f"M = {cfg.magnitude:g}, seed {cfg.seed}; true link angle vs "
@@ -422,10 +418,6 @@ class CampaignSynth:
     # ---------------------------------------------------------------------------------------
     def _simulate(self, p: _Plan, t0, dt, nominal, robots_for, joint_truth, clock0, rng, markers,
                   T_camera_base, errors, out, arrays, sink) -> dict:
-        from mocap.io.robotlog import RobotLog
-        from mocap.synth import synthesize_recording
-        from mocap.io.trc import write_trc
-
         cfg = self.cfg
         n = nominal.n
         rest = np.array(p.q_rest if p.kind != "static" else STATIC_POSE, float)
