@@ -771,5 +771,7 @@ def solve_angles(campaign, *, robot=None, T_camera_base=None, refs=None, trials=
     it = trials
     if progress:
         it = tqdm(trials, desc="mocap", unit="trial", leave=False)
-    results = tuple(solve_trial(campaign, tr, refs, sink=sink, robot=robot, **solver) for tr in it)
-    return CampaignAngles(refs, camera_from, results)
+    results = []
+    for tr in it:       # a for loop: a failed solve closes the progress bar before the error line
+        results.append(solve_trial(campaign, tr, refs, sink=sink, robot=robot, **solver))
+    return CampaignAngles(refs, camera_from, tuple(results))
