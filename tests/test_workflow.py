@@ -222,3 +222,11 @@ def test_a_new_command_is_a_thin_shell(monkeypatch, capsys, tx40):
     # the workflow's refusals reach the user as one line and exit 2
     assert cli_main.main(["plan", str(TX40), "--models", "cv,nosuchmodel"]) == 2
     assert "nosuchmodel" in capsys.readouterr().err
+
+
+def test_info_names_the_planned_paths(capsys, tx40):
+    assert cli_main.main(["info", str(TX40), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    p = wf.plan(tx40)
+    assert list(d["paths"]) == list(p.paths) == ["multi_joint"]
+    assert d["paths"]["multi_joint"] == p.reasons["multi_joint"]
