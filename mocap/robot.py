@@ -320,7 +320,8 @@ class Robot:
             out = pin.rnea(self.model, self.model.createData(), q[0], qd[0], qdd[0])[None, :]
         else:
             pool = pin.ModelPool(self.model, 1)
-            out = np.zeros((self.n, q.shape[0]))
+            # column-major output: a (1, T) C-ordered array is not written as a matrix
+            out = np.zeros((self.n, q.shape[0]), order="F")
             pin.rneaInParallel(1, pool, np.asfortranarray(q.T), np.asfortranarray(qd.T),
                                np.asfortranarray(qdd.T), out)
             out = out.T

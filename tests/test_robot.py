@@ -341,3 +341,31 @@ def test_perturb_urdf_refuses_to_overwrite(pa10_dir, tmp_path):
         perturb_urdf(src, tmp_path / "q.urdf", seed=1, length_std=-1.0)
     with pytest.raises(InputError, match="not found"):
         perturb_urdf(tmp_path / "none.urdf", tmp_path / "r.urdf", seed=1)
+
+
+def test_batched_inverse_dynamics_of_a_one_joint_robot_matches_the_pendulum(tmp_path):
+    """A single pendulum written out by hand: the batched
+    path (many samples in one call) must give every sample, not only the first."""
+    urdf = _write(tmp_path / "one.urdf", """<?xml version="1.0"?>
+<robot name="one">
+  <link name="base"/>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="arm"/>
+    <axis xyz="0 1 0"/><limit lower="-3" upper="3" velocity="1" effort="100"/></joint>
+  <link name="arm">
+    <inertial><origin xyz="0.5 0 0"/><mass value="2"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.01"/></inertial>
+  </link>
+</robot>
+""")
+    robot = Robot.from_urdf(urdf)
+    T = 400
+    q = np.linspace(-1.0, 1.0, T)[:, None]
+    qd = np.zeros_like(q)
+    qdd = np.linspace(2.0, -3.0, T)[:, None]
+    tau = robot.rnea(q, qd, qdd)
+    # rotation q about +y takes the mass (2 kg, 0.5 m along x) to z = -0.5 sin q: the potential
+    # -m g 0.5 sin q gives the gravity torque -m g 0.5 cos q
+    I = 0.02 + 2 * 0.5**2
+    expect = I * qdd[:, 0] - 2 * 9.81 * 0.5 * np.cos(q[:, 0])
+    assert np.asarray(tau).shape == (T, 1)
+    np.testing.assert_allclose(np.asarray(tau)[:, 0], expect, rtol=1e-9, atol=1e-9)

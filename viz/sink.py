@@ -9,7 +9,22 @@ import numpy as np
 
 
 class Sink:
-    """Interface; the base class is the null sink."""
+    """The logging interface the other packages call; the base class logs nothing.
+
+    Every method takes plain numpy arrays, time first, metres, under a '/'-separated entity
+    path; only ``viz`` knows about rerun (:class:`viz.rerun_sink.RerunSink`) [1]_. Use as a
+    context manager to :meth:`close` the recording.
+
+    Attributes
+    ----------
+    enabled : bool
+        Whether the sink records anything (False here and in :class:`NullSink`), so that
+        callers can skip preparing what they would log.
+
+    References
+    ----------
+    .. [1] jointlab design (docs/design.md), sec. Packages (``viz``).
+    """
 
     enabled = False
 
@@ -73,11 +88,49 @@ class Sink:
 
 
 class NullSink(Sink):
-    """Logging off."""
+    """The sink used when logging is off: every call does nothing and costs nothing.
+
+    Attributes
+    ----------
+    enabled : bool
+        False.
+
+    References
+    ----------
+    .. [1] jointlab design (docs/design.md), sec. Packages (``viz``).
+    """
 
 
 def make_sink(rrd: str | None = None, spawn: bool = False, app_id: str = "jointlab") -> Sink:
-    """A rerun sink when ``rrd`` or ``spawn`` is asked for, else a :class:`NullSink`."""
+    """The sink of a command: a rerun sink when ``rrd`` or ``spawn`` is asked for, else null.
+
+    What every command's ``--rrd FILE`` and ``--spawn`` options give [1]_; rerun is imported
+    only when a recording is asked for.
+
+    Parameters
+    ----------
+    rrd : str or None, optional
+        Save the recording to this .rrd file.
+    spawn : bool, optional
+        Open the viewer (default False).
+    app_id : str, optional
+        The rerun application id (default ``"jointlab"``).
+
+    Returns
+    -------
+    Sink
+        A :class:`viz.rerun_sink.RerunSink`, or a :class:`NullSink` when neither ``rrd`` nor
+        ``spawn`` is given.
+
+    References
+    ----------
+    .. [1] jointlab design (docs/design.md), sec. Conventions.
+
+    Examples
+    --------
+    >>> type(make_sink()).__name__
+    'NullSink'
+    """
     if not rrd and not spawn:
         return NullSink()
     from viz.rerun_sink import RerunSink

@@ -28,11 +28,31 @@ from ident.friction import laws
 
 
 class FrictionModel:
-    """A friction model: parameters (``param_names``, FORMAT.md names, link side, SI) and the
-    interface of the estimators (module docstring). Subclasses set ``name``,
-    ``param_names``, ``linear_names`` and ``linear_design`` (or ``torque`` for a model whose
-    torque is not ``Phi @ linear + offset``) and override the hooks that differ from the
-    defaults."""
+    """Base class of the friction models: their parameters and the estimators' interface.
+
+    A model holds its parameters (``param_names``, FORMAT.md names, link side, SI) and
+    declares everything the estimators of :mod:`ident.friction.fit` use (the module
+    docstring lists it); no estimator probes a model for optional methods. Subclasses set
+    ``name``, ``param_names``, ``linear_names`` and ``linear_design`` (or ``torque`` for a
+    model whose torque is not ``Phi @ linear + offset``) and override the hooks that differ
+    from the defaults, which describe a model linear in all its parameters. The laws
+    themselves are the functions of :mod:`ident.friction.laws` [1]_ [2]_.
+
+    Parameters
+    ----------
+    **params : float
+        Every name of ``param_names``, by keyword (link side, SI).
+
+    Raises
+    ------
+    TypeError
+        If a parameter of ``param_names`` is missing or an unknown one is given.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 to 2-7.
+    .. [2] Indri & Trapani 2020 (seeds 001), eq. 1-12, 23-24.
+    """
 
     name: ClassVar[str] = ""
     param_names: ClassVar[tuple[str, ...]] = ()
@@ -175,7 +195,28 @@ class FrictionModel:
 
 
 class CoulombViscous(FrictionModel):
-    """Thesis eq. 2-5: ``f = c sign(qd) + v qd`` (:func:`ident.friction.laws.coulomb_viscous`)."""
+    r"""Coulomb + viscous friction of thesis eq. 2-5, linear in both parameters.
+
+    .. math::
+
+        f(\dot{q}) = c \operatorname{sign}(\dot{q}) + v \dot{q}
+
+    evaluated by :func:`ident.friction.laws.coulomb_viscous` [1]_; ``f(0) = 0`` (exact sign).
+
+    Parameters
+    ----------
+    **params : float
+        ``c`` (Coulomb level, N m) and ``v`` (viscous coefficient, N m s/rad), by keyword.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-5.
+
+    Examples
+    --------
+    >>> CoulombViscous(c=2.0, v=0.5).torque([-1.0, 0.0, 2.0]).tolist()
+    [-2.5, 0.0, 3.0]
+    """
 
     name = "cv"
     param_names = ("c", "v")

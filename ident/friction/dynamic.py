@@ -90,15 +90,52 @@ def _scan_small(decay, drive, z0):
 
 
 def linear_scan(decay, drive, z0: float, block: int = 8, max_chunks: int = 16384) -> np.ndarray:
-    """Solve ``z[k+1] = exp(-decay[k]) z[k] + drive[k]``, ``z[0] = z0`` for k = 0..n-1.
+    r"""Solve the linear recursion of the bristle state, eq. 29, without a loop over samples.
 
-    Returns the (n+1,) states. ``decay`` must be >= 0 (a contraction, as in eq. 29 with
-    a_k >= 0). The sequence is cut into blocks of ``block`` steps; inside a block every state is
-    a weighted sum of the drives with weights ``exp(-(D_k - D_{j+1})) <= 1`` formed from
-    block-local cumulative decays (no cumulative product, so nothing under- or overflows and
-    no precision is lost to large cumulative sums); the block-to-block carries form the same
-    recursion on n/block elements, solved recursively. Work O(n block), depth log_block(n),
-    no Python loop over samples.
+    .. math::
+
+        z_{k+1} = e^{-d_k} z_k + u_k, \qquad z_0 = z0, \qquad k = 0, \dots, n-1
+
+    with ``d = decay`` >= 0 (a contraction, as in eq. 29 with a_k >= 0 [1]_) and
+    ``u = drive``. The sequence is cut into blocks of ``block`` steps; inside a block every
+    state is a weighted sum of the drives with weights ``exp(-(D_k - D_{j+1})) <= 1`` formed
+    from block-local cumulative decays (no cumulative product, so nothing under- or overflows
+    and no precision is lost to large cumulative sums); the block-to-block carries form the
+    same recursion on n/block elements, solved recursively. Work O(n block), depth
+    log_block(n), no Python loop over samples.
+
+    Parameters
+    ----------
+    decay : array_like
+        (n,) decays ``d_k`` (e.g. ``a_k Ts``), finite and >= 0.
+    drive : array_like
+        (n,) drives ``u_k``.
+    z0 : float
+        The initial state.
+    block : int, optional
+        Steps per block (default 8).
+    max_chunks : int, optional
+        Blocks processed together, which bounds the memory (default 16384).
+
+    Returns
+    -------
+    numpy.ndarray
+        The (n+1,) states ``z_0 ... z_n``.
+
+    Raises
+    ------
+    ValueError
+        If ``decay`` and ``drive`` are not equal 1-D shapes, or a decay is negative or not
+        finite.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), eq. 29-30.
+
+    Examples
+    --------
+    >>> linear_scan([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], z0=0.5).tolist()
+    [0.5, 1.5, 2.5, 3.5]
     """
     decay = np.asarray(decay, float)
     drive = np.asarray(drive, float)
@@ -301,7 +338,58 @@ class _LuGre(FrictionModel):
 
 
 class LuGreDM1(_LuGre):
-    """Indri & Trapani eq. 5-9 with damping eq. 11 / constant / eq. 10 / eq. 12 (see module doc)."""
+    r"""LuGre-type dynamic friction DM1 of Indri & Trapani eq. 5-9, bristle damping eq. 10-12.
+
+    .. math::
+
+        \dot{z} = S_0(v)^2 v - \sigma_0 \frac{S_1(v)}{g(v)} z, \qquad
+        \tau_f = \sigma_0 z + f_{\sigma_1}(\cdot) \dot{z} + \tau_{fv}(v)
+
+    with the damping :math:`f_{\sigma_1}` chosen by ``damping``: ``"constant"``
+    (:math:`\sigma_1`, standard LuGre, phase 2-A of the paper), ``"eq10"``
+    (:math:`\sigma_1 g(v)/|v|`), ``"eq11"`` (:math:`\sigma_1/|v|`, the paper's DM1 of
+    Tables I-II) or ``"eq12"`` (:math:`\sigma_1 (1 - 2/\pi \arctan(|v| \delta))`) [1]_. In
+    eq. 10-12 ``|v|`` is the smooth ``S1(v)``; since ``dz/dt = S1(v) (S0(v) - sigma0 z / g(v))``
+    exactly, eq. 10 and 11 are evaluated as the bounded, continuous ``sigma1 (g S0 - sigma0 z)``
+    and ``sigma1 (S0 - sigma0 z / g)``. ``S0``, ``S1``, ``g`` (eq. 8) and ``tau_fv`` (eq. 9)
+    come from the ``static`` arctan model. Sampled signals use the discretisation of eq. 29-30
+    (:meth:`states`); :meth:`critical_acceleration` is eq. 22. The module docstring gives the
+    standstill and hold conventions.
+
+    Parameters
+    ----------
+    static : Arctan
+        The identified static model (step 1 of the paper) that gives ``S0``, ``S1``, ``g``
+        and ``tau_fv``; its parameters are fixed here.
+    damping : {"constant", "eq10", "eq11", "eq12"}, optional
+        The bristle damping term (default ``"constant"``).
+    z0 : float or None, optional
+        Bristle state at the first sample (rad); None (default): the steady state of the first
+        velocity.
+    hold : {"first", "zero"}, optional
+        Discretisation of sampled signals: ``"first"`` (default) exponential integration with
+        a first-order hold, exact in the stiff limit; ``"zero"`` the paper's eq. 29-30 with the
+        velocity held over each step (see the module docstring).
+    rest_speed : float, optional
+        Standstill relaxation (rad/s), >= 0; 0 (default) is the paper's model, in which the
+        state freezes when the joint stops (see the module docstring).
+    **params : float
+        ``sigma0`` (bristle stiffness, N m/rad, > 0) and ``sigma1`` (damping coefficient; its
+        unit follows ``damping``), by keyword.
+
+    Raises
+    ------
+    ValueError
+        If ``damping`` or ``hold`` is unknown, ``sigma0`` is not positive, ``rest_speed`` is
+        negative, or ``rest_speed > 0`` with ``damping`` ``"eq10"``/``"eq11"`` (which divide by
+        ``|v|`` through eq. 5).
+    TypeError
+        If ``static`` is not an :class:`ident.friction.static.Arctan`.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), eq. 5-12, 22, 29-30.
+    """
 
     name = "dm1"
     param_names = ("sigma0", "sigma1")
@@ -336,7 +424,56 @@ class LuGreDM1(_LuGre):
 
 
 class LuGreDM2(_LuGre):
-    """Indri & Trapani eq. 5-9 with the proposed acceleration-dependent damping eq. 24."""
+    r"""LuGre-type dynamic friction DM2 of Indri & Trapani eq. 5-9 with damping eq. 24.
+
+    .. math::
+
+        f_{\sigma_1}(v, a) = \frac{\alpha}{\sqrt{\gamma \left(\frac{a_{max}}{v_{max}} v
+        \right)^2 + a^2}} + \beta
+
+    the paper's proposed acceleration-dependent bristle damping [1]_, in the model
+    ``dz/dt = S0(v)^2 v - sigma0 S1(v)/g(v) z``, ``tau_f = sigma0 z + f_sigma1 dz/dt +
+    tau_fv(v)`` of eq. 5-9 (see :class:`LuGreDM1`). ``accel_floor`` is added in quadrature
+    under the root so that it stays positive when v = a = 0. The torque needs the
+    acceleration ``qdd``.
+
+    Parameters
+    ----------
+    static : Arctan
+        The identified static model (step 1 of the paper) that gives ``S0``, ``S1``, ``g``
+        and ``tau_fv``; its parameters are fixed here.
+    accel_ratio : float or None, optional
+        ``a_max / v_max`` of eq. 24 (1/s), > 0; None (default): taken from the signals of each
+        ``torque`` call, as the paper defines it from the acquisition
+        (:meth:`ratio_from_data`).
+    accel_floor : float, optional
+        Acceleration floor under the root (rad/s^2); default 1e-6.
+    z0 : float or None, optional
+        Bristle state at the first sample (rad); None (default): the steady state of the first
+        velocity.
+    hold : {"first", "zero"}, optional
+        Discretisation of sampled signals: ``"first"`` (default) exponential integration with
+        a first-order hold, exact in the stiff limit; ``"zero"`` the paper's eq. 29-30 with the
+        velocity held over each step (see the module docstring).
+    rest_speed : float, optional
+        Standstill relaxation (rad/s), >= 0; 0 (default) is the paper's model, in which the
+        state freezes when the joint stops (see the module docstring).
+    **params : float
+        ``sigma0`` (bristle stiffness, N m/rad, > 0), ``alpha``, ``beta`` (damping
+        coefficients) and ``gamma`` (velocity weight, >= 0), by keyword.
+
+    Raises
+    ------
+    ValueError
+        If ``accel_ratio`` is not positive, ``gamma`` is negative, ``sigma0`` is not positive,
+        ``hold`` is unknown or ``rest_speed`` is negative.
+    TypeError
+        If ``static`` is not an :class:`ident.friction.static.Arctan`.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), eq. 5-9, 23-24, 29-30.
+    """
 
     name = "dm2"
     param_names = ("sigma0", "alpha", "beta", "gamma")

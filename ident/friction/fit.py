@@ -62,16 +62,54 @@ def default_delta_grid() -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class FrictionFit:
-    """A fitted friction model with its nuisance coefficients and diagnostics: the one result
-    type of every friction fit (Indri & Trapani's, and the thesis's one-link fits of eq. 2-4,
-    whose extra columns are the rigid parameters ``I, mglx, mgly``).
+    """A fitted friction model with its nuisance coefficients and diagnostics.
 
-    ``degenerate``: sentences naming what these data do not determine (None: nothing);
-    ``form``: the name of the thesis's degenerate form the parameters take
-    (:func:`ident.model.onelink.name_degenerate`), or None; ``flags``: physically impossible
-    values (the model's ``violations``: a negative Coulomb or Stribeck level, wrong hyperbolic
-    signs); a flagged fit is kept out of condition means. ``eiv``: errors-in-variables bias of
-    the parameters implied by the regressor noise (:func:`eiv_bias`), or None.
+    The one result type of every friction fit: Indri & Trapani's [1]_, and the thesis's
+    one-link fits of eq. 2-4 [2]_, whose extra columns are the rigid parameters
+    ``I, mglx, mgly`` (:attr:`rigid`). :meth:`to_dict` gives the fits.json layout.
+
+    Attributes
+    ----------
+    model : FrictionModel
+        The fitted model (canonical representative of equivalent parameter sets).
+    extra : dict
+        Extra column name -> coefficient.
+    stderr : dict
+        Every parameter and extra -> standard error.
+    cov : numpy.ndarray
+        Covariance over ``names``, ``sigma^2 (J^T W J)^-1``.
+    names : tuple
+        ``param_names`` then the extra names.
+    rms : float
+        RMS of the residual (N m), weighted by ``weights`` when given.
+    n : int
+        Samples used.
+    cond : float
+        Condition number of the column-normalised weighted Jacobian.
+    nfev : int
+        Residual evaluations over all starts.
+    converged : bool
+        Whether the best start's optimiser converged.
+    degenerate : str or None
+        Sentences naming what these data do not determine; None: nothing.
+    residuals : numpy.ndarray
+        The residual ``tau - prediction`` per sample.
+    diagnostics : dict
+        The strategy used, starts and their costs, bounds and grid sizes.
+    form : str or None
+        The name of the thesis's degenerate form the parameters take
+        (:func:`ident.model.onelink.name_degenerate`), or None.
+    flags : tuple
+        Physically impossible values (the model's ``violations``: a negative Coulomb or
+        Stribeck level, wrong hyperbolic signs); a flagged fit is kept out of condition means.
+    eiv : dict or None
+        Errors-in-variables bias of the parameters implied by the regressor noise
+        (:func:`eiv_bias`), or None.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), sec. III.
+    .. [2] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
     """
 
     model: FrictionModel
@@ -528,19 +566,82 @@ def _multistart(name: str, resid, starts, bounds, x_scale, max_nfev: int, jac="2
 def fit_friction(model_cls, qd, tau, *, X_extra=None, extra_names=(), qdd=None, dt=None,
                  bounds=None, x0=None, n_starts: int = 8, seed: int = 0, weights=None,
                  settings=None, n_refine: int = 4) -> FrictionFit:
-    """Fit ``tau ~ X_extra @ beta + model_cls(theta, **settings).torque(qd, qdd, dt)``.
+    r"""Fit a friction model, and nuisance columns with it, to a torque record.
 
-    ``bounds``: {name: (lo, hi)} overriding the model's data-scaled defaults; ``x0``: {name:
-    value} (or an array over ``param_names``) for the first start; ``weights``: (T,) per-sample
-    weights (inverse variances up to a scale); ``settings``: model constructor settings (Kv for
-    arctan, which may also carry ``delta_grid``; ``static``/``damping``/``z0`` for dm1;
-    ``static``/``accel_ratio`` for dm2). Dynamic models without a ``static`` setting get an
-    arctan model fitted to the same data first (step 1 of Indri & Trapani); the model's
+    .. math::
+
+        \tau \approx X_{extra} \beta + f_\theta(\dot{q}, \ddot{q}, \Delta t)
+
+    with ``f_theta = model_cls(theta, **settings).torque``, by weighted least squares: the
+    thesis's one-link fit of eq. 2-4 with the friction of eq. 2-5 to 2-7 [1]_ (``X_extra`` the
+    columns ``[qdd, -sin q, cos q]``), or Indri & Trapani's residual torques of eq. 25-26 with
+    no extra columns [2]_. Dynamic models without a ``static`` setting get an arctan model
+    fitted to the same data first (step 1 of Indri & Trapani); the model's
     ``complete_settings`` fills in what the data determine (dm2: a_max/v_max from
-    ``qd``/``qdd``). ``n_refine``: how many of the grid-scored candidates are refined (models
-    with a ``vp_grid``; at most ``n_starts``; the others refine every start). The strategy is
-    chosen from the model's declared interface (:func:`strategy_for`); see the module
-    docstring.
+    ``qd``/``qdd``). The strategy is chosen from the model's declared interface
+    (:func:`strategy_for`; variable projection [3]_ for the nonlinear parameters); see the
+    module docstring.
+
+    Parameters
+    ----------
+    model_cls : type
+        A :class:`ident.friction.base.FrictionModel` subclass (e.g. a value of
+        ``ident.friction.MODELS``).
+    qd : array_like
+        (T,) joint velocity (rad/s).
+    tau : array_like
+        (T,) torque to explain (N m).
+    X_extra : array_like, optional
+        (T, e) nuisance columns estimated jointly (or (T,)); None: none.
+    extra_names : sequence of str, optional
+        Names of the ``X_extra`` columns, distinct from the model's parameters; default
+        ``extra_1, ...``.
+    qdd : array_like, optional
+        (T,) acceleration (rad/s^2), for models that need it (dm2).
+    dt : float or array_like, optional
+        Sample period (s) or the (T-1,) steps, for dynamic models.
+    bounds : dict, optional
+        {name: (lo, hi)} overriding the model's data-scaled defaults; bounds on a linear
+        parameter or an extra column make the fit joint.
+    x0 : dict or array_like, optional
+        {name: value} (or an array over ``param_names``) for the first start.
+    n_starts : int, optional
+        Seeded starts of the nonlinear search (default 8).
+    seed : int, optional
+        Seed of the starts (default 0).
+    weights : array_like, optional
+        (T,) per-sample weights (inverse variances up to a scale), finite and >= 0.
+    settings : dict, optional
+        Model constructor settings (``Kv`` for arctan, which may also carry ``delta_grid``;
+        ``static``/``damping``/``z0`` for dm1; ``static``/``accel_ratio`` for dm2).
+    n_refine : int, optional
+        How many of the grid-scored candidates are refined (models with a ``vp_grid``; at
+        most ``n_starts``; the others refine every start); default 4.
+
+    Returns
+    -------
+    FrictionFit
+        The fitted model, the extra coefficients, standard errors, covariance and diagnostics.
+
+    Raises
+    ------
+    ValueError
+        If the signals' shapes disagree or hold non-finite values, ``extra_names`` or
+        ``bounds`` name unknown or clashing parameters, or a dynamic model lacks ``dt``.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 to 2-7.
+    .. [2] Indri & Trapani 2020 (seeds 001), eq. 25-28 and sec. III.
+    .. [3] Golub & Pereyra 1973, variable projection.
+
+    Examples
+    --------
+    >>> from ident.friction import CoulombViscous
+    >>> qd = np.linspace(-1.0, 1.0, 201)
+    >>> fit = fit_friction(CoulombViscous, qd, 2.0 * np.sign(qd) + 0.5 * qd)
+    >>> {k: round(v, 6) for k, v in fit.params.items()}
+    {'c': 2.0, 'v': 0.5}
     """
     settings = dict(settings or {})
     qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
@@ -815,14 +916,58 @@ def strategy_for(pb: _Problem):
 @_one_blas_thread
 def fit_arctan(qd, tau, Kv: float = KV_DEFAULT, delta_grid=None, X_extra=None, extra_names=(),
                weights=None) -> FrictionFit:
-    """Indri & Trapani eq. 27-28 with the delta grid search of sec. III-A.
+    """Fit the arctan static model by the delta grid search of Indri & Trapani eq. 27-28.
 
-    For every delta of ``delta_grid`` (default [0, 100] step 0.1) the linear parameters
-    (tau_s, tau_sc, tau_v, tau_nlv) and the extra columns are the least-squares solution; the
-    delta with the smallest residual wins. All grid values are solved at once: the columns that
-    do not depend on delta are projected out once (QR), after which each delta's residual sum of
-    squares is a closed-form rank-one update (blocks of grid values bound the memory; no loop
-    per grid value). The standard error of delta comes from the Jacobian like the others.
+    For every delta of ``delta_grid`` (default [0, 100] step 0.1, sec. III-A [1]_) the linear
+    parameters (tau_s, tau_sc, tau_v, tau_nlv) and the extra columns are the least-squares
+    solution of the regressor of eq. 28; the delta with the smallest residual wins. All grid
+    values are solved at once: the columns that do not depend on delta are projected out once
+    (QR), after which each delta's residual sum of squares is a closed-form rank-one update
+    (blocks of grid values bound the memory; no loop per grid value). The standard error of
+    delta comes from the Jacobian like the others.
+
+    Parameters
+    ----------
+    qd : array_like
+        (T,) joint velocity (rad/s).
+    tau : array_like
+        (T,) friction (residual) torque (N m), eq. 25-26.
+    Kv : float, optional
+        Steepness of the smooth sign ``S0`` (s/rad); default
+        :data:`ident.friction.constants.KV_DEFAULT` (the paper's 1000).
+    delta_grid : array_like, optional
+        The delta values searched (s/rad), finite and >= 0; default [0, 100] step 0.1.
+    X_extra : array_like, optional
+        (T, e) nuisance columns estimated jointly; None: none.
+    extra_names : sequence of str, optional
+        Names of the ``X_extra`` columns.
+    weights : array_like, optional
+        (T,) per-sample weights, finite and >= 0.
+
+    Returns
+    -------
+    FrictionFit
+        The fitted :class:`ident.friction.static.Arctan`; a ``delta`` on the edge of the grid is
+        named in ``degenerate``.
+
+    Raises
+    ------
+    ValueError
+        If ``delta_grid`` is empty, not finite or negative, or the signals' shapes disagree
+        or hold non-finite values.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), eq. 1-2, 27-28 and sec. III-A.
+
+    Examples
+    --------
+    >>> from ident.friction import Arctan
+    >>> qd = np.linspace(-1.0, 1.0, 201)
+    >>> truth = Arctan(tau_s=2.0, tau_sc=-0.5, tau_v=0.3, tau_nlv=0.0, delta=5.0)
+    >>> fit = fit_arctan(qd, truth.torque(qd))
+    >>> {k: round(v, 4) + 0.0 for k, v in fit.params.items()}
+    {'tau_s': 2.0, 'tau_sc': -0.5, 'tau_v': 0.3, 'tau_nlv': 0.0, 'delta': 5.0}
     """
     qd, tau, X, enames, sw = _check_inputs(qd, tau, X_extra, extra_names, weights,
                                            Arctan.param_names)
@@ -883,9 +1028,47 @@ def eiv_bias(X, beta, se, col_var) -> dict:
 
 
 def predict(fit: FrictionFit, qd, X_extra=None, *, qdd=None, dt=None) -> np.ndarray:
-    """Torque of a fit: friction ``fit.model.torque(qd, qdd, dt)`` plus ``X_extra @ extra``.
+    """Torque a fit predicts: its friction plus its extra columns.
 
-    Without ``X_extra`` only the friction torque is returned.
+    ``fit.model.torque(qd, qdd, dt) + X_extra @ extra``, the right side of the fitted
+    equation (the thesis's eq. 2-4 with its friction model [1]_; Indri & Trapani's friction
+    model, eq. 1 or 6 [2]_). Without ``X_extra`` only the friction torque is returned.
+
+    Parameters
+    ----------
+    fit : FrictionFit
+        A result of :func:`fit_friction` or :func:`fit_arctan`.
+    qd : array_like
+        (T,) joint velocity (rad/s).
+    X_extra : array_like, optional
+        (T, e) extra columns, in the fit's ``extra`` order; None: friction only.
+    qdd : array_like, optional
+        (T,) acceleration (rad/s^2), for models that need it (dm2).
+    dt : float or array_like, optional
+        Sample period (s) or the (T-1,) steps, for dynamic models.
+
+    Returns
+    -------
+    numpy.ndarray
+        (T,) predicted torque (N m).
+
+    Raises
+    ------
+    ValueError
+        If ``X_extra`` is not (T, number of extras).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4.
+    .. [2] Indri & Trapani 2020 (seeds 001), eq. 1, 6.
+
+    Examples
+    --------
+    >>> from ident.friction import CoulombViscous
+    >>> qd = np.linspace(-1.0, 1.0, 201)
+    >>> fit = fit_friction(CoulombViscous, qd, 2.0 * np.sign(qd) + 0.5 * qd)
+    >>> predict(fit, [0.5]).round(6).tolist()
+    [2.25]
     """
     tau = fit.model.torque(np.asarray(qd, float), qdd, dt)
     if X_extra is not None:

@@ -42,12 +42,71 @@ def smooth_sign(v, width: float = SIGN_WIDTH):
 
 
 def s0(v, Kv: float = KV_DEFAULT) -> np.ndarray:
-    """Indri & Trapani eq. 2: ``S0(v) = 2/pi arctan(Kv v)``, a continuous ``sign(v)``."""
+    r"""Smooth sign of Indri & Trapani eq. 2: a continuous ``sign(v)``.
+
+    .. math::
+
+        S_0(v) = \frac{2}{\pi} \arctan(K_v v)
+
+    the arctangent approximation of the sign that the arctan static model and the LuGre-type
+    dynamic models use [1]_; it tends to ``sign(v)`` as ``Kv`` grows.
+
+    Parameters
+    ----------
+    v : array_like
+        Velocity (rad/s).
+    Kv : float, optional
+        Steepness of the arctangent (s/rad); default
+        :data:`ident.friction.constants.KV_DEFAULT` (the paper's 1000).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``S0(v)``, in (-1, 1), shaped like ``v``.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), eq. 2.
+
+    Examples
+    --------
+    >>> s0([-1.0, 0.0, 1.0], Kv=1000.0).round(4).tolist()
+    [-0.9994, 0.0, 0.9994]
+    """
     return _2_PI * np.arctan(Kv * np.asarray(v, float))
 
 
 def s1(v, Kv: float = KV_DEFAULT) -> np.ndarray:
-    """Indri & Trapani eq. 7: ``S1(v) = S0(v) v``, a continuous ``|v|`` (never negative)."""
+    r"""Smooth absolute value of Indri & Trapani eq. 7: a continuous ``|v|``, never negative.
+
+    .. math::
+
+        S_1(v) = S_0(v)\, v
+
+    with :math:`S_0` the smooth sign :func:`s0` (eq. 2) [1]_.
+
+    Parameters
+    ----------
+    v : array_like
+        Velocity (rad/s).
+    Kv : float, optional
+        Steepness of the arctangent of :func:`s0` (s/rad); default
+        :data:`ident.friction.constants.KV_DEFAULT` (the paper's 1000).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``S1(v) >= 0`` (rad/s), shaped like ``v``.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), eq. 7.
+
+    Examples
+    --------
+    >>> s1([-2.0, 0.0, 2.0], Kv=1000.0).round(4).tolist()
+    [1.9994, 0.0, 1.9994]
+    """
     v = np.asarray(v, float)
     return s0(v, Kv) * v
 

@@ -65,15 +65,38 @@ class _StaticModel(FrictionModel):
 
 # --------------------------------------------------------------------------------------------
 class Stribeck(_StaticModel):
-    """Thesis eq. 2-6, the four-parameter Stribeck model:
+    r"""Stribeck friction of thesis eq. 2-6, the four-parameter model.
 
-    ``f = Fk sign(qd) + Fv qd - sign(qd) Fs (1 - exp(-|qd| / Vc))``.
+    .. math::
 
-    With this sign convention ``Fk`` is the static (breakaway) level reached as qd -> 0 and
-    ``Fs`` is the DROP from that level to the Coulomb level at speed: far from zero the model
-    is ``(Fk - Fs) sign(qd) + Fv qd``. A physical Stribeck effect has ``Fs > 0`` and a small
+        f(\dot{q}) = F_k \operatorname{sign}(\dot{q}) + F_v \dot{q}
+        - \operatorname{sign}(\dot{q}) F_s \left(1 - e^{-|\dot{q}| / V_c}\right)
+
+    evaluated by :func:`ident.friction.laws.stribeck_columns` [1]_. With this sign convention
+    ``Fk`` is the static (breakaway) level reached as qd -> 0 and ``Fs`` is the DROP from that
+    level to the Coulomb level at speed: far from zero the model is
+    ``(Fk - Fs) sign(qd) + Fv qd``. A physical Stribeck effect has ``Fs > 0`` and a small
     ``Vc > 0`` (rad/s). ``f(0) = 0``; the torque is odd and discontinuous only at qd = 0.
-    Linear in (Fk, Fv, Fs) for fixed Vc.
+    Linear in (Fk, Fv, Fs) for fixed Vc. Degenerate forms (``Fs`` ~ 0; ``Vc`` below the
+    sampled speeds, where only ``Fk - Fs`` is identifiable and the thesis reports its joint-5
+    form ``Fk = 0`` with a negative ``Fs``) are named by :meth:`degeneracy` and
+    :meth:`degenerate_form`.
+
+    Parameters
+    ----------
+    **params : float
+        ``Fk`` (static level, N m), ``Fv`` (viscous coefficient, N m s/rad), ``Fs`` (drop from
+        the static to the Coulomb level, N m) and ``Vc`` (Stribeck velocity, rad/s), by keyword.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-6.
+
+    Examples
+    --------
+    >>> m = Stribeck(Fk=3.0, Fv=0.5, Fs=1.0, Vc=0.1)
+    >>> m.torque([0.0, 1e-6, 10.0]).round(4).tolist()
+    [0.0, 3.0, 7.0]
     """
 
     name = "stribeck"
@@ -208,14 +231,30 @@ class Stribeck(_StaticModel):
 
 # --------------------------------------------------------------------------------------------
 class Hyperbolic(_StaticModel):
-    """Thesis eq. 2-7 (Makkar et al. 2005), the six-parameter hyperbolic model:
+    r"""Hyperbolic friction of thesis eq. 2-7 (Makkar et al. 2005), the six-parameter model.
 
-    ``f = g1 (tanh(g2 qd) - tanh(g3 qd)) + g4 tanh(g5 qd) + g6 qd``.
+    .. math::
 
-    ``g4 tanh(g5 qd)`` is the smooth Coulomb term, ``g6 qd`` the viscous one, and the first
-    term the Stribeck hump (static level ~ g1 + g4). Odd and smooth. Linear in (g1, g4, g6)
-    for fixed (g2, g3, g5). The first term is symmetric under (g1, g2, g3) -> (-g1, g3, g2);
-    estimators report the representative with g2 >= g3.
+        f(\dot{q}) = \gamma_1 \left(\tanh(\gamma_2 \dot{q}) - \tanh(\gamma_3 \dot{q})\right)
+        + \gamma_4 \tanh(\gamma_5 \dot{q}) + \gamma_6 \dot{q}
+
+    evaluated by :func:`ident.friction.laws.hyperbolic_columns` [1]_ [2]_. ``g4 tanh(g5 qd)``
+    is the smooth Coulomb term, ``g6 qd`` the viscous one, and the first term the Stribeck
+    hump (static level ~ g1 + g4). Odd and smooth. Linear in (g1, g4, g6) for fixed
+    (g2, g3, g5). The first term is symmetric under (g1, g2, g3) -> (-g1, g3, g2); estimators
+    report the representative with g2 >= g3 (:meth:`canonical`).
+
+    Parameters
+    ----------
+    **params : float
+        ``g1`` (hump amplitude, N m), ``g2``, ``g3`` (hump rates, s/rad), ``g4`` (Coulomb
+        level, N m), ``g5`` (Coulomb rate, s/rad) and ``g6`` (viscous coefficient,
+        N m s/rad), by keyword.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-7.
+    .. [2] Makkar et al. 2005, as cited by the PA10 thesis (seeds 002), ch. 2.
     """
 
     name = "hyperbolic"
@@ -365,16 +404,38 @@ class Hyperbolic(_StaticModel):
 
 # --------------------------------------------------------------------------------------------
 class Arctan(_StaticModel):
-    """Indri & Trapani 2020 eq. 1-2, the arctangent static model:
+    r"""Arctangent static friction of Indri & Trapani 2020 eq. 1-2.
 
-    ``tau_f = tau_s S0(v) + tau_sc 2/pi arctan(delta v) + tau_v v + tau_nlv v^2 S0(v)`` with
-    ``S0(v) = 2/pi arctan(Kv v)``.
+    .. math::
 
-    ``tau_s``: static level; ``tau_sc``: difference between Coulomb and static friction (the
-    Stribeck term, negative for a drop); ``tau_v``: viscous; ``tau_nlv``: nonlinear viscous;
-    ``delta`` (s/rad) shapes the Stribeck term. ``Kv`` is a setting (the paper fixes 1000), not
-    a parameter. Odd and continuous. Linear in (tau_s, tau_sc, tau_v, tau_nlv) for fixed delta:
-    the columns are the regressor of eq. 28.
+        \tau_f(v) = \tau_s S_0(v) + \tau_{sc} \frac{2}{\pi} \arctan(\delta v) + \tau_v v
+        + \tau_{nlv} v^2 S_0(v), \qquad S_0(v) = \frac{2}{\pi} \arctan(K_v v)
+
+    evaluated by :func:`ident.friction.laws.arctan_columns` [1]_. ``tau_s``: static level;
+    ``tau_sc``: difference between Coulomb and static friction (the Stribeck term, negative
+    for a drop); ``tau_v``: viscous; ``tau_nlv``: nonlinear viscous; ``delta`` (s/rad) shapes
+    the Stribeck term. ``Kv`` is a setting (the paper fixes 1000), not a parameter. Odd and
+    continuous. Linear in (tau_s, tau_sc, tau_v, tau_nlv) for fixed delta: the columns are the
+    regressor of eq. 28. Identified by the delta grid search of eq. 27-28
+    (:func:`ident.friction.fit.fit_arctan`).
+
+    Parameters
+    ----------
+    Kv : float, optional
+        Steepness of the smooth sign ``S0`` (s/rad), > 0; default
+        :data:`ident.friction.constants.KV_DEFAULT` (the paper's 1000).
+    **params : float
+        ``tau_s``, ``tau_sc`` (N m), ``tau_v`` (N m s/rad), ``tau_nlv`` (N m s^2/rad^2) and
+        ``delta`` (s/rad), by keyword.
+
+    Raises
+    ------
+    ValueError
+        If ``Kv`` is not positive.
+
+    References
+    ----------
+    .. [1] Indri & Trapani 2020 (seeds 001), eq. 1-2, 27-28.
     """
 
     name = "arctan"

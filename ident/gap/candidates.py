@@ -458,10 +458,36 @@ def _observable_orders(grid: tuple, q_range: float | None) -> tuple:
 
 
 def candidate_effects(gear_ratio: float | None = None, q_range: float | None = None) -> list[Candidate]:
-    """One candidate per (effect, family) of the registry (:mod:`ident.effects`); a candidate's
-    ``name`` is the effect it stands for, ``family`` the form tested. ``q_range``: the joint's
-    range of motion (rad), which bounds the ripple orders tested from below
-    (:data:`MIN_RIPPLE_PERIODS`)."""
+    """The candidate effects the gap diagnosis tests: one per (effect, family) of the registry.
+
+    The registry is :mod:`ident.effects`; a candidate's ``name`` is the effect it stands for,
+    ``family`` the form tested, and its columns augment one channel's nominal model (the
+    rigid-body torque with the Coulomb + viscous friction of thesis eq. 2-4, 2-5 [1]_ in the
+    torque channel; the link-motor deflection in the transmission channel). The families span
+    the literature's forms (module docstring; the presliding family is the LuGre-type bristle
+    of Indri & Trapani eq. 5 [2]_ with the exact sign) [3]_.
+
+    Parameters
+    ----------
+    gear_ratio : float or None, optional
+        The joint's gear ratio, which sets the ripple orders tested (the wave generator's and
+        its harmonics); None: the generic orders.
+    q_range : float or None, optional
+        The joint's range of motion (rad), which bounds the ripple orders tested from below
+        (:data:`MIN_RIPPLE_PERIODS`); None: no bound.
+
+    Returns
+    -------
+    list of Candidate
+        One candidate per (effect, family); a ripple family with no observable order keeps
+        an empty grid (reported as not identifiable).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4, 2-5.
+    .. [2] Indri & Trapani 2020 (seeds 001), eq. 5.
+    .. [3] jointlab gap diagnosis (docs/gap-diagnosis.md), the candidate families.
+    """
     out = []
     for spec in REGISTRY.values():
         for fam in spec.families:

@@ -67,8 +67,76 @@ def fill_nan(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 class JointData:
     """Samples of one joint concatenated over its trials (log clock), plus per-trial metadata.
 
-    Torque channel arrays have length N (log samples); transmission arrays length Nm (marker
-    frames with a valid link angle). ``trial`` / ``trial_m`` index into ``trials``.
+    What the gap diagnosis reads, built by :func:`build_joint_data`: the torque left for the
+    link side of thesis eq. 2-4 [1]_ after the motor side is moved to the right, the URDF's
+    rigid-body torque and, where link angles are available, the transmission residual (module
+    docstring). Torque channel arrays have length N (log samples); transmission arrays length
+    Nm (marker frames with a valid link angle). ``trial`` / ``trial_m`` index into ``trials``.
+
+    Attributes
+    ----------
+    joint : int
+        The joint, 1-based.
+    trials : list
+        The :class:`mocap.io.campaign.Trial` entries, manifest order.
+    trial : numpy.ndarray
+        (N,) trial index of every sample.
+    t : numpy.ndarray
+        (N,) campaign clock (s).
+    t_rel : numpy.ndarray
+        (N,) time since the trial's start (s).
+    q, qd, qdd : numpy.ndarray
+        (N,) joint angle (rad), velocity (rad/s), acceleration (rad/s^2): the motor state, or
+        the link state on a declared flexible joint.
+    y : numpy.ndarray
+        (N,) ``tau - J qmdd - B qmd`` (N m), the torque left for the link side.
+    tau_urdf : numpy.ndarray
+        (N,) rigid-body torque from the URDF for the trial's payload and rest pose (N m).
+    tau_grav : numpy.ndarray
+        (N,) its gravity part (N m).
+    urdf_regs : numpy.ndarray
+        (N, 3) ``[qdd, sin q, cos q]`` for base-parameter corrections.
+    load : numpy.ndarray
+        (N,) payload (kg).
+    vmax : float
+        The joint's maximum velocity (rad/s).
+    tau_max : float
+        The joint's largest torque (N m).
+    trial_m : numpy.ndarray
+        (Nm,) trial index of every marker frame (transmission channel; may be empty).
+    e : numpy.ndarray
+        (Nm,) ``q_link - q_motor`` at marker times (rad).
+    qd_m : numpy.ndarray
+        (Nm,) velocity at marker times (rad/s).
+    y_m : numpy.ndarray
+        (Nm,) ``y`` at marker times (N m).
+    t_m : numpy.ndarray
+        (Nm,) marker times on the campaign clock (s).
+    tau_m : numpy.ndarray
+        (Nm,) rigid-body (transmitted) torque at marker times (N m).
+    rep : numpy.ndarray
+        Per-trial repetition number.
+    group : numpy.ndarray
+        Per-trial condition index (same load, speed, kind).
+    fold : numpy.ndarray
+        Per-trial held-out fold.
+    deriv_window_s : float
+        Savitzky-Golay window of the motor-angle derivatives (s).
+    sgn_filtered : numpy.ndarray or None
+        (N,) Coulomb direction through the derivative filter; None: the plain smoothed sign.
+    q_hf : numpy.ndarray or None
+        (N,) encoder reading minus its smoothed value (what feedback sees beyond it).
+    friction_side : str
+        Where the nominal's friction acts: ``"rigid"`` (no stiffness declared), ``"motor"``
+        or ``"link"`` side of the declared spring.
+    stiffness : float
+        Declared transmission stiffness (drives.toml, N m/rad); 0: rigid.
+    tau_m_friction : numpy.ndarray or None
+        Link-side friction: the spring torque ``y`` at marker times.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1, 2-2, 2-4.
     """
 
     joint: int                      # 1-based
@@ -150,16 +218,53 @@ DERIV_WINDOWS = (0.02, 0.04, 0.1)
 
 def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
                      max_rate_hz: float = 250.0, deriv_window_s: float | None = None) -> JointData:
-    """Assemble :class:`JointData`; the Savitzky-Golay window of the motor-angle derivatives is
-    ``deriv_window_s`` or, when None, chosen from the data: the window of :data:`DERIV_WINDOWS`
-    whose nominal model has the least held-out torque RMS. (Short windows keep friction
-    transients at reversals, which last tens of ms, out of ``J qdd``; long ones average encoder
-    quantisation: which wins depends on the drive and the logger, not on the effect sought.) The
-    Coulomb direction is chosen the same way: sampled, or through the derivative filter. On a
-    joint with a declared stiffness, the friction side (motor or link of the spring, see the
-    module docstring) is chosen the same way, on the samples both sides keep. (Measured: the
-    demo's held-out nominal RMS 1.02 N m on the motor side, 0.24 on the link side, which
-    jointlab's simulator has; the foreign world puts its friction at the motor.)"""
+    """Assemble the :class:`JointData` of one joint from a campaign's trials.
+
+    The torque left for the link side is ``y = tau - J qmdd - B qmd`` (thesis eq. 2-4 [1]_
+    with the motor side moved to the right). The Savitzky-Golay window of the motor-angle
+    derivatives is ``deriv_window_s`` or, when None, chosen from the data [2]_: the window of
+    :data:`DERIV_WINDOWS` whose nominal model has the least held-out torque RMS. (Short
+    windows keep friction transients at reversals, which last tens of ms, out of ``J qdd``;
+    long ones average encoder quantisation: which wins depends on the drive and the logger,
+    not on the effect sought.) The Coulomb direction is chosen the same way: sampled, or
+    through the derivative filter. On a joint with a declared stiffness (the flexible joint
+    of thesis eq. 2-1, 2-2), the friction side (motor or link of the spring, see the module
+    docstring) is chosen the same way, on the samples both sides keep; with friction at the
+    link, the spring carries it in the transmission channel too when the torque channel or
+    the deflection clearly says so (:data:`LINK_SPRING_MARGIN`,
+    :data:`LINK_SPRING_DEFLECTION`).
+
+    Parameters
+    ----------
+    joint : int
+        The joint, 1-based; the trials move only that joint.
+    trials : sequence of mocap.io.campaign.Trial
+        The campaign's trials (manifest order).
+    logs : sequence of mocap.io.robotlog.RobotLog
+        ``logs[i]`` is the robot log of ``trials[i]``.
+    robot : mocap.robot.Robot
+        The robot (URDF and drives.toml): rigid-body dynamics, motor inertia and viscous
+        coefficient, declared ``stiffness``.
+    angles : dict or None, optional
+        Trial id -> ``(t_marker, q_link)`` of the joint (mocap); None: torque channel only.
+    v_zero : float, optional
+        Torque-channel samples slower than this (rad/s) are left out (three times it on the
+        link side of a declared spring); default 0.01.
+    max_rate_hz : float, optional
+        Samples beyond this rate are decimated (every k-th kept); default 250.
+    deriv_window_s : float or None, optional
+        Savitzky-Golay window of the derivatives (s); None (default): chosen from the data.
+
+    Returns
+    -------
+    JointData
+        The joint's samples, concatenated over the trials.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1, 2-2, 2-4.
+    .. [2] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    """
     stiff = float(robot.drives[joint - 1].extra.get("stiffness", 0.0) or 0.0) > 0
     sides = {}
     for side in (("motor", "link") if stiff else ("rigid",)):

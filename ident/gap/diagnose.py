@@ -40,6 +40,53 @@ from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, Selecti
 
 @dataclass(frozen=True)
 class DiagnosisSettings:
+    """Levels, floors and test settings of the gap diagnosis (:class:`GapDiagnosis`).
+
+    An effect is selected when its held-out improvement passes Holm's correction at ``alpha``
+    [1]_ and every floor below; the effect-size floors are in units of the channel's
+    noise-floor variance and calibrated on effect-free campaigns of the independent world
+    (:func:`effect_size_floor`; calibration: [2]_).
+
+    Attributes
+    ----------
+    alpha : float
+        Family-wise level (Holm) per selection step.
+    min_explained : float
+        Share of the gap above the noise floor an effect must remove (at later steps: of the
+        gap the selected effects left).
+    min_reduction : float
+        ... and this fraction of the held-out RMS.
+    min_effect_to_floor : float
+        ... and this share of the torque channel's noise-floor variance, for the families
+        shaped at low speed and reversals (``candidates.REVERSAL_SHAPED``): an effect within
+        the torque noise is not claimed, however large its relative share.
+    min_effect_to_floor_samples : float
+        The reversal-shaped floor in the sample-level test of a single record.
+    min_effect_to_floor_global : float
+        The same floor for the other torque families (time, position, load, direction, gain).
+    min_effect_to_floor_transmission : float
+        The same floor in the transmission channel.
+    max_effects : int
+        Forward stepwise selection steps.
+    n_perm : int
+        Sign flips of the randomisation test.
+    n_boot : int
+        Bootstrap resamples over trials (stability of the verdict, confidence intervals).
+    seed : int
+        Seed of the randomisation test and the bootstrap.
+    nominal : str
+        The nominal model, ``--nominal SPEC`` (:func:`ident.gap.nominal.nominal_model`).
+    test : str
+        ``"cycles"`` (block sign-flip), ``"samples"`` (HAC loss differential [3]_) or
+        ``"auto"``: cycles where they can reach Holm's first threshold.
+
+    References
+    ----------
+    .. [1] Holm 1979, a simple sequentially rejective multiple test procedure.
+    .. [2] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    .. [3] Diebold & Mariano 1995, comparing predictive accuracy.
+    """
+
     alpha: float = 0.01              # family-wise level (Holm) per selection step
     min_explained: float = 0.15      # an effect must remove this share of the gap above the noise floor
     #                                  (at later steps: of the gap the selected effects left)
@@ -587,8 +634,14 @@ def _selection_order(chres: dict) -> list:
 
 
 class GapDiagnosis:
-    """The sim-to-real gap diagnosis of one joint as an estimator (see the module docstring):
-    ``GapDiagnosis(nominal, families, settings).fit(data) -> DiagnosisResult``.
+    """The sim-to-real gap diagnosis of one joint as an estimator.
+
+    ``GapDiagnosis(nominal, families, settings).fit(data) -> DiagnosisResult``: the held-out
+    residual of the nominal model (the declared joint, rigid or the flexible joint of thesis
+    eq. 2-1, 2-2, with URDF rigid-body dynamics and Coulomb + viscous friction, eq. 2-5 [1]_)
+    is tested against every candidate effect by cross-validation, a sign-flip randomisation
+    test over motion cycles with Holm's correction [2]_ and effect-size floors, then forward
+    stepwise selection and a bootstrap over trials (module docstring; [3]_).
 
     Parameters
     ----------
@@ -599,6 +652,12 @@ class GapDiagnosis:
         Candidate families to test (names of :data:`ident.gap.candidates.FAMILIES`); all by default.
     settings : DiagnosisSettings, optional
         Levels, floors and the test (``settings.nominal`` is replaced by ``nominal``).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1, 2-2, 2-5.
+    .. [2] Holm 1979, a simple sequentially rejective multiple test procedure.
+    .. [3] jointlab gap diagnosis (docs/gap-diagnosis.md).
     """
 
     def __init__(self, nominal: str = "cv", families=None, settings: DiagnosisSettings | None = None):
@@ -616,7 +675,31 @@ class GapDiagnosis:
 
 def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings(),
                    gear_ratio: float | None = None) -> DiagnosisResult:
-    """:class:`GapDiagnosis` with ``settings`` (its nominal included) on ``d``."""
+    """Diagnose the sim-to-real gap of one joint: :class:`GapDiagnosis` with ``settings``.
+
+    ``GapDiagnosis(settings.nominal, None, settings).fit(d, gear_ratio)``: every candidate
+    family, the nominal model named by the settings (module docstring; [1]_ [2]_).
+
+    Parameters
+    ----------
+    d : JointData
+        The joint's samples (:func:`ident.gap.data.build_joint_data`).
+    settings : DiagnosisSettings, optional
+        Levels, floors, the test and the nominal model; default ``DiagnosisSettings()``.
+    gear_ratio : float or None, optional
+        The joint's gear ratio, which sets the ripple orders tested; None: the generic orders.
+
+    Returns
+    -------
+    DiagnosisResult
+        The verdict, the tests of every candidate, the channels' held-out fits and where the
+        gap lies.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1, 2-2, 2-5.
+    .. [2] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    """
     return GapDiagnosis(settings.nominal, None, settings).fit(d, gear_ratio)
 
 

@@ -145,7 +145,59 @@ class ChannelResult:
 
 @dataclass(frozen=True)
 class DiagnosisResult:
-    """The diagnosis of one joint."""
+    """The gap diagnosis of one joint: the verdict, the tests behind it and where the gap lies.
+
+    ``to_dict()`` gives diagnosis.json's per-joint entry (FORMAT.md keys [1]_);
+    :meth:`verdict_text` the verdict in one line. Produced by
+    :class:`ident.gap.diagnose.GapDiagnosis` [2]_.
+
+    Attributes
+    ----------
+    verdict : str
+        The selected effect (the transmission channel's first selection when it has one, else
+        the torque channel's), or ``"none"``.
+    nominal_model : str
+        Label of the nominal model the gap is measured against.
+    n_trials : int
+        Trials diagnosed.
+    folds : str
+        How the held-out folds were formed.
+    channels : dict
+        Channel name -> :class:`ChannelResult`.
+    effects : tuple
+        :class:`EffectTest` of every candidate effect, significant first, then by reduction.
+    selected : tuple
+        Names of the selected effects, by explained share.
+    localisation : tuple
+        ``({"regime", "share"}, ...)``: the held-out excess per motion regime.
+    localisation_method : str
+        How the excess was localised.
+    localisation_rest : float
+        Share of the excess outside every listed regime.
+    notes : tuple
+        Remarks on the data or the fit.
+    insufficient : str
+        Why the data cannot settle it (or what stays unexplained); empty otherwise.
+    status : str
+        ``effect``, ``none``, ``unexplained`` or ``insufficient_data``.
+    detectable : dict
+        Channel -> smallest detectable effect size (noise variances).
+    alternatives : tuple
+        ``({"effect", "why", "separate_by"}, ...)``: effects that explain the same term.
+    next_experiment : dict
+        The experiment that would separate the alternatives or settle the verdict.
+    spectrum_bands : tuple
+        ``({"band_hz", "excess_share", "excess_over_floor"}, ...)`` of the held-out residual.
+    tests : dict
+        Channel -> how its units were tested.
+    series : dict
+        Time series for the plots (not in the JSON).
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. What the workbench writes.
+    .. [2] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    """
 
     verdict: str
     nominal_model: str

@@ -18,7 +18,34 @@ _BREAKS = re.compile(r"[ \t]*[\r\n\x85\u2028\u2029]+[ \t]*")
 
 
 class InputError(ValueError):
-    """Bad user input: a file, a key, a label or a shape that does not fit the contract."""
+    """Bad user input: a file, a key, a label or a shape that does not fit the contract.
+
+    The message is one line (:func:`one_line`), prefixed with the file and line at fault when
+    known; the CLI prints ``jointlab: error: <message>`` and exits with status 2 [1]_. The
+    contract is the data format [2]_. A :class:`ValueError`.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong (line breaks become a vertical bar between spaces).
+    path : str or pathlib.Path, optional
+        The file at fault; kept as :attr:`path`.
+    line : int, optional
+        Its line, 1-based; kept as :attr:`line`.
+    label : str, optional
+        The marker label or key at fault, appended to the message unless it already names it;
+        kept as :attr:`label`.
+
+    References
+    ----------
+    .. [1] jointlab inputs (docs/inputs.md).
+    .. [2] jointlab data format (docs/format.md).
+
+    Examples
+    --------
+    >>> str(InputError("no header row", path="m.trc", line=1))
+    'm.trc, line 1: no header row'
+    """
 
     def __init__(self, message: str, *, path: str | Path | None = None,
                  line: int | None = None, label: str | None = None):

@@ -204,8 +204,7 @@ def _check_torque_unit(log, joints, robot, path) -> None:
         return
     pick = ok[np.linspace(0, ok.size - 1, min(200, ok.size)).astype(int)]
     try:
-        # one posture per call: pinocchio's batched RNEA corrupts memory on a one-joint model
-        G = np.array([np.atleast_1d(robot.gravity_torque(q)) for q in log.qm[pick]])
+        G = np.atleast_2d(robot.gravity_torque(log.qm[pick]))
     except Exception:   # a posture pinocchio cannot evaluate: no gravity evidence
         return
     for j in joints:

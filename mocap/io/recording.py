@@ -11,17 +11,47 @@ from mocap.io.errors import InputError
 
 @dataclass(frozen=True, eq=False)
 class MarkerRecording:
-    """A marker recording.
+    """A marker recording: labelled 3-D marker trajectories, time first, in metres.
+
+    What the readers return, converted once at the file boundary (the marker file of the data
+    format [1]_); the input of the per-frame link-angle solve of thesis ch. 3, eq. 3-3 to 3-5
+    [2]_.
 
     Attributes
     ----------
-    time : (T,) seconds, strictly increasing.
-    positions : (T, M, 3) metres; NaN where a marker is occluded.
-    labels : M marker labels, unique.
-    rate_hz : the data rate declared by the file (or estimated from ``time`` if absent).
-    units : the unit declared by the source file (``"mm"`` or ``"m"``); ``positions`` are always metres.
-    source : the file it was read from, if any.
-    meta : extra header fields kept from the source file.
+    time : numpy.ndarray
+        (T,) seconds, strictly increasing.
+    positions : numpy.ndarray
+        (T, M, 3) metres; NaN where a marker is occluded.
+    labels : tuple of str
+        M marker labels, unique.
+    rate_hz : float
+        The data rate declared by the file (or estimated from ``time`` if absent).
+    units : str
+        The unit declared by the source file (``"mm"`` or ``"m"``); ``positions`` are always
+        metres.
+    source : pathlib.Path or None
+        The file it was read from, if any.
+    meta : dict
+        Extra header fields kept from the source file.
+
+    Raises
+    ------
+    InputError
+        If ``time`` is not 1-D, ``positions`` is not (T, M, 3) for M labels, or a label
+        repeats (naming ``source``).
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Marker file (.trc).
+    .. [2] PA10 thesis (seeds 002), ch. 3, eq. 3-3 to 3-5.
+
+    Examples
+    --------
+    >>> rec = MarkerRecording(time=[0.0, 0.01], positions=np.zeros((2, 1, 3)), labels=["m1"],
+    ...                       rate_hz=100.0)
+    >>> rec.n_frames, rec.n_markers
+    (2, 1)
     """
 
     time: np.ndarray
