@@ -110,6 +110,12 @@ class Plan:
         Path -> the friction models it fits (empty without ``models`` given to :func:`plan`).
     notes : tuple of str
         Routing notes a user should read (a model moved to another path or left out).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
+    .. [2] Indri & Trapani 2020 (seeds 001), sec. III.
+    .. [3] jointlab workflow layer (docs/workflow.md).
     """
 
     campaign: str
@@ -175,6 +181,11 @@ def parse_models(text: str) -> tuple:
     InputError
         Empty, or a name that is neither a one-link model nor a dynamic model.
 
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
+    .. [2] Indri & Trapani 2020 (seeds 001), sec. III.
+
     Examples
     --------
     >>> parse_models("cv, stribeck,cv,dm1")
@@ -223,6 +234,12 @@ def plan(campaign, models=None, *, export_c: bool = False) -> Plan:
     ------
     InputError
         A contradiction between the models (or ``export_c``) and the campaign's trials.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
+    .. [2] Indri & Trapani 2020 (seeds 001), sec. III.
+    .. [3] jointlab workflow layer (docs/workflow.md).
 
     Examples
     --------
@@ -319,6 +336,11 @@ class FitSettings:
     v_zero : "auto" or float or str
         Multi-joint records: the low-speed cut, a fraction of the 99th-percentile speed in
         ``[0, 1)`` (a string is parsed).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
+    .. [2] jointlab workflow layer (docs/workflow.md).
     """
 
     n_starts: int = 8
@@ -367,6 +389,12 @@ class FitResult:
         Per joint, the Indri & Trapani fits (``indri`` path).
     rigidbody : ident.model.multijoint.MultiJointFits or None
         Per record, the rigid-body fits (``multi_joint`` path).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
+    .. [2] Indri & Trapani 2020 (seeds 001), sec. III.
+    .. [3] jointlab data format (docs/format.md).
     """
 
     plan: Plan
@@ -464,6 +492,10 @@ def prepare_fit(campaign, models, *, angles=None, export_c: bool = False) -> Pla
     Returns
     -------
     Plan
+
+    References
+    ----------
+    .. [1] jointlab workflow layer (docs/workflow.md).
     """
     check_campaign_motion(campaign, campaign.load_robot().n)
     check_campaign_inputs(campaign, markers=False)
@@ -498,6 +530,12 @@ def fit_campaign(campaign, *, models=("cv", "stribeck", "hyperbolic"), angles=No
     Returns
     -------
     FitResult
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
+    .. [2] Indri & Trapani 2020 (seeds 001), sec. III.
+    .. [3] jointlab workflow layer (docs/workflow.md).
     """
     p = plan if plan is not None else prepare_fit(campaign, models, angles=angles)
     if "multi_joint" in p.models:
@@ -528,6 +566,11 @@ class CampaignDiagnosis:
         The ``diagnosis.json`` document: per joint the verdict and the evidence.
     series : dict
         Per joint the plotted series (residuals, candidate effects).
+
+    References
+    ----------
+    .. [1] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    .. [2] jointlab data format (docs/format.md).
     """
 
     plan: Plan
@@ -586,6 +629,11 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
     Returns
     -------
     CampaignDiagnosis
+
+    References
+    ----------
+    .. [1] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    .. [2] jointlab workflow layer (docs/workflow.md).
     """
     robot = robot if robot is not None else campaign.load_robot()
     ang = None
@@ -626,6 +674,11 @@ class CalibrationResult:
     result : calib.pipeline.CalibResult
         Axes, base placement, ``T_camera_base`` (``p_camera = T_camera_base @ p_base``), its
         uncertainty, the warnings.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), ch. 3, eq. 3-1 to 3-3 (the joint 1/2 axes place the base).
+    .. [2] jointlab data format (docs/format.md).
     """
 
     result: CalibResult
@@ -656,8 +709,9 @@ class CalibrationResult:
 def calibrate(campaign, *, robot=None, method: str = "auto", noise_mm: float | None = None,
               min_sweep_deg: float = 15.0, cross_check: bool = False, urdf_tol_mm: float = 0.0,
               sink=None) -> CalibrationResult:
-    """Place the robot base in the camera frame from the campaign's ``[[calib]]`` sweeps
-    (joint 1 then joint 2; :func:`calib.pipeline.calibrate`).
+    """Place the robot base in the camera frame from the campaign's ``[[calib]]`` sweeps.
+
+    The joint 1 sweep then the joint 2 sweep give two axes (:func:`calib.pipeline.calibrate`).
 
     Parameters
     ----------
@@ -678,6 +732,10 @@ def calibrate(campaign, *, robot=None, method: str = "auto", noise_mm: float | N
     Returns
     -------
     CalibrationResult
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), ch. 3, eq. 3-1 to 3-3 (the joint 1/2 axes place the base).
     """
     robot = robot if robot is not None else campaign.load_robot()
     return CalibrationResult(_calibrate(campaign, robot, method=method, sink=sink, noise_mm=noise_mm,
@@ -701,6 +759,11 @@ class CampaignAngles:
         ``calib_sweeps``.
     trials : tuple of mocap.solve.AnglesResult
         One per solved trial, in campaign order.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), ch. 3, eq. 3-3 to 3-5.
+    .. [2] jointlab data format (docs/format.md).
     """
 
     references: object
@@ -725,11 +788,23 @@ def references(campaign, *, robot=None, T_camera_base=None) -> tuple:
     The camera pose is ``T_camera_base`` when given, else estimated from the static poses when
     they fix it, else from the ``[[calib]]`` sweeps (:func:`ident.study.angles.campaign_references`).
 
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+    robot : mocap.robot.Robot, optional
+        Default: the campaign's.
+    T_camera_base : array_like, optional
+        4x4, from ``calib.json``.
+
     Returns
     -------
     tuple
         (:class:`mocap.references.References`, ``"calib.json"``, ``"static_poses"`` or
         ``"calib_sweeps"``).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), ch. 3, eq. 3-3 to 3-5.
     """
     robot = robot if robot is not None else campaign.load_robot()
     return campaign_references(campaign, robot, T_camera_base)
@@ -760,6 +835,10 @@ def solve_angles(campaign, *, robot=None, T_camera_base=None, refs=None, trials=
     Returns
     -------
     CampaignAngles
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), ch. 3, eq. 3-3 to 3-5.
     """
     robot = robot if robot is not None else campaign.load_robot()
     refs, camera_from = (refs if refs is not None
