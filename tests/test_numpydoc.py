@@ -7,7 +7,7 @@ are parsed with :mod:`numpydoc.docscrape`; the runnable ``Examples`` of these en
 doctests here.
 
 ``PACKAGES`` holds the packages whose entry points pass today; ``calib``
-join it once theirs do (the checks apply unchanged).
+joins it once its entry points do (the checks apply unchanged).
 """
 from __future__ import annotations
 
