@@ -515,7 +515,7 @@ def fit_campaign(campaign, *, models=("cv", "stribeck", "hyperbolic"), angles=No
     campaign : mocap.io.campaign.Campaign
         The loaded campaign.
     models : sequence of str
-        Friction models (:func:`parse_models`).
+        Friction models (:func:`parse_models`); the plan's when ``plan`` is given.
     angles : path-like, optional
         Folder of ``angles/<trial id>.csv`` link angles (single-joint and Indri paths; default:
         the motor angles stand in).

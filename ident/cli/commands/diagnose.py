@@ -1,4 +1,7 @@
-"""``jointlab diagnose CAMPAIGN --out DIR``: where the sim-to-real gap lies and which effect causes it."""
+"""``jointlab diagnose CAMPAIGN --out DIR``: where the sim-to-real gap lies and which effect causes it.
+
+A shell over :func:`ident.workflow.diagnose_campaign` (single-joint trials per joint, multi-joint
+records per joint over their motion cycles, as :func:`ident.workflow.plan` decides)."""
 from __future__ import annotations
 
 import json

@@ -14,7 +14,10 @@
   fitted model C can represent (the dynamic models, and the per-trial ``cv`` fits), dynamic
   models at the sample time ``--export-dt`` (default: the identification data's).
 
-Both sets of models may be asked at once."""
+Both sets of models may be asked at once. A campaign of multi-joint records is fitted with the
+URDF rigid-body model and per-joint friction of every asked model (:mod:`ident.model.rigidbody`).
+Which path a campaign and each model take is :func:`ident.workflow.plan`'s decision; this module
+parses the arguments, runs :func:`ident.workflow.fit_campaign`, writes and prints."""
 from __future__ import annotations
 
 import json
@@ -98,8 +101,8 @@ def _run(args, camp, plan, settings, angles, od, oc) -> int:
         executor = make_executor(args.workers, progress=False)
     try:
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-            result = workflow.fit_campaign(camp, models=(), angles=angles, settings=settings,
-                                           plan=plan, sink=sink, executor=executor)
+            result = workflow.fit_campaign(camp, angles=angles, settings=settings, plan=plan,
+                                           sink=sink, executor=executor)
             paths = result.write(stage, plots=not args.no_plots, sink=sink)
     finally:
         if executor is not None:
