@@ -39,7 +39,36 @@ def skew(w: np.ndarray) -> np.ndarray:
 
 
 def rotation_about_axis(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation matrices (..., 3, 3) for a unit ``axis`` (3,) and angles (...)."""
+    r"""Rotation matrices about a unit axis (Rodrigues' formula).
+
+    .. math::
+
+        R = I + \sin\theta\, K + (1 - \cos\theta)\, K^2
+
+    with ``K`` the cross-product matrix of ``axis`` (:func:`skew`): the joint rotation of the
+    forward kinematics behind thesis eq. 3-3 [1]_.
+
+    Parameters
+    ----------
+    axis : array_like
+        (3,) unit rotation axis.
+    angle : array_like
+        (...) angles (rad).
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 3, 3) rotation matrices.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-3.
+
+    Examples
+    --------
+    >>> np.round(rotation_about_axis([0.0, 0.0, 1.0], np.pi / 2) @ [1.0, 0.0, 0.0], 12)
+    array([0., 1., 0.])
+    """
     K = skew(np.asarray(axis, float))
     angle = np.asarray(angle, float)
     s = np.sin(angle)[..., None, None]
@@ -96,6 +125,31 @@ def make_transform(R: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def invert_transform(T: np.ndarray) -> np.ndarray:
+    """Inverse of homogeneous rigid transforms: ``T_b_a`` from ``T_a_b``.
+
+    ``[R^T, -R^T p]`` without a general matrix inverse; e.g. ``T_base_camera`` from the
+    ``T_camera_base`` of the camera-to-base calibration [1]_.
+
+    Parameters
+    ----------
+    T : array_like
+        (..., 4, 4) rigid transforms.
+
+    Returns
+    -------
+    numpy.ndarray
+        (..., 4, 4) their inverses.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. What the workbench writes.
+
+    Examples
+    --------
+    >>> T = make_transform(rotation_about_axis([0.0, 0.0, 1.0], 0.3), [1.0, 2.0, 3.0])
+    >>> np.allclose(invert_transform(T) @ T, np.eye(4))
+    True
+    """
     T = np.asarray(T, float)
     R = T[..., :3, :3]
     p = T[..., :3, 3]
@@ -110,12 +164,37 @@ def apply_transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
 
 
 def kabsch_batch(ref: np.ndarray, obs: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least-squares rigid transforms, batched over frames.
+    r"""Weighted least-squares rigid transforms, batched over frames.
 
-    ``ref`` (M, 3) reference marker positions, ``obs`` (T, M, 3) observed positions (NaN
-    allowed where ``w`` is 0), ``w`` (T, M) non-negative weights. Returns ``R`` (T, 3, 3) and
-    ``t`` (T, 3) minimising ``sum_k w_tk |obs_tk - (R_t ref_k + t_t)|^2`` (Kabsch/Umeyama,
-    with the reflection fix). Frames with less than 3 weighted markers give NaN.
+    .. math::
+
+        (R_t, t_t) = \arg\min_{R \in SO(3),\, t} \sum_k w_{tk}
+        \lVert o_{tk} - (R\, r_k + t) \rVert^2
+
+    by the SVD of the weighted cross-covariance (Kabsch/Umeyama [1]_, with the reflection fix):
+    the rigid fit of a link's markers to their references, thesis eq. 3-5 [2]_.
+
+    Parameters
+    ----------
+    ref : numpy.ndarray
+        (M, 3) reference marker positions.
+    obs : numpy.ndarray
+        (T, M, 3) observed positions (NaN allowed where ``w`` is 0).
+    w : numpy.ndarray
+        (T, M) non-negative weights.
+
+    Returns
+    -------
+    R : numpy.ndarray
+        (T, 3, 3) rotations; NaN in frames with fewer than 3 weighted markers.
+    t : numpy.ndarray
+        (T, 3) translations; NaN likewise.
+
+    References
+    ----------
+    .. [1] Umeyama 1991, least-squares estimation of transformation parameters between two
+       point patterns.
+    .. [2] PA10 thesis (seeds 002), eq. 3-5.
     """
     w = np.asarray(w, float)
     obs = np.where(w[..., None] > 0, obs, 0.0)
@@ -146,12 +225,37 @@ def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Chain:
-    """Kinematic description of a serial chain of ``n`` revolute joints.
+    r"""Kinematic description of a serial chain of ``n`` revolute joints.
 
-    ``T_parent_joint[i]`` is the fixed placement of joint ``i`` in the frame of joint ``i-1``
-    (joint -1 being the base frame); ``axes[i]`` is the unit rotation axis of joint ``i`` in its
-    own frame. ``frames`` maps a link (or any named frame) to ``(joint index, T_joint_frame)``;
-    a joint index of -1 means the frame is fixed to the base.
+    The one forward kinematics of jointlab, batched over frames: the pose of joint ``i`` in the
+    base frame is
+
+    .. math::
+
+        T_{b,i}(q) = T_{b,i-1}(q)\; P_i \begin{bmatrix} R(a_i, q_i) & 0 \\ 0 & 1
+        \end{bmatrix}
+
+    (``P_i`` the fixed placement, ``R`` Rodrigues' rotation about the axis ``a_i``); a marker
+    fixed to a link is carried to the base frame by it, thesis eq. 3-3 [1]_. Built from the
+    URDF by :class:`mocap.robot.Robot` [2]_.
+
+    Attributes
+    ----------
+    T_parent_joint : numpy.ndarray
+        (n, 4, 4) fixed placement of joint ``i`` in the frame of joint ``i-1`` (joint -1 being
+        the base frame).
+    axes : numpy.ndarray
+        (n, 3) unit rotation axis of each joint in its own frame.
+    joint_names : tuple of str
+        The joints' names, in chain order.
+    frames : dict
+        Link (or any named frame) -> ``(joint index, T_joint_frame)``; a joint index of -1
+        means the frame is fixed to the base.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-3.
+    .. [2] jointlab data format (docs/format.md), sec. Which chain is the arm.
     """
 
     T_parent_joint: np.ndarray
@@ -214,7 +318,32 @@ class Chain:
         return out[0] if single else out
 
     def frame_transform(self, name: str, q: np.ndarray) -> np.ndarray:
-        """``T_base_<name>``: (T, 4, 4) (or (4, 4) for a single q)."""
+        """Pose ``T_base_<name>`` of a named frame at the joint angles ``q``.
+
+        The chain product of the class docstring up to the frame's joint, times the frame's
+        fixed placement (thesis eq. 3-3 [1]_).
+
+        Parameters
+        ----------
+        name : str
+            A key of :attr:`frames`.
+        q : numpy.ndarray
+            (n,) or (T, n) joint angles (rad).
+
+        Returns
+        -------
+        numpy.ndarray
+            (4, 4) or (T, 4, 4) homogeneous transforms.
+
+        Raises
+        ------
+        KeyError
+            If the chain has no frame ``name``.
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 3-3.
+        """
         if name not in self.frames:
             raise KeyError(f"no frame {name!r} in the chain (frames: {', '.join(self.frames)})")
         j, T_jf = self.frames[name]

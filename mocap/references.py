@@ -47,7 +47,49 @@ class StaticPose:
 
 @dataclass(frozen=True, eq=False)
 class References:
-    """Marker positions in their link frames and the camera pose they were computed with."""
+    r"""Marker positions in their link frames and the camera pose they were computed with.
+
+    The static-pose references of thesis eq. 3-4 [1]_,
+
+    .. math::
+
+        {}^n P_m^{static} = {}^n T_c^{static}\; {}^c P_m^{static}
+
+    averaged over the static poses (:func:`build_references`); what the per-frame solve of
+    eq. 3-5 compares the markers with (:meth:`for_chain`), written as ``references.json`` [2]_.
+
+    Attributes
+    ----------
+    labels : tuple of str
+        The M marker labels.
+    links : tuple of str
+        The link carrying each marker.
+    p_link : numpy.ndarray
+        (M, 3) marker positions in their link frames (m).
+    T_camera_base : numpy.ndarray
+        (4, 4) base pose in the camera frame used.
+    camera_source : str
+        ``"given"`` or ``"static_poses"`` (estimated from the static poses).
+    consistency_m : numpy.ndarray
+        (M,) RMS spread of the per-pose estimates (m; NaN for one pose).
+    scatter_m : numpy.ndarray
+        (M,) within-pose RMS scatter (m; the noise level seen while still).
+    n_poses : numpy.ndarray
+        (M,) poses in which the marker was seen.
+    fit_rms_m : float
+        RMS residual of all static markers after the fit (m).
+    camera_std : numpy.ndarray or None
+        (6,) standard deviation of ``T_camera_base``: rotation (rad), translation (m).
+    poses : tuple of StaticPose
+        The reduced static poses.
+    meta : dict
+        Provenance (files, settings).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-4.
+    .. [2] jointlab data format (docs/format.md), sec. What the workbench writes.
+    """
 
     labels: tuple[str, ...]
     links: tuple[str, ...]
@@ -334,8 +376,7 @@ def fit_references(chain, labels, links, poses, T_camera_base=None) -> Reference
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-4.
+    .. [1] PA10 thesis (seeds 002), eq. 3-4.
 
     Examples
     --------
@@ -489,8 +530,7 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-4.
+    .. [1] PA10 thesis (seeds 002), eq. 3-4.
     """
 
     check_marker_links(campaign)
@@ -522,7 +562,10 @@ def build_references(campaign, robot, T_camera_base=None, still_tol_rad: float =
 
 
 def read_calib(path: str | Path) -> np.ndarray:
-    """``T_camera_base`` from a ``calib.json`` (FORMAT.md), validated as a rigid transform.
+    """Read ``T_camera_base`` from a ``calib.json``, validated as a rigid transform.
+
+    The file the calibration writes [1]_; ``T_camera_base`` maps base-frame points into the
+    camera frame, the ``{}^n T_c`` of thesis eq. 3-3, 3-4 inverted [2]_.
 
     Parameters
     ----------
@@ -538,6 +581,11 @@ def read_calib(path: str | Path) -> np.ndarray:
     ------
     mocap.io.errors.InputError
         For a missing file, invalid JSON, or a ``T_camera_base`` that is not 4x4 and rigid.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. What the workbench writes.
+    .. [2] PA10 thesis (seeds 002), eq. 3-3, 3-4.
 
     Examples
     --------

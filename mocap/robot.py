@@ -23,11 +23,40 @@ _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "
 
 @dataclass(frozen=True)
 class Drive:
-    """Motor-side parameters of one joint, referred to the link side (FORMAT.md).
+    """Motor-side parameters of one joint, referred to the link side.
 
-    ``gear_ratio`` is the reduction's magnitude; ``direction`` (+1 or -1) is the sign of the
-    declared ratio (FORMAT.md: a negative ratio only says the motor turns the other way; the
-    angles and torques of a log are on the link side already)."""
+    One ``[[joint]]`` table of ``robot/drives.toml`` [1]_: the motor inertia ``J`` and viscous
+    coefficient ``B`` of the motor side of thesis eq. 2-1 to 2-4 [2]_. ``gear_ratio`` is the
+    reduction's magnitude; ``direction`` (+1 or -1) is the sign of the declared ratio (a
+    negative ratio only says the motor turns the other way; the angles and torques of a log are
+    on the link side already).
+
+    Attributes
+    ----------
+    name : str
+        The URDF joint name.
+    gear_ratio : float
+        Reduction ratio, magnitude (> 0); default 1.
+    motor_inertia : float
+        Motor inertia ``J`` referred to the link side (kg m^2); default 0.
+    motor_viscous : float
+        Motor viscous coefficient ``B`` referred to the link side (N m s/rad); default 0.
+    max_velocity : float
+        Velocity limit (rad/s, > 0); default infinite.
+    max_torque : float
+        Torque limit (N m, > 0); default infinite.
+    encoder_resolution : float
+        Encoder step on the link side (rad); 0: unknown.
+    extra : dict
+        The table's other keys (e.g. ``stiffness``, N m/rad).
+    direction : int
+        +1, or -1 where the declared ratio is negative.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. robot/drives.toml.
+    .. [2] PA10 thesis (seeds 002), eq. 2-1 to 2-4.
+    """
 
     name: str
     gear_ratio: float = 1.0
@@ -53,6 +82,28 @@ class Drive:
 
 
 def read_drives(path: str | Path) -> tuple[Drive, ...]:
+    """Read ``robot/drives.toml``: one :class:`Drive` per ``[[joint]]`` table, in file order.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The drives file [1]_.
+
+    Returns
+    -------
+    tuple of Drive
+        One per ``[[joint]]`` table.
+
+    Raises
+    ------
+    InputError
+        If the file is missing or not TOML, has no ``[[joint]]`` table, a table lacks
+        ``name``, or a value is not a number in its range (naming the key).
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. robot/drives.toml.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError("drives file not found", path=path)
@@ -120,13 +171,37 @@ def _joint_axis(jm) -> np.ndarray:
 
 
 class Robot:
-    """A serial chain of revolute joints with drives.
+    """A serial chain of revolute joints with drives: the rigid-link model of the arm.
+
+    The link side of thesis eq. 2-1 [1]_, ``M(q) qdd + V(q, qd) qd + G(q)``, evaluated by
+    pinocchio [2]_ (:meth:`rnea`, :meth:`mass_matrix`, :meth:`gravity_torque`); kinematics for
+    many frames go through :class:`mocap.kinematics.Chain` (:attr:`chain`). Usually built with
+    :meth:`from_urdf` from the campaign's ``robot/`` folder [3]_.
 
     Parameters
     ----------
-    model : pinocchio.Model built from the URDF (fixed joints merged).
-    drives : one :class:`Drive` per joint, in joint order (defaults from URDF limits if omitted).
-    gravity : gravity vector in the base frame.
+    model : pinocchio.Model
+        Built from the URDF (fixed joints merged); every joint revolute, one serial chain.
+    drives : sequence of Drive, optional
+        One per joint, in joint order; None: defaults from the URDF limits.
+    gravity : array_like, optional
+        (3,) gravity vector in the base frame (m/s^2); default ``(0, 0, -9.81)``.
+    urdf : pathlib.Path, optional
+        The URDF file, for messages and :meth:`describe`.
+    selection : mocap.urdf.ChainSelection, optional
+        How the chain was selected from the URDF; None: the URDF as it is.
+
+    Raises
+    ------
+    InputError
+        If a joint is not revolute, the joints do not form one serial chain, an axis is zero,
+        or ``drives`` does not describe every joint.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1.
+    .. [2] Carpentier et al. 2019, the Pinocchio C++ library.
+    .. [3] jointlab data format (docs/format.md), sec. Which chain is the arm.
     """
 
     def __init__(self, model, drives=None, gravity=(0.0, 0.0, -9.81), urdf: Path | None = None,
@@ -179,11 +254,46 @@ class Robot:
                   gravity=(0.0, 0.0, -9.81), base_link: str | None = None,
                   tip_link: str | None = None, fixed: dict | None = None,
                   where: Path | None = None) -> "Robot":
-        """The robot of ``urdf``: the serial chain from ``base_link`` to ``tip_link`` with every
-        other joint fixed (:func:`mocap.urdf.select_chain`, FORMAT.md "Which chain is the arm";
-        pinocchio's ``buildReducedModel``: the bodies beyond a fixed joint are merged into the
-        link that carries them). ``gravity`` is given in ``base_link``'s frame; the robot's
-        base frame is the URDF's root link (the same frame where ``base_link`` is the root)."""
+        """Load the robot of a URDF and its drives file.
+
+        The serial chain from ``base_link`` to ``tip_link`` with every other joint fixed
+        (:func:`mocap.urdf.select_chain` [1]_; pinocchio's ``buildReducedModel`` [2]_: the
+        bodies beyond a fixed joint are merged into the link that carries them). ``gravity``
+        is given in ``base_link``'s frame; the robot's base frame is the URDF's root link (the
+        same frame where ``base_link`` is the root).
+
+        Parameters
+        ----------
+        urdf : str or pathlib.Path
+            The URDF file.
+        drives : str or pathlib.Path, optional
+            ``drives.toml`` (:func:`read_drives`); None: drives from the URDF limits.
+        gravity : array_like, optional
+            (3,) gravity in ``base_link``'s frame (m/s^2); default ``(0, 0, -9.81)``.
+        base_link, tip_link : str, optional
+            Ends of the arm's chain (``[robot]`` of ``campaign.toml``); None: the URDF's root
+            and its single serial tip.
+        fixed : dict, optional
+            {joint name: angle (rad)} at which joints off the chain are fixed; default 0.
+        where : pathlib.Path, optional
+            The file that named the chain (``campaign.toml``), for messages.
+
+        Returns
+        -------
+        Robot
+            The arm, its joints in chain order.
+
+        Raises
+        ------
+        InputError
+            If the URDF is missing or unreadable, the chain cannot be selected, or the drives
+            file is invalid or describes another number of joints.
+
+        References
+        ----------
+        .. [1] jointlab data format (docs/format.md), sec. Which chain is the arm.
+        .. [2] Carpentier et al. 2019, the Pinocchio C++ library.
+        """
         import pinocchio as pin
 
         from mocap.urdf import select_chain
@@ -292,7 +402,27 @@ class Robot:
 
     # ---- kinematics ---------------------------------------------------------------------
     def frame_transform(self, name: str, q) -> np.ndarray:
-        """``T_base_<name>`` for q (n,) or (T, n)."""
+        """Pose ``T_base_<name>`` of a link frame at the joint angles ``q``.
+
+        The product of joint placements and rotations about the joint axes (Rodrigues), the
+        forward kinematics of :meth:`mocap.kinematics.Chain.frame_transform` [1]_.
+
+        Parameters
+        ----------
+        name : str
+            A body frame of the URDF (:attr:`link_names`).
+        q : array_like
+            (n,) or (T, n) joint angles (rad).
+
+        Returns
+        -------
+        numpy.ndarray
+            (4, 4) or (T, 4, 4) homogeneous transform from the frame to the base.
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 3-3.
+        """
         return self.chain.frame_transform(name, q)
 
     # ---- dynamics (pinocchio) -------------------------------------------------------------
@@ -311,8 +441,31 @@ class Robot:
         return Robot(model, self.drives, self.gravity, self.urdf, self.selection)
 
     def rnea(self, q, qd, qdd) -> np.ndarray:
-        """Inverse dynamics without friction, (T, n) or (n,): pinocchio's batched RNEA
-        (``rneaInParallel``, one thread; the loop over samples runs in C++)."""
+        r"""Joint torques of the rigid-body model without friction (inverse dynamics).
+
+        .. math::
+
+            \tau = M(q)\,\ddot{q} + V(q, \dot{q})\,\dot{q} + G(q)
+
+        the link side of thesis eq. 2-1 [1]_ by the recursive Newton-Euler algorithm:
+        pinocchio's batched RNEA [2]_ (``rneaInParallel``, one thread; the loop over samples
+        runs in C++).
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like
+            (n,) or (T, n) joint angles (rad), velocities (rad/s), accelerations (rad/s^2).
+
+        Returns
+        -------
+        numpy.ndarray
+            (T, n) or (n,) torques (N m).
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 2-1.
+        .. [2] Carpentier et al. 2019, the Pinocchio C++ library.
+        """
         import pinocchio as pin
 
         q, qd, qdd = (np.atleast_2d(np.asarray(a, float)) for a in (q, qd, qdd))
@@ -328,6 +481,23 @@ class Robot:
         return out if out.shape[0] > 1 else out[0]
 
     def mass_matrix(self, q) -> np.ndarray:
+        """Joint-space inertia matrix ``M(q)`` of thesis eq. 2-1 [1]_ (pinocchio's CRBA [2]_).
+
+        Parameters
+        ----------
+        q : array_like
+            (n,) joint angles (rad).
+
+        Returns
+        -------
+        numpy.ndarray
+            (n, n) symmetric inertia matrix (kg m^2).
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 2-1.
+        .. [2] Carpentier et al. 2019, the Pinocchio C++ library.
+        """
         import pinocchio as pin
 
         data = self.model.createData()
@@ -335,7 +505,24 @@ class Robot:
         return np.triu(M) + np.triu(M, 1).T
 
     def gravity_torque(self, q) -> np.ndarray:
-        """Generalised gravity torque, (T, n) or (n,)."""
+        """Generalised gravity torque ``G(q)`` of thesis eq. 2-1 [1]_.
+
+        :meth:`rnea` at zero velocity and acceleration.
+
+        Parameters
+        ----------
+        q : array_like
+            (n,) or (T, n) joint angles (rad).
+
+        Returns
+        -------
+        numpy.ndarray
+            (T, n) or (n,) torques (N m).
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 2-1.
+        """
         q = np.atleast_2d(np.asarray(q, float))
         z = np.zeros_like(q)
         out = np.atleast_2d(self.rnea(q, z, z))
@@ -348,10 +535,33 @@ class Robot:
         return np.array([float(d.extra.get("stiffness", 0.0) or 0.0) for d in self.drives])
 
     def held_deflection(self, q, qd=None, qdd=None, moving=()) -> np.ndarray:
-        """Deflection ``q_link - q_motor = -tau / K`` of the joints *not* in ``moving`` (0-based)
-        at their declared stiffness (FORMAT.md: a braked joint's motor is held, its link gives
-        under the torque it carries: gravity and the coupling from the moving joints, by RNEA).
-        (T, n) or (n,); zeros for moving joints and joints without a declared stiffness."""
+        """Static deflection of the held joints under the torque they carry.
+
+        ``q_link - q_motor = -tau / K`` of the joints *not* in ``moving`` at their declared
+        stiffness: the spring of thesis eq. 2-1 [1]_ with the motor held (a braked joint's
+        motor is held, its link gives under the torque it carries: gravity and the coupling
+        from the moving joints, by :meth:`rnea`) [2]_.
+
+        Parameters
+        ----------
+        q : array_like
+            (n,) or (T, n) link angles (rad).
+        qd, qdd : array_like, optional
+            Velocities (rad/s) and accelerations (rad/s^2) of the same shape; None: zero.
+        moving : sequence of int, optional
+            The moving joints (0-based); default none.
+
+        Returns
+        -------
+        numpy.ndarray
+            (T, n) or (n,) deflections (rad); zeros for moving joints and joints without a
+            declared stiffness.
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 2-1.
+        .. [2] jointlab data format (docs/format.md), sec. robot/drives.toml.
+        """
         k = self.stiffness
         single = np.ndim(q) == 1
         q = np.atleast_2d(np.asarray(q, float))
@@ -366,9 +576,34 @@ class Robot:
         return out[0] if single else out
 
     def single_joint_dynamics(self, j: int, q_rest) -> tuple[float, float, float]:
-        """For joint ``j`` (0-based) moving alone with the others held at ``q_rest``:
-        the constants ``(I, a, b)`` with ``tau_j = I qdd + a sin(q_j) + b cos(q_j)`` exactly
-        (link inertia about the axis is constant; gravity torque is a sinusoid in q_j)."""
+        r"""Constants of the one-link model of a joint moving alone.
+
+        For joint ``j`` moving with the others held at ``q_rest``:
+
+        .. math::
+
+            \tau_j = I \ddot{q}_j + a \sin q_j + b \cos q_j
+
+        exactly (link inertia about the axis is constant; gravity torque is a sinusoid in
+        ``q_j``): the link side of thesis eq. 2-2 [1]_ with ``a = -m g l_x``, ``b = m g l_y``.
+
+        Parameters
+        ----------
+        j : int
+            The joint, 0-based.
+        q_rest : array_like
+            (n,) angles of every joint (rad); entry ``j`` is ignored.
+
+        Returns
+        -------
+        tuple of float
+            ``(I, a, b)``: inertia about the axis (kg m^2), the sine and cosine gravity
+            coefficients (N m).
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 2-2.
+        """
         q0 = np.array(q_rest, float)
         M = self.mass_matrix(q0)
         I = float(M[j, j])

@@ -54,15 +54,49 @@ _CHI3_MEDIAN = 1.5382  # median of the norm of a 3-D standard normal vector
 class SolveResult:
     """Angles and diagnostics of a batched per-frame solve.
 
-    q : (T, n) joint angles; solved columns from the markers (NaN where ``valid`` is False),
-        held columns the values used.
+    What :meth:`MarkerSolver.fit` returns: the minimiser of thesis eq. 3-5 [1]_ in every frame,
+    with the residuals, inliers and flags that say which frames to trust [2]_.
 
-    joints : the solved joints, 0-based.
-    residual_m : (T, M) residual norm of each marker (NaN where missing or not used).
-    inlier : (T, M) markers used in the final least-squares polish.
-    rms_m : (T,) RMS residual of the inlier markers.  n_markers : (T,) inlier count.
-    stderr : (T, S) standard error of the solved angles (pooled noise, per-frame geometry).
-    flags : (T,) bit field, see ``FLAG_NAMES``.  swaps : list of (frame, label_a, label_b).
+    Attributes
+    ----------
+    q : numpy.ndarray
+        (T, n) joint angles (rad); solved columns from the markers (NaN where :attr:`valid` is
+        False), held columns the values used.
+    joints : tuple of int
+        The solved joints, 0-based.
+    labels : tuple of str
+        The M marker labels, in column order.
+    residual_m : numpy.ndarray
+        (T, M) residual norm of each marker (m; NaN where missing or not used).
+    inlier : numpy.ndarray
+        (T, M) bool, markers used in the final least-squares polish.
+    rms_m : numpy.ndarray
+        (T,) RMS residual of the inlier markers (m).
+    n_markers : numpy.ndarray
+        (T,) inlier count.
+    stderr : numpy.ndarray
+        (T, S) standard error of the solved angles (rad; pooled noise, per-frame geometry).
+    flags : numpy.ndarray
+        (T,) bit field, see ``FLAG_NAMES``.
+    swaps : tuple
+        ``(frame, label_a, label_b)`` label swaps repaired.
+    iterations : int
+        Gauss-Newton iterations of the final stage.
+    sigma_m : float
+        Estimated per-axis marker noise (m).
+    reject_m : float
+        The inlier threshold used (m).
+    method : str
+        ``"closed_form"`` (one joint) or the iterative method's name.
+    model_markers : numpy.ndarray or None
+        (T, M, 3) the model's marker positions at the solved angles (m), when kept.
+    cond : numpy.ndarray or None
+        (T,) bound on the condition number of ``J^T J``.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-5.
+    .. [2] jointlab data format (docs/format.md), sec. What the workbench writes.
     """
 
     q: np.ndarray
@@ -116,22 +150,61 @@ class SolveResult:
 
 
 class MarkerSolver:
-    """Batched per-frame solve of eq. 3-5.
+    r"""Batched per-frame solve of the link angles from markers (thesis eq. 3-5).
+
+    In every frame ``t``, the solved joints' angles minimise the distance between the measured
+    markers and the static-pose references carried by the chain [1]_:
+
+    .. math::
+
+        \hat{q}_t = \arg\min_q \sum_m \rho\left(\lVert p_{m,t} - T_{b,j(m)}(q)\,
+        r_m \rVert\right)
+
+    (``p`` in the base frame, ``r_m`` the eq. 3-4 reference of marker ``m`` in the frame of its
+    joint ``j(m)``); a robust Cauchy stage ``rho`` first, then least squares on the inliers.
 
     Parameters
     ----------
-    chain : :class:`mocap.kinematics.Chain`.
-    joints : solved joints, 0-based; the others are held at the guess.
-    marker_joint : (M,) the joint that carries each marker's link (-1: the base).
-    p_joint : (M, 3) each marker in the frame of that joint (eq. 3-4 references, re-expressed).
-    labels : M marker labels (for reports).
-    robust_scale_m : Cauchy scale of the first, robust stage.
-    reject_sigma : final inlier threshold in units of the estimated per-axis noise (3-D norm).
-    reject_floor_m : the threshold never goes below this.
-    min_markers : a frame needs at least this many inlier markers distal to each solved joint.
-    max_cond : frames whose normal matrix is worse conditioned are flagged.
-    detect_swaps : repair label swaps between pairs of rejected markers.
-    closed_form : use the exact 1-D solution when one joint is solved.
+    chain : mocap.kinematics.Chain
+        The kinematic chain.
+    joints : sequence of int
+        Solved joints, 0-based; the others are held at the guess.
+    marker_joint : array_like
+        (M,) the joint that carries each marker's link (-1: the base).
+    p_joint : array_like
+        (M, 3) each marker in the frame of that joint (eq. 3-4 references, re-expressed; m).
+    labels : sequence of str, optional
+        M marker labels (for reports); default ``m0, m1, ...``.
+    robust_scale_m : float, optional
+        Cauchy scale of the first, robust stage (m).
+    reject_sigma : float, optional
+        Final inlier threshold in units of the estimated per-axis noise (3-D norm).
+    reject_floor_m : float, optional
+        The threshold never goes below this (m).
+    min_markers : int, optional
+        A frame needs at least this many inlier markers distal to each solved joint.
+    max_iter : int, optional
+        Gauss-Newton iterations per stage, at most.
+    irls_iter : int, optional
+        Reweighting rounds of the robust stage.
+    tol : float, optional
+        Step size (rad) below which the iteration stops.
+    max_cond : float, optional
+        Frames whose normal matrix is worse conditioned are flagged.
+    detect_swaps : bool, optional
+        Repair label swaps between pairs of rejected markers.
+    closed_form : bool, optional
+        Use the exact 1-D solution when one joint is solved.
+
+    Raises
+    ------
+    ValueError
+        If ``joints`` is empty, repeats or is out of range, or ``marker_joint`` and
+        ``p_joint`` disagree on the number of markers.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-4, 3-5.
     """
 
     def __init__(self, chain, joints, marker_joint, p_joint, labels=None, *,
@@ -165,8 +238,29 @@ class MarkerSolver:
 
     # ------------------------------------------------------------------------------------------
     def fit(self, p_base: np.ndarray, q_guess: np.ndarray) -> SolveResult:
-        """Solve every frame. ``p_base`` (T, M, 3) measured markers in the base frame (NaN =
-        missing); ``q_guess`` (T, n) motor angles (the initial guess, eq. 3-5) and held angles."""
+        """Solve every frame: the minimiser of thesis eq. 3-5 [1]_ per frame.
+
+        Parameters
+        ----------
+        p_base : numpy.ndarray
+            (T, M, 3) measured markers in the base frame (m; NaN: missing).
+        q_guess : numpy.ndarray
+            (T, n) motor angles (the initial guess of eq. 3-5) and the held angles (rad).
+
+        Returns
+        -------
+        SolveResult
+            The angles and the per-frame diagnostics.
+
+        Raises
+        ------
+        ValueError
+            If ``p_base`` is not (T, M, 3) or ``q_guess`` not (T, n).
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 3-5.
+        """
         Y = np.array(p_base, float)
         q_guess = np.atleast_2d(np.asarray(q_guess, float))
         T, M = Y.shape[0], self.p_joint.shape[0]
@@ -602,10 +696,43 @@ class _Chain:
 # ---- campaign level --------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class AnglesResult:
-    """Link angles of one trial (FORMAT.md ``angles/<trial id>.csv``) with the solve diagnostics.
+    """Link angles of one trial with the solve diagnostics.
 
-    ``q_link`` (T, S) link angles of the trial's joints (NaN in flagged frames), ``q_motor`` (T, S)
-    the motor angles interpolated onto the marker times (the initial guess)."""
+    What :func:`solve_trial` returns and ``angles/<trial id>.csv`` holds (:meth:`write_csv`)
+    [1]_: the per-frame solution of thesis eq. 3-5 [2]_.
+
+    Attributes
+    ----------
+    trial_id : str
+        The trial's id in the manifest.
+    time : numpy.ndarray
+        (T,) marker times (s).
+    joints : tuple of int
+        The trial's joints, 1-based as in the manifest.
+    q_link : numpy.ndarray
+        (T, S) link angles of the trial's joints (rad; NaN in flagged frames).
+    q_motor : numpy.ndarray
+        (T, S) the motor angles interpolated onto the marker times (the initial guess).
+    rms_m : numpy.ndarray
+        (T,) RMS marker residual (m).
+    n_markers : numpy.ndarray
+        (T,) inlier markers per frame.
+    flags : numpy.ndarray
+        (T,) bit field, see ``FLAG_NAMES``.
+    solve : SolveResult
+        The full solve.
+    absent_labels : tuple of str
+        Markers of the moving links missing from the marker file.
+    refinement : dict or None
+        Summary of the marker refinement (:func:`refine_markers`), when run.
+    fixed_markers : dict or None
+        Residuals of markers on links the trial does not move (a drift check).
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. What the workbench writes.
+    .. [2] PA10 thesis (seeds 002), eq. 3-5.
+    """
 
     trial_id: str
     time: np.ndarray
@@ -680,14 +807,41 @@ def motor_guess(log, time: np.ndarray, moving) -> np.ndarray:
 
 
 def held_placement(robot, trial, log, time: np.ndarray, q_guess: np.ndarray, moving) -> np.ndarray:
-    """``q_guess`` with the braked joints at their nominal *link* angle: the encoder angle less
-    the deflection of the declared stiffness under the torque each joint carries (gravity and the
-    coupling from the moving joints, payload included; :meth:`mocap.robot.Robot.held_deflection`).
-    A braked joint's motor is held but its link gives (FORMAT.md ``stiffness``); placing its
-    markers at the encoder angle puts that deflection into the solved angle of a moving joint
-    whose axis is parallel (measured on the foreign world, ind6 joint 3 with joint 2 braked:
-    0.1 mrad that switches with the torque, the size of a dead band). Unchanged when no joint
-    declares a stiffness."""
+    """The initial guess with the braked joints at their nominal link angle.
+
+    ``q_guess`` with each braked joint at its encoder angle less the deflection of the declared
+    stiffness under the torque it carries (gravity and the coupling from the moving joints,
+    payload included; :meth:`mocap.robot.Robot.held_deflection`, the spring of thesis eq. 2-1
+    [1]_). A braked joint's motor is held but its link gives (``stiffness`` in the data format
+    [2]_); placing its markers at the encoder angle would put that deflection into the solved
+    angle of a moving joint whose axis is parallel. Unchanged when no joint declares a
+    stiffness.
+
+    Parameters
+    ----------
+    robot : mocap.robot.Robot or None
+        The robot (None: unchanged).
+    trial : mocap.io.campaign.Trial
+        The trial (its payload ``load_kg`` and centre of mass).
+    log : mocap.io.robotlog.RobotLog
+        The trial's robot log (the moving joints' velocity and acceleration).
+    time : numpy.ndarray
+        (T,) marker times on the log's clock (s).
+    q_guess : numpy.ndarray
+        (T, n) motor angles at ``time`` (rad).
+    moving : sequence of int
+        The trial's moving joints, 0-based.
+
+    Returns
+    -------
+    numpy.ndarray
+        (T, n) ``q_guess`` with the held joints' columns corrected.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1.
+    .. [2] jointlab data format (docs/format.md), sec. robot/drives.toml.
+    """
     from scipy.signal import savgol_filter
 
     if robot is None or not (robot.stiffness > 0).any() or time.size == 0:
@@ -720,15 +874,52 @@ def held_placement(robot, trial, log, time: np.ndarray, q_guess: np.ndarray, mov
 def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robot=None,
                 refine: bool = False, refine_geometry: bool = False,
                 **solver_settings) -> AnglesResult:
-    """Link angles of one trial (thesis eq. 3-5) from its marker file and robot log.
+    """Solve the link angles of one trial from its marker file and robot log.
 
-    ``trial``: a :class:`mocap.io.campaign.Trial` or its id. ``references``: from
-    :func:`mocap.references.build_references`. ``T_camera_base`` defaults to the one the references
-    were built with (pass another only if the references were built with it too). The markers
-    are moved into the robot base frame; only markers on links moved by the trial's joints are
-    used. ``refine``: re-estimate the marker positions over the trial's frames, anchored by the
-    static poses (:func:`refine_markers`); ``refine_geometry``: also fit small placement offsets
-    of the moving joints (axis tilt and position). ``solver_settings`` go to :class:`MarkerSolver`."""
+    The per-frame minimisation of thesis eq. 3-5 [1]_ (:class:`MarkerSolver`), started from the
+    motor angles. The markers are moved into the robot base frame; only markers on links moved
+    by the trial's joints are used; the log's clock is ``t_marker + time_offset`` [2]_.
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The loaded campaign.
+    trial : mocap.io.campaign.Trial or str
+        The trial or its id.
+    references : mocap.references.References
+        The static-pose marker references (:func:`mocap.references.build_references`).
+    T_camera_base : array_like, optional
+        (4, 4) base pose in the camera frame; default the one the references were built with
+        (pass another only if the references were built with it too).
+    sink : viz.Sink, optional
+        Where to log the solve for viewing; None: nowhere.
+    robot : mocap.robot.Robot, optional
+        The robot; default ``campaign.load_robot()``.
+    refine : bool, optional
+        Re-estimate the marker positions over the trial's frames, anchored by the static poses
+        (:func:`refine_markers`).
+    refine_geometry : bool, optional
+        Also fit small placement offsets of the moving joints (axis tilt and position).
+    **solver_settings
+        Keyword settings of :class:`MarkerSolver`.
+
+    Returns
+    -------
+    AnglesResult
+        The link angles of the trial's joints at the marker times, with diagnostics.
+
+    Raises
+    ------
+    InputError
+        If a link has fewer than 3 markers, no marked link moves, a marker lacks a static
+        reference, none of the moving links' markers is in the marker file, or the log lacks
+        a joint angle needed to place the markers.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-3 to 3-5.
+    .. [2] jointlab data format (docs/format.md), sec. campaign.toml.
+    """
     from mocap.io.errors import InputError
     from mocap.kinematics import apply_transform, invert_transform
 
@@ -903,16 +1094,57 @@ def _static_model(chain, mj, p_joint, q_s):
 def refine_markers(chain, joints, marker_joint, p_joint, p_base, q_guess, static=(),
                    iterations: int = 4, labels=None, geometry: bool = False,
                    max_frames: int = 1500, max_nfev: int = 8, **solver_settings) -> RefineResult:
-    """Alternate the batched angle solve (eq. 3-5) with the closed-form update of every marker's
-    position in its link frame (eq. 3-4 averaged over all trial frames, inliers only); then, with
-    ``geometry``, a joint least-squares fit of small placement offsets of the solved joints (axis
-    tilt and position, :func:`offset_chain`) and the marker positions, the angles re-solved inside
-    every evaluation (variable projection, on at most ``max_frames`` frames; finite-difference
-    Jacobian, so this costs ~(4 S + 3 M) batched solves per iteration).
+    """Re-estimate the marker references together with the angles over a trial's frames.
 
-    ``static``: ``(q (n,), p_base (M, 3), weight (M,))`` tuples, the static poses with their known
-    encoder angles; they anchor the gauge (a rotation of a link's markers about the joint axis is
-    otherwise indistinguishable from an angle offset)."""
+    Alternates the batched angle solve (thesis eq. 3-5 [1]_) with the closed-form update of
+    every marker's position in its link frame (eq. 3-4 averaged over all trial frames, inliers
+    only); then, with ``geometry``, a joint least-squares fit of small placement offsets of the
+    solved joints (axis tilt and position, :func:`offset_chain`) and the marker positions, the
+    angles re-solved inside every evaluation (variable projection [2]_, on at most
+    ``max_frames`` frames; finite-difference Jacobian, so this costs ~(4 S + 3 M) batched
+    solves per iteration). The static poses anchor the gauge (a rotation of a link's markers
+    about the joint axis is otherwise indistinguishable from an angle offset).
+
+    Parameters
+    ----------
+    chain : mocap.kinematics.Chain
+        The kinematic chain.
+    joints : sequence of int
+        Solved joints, 0-based.
+    marker_joint : array_like
+        (M,) the joint carrying each marker (-1: the base).
+    p_joint : array_like
+        (M, 3) starting references in the frame of each marker's joint (m).
+    p_base : numpy.ndarray
+        (T, M, 3) measured markers in the base frame (m; NaN: missing).
+    q_guess : numpy.ndarray
+        (T, n) initial and held angles (rad).
+    static : sequence of tuple, optional
+        ``(q (n,), p_base (M, 3), weight (M,))`` per static pose, with its known encoder
+        angles.
+    iterations : int, optional
+        Outer iterations (default 4).
+    labels : sequence of str, optional
+        Marker labels (for reports).
+    geometry : bool, optional
+        Also fit the joint placement offsets.
+    max_frames : int, optional
+        Frames used by the geometry fit, at most.
+    max_nfev : int, optional
+        Function evaluations of the geometry fit per iteration.
+    **solver_settings
+        Keyword settings of :class:`MarkerSolver`.
+
+    Returns
+    -------
+    RefineResult
+        The refined references, offsets and the final solve.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-4, 3-5.
+    .. [2] Golub & Pereyra 1973, variable projection.
+    """
     from scipy.optimize import least_squares
 
     joints = tuple(sorted(int(j) for j in joints))

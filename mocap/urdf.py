@@ -117,14 +117,43 @@ def _urdf_joints(root) -> dict:
 
 def select_chain(urdf: str | Path, base_link: str | None = None, tip_link: str | None = None,
                  fixed: dict | None = None, where: Path | None = None) -> ChainSelection:
-    """The arm chain of ``urdf`` and the values every other moving joint is fixed at.
+    """The arm chain of a URDF and the values every other moving joint is fixed at.
 
-    ``base_link``/``tip_link`` default to the URDF's root link and its single leaf link. Without
-    either, a URDF whose moving joints all lie on one path from the root is the chain as it is
-    (links hanging off it on fixed joints are kept as they are). A joint outside the chain is
-    fixed at ``fixed[name]`` (radians or metres), default 0, or the nearer limit where 0 lies
-    outside the joint's limits. ``where`` (the manifest) is named in errors about ``fixed`` and
-    the link names."""
+    Without ``base_link`` and ``tip_link``, a URDF whose moving joints all lie on one path from
+    the root is the chain as it is (links hanging off it on fixed joints are kept as they are)
+    [1]_. A joint outside the chain is fixed at ``fixed[name]``, default 0, or the nearer limit
+    where 0 lies outside the joint's limits.
+
+    Parameters
+    ----------
+    urdf : str or pathlib.Path
+        The URDF file.
+    base_link : str, optional
+        First link of the chain; default the URDF's root link.
+    tip_link : str, optional
+        Last link of the chain; default the root's single leaf link.
+    fixed : dict, optional
+        {joint name: value (rad or m)} for joints outside the chain.
+    where : pathlib.Path, optional
+        The file named in errors about ``fixed`` and the link names (the manifest); default
+        ``urdf``.
+
+    Returns
+    -------
+    ChainSelection
+        The chain's ends, its joints, the locked joints with their values, and whether the
+        URDF had to be reduced.
+
+    Raises
+    ------
+    InputError
+        If a link is unknown, the tip is not below the base, the chain is ambiguous, or
+        ``fixed`` names a joint on the chain or an unknown one.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Which chain is the arm.
+    """
     urdf = Path(urdf)
     where = where or urdf
     root_el = _parse(urdf).getroot()
@@ -415,8 +444,25 @@ def urdf_visuals(urdf: str | Path, *, kind: str = "visual", missing: str = "rais
 
 
 def missing_meshes(urdf: str | Path) -> list[str]:
-    """The distinct mesh URIs of ``urdf`` (visual and collision) that resolve to no file, in
-    document order (meshes are optional, FORMAT.md: a vendor URDF often ships without them)."""
+    """The distinct mesh URIs of a URDF that resolve to no file.
+
+    Visual and collision meshes, in document order; meshes are optional (a vendor URDF often
+    ships without them) [1]_.
+
+    Parameters
+    ----------
+    urdf : str or pathlib.Path
+        The URDF file.
+
+    Returns
+    -------
+    list of str
+        The unresolved ``filename`` attributes; empty when every mesh is found.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Layout.
+    """
     urdf = Path(urdf)
     out = []
     for mesh in _parse(urdf).getroot().iter("mesh"):
@@ -501,11 +547,27 @@ _JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed", "floating", "pla
 
 
 def check_urdf(urdf) -> None:
-    """Validate a URDF before a library reads it, in one :class:`InputError` line naming the
-    element: XML, unique link and joint names, joints whose parent and child are links, one
+    """Validate a URDF before a library reads it.
+
+    Checks XML, unique link and joint names, joints whose parent and child are links, one
     root, known joint types, finite numbers in origins, axes, limits, masses and inertias,
-    ``lower <= upper``, non-negative effort, velocity and mass. (A C++ URDF parser otherwise
-    prints several lines of its own, or reads ``xyz="0 0 abc"`` as a number.)"""
+    ``lower <= upper``, non-negative effort, velocity and mass [1]_. (A C++ URDF parser
+    otherwise prints several lines of its own, or reads ``xyz="0 0 abc"`` as a number.)
+
+    Parameters
+    ----------
+    urdf : str or pathlib.Path
+        The URDF file.
+
+    Raises
+    ------
+    InputError
+        On the first violation, in one line naming the element.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Layout.
+    """
     urdf = Path(urdf)
     root = _parse(urdf).getroot()
     links = [ln.get("name") for ln in root.findall("link")]

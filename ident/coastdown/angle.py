@@ -193,8 +193,8 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3 (the rigid coast this extends to two masses).
+    .. [1] Coast-down friction identification (seeds 000), eq. 3 (the rigid coast this extends to
+       two masses).
     """
     tau = np.asarray(tau, float)
     kk = np.arange(tau.size) if kk is None else np.asarray(kk)
@@ -291,8 +291,15 @@ def coast_stop(J, Kv, Kc_eff, w):
 
 
 def coast_angle(tau, J, Kv, Kc_eff, w):
-    """Displacement ``x(tau)`` (rad) after a release at speed ``w > 0``: eq. 4 integrated,
-    held at its value at the stop ``tau_s`` (no stop where ``Kc_eff <= 0``). Broadcasts.
+    r"""Angle travelled after a release at speed ``w > 0``: the coast-down's eq. 4 integrated.
+
+    .. math::
+
+        x(\tau) = \frac{J}{K_v}\left(w + \frac{K_c}{K_v}\right)
+        \left(1 - e^{-K_v \tau / J}\right) - \frac{K_c}{K_v}\, \tau
+
+    held at its value at the stop ``tau_s`` (no stop where ``Kc_eff <= 0``) [1]_, with
+    ``K_c = Kc_eff``. Broadcasts.
 
     Parameters
     ----------
@@ -316,8 +323,7 @@ def coast_angle(tau, J, Kv, Kc_eff, w):
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+    .. [1] Coast-down friction identification (seeds 000), eq. 3-4.
 
     Examples
     --------
@@ -429,10 +435,11 @@ class CoastWindow:
 def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravity=None,
                 pre_s: float = 0.15, rest_s: float = 0.05, min_pre: int = 5,
                 jump_sigmas: float = 8.0) -> list[CoastWindow]:
-    """Coast phases of a one-joint record: the drive torque drops to a level it keeps while
-    the joint, moving at ``|v| >= v_min`` at the cut, comes to rest.
+    """Find the coast phases of a one-joint record.
 
-    The joint is at rest from sample ``s`` when the angle stays within one encoder step
+    A coast: the drive torque drops to a level it keeps while the joint, moving at
+    ``|v| >= v_min`` at the cut, comes to rest (the free deceleration of the coast-down
+    paper's eq. 3 [1]_). The joint is at rest from sample ``s`` when the angle stays within one encoder step
     (``resolution``) for ``rest_s`` seconds (at least 3 samples). For each such start of rest,
     the torque level ``L`` of the coast is the median of the logged torque over the first rest
     samples, its noise the scaled MAD; walking back from ``s``, the last sample whose torque
@@ -476,8 +483,8 @@ def find_coasts(t, qm, tau, *, resolution: float, v_min: float, J: float, gravit
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3 (the coast the drive's cut starts).
+    .. [1] Coast-down friction identification (seeds 000), eq. 3 (the coast the drive's cut
+       starts).
 
     Examples
     --------
@@ -631,8 +638,8 @@ class AngleCoastFit:
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), sec. 3 (maximum likelihood on eq. 4, here integrated to the angle).
+    .. [1] Coast-down friction identification (seeds 000), sec. 3 (maximum likelihood on eq. 4,
+       here integrated to the angle).
 
     Examples
     --------

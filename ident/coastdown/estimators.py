@@ -72,13 +72,52 @@ __all__ = ["CoastdownResult", "CoastdownBound", "CoastdownSim", "coast_velocity"
 # -- results ------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CoastdownResult:
-    """Identified ``Kv`` (N m s/rad), ``Kc`` (N m) and the initial speed ``v0`` (rad/s).
+    r"""Identified viscous and Coulomb friction of a coast-down, and the release speed.
 
-    ``stderr`` maps parameter names to standard errors (from the time-domain residuals and
-    the analytic Jacobian; NaN where the method gives none), ``rms`` is the RMS of the
-    velocity residual of eq. 4 with the stop (rad/s), ``t_stop`` the predicted stop time
-    after ``t0`` (the release time on the caller's clock), ``direction`` the sign of the
-    coasting velocity in the caller's data.
+    The parameters of the coast-down's velocity, eq. 4 of the coast-down paper [1]_ with the
+    stop,
+
+    .. math::
+
+        v(t) = \max\left((v_0 + K_c/K_v)\, e^{-K_v t / J} - K_c/K_v,\; 0\right)
+
+    as every estimator of this module returns them (:func:`tdm`, :func:`fdm`, :func:`nls`).
+
+    Attributes
+    ----------
+    Kv : float
+        Viscous coefficient (N m s/rad).
+    Kc : float
+        Coulomb level (N m).
+    v0 : float
+        Speed at the release (rad/s).
+    stderr : dict
+        Parameter name -> standard error (from the time-domain residuals and the analytic
+        Jacobian; NaN where the method gives none).
+    rms : float
+        RMS of the velocity residual of eq. 4 with the stop (rad/s).
+    method : str
+        The estimator (``"tdm"``, ``"fdm"``, ``"nls"``).
+    converged : bool
+        Whether the estimator's iteration converged.
+    iterations : int
+        Its iterations.
+    cond : float
+        Condition number of the estimator's normal matrix (NaN: none).
+    t_stop : float
+        Predicted stop time after ``t0`` (s).
+    t0 : float
+        The release time on the caller's clock (s).
+    n_samples : int
+        Samples used.
+    direction : int
+        Sign of the coasting velocity in the caller's data.
+    diagnostics : dict
+        Estimator-specific details.
+
+    References
+    ----------
+    .. [1] Coast-down friction identification (seeds 000), eq. 1-4.
     """
 
     Kv: float
@@ -171,8 +210,7 @@ def stop_time(J: float, Kv: float, Kc: float, v0: float) -> float:
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eq. 3-4.
+    .. [1] Coast-down friction identification (seeds 000), eq. 3-4.
 
     Examples
     --------
@@ -209,8 +247,7 @@ def coast_velocity(t, J: float, Kv: float, Kc: float, v0: float, stop: bool = Tr
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+    .. [1] Coast-down friction identification (seeds 000), eq. 3-4.
 
     Examples
     --------
@@ -338,8 +375,7 @@ def tdm(t, v, J: float, v0: float | None = None, *, kv_range=None, n_grid: int =
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 4-6 and Table 2.
+    .. [1] Coast-down friction identification (seeds 000), eq. 4-6 and Table 2.
 
     Examples
     --------
@@ -438,8 +474,7 @@ def record_spectrum(t, v, w_max: float, pad: int = 64):
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 7-8.
+    .. [1] Coast-down friction identification (seeds 000), eq. 7-8.
 
     Examples
     --------
@@ -499,8 +534,7 @@ def fdm_batch(t, v, J: float, v0, *, w_max: float = 30.0, pad: int = 64):
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 9-11.
+    .. [1] Coast-down friction identification (seeds 000), eq. 9-11.
     """
     v = np.atleast_2d(np.asarray(v, float))
     _check(t, v[0], "fdm", uniform=True)
@@ -550,8 +584,7 @@ def fdm(t, v, J: float, v0: float | None = None, *, w_max: float | None = None,
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 7-11.
+    .. [1] Coast-down friction identification (seeds 000), eq. 7-11.
 
     Examples
     --------
@@ -604,10 +637,11 @@ def _initial_guess(tr, v, J, v0):
 
 
 def nls(t, v, J: float, v0: float | None = None, *, x0=None, max_nfev: int = 200) -> CoastdownResult:
-    """Maximum likelihood (white Gaussian noise) = nonlinear least squares on eq. 4 WITH the
-    stop time: ``v = max((v0 + Kc/Kv) exp(-Kv t/J) - Kc/Kv, 0)``; estimates (Kv, Kc) and
-    ``v0`` unless ``v0`` is given. The record may extend past the stop. ``x0`` optionally
-    starts the solver at (Kv, Kc[, v0]).
+    """Fit a coast-down's friction by nonlinear least squares on eq. 4 with the stop.
+
+    Maximum likelihood in white Gaussian noise: ``v = max((v0 + Kc/Kv) exp(-Kv t/J) - Kc/Kv,
+    0)`` [1]_; estimates (Kv, Kc) and ``v0`` unless ``v0`` is given. The record may extend
+    past the stop. ``x0`` optionally starts the solver at (Kv, Kc[, v0]).
 
     Parameters
     ----------
@@ -629,8 +663,7 @@ def nls(t, v, J: float, v0: float | None = None, *, x0=None, max_nfev: int = 200
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), sec. 3, eq. 4 with the stop.
+    .. [1] Coast-down friction identification (seeds 000), eq. 4 with the stop.
 
     Examples
     --------
@@ -686,9 +719,16 @@ def nls(t, v, J: float, v0: float | None = None, *, x0=None, max_nfev: int = 200
 # -- Cramer-Rao bound ---------------------------------------------------------------------
 def crb(t, J: float, Kv: float, Kc: float, v0: float, sigma: float, *,
         estimate_v0: bool = False) -> CoastdownBound:
-    """Cramer-Rao bound for (Kv, Kc[, v0]) from samples at ``t`` (release at ``t[0]``) of
-    eq. 4 with the stop, in white Gaussian noise of std ``sigma``:
-    ``cov >= (G^T G / sigma^2)^-1`` with ``G`` the analytic Jacobian of the model.
+    r"""Cramer-Rao bound of the coast-down parameters (Kv, Kc[, v0]).
+
+    For samples at ``t`` (release at ``t[0]``) of eq. 4 with the stop [1]_, in white
+    Gaussian noise of standard deviation ``sigma``:
+
+    .. math::
+
+        \operatorname{cov} \succeq \left(G^T G / \sigma^2\right)^{-1}
+
+    with ``G`` the analytic Jacobian of the model.
 
     Parameters
     ----------
@@ -708,8 +748,8 @@ def crb(t, J: float, Kv: float, Kc: float, v0: float, sigma: float, *,
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), Table 2 (the relative errors this bounds).
+    .. [1] Coast-down friction identification (seeds 000), eq. 4 and Table 2 (the relative
+       errors this bounds).
 
     Examples
     --------
@@ -759,8 +799,8 @@ def simulate_sdof_coastdown(J: float, Kv: float, Kc: float, v0: float, fs: float
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), Table 1 (the simulated rotor) and Table 2 (the SNRs).
+    .. [1] Coast-down friction identification (seeds 000), Table 1 (the simulated rotor) and Table
+       2 (the SNRs).
 
     Examples
     --------
@@ -880,8 +920,7 @@ def coastdown_from_trial(t, qd, J: float, tau=None, coasting=None, *, method: st
 
     References
     ----------
-    .. [1] "Research on the identification methods of friction in kinematical joints of
-       mechanical systems" (the coast-down paper, ``../shared/seeds/000_*``), eqs. 3-4.
+    .. [1] Coast-down friction identification (seeds 000), eq. 3-4.
 
     Examples
     --------

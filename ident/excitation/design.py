@@ -63,8 +63,7 @@ def regressor_cond(q, qd, qdd) -> float:
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eqs. 2-4, 2-5 and 3-1.
+    .. [1] PA10 thesis (seeds 002), eq. 2-4, 2-5 and 3-1.
 
     Examples
     --------
@@ -162,8 +161,7 @@ class ExcitationDesigner:
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eqs. 3-1 and 3-2.
+    .. [1] PA10 thesis (seeds 002), eq. 3-1 and 3-2.
 
     Examples
     --------
@@ -287,8 +285,10 @@ class ExcitationDesigner:
 
 
 def limits_from_robot(robot, joint: int, qdd_max: float | None = None, q_rest=None) -> DesignLimits:
-    """Limits of joint ``joint`` (1-based) from a :class:`mocap.robot.Robot`: position and speed
-    from the URDF/drives; acceleration ``qdd_max`` if given, else the drive's
+    """The position, speed and acceleration limits of one joint, from the robot.
+
+    The constraints of the excitation design of thesis eq. 3-1 [1]_: position and speed from
+    the URDF and ``drives.toml`` [2]_; acceleration ``qdd_max`` if given, else the drive's
     ``max_acceleration`` extra key, else half the torque limit over the link-side inertia
     ``I + J`` about the axis at ``q_rest`` (zeros).
 
@@ -307,6 +307,16 @@ def limits_from_robot(robot, joint: int, qdd_max: float | None = None, q_rest=No
     -------
     DesignLimits
         The limits for :meth:`ExcitationDesigner.fit`.
+
+    Raises
+    ------
+    ValueError
+        If ``joint`` is not one of the robot's joints.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-1.
+    .. [2] jointlab data format (docs/format.md), sec. robot/drives.toml.
     """
     j0 = joint - 1
     if not 0 <= j0 < robot.n:

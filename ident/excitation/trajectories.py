@@ -94,8 +94,7 @@ def fourier_excitation(rng: np.random.Generator, vmax: float, vmax_frac: float, 
 
     References
     ----------
-    .. [1] Friction modeling and experimental identification of a Mitsubishi PA10-6CE arm with
-       motion capture (thesis, ``../shared/seeds/002_*``), eq. 3-2.
+    .. [1] PA10 thesis (seeds 002), eq. 3-2.
 
     Examples
     --------
@@ -351,6 +350,11 @@ def min_jerk_path(waypoints, vmax: float, amax: float, hold: float = 0.5) -> Min
     -------
     MinJerkPath
         The trajectory.
+
+    References
+    ----------
+    .. [1] Flash & Hogan 1985, the minimum-jerk model of point-to-point movements.
+    .. [2] jointlab data format (docs/format.md), sec. Campaign format (trial kinds).
 
     Examples
     --------

@@ -174,18 +174,42 @@ class LinkState:
 
 
 class LinkStateEstimator:
-    """Link state from the smoothed encoder angle plus a marker-estimated deflection (see the
-    module docstring).
+    r"""Estimator of a flexible joint's link state from the encoder angle plus a deflection.
 
-    Settings: ``max_bandwidth_hz`` caps the slow deflection's bandwidth (the candidates are
-    ``M = 0, 1, 2, 4, ...`` cosine terms up to it and up to a tenth of the marker samples);
-    ``fit_gain``: fit the gain of the nominal deflection when the markers determine it (a gain
-    within two standard errors of 1, or one with which eq. 2-4 leaves more residual than with
-    the declared stiffness, is fixed at the declared 1); ``nominal_smoother``
-    smooths the nominal deflection (default None: the window and the friction side chosen by
-    the eq. 2-4 residual, :meth:`_nominal_deflection`); ``encoder_windows_s``: the
-    Savitzky-Golay windows at which the raw encoder angle is re-smoothed with the nominal
-    deflection (:meth:`_encoder_candidates`; empty: the encoder as ``motor_fit`` smoothed it).
+    .. math::
+
+        q(t) = q_m(t) + \delta(t), \qquad
+        \delta(t) = \delta_0 + g\, \delta_{nom}(t) + r(t)
+
+    with ``delta_nom = -tau_s / K`` the nominal deflection of the spring of thesis eq. 2-1,
+    2-2 [1]_ under the transmitted torque (the right-hand side of eq. 2-4) and ``r`` a slow
+    cosine series fitted to the marker-minus-encoder samples (module docstring). The
+    attribute ``encoder_windows_s`` holds the Savitzky-Golay windows at which the raw encoder
+    angle is re-smoothed with the nominal deflection (empty: the encoder as ``motor_fit``
+    smoothed it).
+
+    Parameters
+    ----------
+    max_bandwidth_hz : float, optional
+        Cap of the slow deflection's bandwidth (Hz, >= 0; default 5): the candidates are
+        ``M = 0, 1, 2, 4, ...`` cosine terms up to it and up to a tenth of the marker samples,
+        chosen by BIC.
+    fit_gain : bool, optional
+        Fit the gain ``g`` of the nominal deflection when the markers determine it (a gain
+        within two standard errors of 1, or one with which eq. 2-4 leaves more residual than
+        with the declared stiffness, is fixed at the declared 1); default True.
+    nominal_smoother : object, optional
+        Smoother of the nominal deflection; None (default): the window and the friction side
+        chosen by the eq. 2-4 residual.
+
+    Raises
+    ------
+    ValueError
+        If ``max_bandwidth_hz`` is negative.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1, 2-2, 2-4.
     """
 
     def __init__(self, max_bandwidth_hz: float = 5.0, fit_gain: bool = True, nominal_smoother=None):
@@ -447,19 +471,58 @@ def prepare_joint_signals(joint: int, log_time, qm, tau, angle_time=None, q_link
                           time_offset: float | str = 0.0, smoother=None,
                           link_smoother=None, link_method: str = "markers",
                           drive: tuple | None = None, link_estimator=None) -> JointSignals:
-    """Put one joint's link angle (marker clock) and motor angle/torque (robot clock) on the
-    robot log's samples, smoothing both with eq. 3-2 fits and analytic derivatives.
+    """Put one joint's link angle, motor angle and torque on the robot log's samples.
 
-    ``joint`` is 1-based (for naming only); ``qm``, ``tau`` are that joint's log columns.
-    ``q_link`` None: the motor angle stands in for the link angle (``link_source="motor"``).
-    ``time_offset``: seconds added to marker times, or ``"estimate"``.
-    ``link_method``: ``"encoder+deflection"`` (the thesis campaign's; :class:`LinkStateEstimator`:
-    the smoothed encoder angle plus the deflection the markers support; ``drive = (J, B, K)``
-    gives the motor inertia, viscous and declared stiffness (K NaN or None: no nominal
-    deflection) for the nominal deflection ``-(u - J qmdd - B qmd) / K``), or ``"markers"``
-    (default, the thesis's own way: the marker angle smoothed and differentiated by itself, below).
-    For ``"markers"`` the link fit reuses the motor fit's fundamental (same commanded trajectory) and chooses
-    its own number of harmonics. Samples outside the span of both signals are dropped.
+    The link angle (marker clock, ``t_robot = t_marker + time_offset`` [1]_) and the motor
+    angle and torque (robot clock) on the log's samples, both smoothed with eq. 3-2 fits and
+    differentiated analytically [2]_. For ``"markers"`` the link fit reuses the motor fit's
+    fundamental (same commanded trajectory) and chooses its own number of harmonics. Samples
+    outside the span of both signals are dropped.
+
+    Parameters
+    ----------
+    joint : int
+        The joint, 1-based (for naming only).
+    log_time : array_like
+        (T,) the robot log's sample times (s).
+    qm, tau : array_like
+        (T,) that joint's motor angle (rad, link side) and torque (N m) columns.
+    angle_time : array_like, optional
+        Marker times of ``q_link`` (s, marker clock).
+    q_link : array_like, optional
+        Link angle from the markers (rad; NaN in gaps); None: the motor angle stands in for
+        the link angle (``link_source="motor"``).
+    time_offset : float or {"estimate"}, optional
+        Seconds added to marker times (default 0), or ``"estimate"``
+        (:func:`ident.signals.smoothing.estimate_time_offset`).
+    smoother : object, optional
+        Smoother of the motor angle; default :class:`ident.signals.smoothing.FourierSmoother`.
+    link_smoother : object, optional
+        Smoother of the link angle; default a Fourier smoother at the motor fit's fundamental.
+    link_method : {"markers", "encoder+deflection"}, optional
+        ``"markers"`` (default, the thesis's own way: the marker angle smoothed and
+        differentiated by itself) or ``"encoder+deflection"`` (:class:`LinkStateEstimator`:
+        the smoothed encoder angle plus the deflection the markers support).
+    drive : tuple, optional
+        ``(J, B, K)``: motor inertia, viscous coefficient and declared stiffness (K NaN or
+        None: no nominal deflection) for the nominal deflection ``-(u - J qmdd - B qmd) / K``.
+    link_estimator : LinkStateEstimator, optional
+        The estimator of ``"encoder+deflection"``; default settings.
+
+    Returns
+    -------
+    ident.signals.smoothing.JointSignals
+        The joint's signals on the log's samples, with the fits and their errors.
+
+    Raises
+    ------
+    ValueError
+        If ``link_method`` is unknown.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. campaign.toml.
+    .. [2] PA10 thesis (seeds 002), eq. 2-4, 3-2.
     """
     smoother = smoother if smoother is not None else FourierSmoother()
     log_time = np.asarray(log_time, float)

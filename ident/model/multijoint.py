@@ -29,7 +29,26 @@ def _arm(v, flag: dict | None) -> str:
 
 
 def multijoint_trials(campaign) -> tuple:
-    """Trials that move several joints at once."""
+    """The trials of a campaign that move several joints at once.
+
+    Trials with ``joints = [1, 2, ...]`` [1]_, identified through the rigid-body model of
+    thesis eq. 2-1 [2]_ rather than the one-link model of eq. 2-4.
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The loaded campaign.
+
+    Returns
+    -------
+    tuple of mocap.io.campaign.Trial
+        Those trials, in manifest order.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. campaign.toml.
+    .. [2] PA10 thesis (seeds 002), eq. 2-1.
+    """
     return tuple(t for t in campaign.trials if len(t.joints) > 1)
 
 
@@ -141,10 +160,46 @@ class MultiJointFits:
 
 def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | None = None,
                             seed: int = 0, v_zero="auto", **settings) -> MultiJointFits:
-    """Identify every multi-joint trial of ``campaign`` with every friction model.
-    ``v_zero``: ``"auto"`` (default): the low-speed cut of each joint chosen from the data
-    (:func:`ident.model.rigidbody.low_speed_cut`, reported in the preprocessing); a number: a
-    fraction of each joint's 99th-percentile speed (``v_zero_frac``)."""
+    r"""Identify every multi-joint trial of a campaign with every friction model.
+
+    The rigid-body model of thesis eq. 2-1 [1]_ with friction on every joint,
+
+    .. math::
+
+        \tau = Y(q, \dot{q}, \ddot{q})\, \beta + f(\dot{q})
+
+    (``Y beta`` the inverse dynamics linear in the base parameters :func:`base_parameters`,
+    Indri & Trapani's residual torques of eq. 25-26 [2]_), one
+    :class:`ident.model.rigidbody.RigidBodyIdentifier` per trial and model [3]_.
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The loaded campaign.
+    models : sequence of str, optional
+        Friction models by their data-format names (default ``("cv",)``).
+    record : ident.model.record.RecordSettings, optional
+        How the records are prepared (derivatives, repeated rows); default settings.
+    seed : int, optional
+        Seed of the base-parameter states and the multi-start fits (default 0).
+    v_zero : {"auto"} or float, optional
+        ``"auto"`` (default): the low-speed cut of each joint chosen from the data
+        (:func:`ident.model.rigidbody.low_speed_cut`, reported in the preprocessing); a number:
+        a fraction of each joint's 99th-percentile speed (``v_zero_frac``).
+    **settings
+        Keyword settings of :class:`ident.model.rigidbody.RigidBodyIdentifier`.
+
+    Returns
+    -------
+    MultiJointFits
+        ``fits[trial id][model]`` with each trial's preprocessing report and timing.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1.
+    .. [2] Indri & Trapani 2020 (seeds 001), eq. 25-26.
+    .. [3] jointlab multi-joint records (docs/multi-joint.md).
+    """
     import time
 
     from ident.model.regressor import ChainDynamics, base_parameters
@@ -260,16 +315,48 @@ def _join_logs(logs):
 
 def diagnose_records(campaign, robot, settings, joints=None, record: RecordSettings | None = None,
                      n_segments: int | None = None, progress: bool = False) -> tuple[dict, dict]:
-    """The gap diagnosis of every moving joint of the campaign's multi-joint trials, from the
-    CLI. Trials that are pieces of one continuous record (:func:`continuous_records`: a logger
+    """Run the gap diagnosis on every moving joint of the campaign's multi-joint trials.
+
+    Trials that are pieces of one continuous record (:func:`continuous_records`: a logger
     that rotated its files) are joined into that record; each record is prepared like `fit` does
     (:func:`ident.model.record.prepare_record`: repeated rows, irregular steps, derivatives,
     coupling, braked-joint check) and handed to ``ident.gap.data.build_joint_data_record``
     (torque channel; blocks = the joint's motion cycles; held-out folds = the cycles, or
     ``n_segments`` groups of whole cycles); the records of one joint are pooled
     (``ident.gap.data.concat_joint_data``: blocks and folds never across records) into one
-    ``ident.gap.diagnose_joint``. The verdict is therefore one per joint, whatever the number of
-    files the record was written to. Returns ``(joints, series)`` keyed ``"<joint>"``."""
+    ``ident.gap.diagnose_joint`` [1]_. The verdict is therefore one per joint, whatever the
+    number of files the record was written to [2]_.
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The loaded campaign.
+    robot : mocap.robot.Robot
+        Its robot.
+    settings : ident.gap.DiagnosisSettings
+        The diagnosis settings (candidates, nominal model).
+    joints : sequence of int, optional
+        Joints to diagnose (1-based); None: every moving joint.
+    record : ident.model.record.RecordSettings, optional
+        How the records are prepared; default settings.
+    n_segments : int, optional
+        Held-out folds as this many groups of whole motion cycles; None: one fold per cycle.
+    progress : bool, optional
+        Accepted from the CLI; not used (no progress is reported).
+
+    Returns
+    -------
+    reports : dict
+        ``"<joint>"`` -> the diagnosis report (``DiagnosisResult.to_dict()`` with the nominal
+        model, the record's pieces and preprocessing and the folds).
+    series : dict
+        ``"<joint>"`` -> the diagnosis's time series (for plots).
+
+    References
+    ----------
+    .. [1] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    .. [2] jointlab long records (docs/long-records.md).
+    """
     from types import SimpleNamespace
 
     from ident.gap import diagnose_joint

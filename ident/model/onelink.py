@@ -46,7 +46,37 @@ from ident.signals.blas import one_blas_thread
 
 
 def model_class(name: str):
-    """The friction model class registered under ``name`` (FORMAT.md model names)."""
+    """The friction model class registered under a name of the data format.
+
+    ``cv``, ``stribeck``, ``hyperbolic`` (thesis eq. 2-5 to 2-7 [1]_), ``arctan``, ``dm1``,
+    ``dm2`` (Indri & Trapani [2]_): the keys of ``ident.friction.MODELS`` [3]_.
+
+    Parameters
+    ----------
+    name : str
+        The model's name.
+
+    Returns
+    -------
+    type
+        The :class:`ident.friction.FrictionModel` subclass.
+
+    Raises
+    ------
+    KeyError
+        If no model is registered under ``name`` (the message lists the known ones).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-5 to 2-7.
+    .. [2] Indri & Trapani 2020 (seeds 001), eq. 1-2, 5-9.
+    .. [3] jointlab data format (docs/format.md), sec. What the workbench writes.
+
+    Examples
+    --------
+    >>> model_class("cv").__name__
+    'CoulombViscous'
+    """
     if name in MODELS:
         return MODELS[name]
     raise KeyError(f"unknown friction model {name!r} (known: {', '.join(sorted(MODELS))})")
@@ -59,19 +89,93 @@ __all__ = ["RIGID_NAMES", "onelink_target", "onelink_regressor",
 
 
 def onelink_target(u, qmd, qmdd, J: float, B: float) -> np.ndarray:
-    """Right-hand side of eq. 2-4: ``y = u - J qmdd - B qmd`` (N m)."""
+    r"""Torque left for the link side: the right-hand side of thesis eq. 2-4.
+
+    .. math::
+
+        y = u - J \ddot{q}_m - B \dot{q}_m
+
+    the drive torque less the motor side's inertia and viscous torques [1]_.
+
+    Parameters
+    ----------
+    u : array_like
+        (T,) drive torque (N m).
+    qmd, qmdd : array_like
+        (T,) motor velocity (rad/s) and acceleration (rad/s^2), link side.
+    J : float
+        Motor inertia, link side (kg m^2).
+    B : float
+        Motor viscous coefficient, link side (N m s/rad).
+
+    Returns
+    -------
+    numpy.ndarray
+        (T,) the target ``y`` (N m).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4.
+
+    Examples
+    --------
+    >>> onelink_target([1.0], qmd=[2.0], qmdd=[10.0], J=0.05, B=0.1).tolist()
+    [0.3]
+    """
     return np.asarray(u, float) - J * np.asarray(qmdd, float) - B * np.asarray(qmd, float)
 
 
 def onelink_regressor(q, qdd) -> np.ndarray:
-    """Rigid columns of eq. 2-4, (T, 3): ``[qdd, -sin q, cos q]`` for ``(I, mglx, mgly)``."""
+    """The rigid-body columns of the one-link regressor of thesis eq. 2-4.
+
+    ``[qdd, -sin q, cos q]`` for the parameters ``(I, mglx, mgly)`` of
+    ``I qdd - m g lx sin q + m g ly cos q`` [1]_; the friction model's columns follow them.
+
+    Parameters
+    ----------
+    q : array_like
+        (T,) link angle (rad).
+    qdd : array_like
+        (T,) link acceleration (rad/s^2).
+
+    Returns
+    -------
+    numpy.ndarray
+        (T, 3) regressor columns.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4.
+    """
     q = np.asarray(q, float)
     return np.column_stack([np.asarray(qdd, float), -np.sin(q), np.cos(q)])
 
 
 def fit_cv_linear(q, qd, qdd, y, weights=None) -> FrictionFit:
-    """Coulomb + viscous through eq. 2-4 by linear least squares on the regressor
-    ``R = [qdd, -sin q, cos q, sign qd, qd]`` (thesis, after eq. 2-5)."""
+    """Fit Coulomb + viscous friction through eq. 2-4 by linear least squares.
+
+    The thesis's regressor ``R = [qdd, -sin q, cos q, sign qd, qd]`` (after eq. 2-5 [1]_) for
+    ``(I, mglx, mgly, c, v)``, through :func:`ident.friction.fit.fit_friction`.
+
+    Parameters
+    ----------
+    q, qd, qdd : array_like
+        (T,) link angle (rad), velocity (rad/s), acceleration (rad/s^2).
+    y : array_like
+        (T,) target torque (:func:`onelink_target`, N m).
+    weights : array_like, optional
+        (T,) per-sample weights.
+
+    Returns
+    -------
+    FrictionFit
+        The friction parameters ``c``, ``v``, the rigid ones in ``rigid``, and ``flags``
+        (physically impossible values).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4, 2-5.
+    """
     f = fit_friction(CoulombViscous, qd, y, X_extra=onelink_regressor(q, qdd), extra_names=RIGID_NAMES,
                      weights=weights)
     return dataclasses.replace(f, flags=f.model.violations())
@@ -133,26 +237,43 @@ def name_degenerate(model: str, params: dict, stderr: dict, qd=None, bounds=None
 
 
 class OneLinkIdentifier:
-    """Fit friction models through eq. 2-4 on one joint's signals.
+    r"""Identifier of friction models through the one-link model of thesis eq. 2-4.
 
-    Settings: ``models`` (FORMAT.md names), ``n_starts`` and ``seed`` for the multi-start
-    nonlinear fits, optional ``bounds`` {model: {param: (lo, hi)}} (else the models' own
-    data-scaled bounds; the thesis bounded ``Vc`` to ``(0, 1]``). Samples slower than
-    ``rest_frac`` of the peak speed are left out: at standstill the friction is static (it holds
-    whatever the gravity and motor torques leave), which eq. 2-5 to 2-7 do not describe
-    (``sign(0) = 0``), and a smoothed speed's sign there is noise; near reversals a real
-    joint sticks for a moment, which a smooth (Fourier) speed cannot resolve. Measured on a
-    simulated Stribeck joint (Fk 5.66, Fs 1.76, Vc 0.05 rad/s, peak 2.43 rad/s): the default
-    1 % recovers Fk 5.53, Fs 1.64, Vc 0.07, where 0.2 % gives a degenerate fit.
-    ``fit(q, qd, qdd, y, errors=None)`` returns {model: :class:`ident.friction.fit.FrictionFit`}
-    with ``form`` (the degenerate form's name), ``flags`` (physically impossible values) and,
-    given the link state's ``errors`` (standard deviations of q, qd, qdd), the cv fit's
-    errors-in-variables bias in ``eiv``; ``fit_signals(sig, J, B)`` builds ``y`` from a
-    :class:`ident.signals.smoothing.JointSignals` and passes its errors.
+    .. math::
+
+        I \ddot{q} - m g l_x \sin q + m g l_y \cos q + f(\dot{q})
+        = u - J \ddot{q}_m - B \dot{q}_m
+
+    with ``f`` one of the friction models (eq. 2-5 to 2-7 [1]_): Coulomb + viscous by linear
+    least squares, the others by multi-start nonlinear least squares started from it
+    (module docstring). Samples slower than ``rest_frac`` of the peak speed are left out: at
+    standstill the friction is static (it holds whatever the gravity and motor torques
+    leave), which eq. 2-5 to 2-7 do not describe (``sign(0) = 0``), and a smoothed speed's
+    sign there is noise; near reversals a real joint sticks for a moment, which a smooth
+    (Fourier) speed cannot resolve.
 
     The viscous coefficient is in the LINK-ONLY basis: the motor viscous ``B`` of drives.toml is
     removed in the target ``y = u - J qmdd - B qmd``, so ``v`` (``Fv``, ``g6``) is the viscous
     friction beyond the declared motor viscous; link + motor viscous is ``v + B``.
+
+    Parameters
+    ----------
+    models : sequence of str, optional
+        Friction models by their data-format names [2]_ (default cv, stribeck, hyperbolic).
+    n_starts : int, optional
+        Starts of the multi-start nonlinear fits (default 8).
+    seed : int, optional
+        Seed of the starts (default 0).
+    bounds : dict, optional
+        {model: {param: (lo, hi)}}; default the models' own data-scaled bounds (the thesis
+        bounded ``Vc`` to ``(0, 1]``).
+    rest_frac : float, optional
+        Speed fraction of the peak below which samples are left out.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 to 2-7.
+    .. [2] jointlab data format (docs/format.md), sec. What the workbench writes.
     """
 
     def __init__(self, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8, seed: int = 0,
@@ -164,10 +285,55 @@ class OneLinkIdentifier:
         self.rest_frac = float(rest_frac)
 
     def fit_signals(self, sig, J: float, B: float) -> dict:
+        """Fit every model to one joint's signals, the target built by eq. 2-4 [1]_.
+
+        :func:`onelink_target` from the signals, then :meth:`fit` with the link state's
+        errors (the cv fit's errors-in-variables bias).
+
+        Parameters
+        ----------
+        sig : ident.signals.smoothing.JointSignals
+            The joint's signals on one time base.
+        J : float
+            Motor inertia, link side (kg m^2).
+        B : float
+            Motor viscous coefficient, link side (N m s/rad).
+
+        Returns
+        -------
+        dict
+            {model name: FrictionFit}, as :meth:`fit`.
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 2-4.
+        """
         y = onelink_target(sig.tau, sig.qmd, sig.qmdd, J, B)
         return self.fit(sig.q, sig.qd, sig.qdd, y, errors=sig.errors)
 
     def fit(self, q, qd, qdd, y, errors: dict | None = None) -> dict:
+        """Fit every model through eq. 2-4 [1]_ to a target torque.
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like
+            (T,) link angle (rad), velocity (rad/s), acceleration (rad/s^2).
+        y : array_like
+            (T,) target torque (:func:`onelink_target`, N m).
+        errors : dict, optional
+            Standard deviations of ``q``, ``qd``, ``qdd`` (keys ``"q"``, ``"qd"``, ``"qdd"``);
+            given, the cv fit carries its errors-in-variables bias in ``eiv``.
+
+        Returns
+        -------
+        dict
+            {model name: FrictionFit} with ``form`` (the degenerate form's name, see the module
+            docstring) and ``flags`` (physically impossible values).
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 2-4 to 2-7.
+        """
         with one_blas_thread():
             return self._fit(q, qd, qdd, y, errors)
 

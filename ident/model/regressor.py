@@ -73,8 +73,35 @@ def _body_regressor(v, w, a, al) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class ChainDynamics:
-    """The kinematic structure of a serial revolute chain taken from a pinocchio model:
-    joint placements in their parent joint's frame, joint axes, standard parameters, gravity."""
+    r"""The dynamics of a serial revolute chain in the form linear in its inertial parameters.
+
+    .. math::
+
+        \tau = Y(q, \dot{q}, \ddot{q})\, \pi
+
+    the rigid-body part of thesis eq. 2-1 [1]_ with ``pi`` the ten standard inertial
+    parameters of every body (:meth:`regressor`, batched over samples); built from a pinocchio
+    model by :meth:`from_model`.
+
+    Attributes
+    ----------
+    placements : numpy.ndarray
+        (n, 4, 4) joint placements in their parent joint's frame.
+    axes : numpy.ndarray
+        (n, 3) unit joint axes.
+    pi : numpy.ndarray
+        (10 n,) standard parameters of the model, in pinocchio's order
+        (``m, m c_x, m c_y, m c_z, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz`` per body).
+    gravity : numpy.ndarray
+        (3,) gravity in the base frame (m/s^2).
+    names : tuple of str
+        The joints' names.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-1.
+    .. [2] Carpentier et al. 2019, the Pinocchio C++ library.
+    """
 
     placements: np.ndarray          # (n, 4, 4)
     axes: np.ndarray                # (n, 3)
@@ -84,6 +111,22 @@ class ChainDynamics:
 
     @classmethod
     def from_model(cls, model) -> "ChainDynamics":
+        """Build the chain's dynamics from a pinocchio model [1]_ (e.g. ``Robot.model``).
+
+        Parameters
+        ----------
+        model : pinocchio.Model
+            A serial chain of revolute joints.
+
+        Returns
+        -------
+        ChainDynamics
+            Its placements, axes, standard parameters, gravity and joint names.
+
+        References
+        ----------
+        .. [1] Carpentier et al. 2019, the Pinocchio C++ library.
+        """
         from mocap.robot import _joint_axis
 
         n = model.njoints - 1
@@ -100,7 +143,32 @@ class ChainDynamics:
         return self.axes.shape[0]
 
     def regressor(self, q, qd, qdd) -> np.ndarray:
-        """(T, n, 10 n) joint torque regressor for (T, n) states (all samples at once)."""
+        """Joint torque regressor ``Y`` of ``tau = Y pi`` for many states at once.
+
+        The recursive Newton-Euler passes over the joints, vectorised over samples: what
+        ``pinocchio.computeJointTorqueRegressor`` returns for one sample [1]_, the rigid-body
+        part of thesis eq. 2-1 [2]_.
+
+        Parameters
+        ----------
+        q, qd, qdd : array_like
+            (T, n) joint angles (rad), velocities (rad/s), accelerations (rad/s^2).
+
+        Returns
+        -------
+        numpy.ndarray
+            (T, n, 10 n) regressor.
+
+        Raises
+        ------
+        ValueError
+            If the states do not have the chain's n joints.
+
+        References
+        ----------
+        .. [1] Carpentier et al. 2019, the Pinocchio C++ library.
+        .. [2] PA10 thesis (seeds 002), eq. 2-1.
+        """
         q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
         T, n = q.shape
         if n != self.n:
@@ -142,8 +210,26 @@ class ChainDynamics:
 
 @dataclass(frozen=True, eq=False)
 class BaseParameters:
-    """Identifiable combinations of the standard parameters: ``Y @ pi = Y[:, idx] @ beta`` with
-    ``beta = pi[idx] + K @ pi[rest]`` for every state."""
+    """Identifiable combinations of the standard inertial parameters (base parameters).
+
+    ``Y @ pi = Y[:, idx] @ beta`` with ``beta = pi[idx] + K @ pi[rest]`` for every state
+    [1]_ [2]_; found by :func:`base_parameters`.
+
+    Attributes
+    ----------
+    idx : numpy.ndarray
+        Indices of the independent columns of the regressor.
+    rest : numpy.ndarray
+        Indices of the dependent columns.
+    K : numpy.ndarray
+        (len(idx), len(rest)) the dependent columns in terms of the independent ones.
+
+    References
+    ----------
+    .. [1] Gautier & Khalil 1990, direct calculation of minimum set of inertial parameters of
+       serial robots.
+    .. [2] Gautier 1991, numerical calculation of the base inertial parameters of robots.
+    """
 
     idx: np.ndarray          # independent columns
     rest: np.ndarray         # dependent columns
@@ -159,10 +245,37 @@ class BaseParameters:
 
 def base_parameters(chain: ChainDynamics, lower=None, upper=None, n_states: int = 200,
                     seed: int = 0, tol: float = 1e-8) -> BaseParameters:
-    """Base parameters by QR with column pivoting of the regressor stacked over random states
-    (positions within ``lower``/``upper`` or +-pi, velocities and accelerations standard normal).
-    One BLAS thread: the matrices are small (200 n rows), where threads only add overhead (and on
-    a loaded 2-core machine made this step take seconds)."""
+    """Find the base parameters of a chain by QR with column pivoting of its regressor.
+
+    The regressor stacked over random states (positions within ``lower``/``upper`` or +-pi,
+    velocities and accelerations standard normal); the columns QR keeps are independent, the
+    others their linear combinations (Gautier's numerical method [1]_ [2]_). One BLAS thread:
+    the matrices are small (200 n rows), where threads only add overhead.
+
+    Parameters
+    ----------
+    chain : ChainDynamics
+        The chain.
+    lower, upper : array_like, optional
+        (n,) joint limits (rad); non-finite or None: +-pi.
+    n_states : int, optional
+        Random states stacked (default 200).
+    seed : int, optional
+        Seed of the states (default 0).
+    tol : float, optional
+        Relative tolerance on the diagonal of R below which a column is dependent.
+
+    Returns
+    -------
+    BaseParameters
+        The independent columns and the combination matrix.
+
+    References
+    ----------
+    .. [1] Gautier & Khalil 1990, direct calculation of minimum set of inertial parameters of
+       serial robots.
+    .. [2] Gautier 1991, numerical calculation of the base inertial parameters of robots.
+    """
     from ident.signals.blas import one_blas_thread
 
     with one_blas_thread():

@@ -171,20 +171,84 @@ def _savgol(x, w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray
 
 
 def savgol_window(window_s: float, dt: float, n: int, polyorder: int = 3) -> int:
-    """The one window rule of jointlab's Savitzky-Golay filters: ``window_s`` seconds at the
-    sample period ``dt`` rounded to an odd number of samples, at least ``polyorder + 2``
-    (odd) and at most the ``n`` samples (odd)."""
+    """The one window rule of jointlab's Savitzky-Golay filters, in samples.
+
+    ``window_s`` seconds at the sample period ``dt`` rounded to an odd number of samples, at
+    least ``polyorder + 2`` (odd) and at most the ``n`` samples (odd) [1]_.
+
+    Parameters
+    ----------
+    window_s : float
+        Window length (s).
+    dt : float
+        Sample period (s).
+    n : int
+        Number of samples.
+    polyorder : int, optional
+        Local polynomial degree (default 3).
+
+    Returns
+    -------
+    int
+        The odd window length in samples.
+
+    References
+    ----------
+    .. [1] Savitzky & Golay 1964, smoothing and differentiation of data by simplified least
+       squares procedures.
+
+    Examples
+    --------
+    >>> savgol_window(0.05, 0.01, 1000), savgol_window(0.05, 0.01, 4)
+    (5, 3)
+    """
     w = int(round(window_s / dt)) | 1
     w = max(w, polyorder + 2 + (polyorder % 2 == 0))
     return min(w, n if n % 2 else n - 1)
 
 
 def differentiate(x, dt: float, window_s: float, deriv: int = 1, polyorder: int = 3) -> np.ndarray:
-    """The one differentiator: the ``deriv``-th derivative (0: the smoothed signal) of uniform
-    samples ``x`` (along axis 0, period ``dt``) by a Savitzky-Golay filter of ``polyorder``
-    over :func:`savgol_window` (``scipy.signal.savgol_filter``, mode ``"interp"``; 1-D
-    signals through the cached kernel, the same values to rounding). An
-    :class:`~mocap.io.errors.InputError` when the samples are too few for the window."""
+    """Differentiate uniform samples by a Savitzky-Golay filter: jointlab's one differentiator.
+
+    The ``deriv``-th derivative (0: the smoothed signal) of the local least-squares
+    polynomials of degree ``polyorder`` [1]_ over :func:`savgol_window`
+    (``scipy.signal.savgol_filter``, mode ``"interp"``; 1-D signals through the cached kernel,
+    the same values to rounding).
+
+    Parameters
+    ----------
+    x : array_like
+        Uniform samples, along axis 0.
+    dt : float
+        Sample period (s).
+    window_s : float
+        Window length (s).
+    deriv : int, optional
+        Derivative order (default 1).
+    polyorder : int, optional
+        Local polynomial degree (default 3).
+
+    Returns
+    -------
+    numpy.ndarray
+        The derivative, the shape of ``x`` (units of ``x`` per s^deriv).
+
+    Raises
+    ------
+    InputError
+        If the samples are too few for the window.
+
+    References
+    ----------
+    .. [1] Savitzky & Golay 1964, smoothing and differentiation of data by simplified least
+       squares procedures.
+
+    Examples
+    --------
+    >>> t = np.arange(50) * 0.01
+    >>> round(float(differentiate(t ** 2, 0.01, 0.05)[10]), 9)
+    0.2
+    """
     x = np.asarray(x, float)
     n = x.shape[0]
     w = savgol_window(window_s, dt, n, polyorder)
@@ -204,17 +268,46 @@ def _savgol_coeffs(w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.nda
 
 
 class SavGolSmoother:
-    """Savitzky-Golay smoothing and differentiation on a uniform grid (the fallback for
-    non-periodic trials). ``window_s``: window length in seconds, or ``"auto"``: chosen from
-    the data by generalised cross-validation (GCV) over ``n_windows`` lengths spaced
-    geometrically from ``min_window_s`` to ``max_window_s``: ``GCV(w) = n RSS / (n - tr H)^2``
+    r"""Savitzky-Golay smoothing and differentiation on a uniform grid.
+
+    The fallback of :class:`FourierSmoother` for non-periodic trials [1]_. With
+    ``window_s="auto"`` the window is chosen from the data by generalised cross-validation
+    [2]_ over ``n_windows`` lengths spaced geometrically from ``min_window_s`` to
+    ``max_window_s``:
+
+    .. math::
+
+        \mathrm{GCV}(w) = \frac{n\, \mathrm{RSS}}{(n - \operatorname{tr} H)^2}
+
     with ``tr H = n h_0(w)`` (the filter's centre weight), the classical data-driven choice
-    of a linear smoother's bandwidth; ``polyorder``: local polynomial degree.
+    of a linear smoother's bandwidth.
 
     The fit reports the window and the noise level ``sigma = sqrt(RSS / (n - tr H))`` and,
     from the filter coefficients, the standard deviation the noise implies for the velocity
     and acceleration (``qd_noise = sigma ||h_1||``, ``qdd_noise = sigma ||h_2||``); bias from
     too wide a window is what GCV balances against that noise.
+
+    Parameters
+    ----------
+    window_s : float or {"auto"}, optional
+        Window length (s), default 0.1, or ``"auto"``.
+    polyorder : int, optional
+        Local polynomial degree (>= 2; default 3).
+    min_window_s, max_window_s : float, optional
+        Range of the GCV search (s).
+    n_windows : int, optional
+        Window lengths tried by the GCV search (>= 2).
+
+    Raises
+    ------
+    ValueError
+        If a setting is out of range.
+
+    References
+    ----------
+    .. [1] Savitzky & Golay 1964, smoothing and differentiation of data by simplified least
+       squares procedures.
+    .. [2] Craven & Wahba 1979, smoothing noisy data with spline functions (GCV).
     """
 
     def __init__(self, window_s: float | str = 0.1, polyorder: int = 3, min_window_s: float = 0.004,
@@ -407,15 +500,44 @@ def _estimate_fundamental(t, q, max_harmonics, max_periods, max_samples, n_refin
 
 
 class FourierSmoother:
-    """Fit eq. 3-2 to a signal, with the fundamental and harmonics estimated when not given
-    (see the module docstring), falling back to ``fallback`` (default
-    :class:`SavGolSmoother`) when the signal is not periodic.
+    r"""Smoother that fits the finite Fourier series of thesis eq. 3-2 to a signal.
 
-    ``periodic``: ``None`` decides from the residual; ``True`` always uses Fourier; ``False``
-    always uses the fallback. ``trim_rest``: the Fourier series is fitted from the first to the
-    last sample moving faster than ``rest_frac`` of the peak speed (a trial holds still before
-    and after its periods; a rest is not part of eq. 3-2); the fit's ``t_start``/``t_end`` say
+    .. math::
+
+        q(t) = \sum_{l=1}^N \frac{a_l}{w_f l} \sin(w_f l t)
+        - \frac{b_l}{w_f l} \cos(w_f l t) + q_0
+
+    differentiated analytically [1]_, with the fundamental and harmonics estimated when not
+    given (see the module docstring), falling back to ``fallback`` when the signal is not
+    periodic. The Fourier series is fitted from the first to the last sample moving faster
+    than ``rest_frac`` of the peak speed when ``trim_rest`` (a trial holds still before and
+    after its periods; a rest is not part of eq. 3-2); the fit's ``t_start``/``t_end`` say
     which span it covers.
+
+    Parameters
+    ----------
+    wf : float, optional
+        Fundamental (rad/s); None: estimated (:func:`estimate_fundamental`).
+    n_harmonics : int, optional
+        Harmonics ``N``; None: chosen by BIC up to ``max_harmonics``.
+    max_harmonics : int, optional
+        Most harmonics tried (default 20).
+    periodic : bool or None, optional
+        None (default) decides from the residual; True always uses Fourier; False always
+        uses the fallback.
+    periodic_ratio, periodic_atol : float, optional
+        The signal is periodic when the Fourier residual RMS is at most ``periodic_ratio``
+        times the fallback's noise level plus ``periodic_atol`` (rad).
+    fallback : object, optional
+        Smoother with a ``fit(t, q)`` method; default :class:`SavGolSmoother`.
+    trim_rest : bool, optional
+        Leave the rests before and after the motion out of the Fourier fit (default True).
+    rest_frac : float, optional
+        Speed fraction of the peak below which a sample rests.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-2 and ch. 4.
     """
 
     def __init__(self, wf: float | None = None, n_harmonics: int | None = None,
@@ -450,6 +572,24 @@ class FourierSmoother:
                          bandwidth_hz=float(wf * n / (2 * np.pi)))
 
     def fit(self, t, q) -> SmoothFit:
+        """Fit the signal ``q(t)``: eq. 3-2 [1]_, or the fallback when it is not periodic.
+
+        Parameters
+        ----------
+        t : array_like
+            (T,) sample times (s).
+        q : array_like
+            (T,) the signal (rad).
+
+        Returns
+        -------
+        SmoothFit
+            The smooth model (evaluate it and its derivatives at any time) and its residuals.
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 3-2.
+        """
         with one_blas_thread():
             return self._fit(t, q)
 
@@ -513,7 +653,36 @@ def estimate_time_offset(t_link, q_link, motor_fit: SmoothFit, max_shift: float 
 class JointSignals:
     """All signals of one joint of one trial on the robot log's samples (link side, SI).
 
-    ``link_source`` is ``"mocap"`` or ``"motor"`` (motor angle used as the link angle).
+    The link angle ``q`` and motor angle ``q_m`` of thesis eq. 2-2 to 2-4 [1]_ with their
+    derivatives from eq. 3-2 fits, and the torque ``u``, on one time base (the robot clock;
+    ``t_robot = t_marker + time_offset`` [2]_).
+
+    Attributes
+    ----------
+    joint : int
+        The joint, 1-based.
+    time : numpy.ndarray
+        (T,) the robot log's sample times (s).
+    q, qd, qdd : numpy.ndarray
+        (T,) link angle (rad), velocity (rad/s), acceleration (rad/s^2).
+    qm, qmd, qmdd : numpy.ndarray
+        (T,) motor angle on the link side and its derivatives.
+    tau : numpy.ndarray
+        (T,) joint torque (N m).
+    link_fit, motor_fit : SmoothFit
+        The smooth models of the link and motor angles.
+    link_source : str
+        ``"mocap"`` or ``"motor"`` (motor angle used as the link angle).
+    time_offset : float
+        Marker clock to robot clock (s).
+    link_state : dict or None
+        ``LinkState.to_dict()`` where the link angle came from the encoder plus a
+        marker-estimated deflection.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-2 to 2-4, 3-2.
+    .. [2] jointlab data format (docs/format.md), sec. campaign.toml.
     """
 
     joint: int

@@ -276,10 +276,36 @@ def _extract_isolated(path: Path, timeout_s: float) -> tuple[dict, dict]:
 
 
 def read_c3d(path: str | Path, *, isolate: bool = True, timeout_s: float = 60.0) -> MarkerRecording:
-    """Read the marker points of a C3D file (conventions in the module docstring).
+    """Read the marker points of a C3D file into a :class:`MarkerRecording`.
 
-    ``isolate`` runs ezc3d in a subprocess killed after ``timeout_s`` seconds, so a corrupt
-    file that crashes or hangs ezc3d becomes an :class:`InputError`.
+    The marker file of the data format [1]_ in the C3D layout [2]_ (conventions in the module
+    docstring): the header and parameter section are checked here first
+    (:func:`check_c3d_structure`), the points read with ezc3d, converted to metres.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.c3d`` file.
+    isolate : bool, optional
+        Run ezc3d in a subprocess killed after ``timeout_s`` seconds, so a corrupt file that
+        crashes or hangs ezc3d becomes an :class:`InputError` (default True).
+    timeout_s : float, optional
+        Time limit of the isolated read (s); default 60.
+
+    Returns
+    -------
+    MarkerRecording
+        The labelled marker trajectories (NaN where a marker is missing).
+
+    Raises
+    ------
+    InputError
+        If the file is missing, its structure or parameters are invalid, or ezc3d fails.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Marker file (.trc).
+    .. [2] C3D.ORG, the C3D file format user guide; ezc3d (Michaud & Begon 2021).
     """
     path = Path(path)
     struct_info = check_c3d_structure(path)
@@ -355,13 +381,41 @@ def read_c3d(path: str | Path, *, isolate: bool = True, timeout_s: float = 60.0)
 
 
 def write_c3d(path: str | Path, rec: MarkerRecording, overwrite: bool = False, units: str = "mm") -> Path:
-    """Write ``rec`` as a C3D file (float data, Intel) with ezc3d.
+    """Write a marker recording as a C3D file (float data, Intel) with ezc3d.
 
-    C3D stores a uniform frame grid starting at a whole frame number, so ``rec.time`` must be
-    ``(first_frame - 1 + arange(T)) / rate_hz`` with an integer ``first_frame >= 1`` (within
-    1e-6 of a frame); anything else raises :class:`InputError` instead of being moved.
-    Missing markers are written with residual -1. Refuses to replace an existing file unless
-    ``overwrite`` (raises :class:`FileExistsError`). Creates missing parent folders.
+    The inverse of :func:`read_c3d` [1]_ [2]_. C3D stores a uniform frame grid starting at a
+    whole frame number, so ``rec.time`` must be ``(first_frame - 1 + arange(T)) / rate_hz``
+    with an integer ``first_frame >= 1`` (within 1e-6 of a frame). Missing markers are
+    written with residual -1. Creates missing parent folders.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to write.
+    rec : MarkerRecording
+        The recording (metres).
+    overwrite : bool, optional
+        Replace an existing file (default False).
+    units : str, optional
+        Unit of the written points: ``"mm"`` (default), ``"cm"`` or ``"m"``.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    FileExistsError
+        If ``path`` exists and ``overwrite`` is False.
+    InputError
+        For an unknown unit, a rate that is not positive, or a time that is not on a
+        uniform frame grid (instead of moving the samples).
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Marker file (.trc).
+    .. [2] C3D.ORG, the C3D file format user guide; ezc3d (Michaud & Begon 2021).
     """
     import ezc3d
 

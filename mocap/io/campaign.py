@@ -41,6 +41,43 @@ class CalibSweep(Recording):
 
 @dataclass(frozen=True)
 class Trial(Recording):
+    """One ``[[trial]]`` of a campaign: a recording of some joints moving, with its conditions.
+
+    A marker file and the robot log of the same interval [1]_; the conditions (load, speed,
+    repetition) are the factors of the thesis's tables [2]_.
+
+    Attributes
+    ----------
+    markers : pathlib.Path or None
+        The marker file (None: a campaign without motion capture).
+    log : pathlib.Path
+        The robot log.
+    id : str
+        The trial's id, unique in the manifest.
+    joints : tuple of int
+        The moving joints, 1-based; the others are braked.
+    load_kg : float
+        Extra end-effector mass (kg).
+    vmax_frac : float
+        Peak speed as a fraction of the joints' maximum speed.
+    repetition : int
+        Repetition number of the same conditions.
+    kind : str
+        ``"excitation"`` (default), ``"coastdown"``, ``"reversals"`` or
+        ``"constant_velocity"``.
+    note : str
+        Free text.
+    extra : dict
+        Other keys of the table (e.g. ``time_offset``, s).
+    unlogged_torque : tuple of int
+        Moving joints whose torque was not logged.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. campaign.toml.
+    .. [2] PA10 thesis (seeds 002), Tables 5-1 to 5-3.
+    """
+
     id: str = ""
     joints: tuple[int, ...] = ()
     load_kg: float = 0.0
@@ -54,6 +91,47 @@ class Trial(Recording):
 
 @dataclass(frozen=True)
 class Campaign:
+    """A loaded ``campaign.toml``: the robot, the marker sets and every recording, validated.
+
+    What :func:`load_campaign` returns [1]_; the recordings are read through it
+    (:meth:`read_log`, :meth:`read_markers`), so that the ``[robot] coupling`` and the
+    plausibility checks apply to every command.
+
+    Attributes
+    ----------
+    root : pathlib.Path
+        The campaign folder.
+    name : str
+        The campaign's name.
+    urdf : pathlib.Path
+        The robot's URDF.
+    drives : pathlib.Path or None
+        ``robot/drives.toml`` (None: drives from the URDF limits).
+    gravity : tuple of float
+        Gravity in the base link's frame (m/s^2).
+    markers : dict
+        Link name -> tuple of marker labels (empty: no motion capture).
+    static : tuple of Recording
+        The ``[[static]]`` recordings (static poses, thesis eq. 3-4 [2]_).
+    calib : tuple of CalibSweep
+        The camera-to-base calibration sweeps.
+    trials : tuple of Trial
+        The trials, in manifest order.
+    extra : dict
+        Other keys of the manifest.
+    coupling : tuple or None
+        ``[robot] coupling`` rows: ``q_urdf = coupling @ q_log``.
+    base_link, tip_link : str or None
+        ``[robot]`` ends of the arm's chain.
+    fixed : dict
+        ``[robot] fixed``: joint name -> value of the joints off the chain.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. campaign.toml.
+    .. [2] PA10 thesis (seeds 002), eq. 3-4.
+    """
+
     root: Path
     name: str
     urdf: Path
@@ -89,6 +167,27 @@ class Campaign:
         return {lb: link for link, labels in self.markers.items() for lb in labels}
 
     def load_robot(self):
+        """Load and check the campaign's robot (URDF, drives, chain).
+
+        :meth:`mocap.robot.Robot.from_urdf` after :func:`mocap.urdf.check_urdf`, then the
+        manifest checked against it: marked links, trial joints, coupling rows, calibration
+        sweeps [1]_.
+
+        Returns
+        -------
+        mocap.robot.Robot
+            The arm.
+
+        Raises
+        ------
+        InputError
+            If the URDF or drives file is invalid, or the manifest names a link or joint the
+            robot lacks.
+
+        References
+        ----------
+        .. [1] jointlab data format (docs/format.md), sec. campaign.toml, robot/drives.toml.
+        """
         from mocap.io.plausibility import check_drives_count, check_drives_order
         from mocap.robot import Robot
         from mocap.io.errors import quiet_stderr
@@ -130,9 +229,33 @@ class Campaign:
         return robot
 
     def read_log(self, rec: Recording, robot=None):
-        """The robot log of ``rec`` in URDF joints: the one place where ``[robot] coupling`` is
-        applied (q, qd and tau), and, given the ``robot``, where angles far beyond the URDF's
-        limits are refused (degrees suspected). Every command reading angles goes through here."""
+        """Read the robot log of a recording in URDF joints.
+
+        The one place where ``[robot] coupling`` is applied (q, qd and tau) [1]_, and, given
+        the ``robot``, where angles far beyond the URDF's limits are refused (degrees
+        suspected). Every command reading angles goes through here.
+
+        Parameters
+        ----------
+        rec : Recording
+            A static recording, calibration sweep or trial of this campaign.
+        robot : mocap.robot.Robot, optional
+            The robot, for the limit checks; None: none.
+
+        Returns
+        -------
+        mocap.io.robotlog.RobotLog
+            The log; a trial's ``unlogged_torque`` columns NaN.
+
+        Raises
+        ------
+        InputError
+            If the log is invalid, implausible, beyond the limits, or lacks a moving joint.
+
+        References
+        ----------
+        .. [1] jointlab data format (docs/format.md), sec. Coupled joints.
+        """
         from mocap.io.robotlog import read_robot_log
 
         n = None if robot is None else robot.n
@@ -293,7 +416,34 @@ def _file(root: Path, rel, key: str, where: str, manifest: Path) -> Path:
 
 
 def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
-    """Read and validate ``campaign.toml`` (``path`` is the folder or the manifest itself)."""
+    """Read and validate a campaign's ``campaign.toml``.
+
+    The manifest of the data format [1]_: every key, path and trial checked, errors in one
+    line naming the file and key.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The campaign folder or the manifest itself.
+    check_files : bool, optional
+        Also require every referenced file to exist (default True).
+
+    Returns
+    -------
+    Campaign
+        The validated campaign.
+
+    Raises
+    ------
+    InputError
+        If the manifest is missing, not TOML or of another format, a key is missing or
+        invalid, a marker is listed for two links, a path leaves the campaign folder or does
+        not exist, or a trial id repeats.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. campaign.toml.
+    """
     path = Path(path)
     manifest = path / "campaign.toml" if path.is_dir() else path
     if not manifest.is_file():

@@ -49,9 +49,30 @@ class SamplingStats:
 
 @dataclass(frozen=True, eq=False)
 class RobotLog:
-    """A robot log: ``time`` (T,), ``qm`` and ``tau`` (T, n) with column j-1 for joint j.
+    """A robot log: time, motor-side angles and joint torques, column j-1 for joint j.
 
-    Joints whose columns are absent are NaN. ``extra`` keeps every other column by name.
+    The robot log of the data format [1]_: the encoder angles ``q_m`` and the torque ``u`` of
+    thesis eq. 2-4 [2]_, on the link side. Joints whose columns are absent are NaN.
+
+    Attributes
+    ----------
+    time : numpy.ndarray
+        (T,) sample times (s), strictly increasing.
+    qm : numpy.ndarray
+        (T, n) motor angles on the link side (rad); column j-1 holds ``qm_j``.
+    tau : numpy.ndarray
+        (T, n) joint torques (N m); column j-1 holds ``tau_j``.
+    extra : dict
+        Every other column, by name: (T,) arrays.
+    source : pathlib.Path or None
+        The file it was read from, if any.
+    line_numbers : numpy.ndarray or range or None
+        (T,) the file line of each sample, for messages.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Robot log (.csv).
+    .. [2] PA10 thesis (seeds 002), eq. 2-4.
     """
 
     time: np.ndarray
@@ -434,15 +455,37 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
 
 
 def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
-    """Read a robot log CSV.
+    """Read a robot log CSV into a :class:`RobotLog`.
 
-    ``n_joints`` (from the URDF) fixes the width of ``qm``/``tau``; a log naming a joint
-    beyond it is an error. Without it, the width is the highest joint index found. The header
-    is checked by :func:`check_header`; every row must have as many cells as the header has
-    names (never shifted); infinite cells and absurd signal values (:data:`ABSURD`) are errors.
+    The layout of the data format [1]_ (``time, qm_<j>..., tau_<j>...`` and any other
+    columns). The header is checked by :func:`check_header`; every row must have as many cells
+    as the header has names (never shifted). A well-formed log streams through a fast reader
+    (memory: the float64 arrays only); any other goes through a careful one, whose errors name
+    the file and the line.
 
-    A well-formed log streams through :func:`_read_fast` (memory: the float64 arrays only);
-    any other goes through :func:`_read_careful`, whose errors name the file and the line.
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.csv`` log.
+    n_joints : int, optional
+        Width of ``qm``/``tau`` (from the URDF); a log naming a joint beyond it is an error.
+        None: the highest joint index found.
+
+    Returns
+    -------
+    RobotLog
+        The log; absent joints' columns NaN.
+
+    Raises
+    ------
+    InputError
+        If the file is missing, the header is invalid, a row has the wrong number of cells,
+        or a cell is not a number, infinite or absurd (:data:`ABSURD`), naming file and line.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Robot log (.csv).
+    .. [2] PA10 thesis (seeds 002), eq. 2-4.
     """
     path = Path(path)
     if not path.is_file():
@@ -529,7 +572,38 @@ def _read_careful(path: Path, n_joints: int | None) -> RobotLog:
 
 def write_robot_log(path: str | Path, log: RobotLog, joints=None, overwrite: bool = False,
                     fmt: str = "%.9g") -> Path:
-    """Write a robot log CSV (NaN written as empty cells). ``joints`` (1-based) selects columns."""
+    """Write a robot log CSV, the inverse of :func:`read_robot_log` [1]_ [2]_.
+
+    NaN is written as an empty cell; missing parent folders are created.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to write.
+    log : RobotLog
+        The log.
+    joints : sequence of int, optional
+        The joints (1-based) whose columns are written; default all.
+    overwrite : bool, optional
+        Replace an existing file (default False).
+    fmt : str, optional
+        printf format of a value (default ``"%.9g"``).
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    FileExistsError
+        If ``path`` exists and ``overwrite`` is False.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Robot log (.csv).
+    .. [2] PA10 thesis (seeds 002), eq. 2-4.
+    """
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; refusing to overwrite")

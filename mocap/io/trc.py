@@ -93,12 +93,33 @@ def _sniff_delimiter(lines: list[str], path: Path) -> str:
 
 
 def read_trc(path: str | Path) -> MarkerRecording:
-    """Read a TRC file into a :class:`MarkerRecording` (time-first, metres, NaN = occluded).
+    """Read a TRC marker file into a :class:`MarkerRecording` (time-first, metres, NaN = occluded).
 
-    Raises :class:`InputError` naming the file and line for anything that does not fit the
-    layout: a missing header, unknown units, a data row with fewer cells than
-    ``2 + 3 * n_markers`` or with non-empty cells beyond them, a cell that is not a number,
-    a blank or non-increasing time.
+    The marker file of the data format [1]_ in the TRC layout [2]_ (module docstring); the
+    declared units are converted to metres once, here.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.trc`` file.
+
+    Returns
+    -------
+    MarkerRecording
+        The labelled marker trajectories.
+
+    Raises
+    ------
+    InputError
+        Naming the file and line for anything that does not fit the layout: a missing file
+        or header, unknown units, a data row with fewer cells than ``2 + 3 * n_markers`` or
+        with non-empty cells beyond them, a cell that is not a number, a blank or
+        non-increasing time.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Marker file (.trc).
+    .. [2] Motion Analysis Corporation, TRC (track row column) file format.
     """
     path = Path(path)
     if not path.is_file():
@@ -480,15 +501,44 @@ def check_writable(path, overwrite: bool, units: str) -> tuple[Path, str]:
 
 def write_trc(path: str | Path, rec: MarkerRecording, units: str = "mm", overwrite: bool = False,
               fmt: str = "%.5f") -> Path:
-    """Write ``rec`` as a tab-separated TRC file (the layout in the module docstring).
+    """Write a marker recording as a tab-separated TRC file (the layout in the module docstring).
 
-    Coordinates are written in ``units`` (``mm``, ``cm`` or ``m``) with ``fmt``; missing markers
-    (NaN, or any non-finite coordinate) are three empty cells. Time is written with 12
-    significant digits. Frame numbers start at ``rec.meta["first_frame"]`` (default 1); the
-    ``CameraRate``, ``OrigDataRate``, ``OrigDataStartFrame`` and ``OrigNumFrames`` header fields
-    are kept from ``rec.meta`` when present. Refuses to replace an existing file unless
-    ``overwrite`` (raises :class:`FileExistsError`). Creates missing parent folders. Returns
-    the path written.
+    The inverse of :func:`read_trc` [1]_ [2]_. Missing markers (NaN, or any non-finite
+    coordinate) are three empty cells. Time is written with 12 significant digits. Frame
+    numbers start at ``rec.meta["first_frame"]`` (default 1); the ``CameraRate``,
+    ``OrigDataRate``, ``OrigDataStartFrame`` and ``OrigNumFrames`` header fields are kept from
+    ``rec.meta`` when present. Creates missing parent folders.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to write.
+    rec : MarkerRecording
+        The recording (metres).
+    units : str, optional
+        Unit of the written coordinates: ``"mm"`` (default), ``"cm"`` or ``"m"``.
+    overwrite : bool, optional
+        Replace an existing file (default False).
+    fmt : str, optional
+        printf format of a coordinate (default ``"%.5f"``).
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Raises
+    ------
+    FileExistsError
+        If ``path`` exists and ``overwrite`` is False.
+    InputError
+        For an unknown unit, a label that is empty or holds tabs or newlines, or a
+        non-finite time.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. Marker file (.trc).
+    .. [2] Motion Analysis Corporation, TRC (track row column) file format.
     """
     path, units = check_writable(path, overwrite, units)
     for lb in rec.labels:
