@@ -65,13 +65,15 @@ class MultiJointFits:
         """The ``trials`` part of fits.json: trial -> joint -> model -> params/stderr/rms/..."""
         out = {}
         for tid, by_model in self.fits.items():
+            cut = self.preprocessing.get(tid, {}).get("low_speed_cut")
             for m, fit in by_model.items():
                 for j, e in fit.joints.items():
                     out.setdefault(tid, {}).setdefault(j, {})[m] = {
                         "params": e["params"], "stderr": e.get("stderr", {}), "rms": e["rms"],
                         "heldout_rms": e["heldout_rms"], "offset": e["offset"],
                         "armature": e["armature"], "model": m, "method": "multi-joint rigid-body",
-                        "flags": e.get("flags", {}),
+                        "flags": e.get("flags", {}), "v_zero": e.get("v_zero"),
+                        **({"low_speed_cut": _joint_cut(cut, int(j) - 1)} if cut else {}),
                         **({"implausible": e["implausible"]} if e.get("implausible") else {})}
         return out
 
@@ -230,15 +232,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
             kw["v_zero"] = cut["v_zero"]
             pre[tr.id]["low_speed_cut"] = {k: (v.tolist() if hasattr(v, "tolist") else v)
                                            for k, v in cut.items()}
-            pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [
-                "low-speed cut chosen from the data: rows with |qd_j| below " + ", ".join(
-                    f"{x:.3g}" for x in cut["v_zero"]) + " rad/s (" + ", ".join(
-                    f"{100 * x:.2g}" for x in cut["fraction_of_speed"]) + " % of the 99th-percentile "
-                "speeds) left out: the larger of the velocity noise floor (3 standard deviations: "
-                "angle noise " + ", ".join(f"{x:.2g}" for x in cut["sigma_q"]) + " rad through the "
-                "derivative filter, " + ", ".join(f"{x:.3g}" for x in cut["noise_floor"]) + " rad/s) "
-                "and the speed below which a Coulomb + viscous fit's residual grows past 1.5 times "
-                "its level at speed (" + ", ".join(f"{x:.3g}" for x in cut["knee"]) + " rad/s)"]
+            pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [_cut_text(cut)]
         else:
             kw["v_zero_frac"] = float(v_zero)
         fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **kw).fit(rec)
@@ -250,10 +244,14 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
 
 def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     """The low-speed cut of each joint chosen from the data (reported in the preprocessing):
-    the larger of the velocity noise floor (:func:`ident.model.rigidbody.low_speed_cut`) and
-    the residual knee of a Coulomb + viscous fit above that floor
-    (:func:`ident.model.rigidbody.residual_knee`)."""
-    from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier, low_speed_cut, residual_knee
+    the largest of the velocity noise floor (:func:`ident.model.rigidbody.low_speed_cut`), the
+    residual knee of a Coulomb + viscous fit above that floor
+    (:func:`ident.model.rigidbody.residual_knee`) and the end of the friction's sign transition
+    where it has a stable width (:func:`ident.model.rigidbody.friction_transition`, at most half
+    the 99th-percentile speed); with the Coulomb levels over plausible cuts (noise floor, half,
+    once and twice the cut)."""
+    from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
+                                       friction_transition, low_speed_cut, residual_knee)
 
     cut = low_speed_cut(campaign.read_log(tr, robot), rec, robot.drives)
     floor = cut["v_zero"]
@@ -263,14 +261,79 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     idt._names = names
     sol = idt._solve(rec, A, F, M, np.ones(rec.t.size, bool), sigma=sigma, quick=True)
     resid = rec.tau - idt._predict(rec, A, F, sol)
-    _PREPARED.clear()
     knee = np.array([residual_knee(rec.qd[:, j], np.where(M[:, j], resid[:, j], 0.0), floor[j])
                      if M[:, j].any() else floor[j] for j in range(rec.n)])
-    v0 = np.maximum(floor, knee)
+    fric = resid + np.einsum("tjp,p->tj", F, sol["bf"])       # the friction the record shows
     sp = np.percentile(np.abs(rec.qd), 99, axis=0)
-    return {"v_zero": v0, "noise_floor": floor, "knee": knee, "sigma_q": cut["sigma_q"],
+    trans = [friction_transition(rec.qd[M[:, j], j], fric[M[:, j], j], floor[j])
+             if M[:, j].any() else None for j in range(rec.n)]
+    end = np.array([min(t["end"], 0.5 * sp[j]) if t and t["end"] is not None else 0.0
+                    for j, t in enumerate(trans)])
+    v0 = np.maximum(np.maximum(floor, knee), end)
+    # the cut's effect on Coulomb: the levels at the noise floor, half, once and twice the cut
+    cuts = np.stack([floor, np.maximum(floor, 0.5 * v0), v0, 2.0 * v0])
+    cc = coulomb_over_cuts(idt, rec, A, F, M, sigma, cuts)
+    _PREPARED.clear()
+    ok = np.isfinite(cc).all(axis=0) & (np.abs(cc[2]) > 0)       # joints with rows at every cut
+    ref = np.where(ok, np.abs(cc[2]), 1.0)
+    lo = np.where(ok, (np.where(ok, cc, 0.0).min(axis=0) - cc[2]) / ref, np.nan)
+    hi = np.where(ok, (np.where(ok, cc, 0.0).max(axis=0) - cc[2]) / ref, np.nan)
+    return {"v_zero": v0, "noise_floor": floor, "knee": knee, "transition": trans,
+            "transition_end": end, "sigma_q": cut["sigma_q"],
             "sigma_v": cut["sigma_v"], "k": cut["k"],
-            "fraction_of_speed": np.where(sp > 0, v0 / np.where(sp > 0, sp, 1.0), 0.0)}
+            "fraction_of_speed": np.where(sp > 0, v0 / np.where(sp > 0, sp, 1.0), 0.0),
+            "coulomb_over_cuts": {"cuts": ["noise floor", "0.5 x cut", "cut", "2 x cut"],
+                                  "v_zero": cuts.tolist(), "c": _finite_or_none(cc)},
+            "coulomb_range": _finite_or_none(np.stack([lo, hi], axis=1))}
+
+
+def _cut_text(cut: dict) -> str:
+    """The preprocessing line of the data-chosen low-speed cut (:func:`_auto_cut`)."""
+    def trans(j, t):
+        if t is None:
+            return f"j{j + 1} -"
+        if t["end"] is not None:
+            return f"j{j + 1} {t['end']:.3g}"
+        if t["width_ratio"] is not None:
+            return f"j{j + 1} none (width x{t['width_ratio']:.2g} over twice the range)"
+        return f"j{j + 1} none (no width within the speeds)"
+
+    bent = [j + 1 for j, t in enumerate(cut["transition"])
+            if t is not None and t["end"] is None and t["width_ratio"] is not None]
+    return ("low-speed cut chosen from the data: rows with |qd_j| below " + ", ".join(
+        f"{x:.3g}" for x in cut["v_zero"]) + " rad/s (" + ", ".join(
+        f"{100 * x:.2g}" for x in cut["fraction_of_speed"]) + " % of the 99th-percentile speeds) "
+        "left out: the largest of the velocity noise floor (3 standard deviations: angle noise "
+        + ", ".join(f"{x:.2g}" for x in cut["sigma_q"]) + " rad through the derivative filter, "
+        + ", ".join(f"{x:.3g}" for x in cut["noise_floor"]) + " rad/s), the speed below which a "
+        "Coulomb + viscous fit's residual grows past 1.5 times its level at speed ("
+        + ", ".join(f"{x:.3g}" for x in cut["knee"]) + " rad/s) and the end of the friction's "
+        "sign transition (3 widths of c tanh(|qd|/vs) + fv |qd| where the width is the same on "
+        "half and on the whole speed range; rad/s: "
+        + ", ".join(trans(j, t) for j, t in enumerate(cut["transition"])) + ")"
+        + (f"; joint(s) {', '.join(map(str, bent))}: the friction bends at every speed (no "
+           "finite transition), so their Coulomb level depends on the cut" if bent else "")
+        + "; Coulomb from the noise floor to twice the cut, relative to the level at the cut: "
+        + ", ".join(f"j{j + 1} {100 * lo:+.0f}/{100 * hi:+.0f} %"
+                    for j, (lo, hi) in enumerate(cut["coulomb_range"])
+                    if lo is not None and hi is not None)
+        + " (docs/vendor.md)")
+
+
+def _joint_cut(cut: dict, j: int) -> dict:
+    """Joint ``j``'s (0-based) part of the data-chosen low-speed cut, for fits.json (rad/s; the
+    Coulomb range relative to the level at the cut; ``transition_end`` None where the friction
+    bends at every speed or shows no transition within the sampled speeds)."""
+    t = cut["transition"][j] or {}
+    return {"v_zero": cut["v_zero"][j], "noise_floor": cut["noise_floor"][j],
+            "knee": cut["knee"][j], "transition_end": t.get("end"),
+            "transition_width_ratio": t.get("width_ratio"),
+            "coulomb_range": cut["coulomb_range"][j]}
+
+
+def _finite_or_none(x: np.ndarray) -> list:
+    """Nested lists of ``x`` with None for NaN (JSON)."""
+    return np.where(np.isfinite(x), x, None).tolist()
 
 
 def continuous_records(campaign, trials, logs) -> list[list[int]]:

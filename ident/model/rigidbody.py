@@ -162,6 +162,91 @@ def residual_knee(qd, resid, v_floor, n_bins: int = 15, factor: float = 1.5) -> 
     return float(edges[good[0]]) if good.size else float(v_floor)
 
 
+#: the transition of a smoothed-sign law is over at this many widths (tanh(3) = 0.995)
+TRANSITION_WIDTHS = 3.0
+#: a transition width that grows by more than this factor when the fitted speed range doubles
+#: scales with the range (the geometric midpoint between a fixed width, 1, and a width
+#: proportional to the range, 2): the friction has no finite transition but bends at every speed
+TRANSITION_STABLE = float(np.sqrt(2.0))
+#: rows the transition width is fitted on (longer records: every k-th row)
+TRANSITION_ROWS = 50_000
+
+
+def _tanh_width(a, y, lo, hi, n_grid: int = 121):
+    """Least-squares width ``vs`` of ``y = c tanh(a / vs) + fv a`` on the rows ``lo <= a <= hi``
+    (``a = |qd|``, ``y = sign(qd) f``): a grid of log-spaced widths from 1e-4 to 1 times ``hi``,
+    ``c`` and ``fv`` linear at each width (2 x 2 normal equations). ``(vs, c)``; vs is NaN when
+    the best width is at an end of the grid or fewer than 20 rows take part."""
+    m = (a >= lo) & (a <= hi)
+    a, y = a[m], y[m]
+    if a.size < 20 or not hi > 0:
+        return float("nan"), float("nan")
+    grid = np.geomspace(1e-4, 1.0, n_grid) * hi
+    saa, say, syy = float(a @ a), float(a @ y), float(y @ y)
+    best = (np.inf, 0, np.nan)
+    for k, vs in enumerate(grid):                  # widths of the grid, the rows vectorised
+        t = np.tanh(a / vs)
+        stt, sta, sty = float(t @ t), float(t @ a), float(t @ y)
+        det = stt * saa - sta * sta
+        if det <= 1e-12 * stt * saa:
+            continue
+        c = (sty * saa - sta * say) / det
+        fv = (stt * say - sta * sty) / det
+        rss = syy - c * sty - fv * say
+        if rss < best[0]:
+            best = (rss, k, c)
+    if best[1] in (0, n_grid - 1):
+        return float("nan"), float("nan")
+    return float(grid[best[1]]), float(best[2])
+
+
+def friction_transition(qd, friction, v_floor) -> dict:
+    """The speed at which the joint's friction has completed its sign transition, from the
+    friction the record shows (``friction``: the measured torque less everything but the joint's
+    friction). A smoothed-sign law ``c tanh(|qd| / vs) + fv |qd|`` (eq. of a regularised Coulomb
+    step, the width ``vs`` covering presliding, a filtered reversal and sign noise alike) is
+    fitted on the rows from ``v_floor`` to half and to the whole 99th-percentile speed: a real
+    transition keeps its width when the range doubles (``stable``: the whole range's width at
+    most :data:`TRANSITION_STABLE` times the half range's; a smaller one only says that the half
+    range did not see the transition's end), and is over at ``end = TRANSITION_WIDTHS vs`` on the
+    whole range (the friction then within 0.5 % of its sliding level). A width that grows with
+    the fitted range says that the friction bends at every speed (e.g. a nonlinear viscous law):
+    no transition end, and the Coulomb level of a Coulomb + viscous law depends on the cut
+    (``end`` None)."""
+    a = np.abs(np.asarray(qd, float))
+    y = np.sign(qd) * np.asarray(friction, float)
+    sp = float(np.percentile(a, 99)) if a.size else 0.0
+    step = max(1, a.size // TRANSITION_ROWS)           # long records: every step-th row
+    a, y = a[::step], y[::step]
+    vs_half, _ = _tanh_width(a, y, v_floor, 0.5 * sp)
+    vs_full, c = _tanh_width(a, y, v_floor, sp)
+    ok = np.isfinite(vs_half) and np.isfinite(vs_full) and c > 0
+    ratio = vs_full / vs_half if ok else float("nan")
+    stable = bool(ok and ratio <= TRANSITION_STABLE)
+    return {"width_half": None if not np.isfinite(vs_half) else vs_half,
+            "width_full": None if not np.isfinite(vs_full) else vs_full,
+            "width_ratio": None if not np.isfinite(ratio) else float(ratio), "stable": stable,
+            "end": TRANSITION_WIDTHS * vs_full if stable else None}
+
+
+def coulomb_over_cuts(idt, rec, A, F, M, sigma, cuts) -> np.ndarray:
+    """The Coulomb level of every joint (Coulomb + viscous, in the same weighted linear system as
+    the fit) for each per-joint low-speed cut in ``cuts`` (k, n), rad/s: ``(k, n)``, NaN where a
+    joint keeps no row. ``A, F, M, sigma``: the design, the cv columns, the row mask and the row
+    weights of ``idt`` (a ``cv`` :class:`RigidBodyIdentifier`) at a cut no higher than any of
+    ``cuts``; a higher cut only removes rows (``|qd_j| < cut_j``) from ``M``. The spread of
+    these levels over plausible cuts bounds the cut's effect on Coulomb."""
+    out = np.full((len(cuts), rec.n), np.nan)
+    ones = np.ones(rec.t.size, bool)
+    for i, cut in enumerate(cuts):                       # a handful of cuts
+        Mi = M & (np.abs(rec.qd) >= np.asarray(cut, float)[None, :])
+        if not Mi.any():
+            continue
+        sol = idt._solve(rec, A, F, Mi, ones, sigma=sigma, quick=True, linear=True)
+        out[i] = np.where(Mi.any(axis=0), sol["bf"][0::2], np.nan)
+    return out
+
+
 def without_unlogged(rec):
     """``rec`` with the torque of its unlogged joints (``rec.unlogged``, and any joint without a
     single finite torque sample) set to 0 and those joints named in ``unlogged``: the identifier

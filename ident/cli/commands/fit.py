@@ -50,10 +50,10 @@ def register(sub):
                    help="multi-joint records: Savitzky-Golay window, s, or 'auto' (per joint, the "
                         "longest window whose residual stays at the angle noise level)")
     p.add_argument("--v-zero", default="auto", metavar="FRAC",
-                   help="multi-joint records: the low-speed cut; 'auto' (default): per joint, three "
-                        "standard deviations of the velocity noise (encoder resolution, angle "
-                        "noise through the derivative filter); a number: rows slower than FRAC x "
-                        "the joint's 99th-percentile speed are left out of the friction fit")
+                   help="multi-joint records: the low-speed cut; 'auto' (default): per joint, the "
+                        "largest of the velocity noise floor, the residual knee and the end of the "
+                        "friction's sign transition (docs/vendor.md); a number: rows slower than "
+                        "FRAC x the joint's 99th-percentile speed are left out of the friction fit")
     p.add_argument("--export-c", type=Path, default=None, metavar="DIR",
                    help="write the fitted models as C99 (jl_friction.h/.c) into DIR")
     p.add_argument("--export-dt", type=float, default=None, metavar="S",
