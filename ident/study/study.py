@@ -58,6 +58,7 @@ from mocap.io.errors import InputError
 
 from ident.outputs import FolderLock, OutputDir, file_sha256
 from ident.study.records import dumps_record, read_record
+from ident.workflow import plan
 
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
 
@@ -640,7 +641,7 @@ class Study:
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
         tasks, skipped = campaign_tasks(camp, None, s.models, s.n_starts, s.seed, s.sync, robot=ctx.robot)
-        multi = {t.id for t in camp.trials if len(t.joints) > 1}   # the rigid-body stage's
+        multi = set(plan(camp).multi_joint)   # the rigid-body stage's
         tasks = [t for t in tasks if t.trial not in multi]
         by_trial: dict = {}
         for t in tasks:  # loop over (trial, joint) tasks
@@ -746,7 +747,7 @@ class Study:
         for t in camp.trials:  # loop over trials
             if len(t.joints) == 1:
                 by_joint.setdefault(int(t.joints[0]), []).append(t)
-        if not by_joint:
+        if "single_joint" not in plan(camp).diagnosis_paths:
             return self._diagnosis_records(ctx, dset, t0)
         jobs, done, hashes = [], {}, {}
         for j, trials in sorted(by_joint.items()):  # loop over joints

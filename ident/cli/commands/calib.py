@@ -34,31 +34,30 @@ def register(sub):
 
 
 def run(args) -> int:
-    from calib.pipeline import calibrate, summary_markdown, write_calib_json
     from mocap.io.campaign import load_campaign
+    from mocap.io.plausibility import check_calib_options
     from viz import make_sink
 
-    from mocap.io.plausibility import check_calib_options
+    from ident import workflow
 
     check_calib_options(args)
     camp = load_campaign(args.campaign)
     with OutputDir(args.out, "calib", [camp.root]) as od:
         od.check_early(["calib.json"])
-        robot = camp.load_robot()
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-            result = calibrate(camp, robot, method=args.method, sink=sink, noise_mm=args.noise_mm,
-                               min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check,
-                               urdf_tol_mm=args.urdf_tol_mm)
+            result = workflow.calibrate(camp, method=args.method, sink=sink, noise_mm=args.noise_mm,
+                                        min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check,
+                                        urdf_tol_mm=args.urdf_tol_mm)
         stage = od.stage()
-        path = od.final(write_calib_json(stage / "calib.json", result))
+        path = od.final(result.write(stage))
         od.commit(stage)
     for w in result.warnings:
         print(f"jointlab: warning: {w}", file=sys.stderr)
     if args.json:
         print(json.dumps(result.to_dict(), indent=1))
     else:
-        print(summary_markdown(result, warnings=False))
-        he = result.extra.get("handeye")
+        print(result.markdown(warnings=False))
+        he = result.result.extra.get("handeye")
         if he:
             print(f"\nhand-eye cross-check ({he['link']}): {he['difference_origin_mm']:.4f} mm, "
                   f"{he['difference_rotation_deg']:.5f} deg from the axis solution; marker rms {he['rms_mm']:.3f} mm")

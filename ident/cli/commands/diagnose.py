@@ -1,4 +1,7 @@
-"""``jointlab diagnose CAMPAIGN --out DIR``: where the sim-to-real gap lies and which effect causes it."""
+"""``jointlab diagnose CAMPAIGN --out DIR``: where the sim-to-real gap lies and which effect causes it.
+
+A shell over :func:`ident.workflow.diagnose_campaign` (single-joint trials per joint, multi-joint
+records per joint over their motion cycles, as :func:`ident.workflow.plan` decides)."""
 from __future__ import annotations
 
 import json
@@ -27,74 +30,42 @@ def register(sub):
     return p
 
 
-def link_angles(campaign, robot, angles_dir=None, sink=None, progress=True):
-    """trial id -> (t, {joint: q_link}): from an angles folder, or solved from the markers."""
-    from ident.gap.campaign_diagnosis import load_angles_dir
-
-    if angles_dir is not None:
-        return load_angles_dir(angles_dir, campaign.trials)
-    from ident.study.angles import solve_campaign_angles
-
-    return solve_campaign_angles(campaign, robot, sink=sink, progress=progress)
-
-
 def _diagnose(camp, robot, angles, settings, joints):
-    """Single-joint trials through ``diagnose_campaign``; multi-joint records (one continuous
-    record of several joints) through :func:`ident.model.multijoint.diagnose_records`."""
-    from ident.gap.campaign_diagnosis import diagnose_campaign
-    from ident.model.multijoint import diagnose_records, multijoint_trials
+    """(report, series) of :func:`ident.workflow.diagnose_campaign` with ``angles`` already
+    solved (trial id -> (t, {joint: q})) or None (torque channel only)."""
+    from ident.workflow import diagnose_campaign
 
-    from ident.model.record import check_campaign_motion
-
-    check_campaign_motion(camp, robot.n)
-    multi = multijoint_trials(camp)
-    if not multi:
-        return diagnose_campaign(camp, robot, angles, settings, joints=joints, progress=True)
-    if len(multi) < len(camp.trials):
-        report, series = diagnose_campaign(camp, robot, angles, settings, joints=joints, progress=True)
-    else:
-        report = {"format": 1, "campaign": camp.name, "settings": settings.to_dict(), "joints": {},
-                  "skipped_trials": [], "link_angles": False}
-        series = {}
-    rj, rs = diagnose_records(camp, robot, settings, joints=joints)
-    report["joints"].update(rj)
-    series.update(rs)
-    report["multi_joint_trials"] = [t.id for t in multi]
-    report["skipped_trials"] = [t for t in report.get("skipped_trials", []) if t not in set(report["multi_joint_trials"])]
-    return report, series
+    d = diagnose_campaign(camp, robot=robot, angles=angles, markers=angles is not None,
+                          settings=settings, joints=joints)
+    return d.report, d.series
 
 
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
+    from ident.gap.campaign_diagnosis import check_diagnose_options
     from viz import make_sink
 
+    from ident import workflow
     from ident.gap import DiagnosisSettings
-    from ident.gap.report import write_report
-
     from ident.gap.nominal import check_nominal
 
     camp = load_campaign(args.campaign)
     joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
     check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
-    from ident.gap.campaign_diagnosis import check_diagnose_options
-
     check_diagnose_options(args, camp)       # held --nominal values, --joints, --angles
     with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:
         od.check_early(["diagnosis.json", "diagnosis.md"])
         out = od.root
         robot = camp.load_robot()
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
-            no_markers = args.no_markers or not camp.has_markers   # marker-less campaigns
-            angles = None if no_markers else link_angles(camp, robot, args.angles, sink)
-            report, series = _diagnose(camp, robot, angles, DiagnosisSettings(seed=args.seed, nominal=args.nominal), args.joints)
+            result = workflow.diagnose_campaign(
+                camp, robot=robot, angles=args.angles, markers=not args.no_markers, joints=args.joints,
+                settings=DiagnosisSettings(seed=args.seed, nominal=args.nominal), sink=sink)
             stage = od.stage()
-            paths = write_report(report, series, stage, sink)
+            paths = result.write(stage, sink)
         paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
         od.commit(stage)
-    summary = {j: {"verdict": r["verdict"], "verdict_status": r.get("verdict_status"),
-                   "verdict_text": r.get("verdict_text", r["verdict"]),
-                   "heldout_rms_nominal": r.get("heldout_rms_nominal")}
-               for j, r in report["joints"].items()}
+    summary = result.summary()
     if args.json:
         print(json.dumps({"out": str(out), "joints": summary}, indent=1))
     else:

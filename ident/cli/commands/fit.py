@@ -14,7 +14,10 @@
   fitted model C can represent (the dynamic models, and the per-trial ``cv`` fits), dynamic
   models at the sample time ``--export-dt`` (default: the identification data's).
 
-Both sets of models may be asked at once."""
+Both sets of models may be asked at once. A campaign of multi-joint records is fitted with the
+URDF rigid-body model and per-joint friction of every asked model (:mod:`ident.model.rigidbody`).
+Which path a campaign and each model take is :func:`ident.workflow.plan`'s decision; this module
+parses the arguments, runs :func:`ident.workflow.fit_campaign`, writes and prints."""
 from __future__ import annotations
 
 import json
@@ -63,100 +66,44 @@ def register(sub):
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
 
-    from ident.indri.campaign_fit import DYNAMIC_MODELS
-    from ident.model.onelink import model_class
+    from ident import workflow
 
     args.workers = cap_workers(args.workers)
-    models = tuple(dict.fromkeys(m.strip() for m in args.models.split(",") if m.strip()))
-    if not models:
-        raise InputError("--models is empty")
-    dyn_models = tuple(m for m in models if m in DYNAMIC_MODELS)
-    one_models = tuple(m for m in models if m not in DYNAMIC_MODELS)
-    for m in one_models:
-        try:
-            model_class(m)
-        except KeyError as exc:
-            raise InputError(str(exc.args[0]), label=m) from None
+    models = workflow.parse_models(args.models)
     if args.export_dt is not None and not args.export_dt > 0:
         raise InputError("--export-dt must be a positive number of seconds")
     camp = load_campaign(args.campaign, check_files=False)  # marker files are not needed here
-    from ident.model.multijoint import multijoint_trials
-    from ident.model.record import check_campaign_motion
-
-    check_campaign_motion(camp, camp.load_robot().n)    # braked joints must stay still
-    from mocap.io.plausibility import check_campaign_inputs
-
-    check_campaign_inputs(camp, markers=False)          # units, swaps, no motion: one line
-    multi = multijoint_trials(camp)
-    if multi:
-        import dataclasses
-
-        camp_multi = camp
-        camp = dataclasses.replace(camp, trials=tuple(t for t in camp.trials if t not in multi))
-        if not camp.trials:
-            return _run_multijoint(args, camp_multi, models)
-        raise InputError(f"the campaign mixes multi-joint trials ({multi[0].id!r}, ...) with "
-                         "single-joint ones; fit them from two manifests", path=camp.manifest)
-    route_note = None
-    if "arctan" in dyn_models and not any(t.kind == "constant_velocity" and len(t.joints) == 1
-                                          for t in camp.trials):
-        # Indri & Trapani fit arctan to constant-velocity moves (data set 1); without them the
-        # static arctan law is fitted per trial like the thesis's static laws (eq. 2-4)
-        dyn_models = tuple(m for m in dyn_models if m != "arctan")
-        one_models = one_models + ("arctan",)
-        route_note = ("arctan: no constant_velocity trials (Indri & Trapani data set 1): fitted "
-                      "per trial through the one-link model (eq. 2-4) with the static laws")
-    dyn_skip_note = None
-    if dyn_models:
-        from ident.indri.campaign_fit import feasible_models, missing_data_sets
-
-        kinds = {t.kind for t in camp.trials if len(t.joints) == 1}
-        if not feasible_models(dyn_models, kinds):
-            dyn_skip_note = (f"{', '.join(dyn_models)} not identified "
-                             f"({missing_data_sets(dyn_models, kinds)})")
-            if not one_models:
-                raise InputError(dyn_skip_note, path=camp.manifest)
-            dyn_models = ()
-    inputs = [camp.root] + ([args.angles] if args.angles else [])
-    if args.angles is not None and not args.angles.is_dir():
-        raise InputError("--angles must be a folder", path=args.angles)
+    plan = workflow.prepare_fit(camp, models, angles=args.angles, export_c=args.export_c is not None)
+    settings = workflow.FitSettings(n_starts=args.starts, seed=args.seed, sync=args.sync,
+                                    derivatives=args.derivatives, window=args.window,
+                                    v_zero=args.v_zero)
+    angles = args.angles if plan.uses_angles else None
+    inputs = [camp.root] + ([angles] if angles else [])
     with OutputDir(args.out, "fit", inputs) as od:
         od.check_early(["fits.json"])
         if args.export_c is None:
-            return _run_single(args, camp, models, one_models, dyn_models, od, None,
-                               (route_note, dyn_skip_note))
+            return _run(args, camp, plan, settings, angles, od, None)
         with OutputDir(args.export_c, "fit", inputs, flag="--export-c") as oc:
-            return _run_single(args, camp, models, one_models, dyn_models, od, oc,
-                               (route_note, dyn_skip_note))
+            return _run(args, camp, plan, settings, angles, od, oc)
 
 
-def _run_single(args, camp, models, one_models, dyn_models, od, oc, notes=()) -> int:
-    from ident.thesis.campaign_fit import fit_campaign
-    from ident.indri.campaign_fit import fit_campaign_dynamic, merge_fits_json
+def _run(args, camp, plan, settings, angles, od, oc) -> int:
+    """Fit (:func:`ident.workflow.fit_campaign`), write, export, print."""
+    from viz import make_sink
 
-    out, stage = od.root, od.stage()
+    from ident import workflow
+
+    stage = od.stage()
     executor = None
-    if args.workers > 1 and one_models:
+    if args.workers > 1 and plan.models.get("single_joint"):
         from ident.study.executor import make_executor
 
         executor = make_executor(args.workers, progress=False)
-    from viz import make_sink
-
-    res = dyn = None
     try:
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-            if one_models:
-                res = fit_campaign(camp, args.angles, one_models, sink=sink, executor=executor,
-                                   n_starts=args.starts, seed=args.seed, sync=args.sync)
-            if dyn_models:
-                dyn = fit_campaign_dynamic(camp, angles_dir=args.angles, sink=sink, models=dyn_models)
-            paths = res.write(stage, plots=not args.no_plots) if res is not None else {}
-            if dyn is not None:
-                doc = res.to_dict() if res is not None else {"format": 1, "trials": {}, "summary": []}
-                paths["fits"] = stage / "fits.json"
-                paths["fits"].write_text(json.dumps(merge_fits_json(doc, dyn), indent=1,
-                                                    allow_nan=False), encoding="utf-8")
-                paths["indri"] = dyn.write_reports(stage, sink=sink)
+            result = workflow.fit_campaign(camp, angles=angles, settings=settings, plan=plan,
+                                           sink=sink, executor=executor)
+            paths = result.write(stage, plots=not args.no_plots, sink=sink)
     finally:
         if executor is not None:
             executor.close()
@@ -164,78 +111,22 @@ def _run_single(args, camp, models, one_models, dyn_models, od, oc, notes=()) ->
     exported, export_note = [], None
     if oc is not None:
         cstage = oc.stage()
-        exported, export_note = _export_c(cstage, res, dyn, args.export_dt)
+        exported, export_note = result.export_c(cstage, args.export_dt)
         exported = [oc.final(p) for p in exported]
         oc.commit(cstage)
     od.commit(stage)
     if args.json:
-        doc = res.to_dict() if res is not None else {"format": 1, "trials": {}, "summary": []}
-        if dyn is not None:
-            doc = merge_fits_json(doc, dyn)
-        print(json.dumps(doc, indent=1, allow_nan=False))
+        print(json.dumps(result.to_dict(), indent=1, allow_nan=False))
         return 0
-    for n in notes:
-        if n:
-            print(f"note: {n}")
-    if res is not None:
-        print(f"{len(res.entries)} trial-joint fits of {len(one_models)} models -> {paths['fits']}")
-        notes = sorted({n for e in res.entries for n in e.notes})
-        for n in notes:
-            print(f"note: {n}")
-        if res.skipped:
-            print(f"skipped (coast-down): {', '.join(res.skipped)}")
-        for e in res.entries:
-            line = ", ".join(f"{m} rms {f.rms:.3g}" + (f" [{f.form}]" if f.form else "")
-                             + (f" [INVALID: {'; '.join(f.flags)}]" if f.flags else "")
-                             for m, f in e.fits.items())
-            lf = e.signals["link_fit"]
-            print(f"  {e.task.trial} joint {e.task.joint}: link {lf['method']} ({e.signals['link_fit_rms_deg']:.3f} deg "
-                  f"vs markers), motor {e.signals['motor_fit']['method']} "
-                  f"{e.signals['motor_fit']['bandwidth_hz']:.3g} Hz; {line}")
-            for m, fl in getattr(e, "param_flags", {}).items():
-                groups: dict = {}
-                for k, f in fl.items():       # one line per reason
-                    val = ("not identifiable" if f["flag"] == "unidentifiable"
-                           else f"{e.fits[m].params[k]:.4g} [{f['flag']}]")
-                    groups.setdefault((f["flag"], f["reason"]), []).append((k, val))
-                for (kind, why), kv in groups.items():
-                    if kind == "unidentifiable":
-                        print(f"    {m} {', '.join(k for k, _ in kv)}: not identifiable ({why})")
-                    else:
-                        print(f"    {m} " + ", ".join(f"{k} {v}" for k, v in kv) + f" ({why})")
-        from ident.friction.plausibility import meaning_line
-
-        for m in one_models:
-            if meaning_line(m):
-                print(f"({meaning_line(m)})")
-    if dyn is not None:
-        print(f"Indri & Trapani ({', '.join(dyn_models)}) for joints {', '.join(map(str, dyn))} "
-              f"-> {paths['fits']}, {out / 'indri'}")
-        for n in getattr(dyn, "notes", []):
-            print(f"note: {n}")
-        for j in dyn:
-            ents = dyn.joint_entries(j)
-            d = dyn.data[j]
-            from ident.friction.plausibility import meaning_line
-            from ident.model.multijoint import _pv
-
-            for m, e in ents.items():
-                fl = e.get("flags", {})
-                pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
-                print(f"  joint {j} {m}: {pv}")
-                why = {}
-                for k, f in fl.items():
-                    why.setdefault(f["reason"], []).append(k)
-                for r, ks in why.items():
-                    print(f"    {', '.join(ks)}: {r}")
-            for m in ents:
-                if meaning_line(m):
-                    print(f"  ({meaning_line(m)})")
-            if d.reversals:
-                print(f"  joint {j} reversal data sets: "
-                      + ", ".join(f"{r.accel:.3g}" for r in d.reversals) + " rad/s^2")
-            for n in d.notes:
-                print(f"note: {n}")
+    if result.rigidbody is not None:
+        _print_rigidbody(result.rigidbody, plan.models["multi_joint"], od.root, paths)
+        return 0
+    for n in plan.notes:
+        print(f"note: {n}")
+    if result.onelink is not None:
+        _print_onelink(result.onelink, plan.models["single_joint"], paths)
+    if result.indri is not None:
+        _print_indri(result.indri, plan.models["indri"], od.root, paths)
     if exported:
         print(f"C export -> {', '.join(str(p) for p in exported)}")
     if export_note:
@@ -243,49 +134,75 @@ def _run_single(args, camp, models, one_models, dyn_models, od, oc, notes=()) ->
     return 0
 
 
-def _run_multijoint(args, camp, models) -> int:
-    """Multi-joint continuous records: the URDF rigid-body model jointly with per-joint friction
-    of every asked model, torque offsets, actuator inertias and coupled motors
-    (:mod:`ident.model.rigidbody`)."""
-    from ident.friction import MODELS
+def _print_onelink(res, one_models, paths) -> None:
+    from ident.friction.plausibility import meaning_line
 
-    bad = [m for m in models if m not in MODELS]
-    if bad:
-        raise InputError(f"unknown friction model {bad[0]!r} (known: {', '.join(MODELS)})", label=bad[0])
-    if args.export_c is not None:
-        raise InputError("--export-c is not available for multi-joint records")
-    with OutputDir(args.out, "fit", [camp.root]) as od:
-        od.check_early(["fits.json"])
-        return _run_multijoint_in(args, camp, models, od)
+    print(f"{len(res.entries)} trial-joint fits of {len(one_models)} models -> {paths['fits']}")
+    notes = sorted({n for e in res.entries for n in e.notes})
+    for n in notes:
+        print(f"note: {n}")
+    if res.skipped:
+        print(f"skipped (coast-down): {', '.join(res.skipped)}")
+    for e in res.entries:
+        line = ", ".join(f"{m} rms {f.rms:.3g}" + (f" [{f.form}]" if f.form else "")
+                         + (f" [INVALID: {'; '.join(f.flags)}]" if f.flags else "")
+                         for m, f in e.fits.items())
+        lf = e.signals["link_fit"]
+        print(f"  {e.task.trial} joint {e.task.joint}: link {lf['method']} ({e.signals['link_fit_rms_deg']:.3f} deg "
+              f"vs markers), motor {e.signals['motor_fit']['method']} "
+              f"{e.signals['motor_fit']['bandwidth_hz']:.3g} Hz; {line}")
+        for m, fl in getattr(e, "param_flags", {}).items():
+            groups: dict = {}
+            for k, f in fl.items():       # one line per reason
+                val = ("not identifiable" if f["flag"] == "unidentifiable"
+                       else f"{e.fits[m].params[k]:.4g} [{f['flag']}]")
+                groups.setdefault((f["flag"], f["reason"]), []).append((k, val))
+            for (kind, why), kv in groups.items():
+                if kind == "unidentifiable":
+                    print(f"    {m} {', '.join(k for k, _ in kv)}: not identifiable ({why})")
+                else:
+                    print(f"    {m} " + ", ".join(f"{k} {v}" for k, v in kv) + f" ({why})")
+    for m in one_models:
+        if meaning_line(m):
+            print(f"({meaning_line(m)})")
 
 
-def _run_multijoint_in(args, camp, models, od) -> int:
-    from ident.model.multijoint import fit_multijoint_campaign
-    from ident.model.record import RecordSettings
+def _print_indri(dyn, dyn_models, out, paths) -> None:
+    from ident.friction.plausibility import meaning_line
+    from ident.model.multijoint import _pv
 
-    out, stage = od.root, od.stage()
-    try:
-        window = args.window if args.window == "auto" else float(args.window)
-    except ValueError:
-        raise InputError(f"--window must be 'auto' or seconds, got {args.window!r}") from None
-    rs = RecordSettings(derivatives=args.derivatives, window_s=window)
-    v_zero = args.v_zero
-    if v_zero != "auto":
-        try:
-            v_zero = float(v_zero)
-        except ValueError:
-            raise InputError(f"--v-zero must be 'auto' or a fraction, got {args.v_zero!r}") from None
-        if not 0 <= v_zero < 1:
-            raise InputError(f"--v-zero must be 'auto' or a fraction in [0, 1), got {args.v_zero!r}")
-    res = fit_multijoint_campaign(camp, models, record=rs, seed=args.seed, v_zero=v_zero,
-                                  n_starts=args.starts)
-    doc = res.merge_into({"format": 1, "trials": {}, "summary": []})
-    (stage / "fits.json").write_text(json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8")
-    paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in res.write(stage).items()}
-    od.commit(stage)
-    if args.json:
-        print(json.dumps(doc, indent=1, allow_nan=False))
-        return 0
+    print(f"Indri & Trapani ({', '.join(dyn_models)}) for joints {', '.join(map(str, dyn))} "
+          f"-> {paths['fits']}, {out / 'indri'}")
+    for n in getattr(dyn, "notes", []):
+        print(f"note: {n}")
+    for j in dyn:
+        ents = dyn.joint_entries(j)
+        d = dyn.data[j]
+        for m, e in ents.items():
+            fl = e.get("flags", {})
+            pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
+            print(f"  joint {j} {m}: {pv}")
+            why = {}
+            for k, f in fl.items():
+                why.setdefault(f["reason"], []).append(k)
+            for r, ks in why.items():
+                print(f"    {', '.join(ks)}: {r}")
+        for m in ents:
+            if meaning_line(m):
+                print(f"  ({meaning_line(m)})")
+        if d.reversals:
+            print(f"  joint {j} reversal data sets: "
+                  + ", ".join(f"{r.accel:.3g}" for r in d.reversals) + " rad/s^2")
+        for n in d.notes:
+            print(f"note: {n}")
+
+
+def _print_rigidbody(res, models, out, paths) -> None:
+    """The multi-joint rigid-body fits (:mod:`ident.model.rigidbody`): per record and model the
+    per-joint friction, offsets, armatures and coupled motors."""
+    from ident.friction.plausibility import meaning_line
+    from ident.model.multijoint import _arm, _pv
+
     print(f"{len(res.fits)} multi-joint record(s), models {', '.join(models)} -> {out / 'fits.json'}, "
           f"{paths['rigidbody']}, {paths['rigidbody_report']}")
     shown: set = set()
@@ -294,9 +211,6 @@ def _run_multijoint_in(args, camp, models, od) -> int:
         print(f"  {tid}: {res.seconds[tid]:.1f} s; " + "; ".join(pre.get("steps", [])))
         for w in pre.get("warnings", []):
             print(f"  warning: {w}")
-        from ident.friction.plausibility import meaning_line
-        from ident.model.multijoint import _arm, _pv
-
         for m, fit in by_model.items():
             if meaning_line(m):
                 print(f"    ({meaning_line(m)})")
@@ -313,32 +227,3 @@ def _run_multijoint_in(args, camp, models, od) -> int:
                 if n not in shown:             # a note shared by every model, printed once
                     print(f"note: {n}")
                     shown.add(n)
-    return 0
-
-
-def _export_c(out_dir, res, dyn, dt):
-    """C export of every representable model: the dynamic models (``joint<j>_<model>``) and
-    the per-trial one-link ``cv`` fits (``<trial>_<joint>_cv``)."""
-    from ident.indri.codegen import export_models_c
-
-    tree, note = {}, None
-    if dyn is not None:
-        tree.update(dyn.export_models())
-        ident_dt = sorted({round(d.dt, 12) for d in dyn.data.values()})
-        if dt is None:
-            if len(ident_dt) > 1:
-                raise InputError("the joints were identified at different sample times "
-                                 f"{ident_dt}; give --export-dt")
-            dt = ident_dt[0]
-        elif any(abs(dt - x) > 1e-9 * max(dt, x) for x in ident_dt):
-            note = (f"--export-dt {dt:g} s differs from the identification sample time "
-                    f"{', '.join(f'{x:g}' for x in ident_dt)} s: the discrete damping absorbs "
-                    "Ts/2 (ident.indri.estimator), re-identify at the controller's rate")
-    if res is not None:
-        for e in res.entries:
-            tree.setdefault(e.task.trial, {}).setdefault(str(e.task.joint), {}).update(
-                {m: f for m, f in e.fits.items() if m == "cv"})
-    try:
-        return export_models_c(tree, out_dir, dt=dt), note
-    except ValueError as exc:
-        raise InputError(f"--export-c: {exc}", path=out_dir) from None

@@ -79,7 +79,11 @@ def campaign_info(path: Path) -> dict:
         entries.append(e)
     from mocap.urdf import missing_meshes
 
+    from ident.workflow import plan
+
+    p = plan(camp)
     return {"campaign": camp.name, "root": str(camp.root), "robot": robot.describe(),
+            "paths": {k: p.reasons[k] for k in p.paths},
             "missing_meshes": missing_meshes(camp.urdf),
             "coupling": None if camp.coupling is None else [list(r) for r in camp.coupling],
             "markers": {k: list(v) for k, v in camp.markers.items()}, "recordings": entries}
@@ -161,6 +165,9 @@ def _print_campaign(d: dict) -> None:
               f"{sp['step_max_s'] * 1e3:.3g} ms, {sp['n_repeated']} repeated rows{extra}")
         for w in e["warnings"]:
             print(f"    warning: {w}")
+    if d.get("paths"):
+        print("identification paths (ident.workflow.plan): "
+              + "; ".join(f"{k} ({why})" for k, why in d["paths"].items()))
 
 
 def run(args) -> int:

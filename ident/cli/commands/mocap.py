@@ -50,35 +50,25 @@ def run(args) -> int:
 
 
 def _run(args, camp, trials, od) -> int:
-    from mocap.quality import summary
     from mocap.references import read_calib
-    from mocap.solve import solve_trial
     from viz import make_sink
 
-    out, stage = od.root, od.stage()
-    robot = camp.load_robot()
-    T_cb = read_calib(args.calib) if args.calib else None
-    from ident.study.angles import campaign_references
+    from ident import workflow
 
+    out, stage = od.root, od.stage()
+    T_cb = read_calib(args.calib) if args.calib else None
     if T_cb is None and not args.json:
         print("camera pose: from the static pose(s) if they fix it, else from the [[calib]] sweeps "
               "(save it with `jointlab calib`)")
-    refs, camera_from = campaign_references(camp, robot, T_cb)
-    results = []
+    robot = camp.load_robot()
+    refs = workflow.references(camp, robot=robot, T_camera_base=T_cb)
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-        if sink.enabled:
-            from mocap.kinematics import invert_transform
-
-            # world = the robot base frame; the camera entity's pose in it is T_base_camera
-            sink.transform("world/camera", invert_transform(refs.T_camera_base))
-        for tr in trials:
-            res = solve_trial(camp, tr, refs, sink=sink, robot=robot, refine=args.refine,
-                              refine_geometry=args.refine_geometry,
-                              min_markers=args.min_markers, reject_sigma=args.reject_sigma)
-            res.write_csv(stage / od.rel(f"angles/{tr.id}.csv"), overwrite=True)
-            results.append(res)
-    doc = summary(results, refs)
-    doc["camera_from"] = camera_from
+        result = workflow.solve_angles(camp, robot=robot, refs=refs, trials=trials, sink=sink,
+                                       refine=args.refine, refine_geometry=args.refine_geometry,
+                                       min_markers=args.min_markers, reject_sigma=args.reject_sigma)
+    for res in result.trials:
+        res.write_csv(stage / od.rel(f"angles/{res.trial_id}.csv"), overwrite=True)
+    refs, doc = result.references, result.summary()
     (stage / "references.json").write_text(json.dumps(refs.to_dict(), indent=1), encoding="utf-8")
     (stage / "mocap.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
     od.commit(stage)
@@ -89,9 +79,9 @@ def _run(args, camp, trials, od) -> int:
 
         fit = f", static fit RMS {1e3 * refs.fit_rms_m:.3f} mm" if len(refs.poses) > 1 else ""
         print(f"references: {len(refs.labels)} markers from {len(refs.poses)} static pose(s), camera "
-              f"pose from {camera_from}{fit}, marker scatter while still "
+              f"pose from {result.camera_from}{fit}, marker scatter while still "
               f"{1e3 * np.nanmedian(refs.scatter_m):.3f} mm (median)")
-        for r in results:
+        for r in result.trials:
             d = r.to_dict()
             rms = "n/a" if d["rms_mm"] is None else f"{d['rms_mm']:.3f} mm"
             fx = d.get("fixed_markers")
