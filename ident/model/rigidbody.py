@@ -32,9 +32,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ident.friction import laws
+from ident.friction import MODELS, laws
+from ident.friction.fit import fit_friction
+from ident.friction.plausibility import assess, assess_armature, to_json
 from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
+from ident.signals.blas import one_blas_thread
 
 LINEAR_MODELS = ("cv",)
 _PREPARED: dict = {}       # the last record's model-independent design (RigidBodyIdentifier._prepared)
@@ -274,7 +277,6 @@ class RigidBodyIdentifier:
                  v_zero_frac: float = 0.02, armature: bool = True, offset: bool = True,
                  coupled_motors: bool = True, n_iter: int = 3, folds: int = 5, n_starts: int = 4,
                  seed: int = 0, lower=None, upper=None, v_zero=None):
-        from ident.friction import MODELS
 
         if model not in MODELS:
             raise KeyError(f"unknown friction model {model!r} (known: {', '.join(MODELS)})")
@@ -342,7 +344,6 @@ class RigidBodyIdentifier:
         ``rec.unlogged`` (their torque was not logged, FORMAT.md ``unlogged_torque``) keep their
         angles in the regressor of the other joints; their own rows are left out and nothing
         is identified for them."""
-        from ident.signals.blas import one_blas_thread
 
         rec = without_unlogged(rec)
         with one_blas_thread():
@@ -464,7 +465,6 @@ class RigidBodyIdentifier:
         return Gi * s2 / np.outer(cn, cn)
 
     def _alternate(self, rec, A, F, rows, w, quick, init=None) -> dict:
-        from ident.friction.fit import fit_friction
 
         T, n, p = A.shape
         A2 = A.reshape(T * n, p)
@@ -573,7 +573,6 @@ class RigidBodyIdentifier:
                     e["settings"] = f.model.to_dict()["settings"]
             mdl = (CoulombViscous(**e["params"]) if self.model in LINEAR_MODELS
                    else sol["ff"][j].model)
-            from ident.friction.plausibility import assess, assess_armature, to_json
 
             flags = assess(self.model, e["params"], qd=rec.qd[M[:, j], j],
                            stderr=e.get("stderr"), model=mdl,
