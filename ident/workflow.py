@@ -5,8 +5,8 @@ apply is decided here, once, by :func:`plan`:
 
 ``single_joint``
     trials that move one joint: the thesis's one-link model (eq. 2-4) per trial and joint
-    (:func:`ident.thesis.campaign_fit.fit_campaign`); the gap diagnosis pools a joint's trials
-    (:func:`ident.gap.campaign_diagnosis.diagnose_campaign`).
+    (:func:`ident.thesis.campaign_fit.fit_onelink_campaign`); the gap diagnosis pools a joint's trials
+    (:func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign`).
 ``indri``
     the dynamic models ``arctan``, ``dm1``, ``dm2`` per joint (Indri & Trapani 2020,
     :func:`ident.indri.campaign_fit.fit_campaign_dynamic`) from single-joint trials of the kinds
@@ -50,7 +50,7 @@ from tqdm import tqdm
 from ident.coastdown.campaign_analysis import coastdown_trials
 from ident.friction import MODELS
 from ident.gap import DiagnosisSettings
-from ident.gap.campaign_diagnosis import diagnose_campaign as _diagnose_single
+from ident.gap.campaign_diagnosis import diagnose_single_joint_campaign as _diagnose_single
 from ident.gap.campaign_diagnosis import load_angles_dir
 from ident.gap.report import write_report
 from ident.indri.campaign_fit import (DYNAMIC_MODELS, DynamicFits, feasible_models, fit_campaign_dynamic,
@@ -62,7 +62,7 @@ from ident.model.onelink import model_class
 from ident.model.record import RecordSettings, check_campaign_motion
 from ident.study.angles import campaign_references
 from ident.thesis.campaign_fit import FitsResult
-from ident.thesis.campaign_fit import fit_campaign as _fit_onelink
+from ident.thesis.campaign_fit import fit_onelink_campaign as _fit_onelink
 
 __all__ = ["PATHS", "Plan", "plan", "parse_models", "prepare_fit", "FitSettings", "FitResult",
            "fit_campaign", "CampaignDiagnosis", "diagnose_campaign", "CalibrationResult",
@@ -604,7 +604,7 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
                       progress: bool = True) -> CampaignDiagnosis:
     """Diagnose the sim-to-real gap of every joint along the paths :func:`plan` chooses.
 
-    Single-joint trials go through :func:`ident.gap.campaign_diagnosis.diagnose_campaign` (per joint),
+    Single-joint trials go through :func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign` (per joint),
     multi-joint records through :func:`ident.model.multijoint.diagnose_records`; a campaign with
     both gets one report.
 

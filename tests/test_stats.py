@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ident.thesis import tables as stats
-from ident.thesis.campaign_fit import fit_campaign
+from ident.thesis.campaign_fit import fit_onelink_campaign
 from ident.signals.fourier import FourierSeries
 from mocap.io.campaign import load_campaign, write_manifest
 from mocap.io.robotlog import RobotLog, write_robot_log
@@ -142,7 +142,7 @@ def make_campaign(root: Path, vmax_fracs=(1.0, 0.5), reps=5, load=3.373, seed=0,
 
 def test_campaign_cv_within_3_percent_and_thesis_cv(tmp_path):
     camp = load_campaign(make_campaign(tmp_path / "camp", coastdown=True))
-    res = fit_campaign(camp, models=("cv",))
+    res = fit_onelink_campaign(camp, models=("cv",))
     assert res.skipped == ("coast-1",)
     assert len(res.entries) == 10
     for e in res.entries:
@@ -204,7 +204,7 @@ def test_cli_fit_with_angles_models_and_executor(tmp_path, capsys):
     # the executor seam and the sink
     sink = _RecordingSink()
     with ThreadPoolExecutor(2) as ex:
-        res = fit_campaign(load_campaign(root), tmp_path / "angles", ("cv",), sink=sink, executor=ex)
+        res = fit_onelink_campaign(load_campaign(root), tmp_path / "angles", ("cv",), sink=sink, executor=ex)
     assert [e.task.trial for e in res.entries] == ["j1-load3.373-v100-r1", "j1-load3.373-v100-r2"]
     kinds = {c[0] for c in sink.calls}
     assert kinds == {"scalars", "points"} and any(c[1].endswith("/cv") for c in sink.calls)
@@ -221,7 +221,7 @@ def test_simulator_campaign_without_effects(tmp_path):
     assert main(["synth", str(camp), "--effect", "none", "--seed", "3", "--loads", "3.373", "--vmax", "1.0",
                  "--reps", "5", "--kinds", "excitation", "--quiet"]) == 0
     truth = json.loads((tmp_path / "sim.truth.json").read_text())["joints"]["5"]["true_models"]["cv"]
-    res = fit_campaign(load_campaign(camp, check_files=False), models=("cv",))
+    res = fit_onelink_campaign(load_campaign(camp, check_files=False), models=("cv",))
     assert len(res.entries) == 5
     for e in res.entries:
         assert e.fits["cv"].params["c"] == pytest.approx(truth["c"], rel=0.03)

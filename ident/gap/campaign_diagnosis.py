@@ -32,7 +32,7 @@ def load_angles_dir(angles_dir: str | Path, trials) -> dict:
     return out
 
 
-def diagnose_campaign(campaign, robot=None, angles: dict | None = None,
+def diagnose_single_joint_campaign(campaign, robot=None, angles: dict | None = None,
                       settings: DiagnosisSettings = DiagnosisSettings(), joints=None,
                       progress: bool = False) -> tuple[dict, dict]:
     """Diagnose every joint that has single-joint trials.

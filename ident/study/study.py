@@ -75,7 +75,7 @@ class StudySettings:
     """What a study computes. Everything here that changes a result is part of the input hashes.
 
     ``models``: friction models of the fits (eq. 2-4); ``n_starts``/``seed``/``sync``: see
-    :func:`ident.thesis.campaign_fit.fit_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
+    :func:`ident.thesis.campaign_fit.fit_onelink_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
     ``mocap``/``diagnose``: run those stages; ``plots``: PNG plots; ``rrd``: write the study
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
     speed) condition to the recording (keeps it small), ``"all"`` every trial."""
@@ -294,8 +294,8 @@ class _DiagJob:
 
 
 def _run_diag_job(job: _DiagJob) -> dict:
-    """The gap diagnosis of one joint (:func:`ident.gap.campaign_diagnosis.diagnose_campaign`)."""
-    from ident.gap.campaign_diagnosis import diagnose_campaign, load_angles_dir
+    """The gap diagnosis of one joint (:func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign`)."""
+    from ident.gap.campaign_diagnosis import diagnose_single_joint_campaign, load_angles_dir
     from ident.signals.smoothing import one_blas_thread
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -306,7 +306,7 @@ def _run_diag_job(job: _DiagJob) -> dict:
             trials = [t for t in camp.trials if tuple(t.joints) == (job.joint,)]
             angles = load_angles_dir(job.angles_dir, trials) or None
         with one_blas_thread():
-            report, series = diagnose_campaign(camp, robot, angles, job.settings, joints=[job.joint])
+            report, series = diagnose_single_joint_campaign(camp, robot, angles, job.settings, joints=[job.joint])
         key = str(job.joint)
         result = {"ok": True, "report": report["joints"].get(key), "series": series.get(key),
                   "link_angles": bool(report.get("link_angles")),

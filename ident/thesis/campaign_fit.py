@@ -13,7 +13,7 @@ Per (trial, joint) — :func:`fit_trial_joint`, a pure function of a picklable
    documented smoother;
 3. :class:`ident.model.onelink.OneLinkIdentifier`: eq. 2-4 with each friction model.
 
-:func:`fit_campaign` runs the tasks through ``executor.map`` (serial ``map`` by default),
+:func:`fit_onelink_campaign` runs the tasks through ``executor.map`` (serial ``map`` by default),
 then :class:`FitsResult` builds ``fits.json`` (FORMAT.md), the thesis tables
 (:mod:`ident.thesis.tables`), friction-vs-speed plots and the sink log. Coast-down trials are skipped
 (another estimator handles them).
@@ -37,7 +37,7 @@ from ident.friction.plausibility import assess, to_json
 from mocap.io.robotlog import read_robot_log
 from mocap.robot import Robot
 
-__all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_campaign",
+__all__ = ["FitTask", "TrialJointFit", "FitsResult", "fit_trial_joint", "fit_onelink_campaign",
            "campaign_tasks", "log_fits", "read_tx40_config", "load_tx40"]
 
 _PLOT_POINTS = 3000
@@ -281,7 +281,7 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
     return tasks, skipped
 
 
-def fit_campaign(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbolic"), sink=None,
+def fit_onelink_campaign(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbolic"), sink=None,
                  executor=None, n_starts: int = 8, seed: int = 0, sync: str = "clock") -> FitsResult:
     """Fit every (trial, joint) of ``campaign`` (a :class:`mocap.io.campaign.Campaign`) with each
     friction model; ``executor``: anything with ``map(fn, iterable)`` (a

@@ -2,7 +2,7 @@
 [--export-c DIR [--export-dt S]] [--rrd FILE]``:
 
 * ``cv``, ``stribeck``, ``hyperbolic``: friction fits through the one-link model (thesis eq. 2-4)
-  for every trial and moving joint (:func:`ident.thesis.campaign_fit.fit_campaign`), written as
+  for every trial and moving joint (:func:`ident.thesis.campaign_fit.fit_onelink_campaign`), written as
   ``fits.json`` (FORMAT.md), ``fits_diagnostics.json``, the thesis tables (``tables/``: Tables
   5-1..5-3, A, B as CSV and Markdown) and friction-vs-speed plots (``plots/``);
 * ``arctan``, ``dm1``, ``dm2``: the Indri & Trapani 2020 identification per joint from the
