@@ -495,11 +495,16 @@ def summary_markdown(result: CalibResult, warnings: bool = True) -> str:
     lines += ["```", "",
               "| | estimate std | Cramer-Rao bound |", "|---|---|---|",
               f"| origin (mm, 3-D RMS) | {b.origin_std_mm:.4f} | {b.crb_origin_mm:.4f} |",
-              f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |", "",
+              f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |"]
+    if b.budget:
+        for name, what in (("noise", "of which marker noise"), ("model_error", "of which URDF model error")):
+            lines.append(f"| {what} (mm / deg) | {b.budget[name]['origin_std_mm']:.4f} / "
+                         f"{b.budget[name]['rotation_std_deg']:.5f} | |")
+    lines += ["",
               f"marker noise {noise}; base solve {chi}, "
               f"{'converged' if b.converged else 'NOT converged'} in {b.iterations} evaluations"
-              + (f"; model error {b.model_error_mm:.3f} mm per axis line, std x{b.inflation:.2f}"
-                 if b.model_error_mm > 0 else ""), ""]
+              + (f"; URDF model error {b.model_error_mm:.3f} mm and {b.model_error_deg:.4f} deg per axis line "
+                 f"(docs/calibration.md), std x{b.inflation:.2f}" if b.model_error_mm > 0 else ""), ""]
     reg = b.region95 or {}
     if reg:
         dof = {k: reg.get(f"{k}_dof") for k in ("origin", "rotation", "pose")}

@@ -135,7 +135,8 @@ def test_a_declared_urdf_tolerance_is_a_floor_of_the_model_error(bench, tmp_path
     assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "b"), "--urdf-tol-mm", "0.5"]) == 0
     a = json.loads((tmp_path / "a" / "calib.json").read_text())
     b = json.loads((tmp_path / "b" / "calib.json").read_text())
-    assert a["base_solve"]["model_error_mm"] == 0.0
+    # URDF exact: the estimated model error is only what the sweep cannot exclude (well below 0.5 mm)
+    assert 0.0 < a["base_solve"]["model_error_mm"] < 0.2
     assert b["base_solve"]["model_error_mm"] == pytest.approx(0.5)
     assert b["origin_std_mm"] > 3 * a["origin_std_mm"]
     capsys.readouterr()
