@@ -284,7 +284,8 @@ def main(argv=None) -> int:
                 fails[kind].append(cell)
     for kind, what in (("exact", "URDF exact: coverage 90-98 % (origin, rotation, pose), at 3 poses std within "
                                  "1.5x of the spread"),
-                       ("mismatch", "J1-J2 offset 0-1 mm off the URDF, default settings: coverage 90-98 % (origin, rotation, pose), at 3 poses std within 1.5x of the spread"),
+                       ("mismatch", "J1-J2 offset 0-1 mm off the URDF, default settings: coverage 90-98 % "
+                                    "(origin, rotation, pose), at 3 poses std within 1.5x of the spread"),
                        ("declared", "the same with --urdf-tol-mm declared: coverage >= 90 % (conservative)")):
         if any(c.endswith("-" + kind) for c in cells):
             print(f"goal: {what}: {'PASS' if not fails[kind] else 'FAIL ' + ', '.join(fails[kind])}")
