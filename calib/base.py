@@ -8,7 +8,9 @@ inverse of its covariance). This uses the intersection when the axes intersect (
 works equally when they are offset. Needs two axes that are not parallel.
 
 Covariances of the result are first-order propagations of the axis covariances (and, with
-the axis Cramer-Rao bounds in place of the covariances, the bound on ``T_camera_base``).
+the axis Cramer-Rao bounds in place of the covariances, the bound on ``T_camera_base``), plus
+the URDF model error estimated from the measured J1-J2 discrepancy (:func:`model_error_terms`),
+which also enters the weights.
 Perturbations are ``R = exp([w]) R_hat``, ``p = p_hat + dp`` in the camera frame, so
 ``origin_std_mm`` is the 3-D RMS of the base origin in the camera frame and
 ``rotation_std_deg`` the RMS rotation angle.
