@@ -387,14 +387,16 @@ def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
 
 def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None = None,
                      frame_step: int = 1, urdf_path=None, checks: bool = True, urdf_tol_mm: float = 0.0,
-                     **options) -> CalibResult:
+                     urdf_model_error: bool = True, **options) -> CalibResult:
     """Axes from prepared sweeps, then the base from the URDF axis lines (no file I/O).
 
     ``checks`` runs the boundary checks that refuse silent mistakes (exit 2): the logged swept
     angle against the markers' rotation (:func:`check_angle_scale`), the URDF's lengths against
     the marker cloud (:func:`check_urdf_scale`) and the sign of the logged angles
     (:func:`check_angle_sign`). ``urdf_tol_mm`` is the standard uncertainty of the URDF's axis
-    placement (see :func:`calib.base.place_base`)."""
+    placement (see :func:`calib.base.place_base`); ``urdf_model_error`` False leaves out the model
+    error estimated from the J1-J2 discrepancy (the URDF's J1-J2 geometry trusted as exact: more
+    precise when it is, biased when it is not; docs/calibration.md)."""
     if not (np.isfinite(urdf_tol_mm) and urdf_tol_mm >= 0):
         raise InputError(f"--urdf-tol-mm must be a finite length >= 0 (mm), got {urdf_tol_mm}")
     fits = fit_axes(sweeps, method, noise_mm, frame_step, **options)
@@ -405,7 +407,7 @@ def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None
     for sw in sweeps:
         p, d = chain.joint_axis_lines(sw.q_held)
         lines.append((p[sw.joint - 1], d[sw.joint - 1]))
-    base = place_base(fits, lines, urdf_tol_m=1e-3 * urdf_tol_mm)
+    base = place_base(fits, lines, urdf_tol_m=1e-3 * urdf_tol_mm, model_error=urdf_model_error)
     if checks:
         check_angle_sign(sweeps, fits, chain, lines, base)
     return CalibResult(base.T_camera_base, tuple(fits), base, method, noise_mm, tuple(sweeps))

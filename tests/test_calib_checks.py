@@ -145,3 +145,21 @@ def test_a_declared_urdf_tolerance_is_a_floor_of_the_model_error(bench, tmp_path
     capsys.readouterr()
     assert main(["calib", str(tmp_path / "camp"), "--out", str(tmp_path / "c"), "--urdf-tol-mm", "-1"]) == 2
     assert "--urdf-tol-mm" in capsys.readouterr().err
+
+
+def test_the_estimated_model_error_is_its_own_budget_line(bench, tmp_path):
+    """A 1 mm J1-J2 offset missing from the URDF: the estimated model error is about the offset
+    (its discrepancy as measured, with its uncertainty) and a budget line of its own; left out
+    (``urdf_model_error=False``, the URDF trusted) the budget has no such line."""
+    from calib.pipeline import calibrate
+    from mocap.io.campaign import load_campaign
+
+    bench.make_campaign(tmp_path / "c", seed=5, n_poses=6, n_reflectors=3, mismatch=True, offset_mm=(1.0, 1.0))
+    on = calibrate(load_campaign(tmp_path / "c")).base
+    off = calibrate(load_campaign(tmp_path / "c"), urdf_model_error=False).base
+    assert 0.7 < on.model_error_mm < 1.5, on.model_error_mm
+    assert on.budget["model_error"]["origin_std_mm"] > 0
+    assert off.model_error_mm == 0.0 and off.budget["model_error"]["origin_std_mm"] == 0.0
+    total = on.origin_std_mm ** 2
+    parts = on.budget["noise"]["origin_std_mm"] ** 2 + on.budget["model_error"]["origin_std_mm"] ** 2
+    assert parts == pytest.approx(total, rel=1e-6)
