@@ -8,7 +8,9 @@ inverse of its covariance). This uses the intersection when the axes intersect (
 works equally when they are offset. Needs two axes that are not parallel.
 
 Covariances of the result are first-order propagations of the axis covariances (and, with
-the axis Cramer-Rao bounds in place of the covariances, the bound on ``T_camera_base``).
+the axis Cramer-Rao bounds in place of the covariances, the bound on ``T_camera_base``), plus
+the URDF model error estimated from the measured J1-J2 discrepancy (:func:`model_error_terms`),
+which also enters the weights.
 Perturbations are ``R = exp([w]) R_hat``, ``p = p_hat + dp`` in the camera frame, so
 ``origin_std_mm`` is the 3-D RMS of the base origin in the camera frame and
 ``rotation_std_deg`` the RMS rotation angle.
@@ -47,7 +49,9 @@ class BasePlacement:
     inflation: float = 1.0        # RMS growth of the std from the model-error term (1: none)
     warnings: tuple = ()
     region95: dict = None         # 95 % region thresholds and effective degrees of freedom (region95())
-    model_error_mm: float = 0.0   # model-error line offset per URDF axis line (0: no misfit, none declared)
+    model_error_mm: float = 0.0   # model-error shift per URDF axis line and direction (model_error_terms)
+    model_error_deg: float = 0.0  # model-error tilt per URDF axis line and direction
+    budget: dict = None           # origin / rotation std of the noise part and the model-error part
 
     @staticmethod
     def _stds(C):
@@ -90,6 +94,8 @@ class BasePlacement:
             "std_inflation": self.inflation,
             "region95": self.region95,
             "model_error_mm": self.model_error_mm,
+            "model_error_deg": self.model_error_deg,
+            "budget": self.budget,
             "warnings": list(self.warnings),
             "iterations": self.iterations,
             "converged": self.converged,
@@ -177,24 +183,105 @@ def _initial_pose(meas, urdf):
 #: below this p-value of the base solve's chi2 the axes do not fit the URDF: a warning names the
 #: mismatch
 MISFIT_P = 0.01
-#: below this p-value (chi2 of the base solve) a model-error term is estimated and added to the
-#: covariance: the same evidence that raises the misfit warning
-MODEL_ERROR_P = 0.01
-#: lever arm (m) that turns the model error's line shift tau into a tilt tau / L of the axis
-MODEL_ERROR_LENGTH_M = 1.0
+def _pair_invariants(p1, n1, p2, n2) -> np.ndarray:
+    """Signed common-normal distance (m, along ``n1 x n2``) and angle (rad) between two lines."""
+    c = np.cross(n1, n2)
+    return np.array([float((p2 - p1) @ c) / np.linalg.norm(c), float(np.arccos(np.clip(n1 @ n2, -1, 1)))])
+
+
+def model_error_terms(axes, urdf_lines, covs, tol_m: float = 0.0, estimate: bool = True):
+    """The URDF-model error per axis line, from the discrepancy between the measured and the
+    URDF's J1-J2 geometry: shift ``tau_s`` (m), tilt ``tau_t`` (rad), the 4x4 chart covariances
+    of each line's model error (shift part ``Vs_j``, tilt part ``Vt_j``) and the degrees of
+    freedom of the two mean squares.
+
+    A pair of axes has two invariants that no rigid placement changes: the signed common-normal
+    distance ``d`` (along ``n1 x n2``) and the angle ``a``. Their discrepancies
+    ``D = inv(measured) - inv(URDF)`` are all the data show of the URDF's error (the base
+    solve's chi2 tests them); each is measured with the standard uncertainty ``u`` propagated
+    from the axis covariances ``covs`` (first order, numerical derivatives in the chart
+    coordinates). The discrepancy is not corrected (the data cannot say which line, or the base,
+    is off), so it enters as an uncorrected systematic effect of mean square ``D^2 + u^2`` (GUM
+    JCGM 100:2008 F.2.4.5; also the second moment of the discrepancy given its measurement
+    under a flat prior): a discrepancy the sweep cannot resolve (small ``D``, large ``u``)
+    still counts with the size ``u`` it cannot exclude. It goes to the URDF element that holds
+    the J1-J2 geometry, the later joint's origin (in a URDF, joint 2's ``<origin>`` in link 1;
+    joint 1's origin in the base link is what defines the base frame, and an error there is a
+    rigid move of both lines that no sweep sees): the later joint's line gets a shift along the
+    common normal, ``tau_s^2 = D_d^2 + u_d^2``, and a tilt in the plane of the two directions
+    about the common normal's foot (it changes the angle, not the distance),
+    ``tau_t^2 = D_a^2 + u_a^2``. The other lines get none.
+
+    ``tol_m`` is a declared URDF tolerance (type B, per line and direction across it): each
+    line's shift variance is at least ``tol_m^2`` in both directions across it (every line). ``estimate``
+    False leaves only the declared part. The degrees of freedom of each mean square follow
+    Welch-Satterthwaite on its estimated part: ``u^2 = sum_j u_j^2`` with ``u_j^2`` from axis
+    ``j``'s covariance on ``nu_j`` degrees of freedom and ``D^2`` taken as known,
+    ``nu = (D^2 + u^2)^2 / sum_j (u_j^4 / nu_j)`` (infinite where the declared tolerance
+    dominates).
+    """
+    from calib.geometry import chart_line
+
+    (b1, m1), (b2, m2) = urdf_lines[:2]
+    f1, f2 = axes[:2]
+    lines = [(f1.point, f1.direction), (f2.point, f2.direction)]
+    inv_u = _pair_invariants(b1, m1, b2, m2)
+    inv_m = _pair_invariants(*lines[0], *lines[1])
+    var = np.zeros(2)
+    var2_nu = np.zeros(2)                    # sum_j u_j^4 / nu_j
+    h = 1e-7
+    for k, (f, C) in enumerate(zip((f1, f2), covs[:2])):
+        G = np.empty((2, 4))
+        for i in range(4):
+            pert = list(lines)
+            pert[k] = chart_line(h * np.eye(4)[i], f.point, f.direction, *f.basis)
+            G[:, i] = (_pair_invariants(*pert[0], *pert[1]) - inv_m) / h
+        uj2 = np.einsum("ij,jk,ik->i", G, C, G)
+        var += uj2
+        var2_nu += uj2 ** 2 / max(float(f.dof), 1e-9)
+    total = (inv_m - inv_u) ** 2 + var
+    ms = total if estimate else np.zeros(2)         # the later line: shift m^2, tilt rad^2
+    later = 1 if f2.joint is None or f1.joint is None or f2.joint > f1.joint else 0
+    tol2 = float(tol_m) ** 2
+    with np.errstate(divide="ignore"):
+        nus = np.where(var2_nu > 0, total ** 2 / np.maximum(var2_nu, 1e-300), np.inf)
+    if tol2 >= ms[0]:
+        nus[0] = np.inf
+    c = unit(np.cross(f1.direction, f2.direction))
+    Vs, Vt = [], []
+    for k, f in enumerate((f1, f2)):
+        u, v = f.basis
+        p_o, n_o = lines[1 - k]
+        t = unit(n_o - (n_o @ f.direction) * f.direction)
+        w = f.point - p_o
+        cb = f.direction @ n_o
+        s_f = (cb * (n_o @ w) - f.direction @ w) / (1.0 - cb ** 2)    # foot of the common normal
+        g = np.array([0.0, 0.0, c @ u, c @ v])                         # shift along the normal
+        a = np.array([t @ u, t @ v, -s_f * (t @ u), -s_f * (t @ v)])   # tilt about the foot
+        e = np.array([0.0, 0.0, -(c @ v), c @ u])                     # shift across both
+        mk = ms if k == later else np.zeros(2)
+        Vs.append(max(mk[0], tol2) * np.outer(g, g) + tol2 * np.outer(e, e))
+        Vt.append(mk[1] * np.outer(a, a))
+    Vs += [tol2 * np.diag([0.0, 0.0, 1.0, 1.0])] * (len(axes) - 2)
+    Vt += [np.zeros((4, 4))] * (len(axes) - 2)
+    return float(np.sqrt(max(ms[0], tol2))), float(np.sqrt(ms[1])), Vs, Vt, [float(x) for x in nus]
 
 
 def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
-               model_error_p: float = MODEL_ERROR_P, urdf_tol_m: float = 0.0,
+               model_error: bool = True, urdf_tol_m: float = 0.0,
                with_region: bool = True) -> BasePlacement:
     """Solve ``T_camera_base`` from measured axes and the URDF's axis lines.
 
     ``axes``: fitted :class:`calib.axis.AxisFit` (camera frame, with ``joint`` set, the
     direction's sign matching the joint's positive rotation); ``urdf_lines``: for each, the
     ``(point, direction)`` of the same joint's axis in the base frame at the sweep's held
-    angles. ``use`` picks the weights (``"cov"`` or ``"crb"``). ``urdf_tol_m`` is the declared
-    standard uncertainty of each URDF axis line's placement (a type-B model error, the floor of
-    the one estimated from chi2). ``with_region`` computes the 95 % region (:func:`region95`).
+    angles. ``use`` picks the weights (``"cov"`` or ``"crb"``). ``model_error`` includes the
+    URDF-model error estimated from the J1-J2 discrepancy (:func:`model_error_terms`): the lines
+    are weighted by the inverse of ``C_j + V_j`` (the best linear estimate when the URDF lines
+    carry random errors of covariance ``V_j``) and the covariance includes ``V_j``, as a known
+    (type B) part. ``urdf_tol_m`` is the declared standard uncertainty of each URDF axis line's
+    placement across it (type B, both directions, the floor of the estimated shift).
+    ``with_region`` computes the 95 % region (:func:`region95`).
     """
     if len(axes) < 2 or len(axes) != len(urdf_lines):
         raise InputError(f"base placement needs at least two swept joints, got {len(axes)}")
@@ -249,7 +336,6 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
             out.append(cov @ Aj.T @ W @ B @ W @ Aj @ cov)
         return out
 
-    from scipy.optimize import brentq
     from scipy.stats import chi2 as chi2_dist
 
     covs = [f.cov if use == "cov" else f.crb for f in axes]
@@ -262,36 +348,27 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
         crb = solve([f.crb for f in axes])[1]
     else:
         crb = np.full((6, 6), np.nan)
-    # model error (random effect): each URDF axis line is off the real one by an unknown line
-    # offset of covariance tau^2 S (S = diag(1/L^2, 1/L^2, 1, 1): tilt tau/L, shift tau per
-    # direction); tau^2 is the value at which the re-solved chi2 equals its degrees of freedom
-    # (Paule-Mandel); estimated where chi2 rejects the URDF at ``model_error_p``
-    tau = 0.0
-    S = np.diag([1.0 / MODEL_ERROR_LENGTH_M ** 2] * 2 + [1.0, 1.0])
+    # model error: the URDF axis lines are off the real ones by unknown shifts and tilts of
+    # covariance V_j (model_error_terms, with the declared tolerance as a floor); the base is
+    # re-solved with the lines' covariances C + V (best linear estimate under that error) and the
+    # covariance includes V as its own (type B) parts, shift and tilt (region95 degrees of freedom)
+    zero = [np.zeros((4, 4))] * len(axes)
+    tau_s, tau_t, Vs, Vt, nu_me = (model_error_terms(axes, urdf, covs, urdf_tol_m, model_error) if use == "cov"
+                                   else (0.0, 0.0, zero, zero, [np.inf, np.inf]))
     nus = [f.dof for f in axes] if use == "cov" else [np.inf] * len(axes)
-    if use == "cov" and dof > 0 and p_value < model_error_p:
-        def excess(log_tau):
-            t2 = np.exp(2 * log_tau)
-            return float(np.sum(solve([C + t2 * S for C in covs])[2] ** 2)) - dof
-
-        scale = max(np.sqrt(max(np.trace(C[2:, 2:]) for C in covs)), 1e-9)
-        lo, hi = np.log(scale * 1e-4), np.log(scale * 1e4)
-        if excess(lo) > 0 > excess(hi):
-            tau = float(np.exp(brentq(excess, lo, hi, xtol=1e-6)))
-    # the declared URDF tolerance (type B, known) is the floor of the model error
-    tau_b = float(urdf_tol_m) if use == "cov" else 0.0
-    typeb = tau_b >= tau and tau_b > 0
-    if typeb:       # a declared length tolerance shifts the lines; it does not tilt them
-        S = np.diag([0.0, 0.0, 1.0, 1.0])
-    tau = max(tau, tau_b)
-    if tau > 0:
-        T, cov, r, sol, cond, A, Ls = solve([C + tau ** 2 * S for C in covs])
+    if tau_s > 0 or tau_t > 0:
+        T, cov, r, sol, cond, A, Ls = solve([C + Vj + Wj for C, Vj, Wj in zip(covs, Vs, Vt)])
     parts = split(cov, A, Ls, covs)
-    if tau > 0:
-        parts.append(sum(split(cov, A, Ls, [tau ** 2 * S] * len(axes))))
-        nus = list(nus) + [float("inf") if typeb else float(dof)]
+    for tau_k, Vk, nu_k in ((tau_s, Vs, nu_me[0]), (tau_t, Vt, nu_me[1])):
+        if tau_k > 0:
+            parts.append(sum(split(cov, A, Ls, Vk)))
+            nus = list(nus) + [nu_k]
+    noise_cov = sum(parts[:len(axes)])
+    model_cov = sum(parts[len(axes):], np.zeros((6, 6)))
+    budget = {name: dict(zip(("origin_std_mm", "rotation_std_deg"), BasePlacement._stds(P)))
+              for name, P in (("noise", noise_cov), ("model_error", model_cov))}
     inflation = 1.0
-    if tau > 0:     # RMS growth of the standard deviations over the noise-only solve
+    if tau_s > 0 or tau_t > 0:     # RMS growth of the standard deviations over the noise-only solve
         inflation = float(np.sqrt(np.trace(cov) / max(np.trace(sum(parts[:len(axes)])), 1e-300)))
     warnings = []
     if dof > 0 and p_value < misfit_p:
@@ -299,8 +376,8 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
         warnings.append(
             f"the measured axes do not fit the URDF: chi2 = {chi2:.1f} on {dof} degrees of freedom "
             f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
-            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; a model error of {1e3 * tau:.3f} mm "
-            f"per axis line is added (standard deviations x{inflation:.2f})")
+            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; a model error of {1e3 * tau_s:.3f} mm "
+            f"and {np.degrees(tau_t):.4f} deg per axis line is included (standard deviations x{inflation:.2f})")
     reg = region95(parts, nus) if with_region else None
     if not sol.success:
         warnings.append(f"the base solve did not converge ({sol.message})")
@@ -310,4 +387,5 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
                          axis_angle_deg=ang_m, urdf_axis_angle_deg=ang_u_signed,
                          chi2=chi2, iterations=int(sol.nfev), converged=bool(sol.success),
                          cond=cond, dof=dof, p_value=p_value, inflation=inflation, warnings=tuple(warnings),
-                         region95=reg, model_error_mm=1e3 * tau)
+                         region95=reg, model_error_mm=1e3 * tau_s,
+                         model_error_deg=float(np.degrees(tau_t)), budget=budget)

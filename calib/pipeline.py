@@ -387,14 +387,16 @@ def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
 
 def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None = None,
                      frame_step: int = 1, urdf_path=None, checks: bool = True, urdf_tol_mm: float = 0.0,
-                     **options) -> CalibResult:
+                     urdf_model_error: bool = True, **options) -> CalibResult:
     """Axes from prepared sweeps, then the base from the URDF axis lines (no file I/O).
 
     ``checks`` runs the boundary checks that refuse silent mistakes (exit 2): the logged swept
     angle against the markers' rotation (:func:`check_angle_scale`), the URDF's lengths against
     the marker cloud (:func:`check_urdf_scale`) and the sign of the logged angles
     (:func:`check_angle_sign`). ``urdf_tol_mm`` is the standard uncertainty of the URDF's axis
-    placement (see :func:`calib.base.place_base`)."""
+    placement (see :func:`calib.base.place_base`); ``urdf_model_error`` False leaves out the model
+    error estimated from the J1-J2 discrepancy (the URDF's J1-J2 geometry trusted as exact: more
+    precise when it is, biased when it is not; docs/calibration.md)."""
     if not (np.isfinite(urdf_tol_mm) and urdf_tol_mm >= 0):
         raise InputError(f"--urdf-tol-mm must be a finite length >= 0 (mm), got {urdf_tol_mm}")
     fits = fit_axes(sweeps, method, noise_mm, frame_step, **options)
@@ -405,7 +407,7 @@ def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None
     for sw in sweeps:
         p, d = chain.joint_axis_lines(sw.q_held)
         lines.append((p[sw.joint - 1], d[sw.joint - 1]))
-    base = place_base(fits, lines, urdf_tol_m=1e-3 * urdf_tol_mm)
+    base = place_base(fits, lines, urdf_tol_m=1e-3 * urdf_tol_mm, model_error=urdf_model_error)
     if checks:
         check_angle_sign(sweeps, fits, chain, lines, base)
     return CalibResult(base.T_camera_base, tuple(fits), base, method, noise_mm, tuple(sweeps))
@@ -495,11 +497,16 @@ def summary_markdown(result: CalibResult, warnings: bool = True) -> str:
     lines += ["```", "",
               "| | estimate std | Cramer-Rao bound |", "|---|---|---|",
               f"| origin (mm, 3-D RMS) | {b.origin_std_mm:.4f} | {b.crb_origin_mm:.4f} |",
-              f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |", "",
+              f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |"]
+    if b.budget:
+        for name, what in (("noise", "of which marker noise"), ("model_error", "of which URDF model error")):
+            lines.append(f"| {what} (mm / deg) | {b.budget[name]['origin_std_mm']:.4f} / "
+                         f"{b.budget[name]['rotation_std_deg']:.5f} | |")
+    lines += ["",
               f"marker noise {noise}; base solve {chi}, "
               f"{'converged' if b.converged else 'NOT converged'} in {b.iterations} evaluations"
-              + (f"; model error {b.model_error_mm:.3f} mm per axis line, std x{b.inflation:.2f}"
-                 if b.model_error_mm > 0 else ""), ""]
+              + (f"; URDF model error {b.model_error_mm:.3f} mm and {b.model_error_deg:.4f} deg per axis line "
+                 f"(docs/calibration.md), std x{b.inflation:.2f}" if b.model_error_mm > 0 else ""), ""]
     reg = b.region95 or {}
     if reg:
         dof = {k: reg.get(f"{k}_dof") for k in ("origin", "rotation", "pose")}

@@ -21,9 +21,9 @@ def register(sub):
                    help="3-D RMS marker noise for the Cramer-Rao bound (default: estimated from the fit "
                         "residuals; e.g. 0.85 for the thesis's mocap system, ~0.05 for a laser tracker)")
     p.add_argument("--urdf-tol-mm", type=float, default=0.0, metavar="MM",
-                   help="standard uncertainty of the URDF's joint-axis placement (each axis line's shift "
-                        "per direction; tilt MM per metre), added to the reported uncertainty as a model "
-                        "error (default 0: the URDF is taken as exact and defines the base; see "
+                   help="declared standard uncertainty of the URDF's joint-axis placement (each axis line's "
+                        "shift per direction across it): a floor on the model error estimated from the "
+                        "measured J1-J2 discrepancy (default 0: the estimated one only; see "
                         "docs/calibration.md)")
     p.add_argument("--min-sweep-deg", type=float, default=15.0, metavar="DEG",
                    help="refuse sweeps shorter than this (default 15)")
