@@ -18,7 +18,9 @@ import numpy as np
 from mocap.kinematics import apply_transform, invert_transform, make_transform
 from mocap.synth import MarkerSet, add_noise, marker_positions, random_orientation
 from mocap.io.recording import MarkerRecording
-from mocap.io.robotlog import RobotLog
+from mocap.io.campaign import write_manifest
+from mocap.io.markers import write_markers
+from mocap.io.robotlog import RobotLog, write_robot_log
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,9 +148,6 @@ def simulate_sweeps(robot, seed: int = 0, joints=(1, 2), amplitude_deg: float = 
 
 def write_campaign(root, sim: SyntheticCalib, urdf, drives, overwrite: bool = False) -> Path:
     """Write ``sim`` as a FORMAT v1 campaign at ``root`` (robot files copied in)."""
-    from mocap.io.campaign import write_manifest
-    from mocap.io.markers import write_markers
-    from mocap.io.robotlog import write_robot_log
 
     root = Path(root)
     (root / "robot").mkdir(parents=True, exist_ok=True)

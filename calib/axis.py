@@ -25,8 +25,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mocap.io.errors import InputError
-
 from mocap.kinematics import angle_about, kabsch_batch, perp_basis, rotation_about_axis, unit
+
+from calib.geometry import chart_coords, chart_line
 
 #: the thesis's 3-D residual of the motion-capture system, 0.845 mm RMS (section 4.1)
 DEFAULT_NOISE_MM = 0.85
@@ -335,7 +336,6 @@ def sweep_crb(positions, labels=None, sigma_mm: float = DEFAULT_NOISE_MM, fit: "
 
 def _rebase_cov(cov, src: AxisFit, dst: AxisFit) -> np.ndarray:
     """Express a chart covariance of ``src``'s axis in ``dst``'s chart (numerical Jacobian)."""
-    from calib.geometry import chart_coords, chart_line
 
     u0, v0 = src.basis
     u1, v1 = dst.basis

@@ -24,7 +24,7 @@ from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
 
-from calib.geometry import chart_coords, line_distance
+from calib.geometry import chart_coords, chart_line, line_distance
 from mocap.kinematics import rotation_angle, rotvec_to_matrix, unit
 
 
@@ -220,7 +220,6 @@ def model_error_terms(axes, urdf_lines, covs, tol_m: float = 0.0, estimate: bool
     ``nu = (D^2 + u^2)^2 / sum_j (u_j^4 / nu_j)`` (infinite where the declared tolerance
     dominates).
     """
-    from calib.geometry import chart_line
 
     (b1, m1), (b2, m2) = urdf_lines[:2]
     f1, f2 = axes[:2]

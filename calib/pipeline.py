@@ -19,7 +19,8 @@ from mocap.quality import chain_reach, check_marker_units  # noqa: F401 (calib's
 
 from calib.axis import (MIN_POSES, AxisFit, CircleAxisEstimator, ClusterAxisEstimator,
                         marker_angles)
-from calib.base import BasePlacement, place_base
+from calib.base import BasePlacement, place_base, pose_errors
+from calib.handeye import HandEyeEstimator
 
 
 class AutoAxisEstimator:
@@ -416,7 +417,6 @@ def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None
 def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
     """The hand-eye / robot-world peer (:class:`calib.handeye.HandEyeEstimator`) on the same
     sweeps: the most distal link with at least 3 markers seen in every sweep, all encoder angles."""
-    from calib.handeye import HandEyeEstimator
 
     if link is None:
         cands = [lk for lk in markers if lk in chain.frames
@@ -448,7 +448,6 @@ def calibrate(campaign, robot=None, method: str = "auto", sink=None,
     result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm,
                               urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
     if cross_check:
-        from calib.base import pose_errors
 
         he = handeye_cross_check(sweeps, robot.chain, campaign.markers)
         dp, dr = pose_errors(he.T_camera_base, result.T_camera_base)

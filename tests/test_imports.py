@@ -41,7 +41,6 @@ LOCAL_IMPORT_ALLOWED = {
 LOCAL_IMPORT_PENDING = {
     "ident/study/study.py": 29, "ident/study/angles.py": 3, "ident/study/executor.py": 2,
     "ident/study/records.py": 1, "ident/study/view.py": 1,
-    "calib/_synthetic.py": 3, "calib/pipeline.py": 2, "calib/axis.py": 1,
 }
 
 
