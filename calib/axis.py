@@ -45,10 +45,68 @@ WEIGHTS_MIN_FRAMES = 20
 class AxisFit:
     """A fitted joint axis in the camera frame.
 
-    ``point`` is the point of the axis nearest to the centroid of the moving markers;
-    ``cov`` and ``crb`` are 4x4 covariances of the chart coordinates
-    (``alpha, beta`` direction tilts in rad along ``basis[0], basis[1]``; ``gamma, delta``
-    point shifts in metres), see :mod:`calib.geometry`.
+    What :class:`ClusterAxisEstimator` and :class:`CircleAxisEstimator` return: the axis line
+    ``(point, direction)`` of one single-joint sweep [1]_ [2]_ with its uncertainty. ``point``
+    is the point of the axis nearest to the centroid of the moving markers; ``cov`` and ``crb``
+    are 4x4 covariances of the chart coordinates (``alpha, beta`` direction tilts in rad along
+    ``basis[0], basis[1]``; ``gamma, delta`` point shifts in metres), see :mod:`calib.geometry`
+    and [3]_.
+
+    Attributes
+    ----------
+    point : numpy.ndarray
+        (3,) point of the axis nearest to the moving markers' centroid (m, camera frame).
+    direction : numpy.ndarray
+        (3,) unit direction; after :meth:`with_joint` its sign follows the joint's positive
+        rotation.
+    basis : tuple of numpy.ndarray
+        ``(u, v)``, two unit vectors across the axis with ``u x v = direction``: the chart.
+    cov : numpy.ndarray
+        (4, 4) covariance of the chart coordinates ``(alpha, beta, gamma, delta)`` (rad, rad,
+        m, m), the residual variance times the inverse normal matrix.
+    crb : numpy.ndarray
+        (4, 4) Cramer-Rao bound of the same coordinates for the sweep geometry at the noise
+        given to the estimator (:func:`sweep_crb`).
+    rms_mm : float
+        RMS 3-D residual of the observations (mm).
+    sigma_mm : float
+        Estimated 3-D RMS marker noise (mm), from the weighted residuals (the given
+        ``noise_mm`` where they leave no degree of freedom).
+    marker_rms_mm : dict
+        Marker label -> RMS residual (mm).
+    marker_radius_m : dict
+        Marker label -> radius of its circle about the axis (m).
+    sweep_deg : float
+        Angle swept by the markers about the axis (deg).
+    n_frames : int
+        Frames (or poses) used.
+    n_observations : int
+        Marker observations used (frame, marker pairs).
+    n_outliers : int
+        Observations whose residual exceeds 4 robust standard deviations.
+    iterations : int
+        Iterations of the refinement.
+    converged : bool
+        Whether the refinement met its step tolerance before the iteration cap.
+    cond : float
+        Condition number of the axis part of the normal matrix (cluster: its Schur complement
+        onto the 4 chart coordinates).
+    method : str
+        ``"cluster"`` or ``"circle"``.
+    joint : int or None, optional
+        The joint, 1-based, once labelled (:meth:`with_joint`).
+    extra : dict, optional
+        Estimator-specific diagnostics (per-marker weights, BCLS radii).
+    dof : float, optional
+        Degrees of freedom of the noise estimate behind ``cov`` (inf: noise given).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position), the axis of
+       rotation of a single-joint sweep (after Halvorsen 2003).
+    .. [2] Halvorsen 2003, bias compensated least squares estimate of the center of rotation,
+       J. Biomech. 36, 999-1008.
+    .. [3] jointlab calibration (docs/calibration.md).
     """
 
     point: np.ndarray
@@ -320,11 +378,58 @@ def _marker_stats(r, k_idx, M, labels, a, n, s, w_rob):
 
 
 def sweep_crb(positions, labels=None, sigma_mm: float = DEFAULT_NOISE_MM, fit: "AxisFit" = None):
-    """Cramer-Rao bound (4x4, chart coordinates of ``fit``'s axis) for a sweep's axis.
+    r"""Cramer-Rao bound (4x4, chart coordinates of ``fit``'s axis) for a sweep's axis.
 
-    ``sigma_mm`` is the 3-D RMS marker noise (per-axis sigma = sigma_mm / sqrt(3)). The rigid
-    sweep model is linearised at its own estimate (ClusterAxisEstimator without the robust
-    weights); the per-frame angles and marker positions are nuisance parameters.
+    The rigid sweep model
+
+    .. math::
+
+        p_{tk} = a + R(n, \theta_t)\,(s_k - a) + e_{tk}, \qquad
+        e_{tk} \sim N(0, \tfrac{\sigma^2}{3} I_3)
+
+    is linearised at its own estimate (:class:`ClusterAxisEstimator` without the robust
+    weights); the per-frame angles ``theta_t`` and the marker positions ``s_k`` are nuisance
+    parameters, marginalised by the Schur complement of the Fisher information [1]_:
+
+    .. math::
+
+        \mathrm{CRB} = \frac{\sigma^2}{3}\left(S_{aa} - S_{a\eta} S_{\eta\eta}^{-1}
+        S_{\eta a}\right)^{-1}
+
+    with ``S = J^T J`` split into the 4 chart coordinates ``a`` of the axis and the nuisance
+    block ``eta``. ``sigma_mm`` is the 3-D RMS marker noise (per-axis sigma = sigma_mm /
+    sqrt(3)); the base's bound that ``calib.json`` reports under ``crb`` is propagated from it [3]_.
+
+    Parameters
+    ----------
+    positions : array_like
+        (T, M, 3) marker positions (m, camera frame), NaN where occluded.
+    labels : sequence of str, optional
+        M marker labels; default ``m0, m1, ...``.
+    sigma_mm : float, optional
+        3-D RMS marker noise (mm); default :data:`DEFAULT_NOISE_MM`, the thesis's residual of
+        the motion-capture system [2]_.
+    fit : AxisFit, optional
+        Express the bound in this fit's chart (first-order change of chart); None: the chart of
+        the model's own estimate.
+
+    Returns
+    -------
+    numpy.ndarray
+        (4, 4) bound on the covariance of ``(alpha, beta, gamma, delta)`` (rad, rad, m, m).
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        If the positions are not (T, M, 3) or fewer than 3 markers are seen in
+        :data:`MIN_POSES` frames.
+
+    References
+    ----------
+    .. [1] Kay 1993, Fundamentals of Statistical Signal Processing: Estimation Theory, ch. 3
+       (the Cramer-Rao bound with nuisance parameters).
+    .. [2] PA10 thesis (seeds 002), ch. 4 (the 3-D residual of the motion-capture system).
+    .. [3] jointlab calibration (docs/calibration.md), the reported Cramer-Rao bound.
     """
     est = ClusterAxisEstimator(robust=False, noise_mm=sigma_mm, marker_weights=False)
     f = est.fit(positions, labels)
@@ -352,16 +457,62 @@ def _rebase_cov(cov, src: AxisFit, dst: AxisFit) -> np.ndarray:
 
 
 class ClusterAxisEstimator:
-    """Rigid-cluster axis estimator (Kabsch per frame -> screw axis -> rigid-sweep ML).
+    r"""Rigid-cluster axis estimator (Kabsch per frame -> screw axis -> rigid-sweep ML).
+
+    The camera-frame axis of a single-joint sweep [1]_: per-frame rigid transforms of the
+    marker cluster against the most complete frame (Kabsch/Umeyama [2]_), their common screw
+    axis as the start, then the maximum-likelihood fit of the rigid sweep model
+
+    .. math::
+
+        p_{tk} = a + R(n, \theta_t)\,(s_k - a)
+
+    (axis point ``a``, unit direction ``n``, per-frame angles ``theta_t``, marker positions
+    ``s_k``) by Gauss-Newton bundle adjustment [3]_ with the angles eliminated by a Schur
+    complement, Huber IRLS [4]_ and per-marker noise weights. With fewer than
+    :data:`WEIGHTS_MIN_FRAMES` frames per marker (stop-and-go poses) the data-driven weights
+    are off and the fit is plain least squares: weights built from a handful of residuals make
+    the covariance overconfident [5]_. Needs 3 markers seen in ``min_frames`` frames.
 
     Parameters
     ----------
-    robust : Huber IRLS on the per-observation 3-D residual (gross errors, swaps).
-    huber_k : Huber threshold in units of the robust per-axis sigma.
-    marker_weights : weight markers by their own residual variance (noisy markers count less).
-    noise_mm : 3-D RMS marker noise used for the Cramer-Rao bound (None: the noise estimated
-        from the residuals).
-    min_frames : frames (poses) a marker must be seen in to be used.
+    robust : bool, optional
+        Huber IRLS on the per-observation 3-D residual (gross errors, swaps); default True.
+    huber_k : float, optional
+        Huber threshold in units of the robust per-axis sigma; default 2.5.
+    marker_weights : bool, optional
+        Weight markers by their own residual variance (noisy markers count less); default
+        True.
+    noise_mm : float or None, optional
+        3-D RMS marker noise used for the Cramer-Rao bound (None: the noise estimated from the
+        residuals); default :data:`DEFAULT_NOISE_MM`.
+    min_frames : int, optional
+        Frames (poses) a marker must be seen in to be used; default :data:`MIN_POSES`.
+    max_iter : int, optional
+        Iteration cap of the refinement; default :data:`MAX_ITER`.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position): the axis of
+       rotation from a single-joint sweep (after Halvorsen 2003).
+    .. [2] Umeyama 1991, least-squares estimation of transformation parameters between two
+       point patterns, IEEE TPAMI 13(4).
+    .. [3] Triggs, McLauchlan, Hartley & Fitzgibbon 2000, bundle adjustment: a modern
+       synthesis (Schur complement of the reduced camera system).
+    .. [4] Huber 1981, Robust Statistics (the Huber loss by iteratively reweighted least
+       squares).
+    .. [5] jointlab calibration (docs/calibration.md), the reported uncertainty.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> s = np.array([[0.3, 0.0, 0.1], [0.0, 0.25, 0.2], [-0.2, -0.1, 0.3]])
+    >>> th = np.linspace(0.0, 1.5, 40)
+    >>> R = rotation_about_axis(np.array([0.0, 0.0, 1.0]), th)
+    >>> P = np.einsum("tij,kj->tki", R, s) + 1e-4 * rng.standard_normal((40, 3, 3))
+    >>> fit = ClusterAxisEstimator().fit(P)
+    >>> bool(abs(fit.direction[2]) > 0.9999), round(fit.sweep_deg)
+    (True, 86)
     """
 
     method = "cluster"
@@ -377,7 +528,30 @@ class ClusterAxisEstimator:
         self.max_iter = max_iter
 
     def fit(self, positions, labels=None) -> AxisFit:
-        """Fit the axis of a sweep: ``positions`` (T, M, 3) metres, NaN where occluded."""
+        """Fit the axis of a sweep.
+
+        Parameters
+        ----------
+        positions : array_like
+            (T, M, 3) marker positions (m, camera frame), NaN where occluded.
+        labels : sequence of str, optional
+            M marker labels; default ``m0, m1, ...``.
+
+        Returns
+        -------
+        AxisFit
+            The axis, its covariance (``dof`` residual degrees of freedom) and bound.
+
+        Raises
+        ------
+        mocap.io.errors.InputError
+            If the positions are not (T, M, 3), fewer than 3 markers are seen in
+            ``min_frames`` frames, or fewer than 3 frames see 3 markers of the reference frame.
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position).
+        """
         P, labels, vis = _prepare(positions, labels, self.min_frames, 3)
         model = _RigidSweep(P, vis)
         a, n, theta, s, ref = model.init(P, vis)
@@ -415,13 +589,62 @@ class ClusterAxisEstimator:
 # per-marker circles (Halvorsen bias-compensated least squares) + joint refinement
 # ---------------------------------------------------------------------------------------
 def fit_circle_bcls(points: np.ndarray, sigma2: float | None = None):
-    """One marker's circle: plane by PCA, centre by bias-compensated least squares.
+    r"""One marker's circle: plane by PCA, centre by bias-compensated least squares.
 
-    Implements Halvorsen et al. (2003) in the plane of the arc:
-    ``c = 1/2 (C - sigma^2 I)^-1 s`` with ``C`` the in-plane covariance and
-    ``s = mean(|x|^2 (x - xbar))`` in centred coordinates (the ``2 sigma^2 xbar`` term
-    vanishes there). ``sigma2`` (per-axis variance) defaults to the out-of-plane variance.
-    Returns ``centre (3,), normal (3,), radius, sigma2, lambda_min_in_plane, n_points``.
+    Implements Halvorsen (2003) [1]_ in the plane of the arc (the thesis's axis of rotation
+    from a single marker [2]_):
+
+    .. math::
+
+        c = \tfrac{1}{2}\,(C - \sigma^2 I)^{-1} s, \qquad
+        r^2 = \overline{\lVert x - c \rVert^2} - 2\sigma^2
+
+    with ``C`` the in-plane covariance and ``s = mean(|x|^2 (x - xbar))`` in centred
+    coordinates (the ``2 sigma^2 xbar`` term of the general form vanishes there). Without the
+    ``sigma^2`` terms this is the plain (Kasa) least-squares circle, whose centre and radius
+    are biased on short arcs.
+
+    Parameters
+    ----------
+    points : array_like
+        (N, 3) positions of one marker (m); rows with NaN are dropped.
+    sigma2 : float, optional
+        Per-axis noise variance (m^2); default: the out-of-plane variance
+        (smallest eigenvalue of the covariance, times ``N / (N - 3)``).
+
+    Returns
+    -------
+    centre : numpy.ndarray
+        (3,) circle centre, a point of the axis (m).
+    normal : numpy.ndarray
+        (3,) unit normal of the plane, the axis direction (sign arbitrary).
+    radius : float
+        Circle radius (m).
+    sigma2 : float
+        The per-axis noise variance used (m^2).
+    lambda_min_in_plane : float
+        Smaller in-plane eigenvalue of the covariance (m^2), the arc's spread.
+    n_points : int
+        Points used.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        If fewer than 3 finite points remain.
+
+    References
+    ----------
+    .. [1] Halvorsen 2003, bias compensated least squares estimate of the center of rotation,
+       J. Biomech. 36, 999-1008.
+    .. [2] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position).
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 2.0, 50)
+    >>> pts = np.stack([0.1 + 0.2 * np.cos(t), 0.2 * np.sin(t), np.full_like(t, 0.3)], axis=1)
+    >>> centre, normal, radius, *_ = fit_circle_bcls(pts, sigma2=0.0)
+    >>> np.round(centre, 6).tolist(), round(radius, 6)
+    ([0.1, 0.0, 0.3], 0.2)
     """
     X = np.asarray(points, float)
     X = X[np.all(np.isfinite(X), axis=1)]
@@ -449,17 +672,48 @@ def fit_circle_bcls(points: np.ndarray, sigma2: float | None = None):
 class CircleAxisEstimator:
     """Per-marker circle estimator (Halvorsen BCLS) with a common-axis refinement.
 
-    Parameters
-    ----------
-    refine : after combining the per-marker circles, fit one axis to all markers by
-        orthogonal distance (radial and axial residual to each marker's circle), robust IRLS.
-    sigma_mm : known 3-D RMS noise for the bias compensation (default: estimated per marker
-        from the out-of-plane scatter).
-    noise_mm : 3-D RMS noise used for the Cramer-Rao bound (rigid sweep model; None: the noise
-        estimated from the residuals).
+    The camera-frame axis of a single-joint sweep [1]_: each marker's circle by
+    :func:`fit_circle_bcls` [2]_, the circles combined with weights from radius, arc and noise
+    (normals by their information ``N lambda / sigma^2``, centres by ``N lambda / (sigma^2
+    r^2)``), then one common axis refined by orthogonal distance (radial and axial residual to
+    each marker's circle) with Huber IRLS [3]_ and per-marker noise weights (both off below
+    :data:`WEIGHTS_MIN_FRAMES` frames per marker [4]_). The Cramer-Rao bound is the rigid sweep
+    model's (:func:`sweep_crb`) where 3 markers allow it, else the circle model's own.
 
     With a single marker this is the classic circle-point method (one point's circle: plane,
     centre, radius), which needs at least 3 poses (4 for a residual, hence an uncertainty).
+
+    Parameters
+    ----------
+    refine : bool, optional
+        After combining the per-marker circles, fit one axis to all markers by orthogonal
+        distance (radial and axial residual to each marker's circle), robust IRLS; default
+        True.
+    robust : bool, optional
+        Huber IRLS in the refinement; default True.
+    huber_k : float, optional
+        Huber threshold in units of the robust per-axis sigma; default 2.5.
+    sigma_mm : float or None, optional
+        Known 3-D RMS noise for the bias compensation (default: estimated per marker from the
+        out-of-plane scatter).
+    noise_mm : float or None, optional
+        3-D RMS noise used for the Cramer-Rao bound (rigid sweep model; None: the noise
+        estimated from the residuals); also the noise of a fit that leaves no residual;
+        default :data:`DEFAULT_NOISE_MM`.
+    min_frames : int, optional
+        Frames (poses) a marker must be seen in to be used; default :data:`MIN_POSES`.
+    max_iter : int, optional
+        Iteration cap of the refinement; default :data:`MAX_ITER`.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position): the axis of
+       rotation from a single-joint sweep (after Halvorsen 2003).
+    .. [2] Halvorsen 2003, bias compensated least squares estimate of the center of rotation,
+       J. Biomech. 36, 999-1008.
+    .. [3] Huber 1981, Robust Statistics (the Huber loss by iteratively reweighted least
+       squares).
+    .. [4] jointlab calibration (docs/calibration.md), the reported uncertainty.
     """
 
     method = "circle"
@@ -494,7 +748,31 @@ class CircleAxisEstimator:
         return a, n, rad, circles
 
     def fit(self, positions, labels=None) -> AxisFit:
-        """Fit the axis of a sweep: ``positions`` (T, M, 3) metres, NaN where occluded."""
+        """Fit the axis of a sweep.
+
+        Parameters
+        ----------
+        positions : array_like
+            (T, M, 3) marker positions (m, camera frame), NaN where occluded.
+        labels : sequence of str, optional
+            M marker labels; default ``m0, m1, ...``.
+
+        Returns
+        -------
+        AxisFit
+            The axis, its covariance (``dof`` residual degrees of freedom) and bound.
+
+        Raises
+        ------
+        mocap.io.errors.InputError
+            If the positions are not (T, M, 3), no marker is seen in ``min_frames`` frames, or
+            the observations leave no residual and ``noise_mm`` is None.
+
+        References
+        ----------
+        .. [1] Halvorsen 2003, bias compensated least squares estimate of the center of
+           rotation, J. Biomech. 36, 999-1008.
+        """
         P, labels, vis = _prepare(positions, labels, self.min_frames, 1)
         M = P.shape[1]
         a, n, rad, circles = self.combine(P, vis)

@@ -30,7 +30,66 @@ from mocap.kinematics import rotation_angle, rotvec_to_matrix, unit
 
 @dataclass(frozen=True, eq=False)
 class BasePlacement:
-    """``T_camera_base`` with its covariance (6x6, order ``w`` rad then ``p`` m) and bound."""
+    """``T_camera_base`` with its covariance (6x6, order ``w`` rad then ``p`` m) and bound.
+
+    What :func:`place_base` returns: the rigid transform that maps the URDF's axis lines onto
+    the measured ones [1]_ [2]_, its covariance and Cramer-Rao bound under the perturbation
+    ``R = exp([w]) R_hat``, ``p = p_hat + dp`` (camera frame), the fit's misfit statistics and
+    the uncertainty budget. The properties ``origin_std_mm`` (3-D RMS of the base origin) and
+    ``rotation_std_deg`` (RMS rotation angle) summarise ``cov``; ``crb_origin_mm`` and
+    ``crb_rotation_deg`` the bound.
+
+    Attributes
+    ----------
+    T_camera_base : numpy.ndarray
+        (4, 4) homogeneous transform, ``p_camera = T @ p_base`` (m).
+    cov : numpy.ndarray
+        (6, 6) covariance of ``(w, dp)`` (rad, m), noise and model-error parts together.
+    crb : numpy.ndarray
+        (6, 6) the same propagated from the axes' Cramer-Rao bounds (NaN where an axis has
+        none).
+    residual_chart : dict
+        Joint -> (4,) whitened chart residual of its axis line.
+    axis_distance_mm : float
+        Distance between the two measured axes (mm; 0 if they intersect).
+    urdf_axis_distance_mm : float
+        The same in the URDF (mm).
+    axis_angle_deg : float
+        Angle between the measured axes (deg).
+    urdf_axis_angle_deg : float
+        The same in the URDF (deg).
+    chi2 : float
+        Sum of the squared whitened residuals of the first (noise-only) solve.
+    iterations : int
+        Residual evaluations of the least-squares solve.
+    converged : bool
+        Whether the solve reported success.
+    cond : float
+        Condition number of ``J^T J`` of the whitened solve.
+    dof : int, optional
+        Degrees of freedom of ``chi2``: 4 per axis - 6.
+    p_value : float, optional
+        Upper-tail probability of ``chi2`` on ``dof`` (NaN without redundancy).
+    inflation : float, optional
+        RMS growth of the standard deviations from the model-error term (1: none).
+    warnings : tuple of str, optional
+        Model mismatch (``p_value`` below the threshold) and non-convergence.
+    region95 : dict or None, optional
+        95 % region thresholds and effective degrees of freedom (:func:`region95`).
+    model_error_mm : float, optional
+        Model-error shift per URDF axis line and direction (mm, :func:`model_error_terms`).
+    model_error_deg : float, optional
+        Model-error tilt per URDF axis line and direction (deg).
+    budget : dict or None, optional
+        Origin and rotation standard deviations of the noise part and of the model-error
+        part.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position): the base from the
+       axes of joints 1 and 2.
+    .. [2] jointlab calibration (docs/calibration.md).
+    """
 
     T_camera_base: np.ndarray
     cov: np.ndarray
@@ -155,7 +214,38 @@ def region95(parts, nus, level: float = 0.95, draws: int = REGION_DRAWS) -> dict
 
 
 def pose_errors(T_est: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
-    """Origin error (mm) and rotation error (deg) between two ``T_camera_base``."""
+    """Origin error (mm) and rotation error (deg) between two ``T_camera_base``.
+
+    The origin error is the distance between the translations, the rotation error the angle
+    of ``R_est R_true^T`` (the geodesic distance on SO(3) [1]_), as the calibration benchmarks
+    and the hand-eye cross-check report them [2]_.
+
+    Parameters
+    ----------
+    T_est, T_true : numpy.ndarray
+        (4, 4) homogeneous transforms (m).
+
+    Returns
+    -------
+    origin_mm : float
+        ``|p_est - p_true|`` (mm).
+    rotation_deg : float
+        Rotation angle of ``R_est R_true^T`` (deg).
+
+    References
+    ----------
+    .. [1] Huynh 2009, metrics for 3D rotations: comparison and analysis, J. Math. Imaging
+       Vis. 35, 155-164.
+    .. [2] jointlab calibration (docs/calibration.md).
+
+    Examples
+    --------
+    >>> T = np.eye(4)
+    >>> T[:3, 3] = [0.001, 0.0, 0.0]
+    >>> T[:3, :3] = rotvec_to_matrix(np.radians([0.0, 0.0, 1.0]))
+    >>> tuple(round(x, 6) for x in pose_errors(T, np.eye(4)))
+    (1.0, 1.0)
+    """
     dp = 1e3 * float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
     dr = float(np.degrees(rotation_angle(T_est[:3, :3] @ T_true[:3, :3].T)))
     return dp, dr
@@ -269,18 +359,71 @@ def model_error_terms(axes, urdf_lines, covs, tol_m: float = 0.0, estimate: bool
 def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
                model_error: bool = True, urdf_tol_m: float = 0.0,
                with_region: bool = True) -> BasePlacement:
-    """Solve ``T_camera_base`` from measured axes and the URDF's axis lines.
+    r"""Solve ``T_camera_base`` from measured axes and the URDF's axis lines.
 
-    ``axes``: fitted :class:`calib.axis.AxisFit` (camera frame, with ``joint`` set, the
-    direction's sign matching the joint's positive rotation); ``urdf_lines``: for each, the
-    ``(point, direction)`` of the same joint's axis in the base frame at the sweep's held
-    angles. ``use`` picks the weights (``"cov"`` or ``"crb"``). ``model_error`` includes the
-    URDF-model error estimated from the J1-J2 discrepancy (:func:`model_error_terms`): the lines
-    are weighted by the inverse of ``C_j + V_j`` (the best linear estimate when the URDF lines
+    The thesis intersects the axes of joints 1 and 2 [1]_; here the rigid transform
+    ``(R, p)`` that maps each URDF axis line ``(b_j, m_j)`` onto the measured line ``j`` is
+    found by weighted least squares on the lines' chart coordinates (:mod:`calib.geometry`):
+
+    .. math::
+
+        \min_{R, p} \sum_j c_j^T (C_j + V_j)^{-1} c_j, \qquad
+        c_j = \mathrm{chart}_j(R\,b_j + p,\ R\,m_j)
+
+    started from the rotation that aligns the directions (and their cross product, Umeyama
+    [2]_) and the translation by linear least squares, refined by Levenberg-Marquardt over
+    ``R = exp([w]) R_0``, ``p = p_0 + dp``. This uses the intersection when the axes intersect
+    (PA10) and works equally when they are offset. The covariance is the first-order
+    propagation of the axis covariances ``C_j`` (with the Cramer-Rao bounds in their place, the
+    bound on ``T_camera_base``), split by source. ``model_error`` includes the URDF-model error
+    estimated from the J1-J2 discrepancy (:func:`model_error_terms`, GUM [3]_): the lines are
+    weighted by the inverse of ``C_j + V_j`` (the best linear estimate when the URDF lines
     carry random errors of covariance ``V_j``) and the covariance includes ``V_j``, as a known
-    (type B) part. ``urdf_tol_m`` is the declared standard uncertainty of each URDF axis line's
-    placement across it (type B, both directions, the floor of the estimated shift).
-    ``with_region`` computes the 95 % region (:func:`region95`).
+    (type B) part. A ``chi2`` p-value below ``misfit_p`` adds a warning that the measured axes
+    do not fit the URDF [4]_.
+
+    Parameters
+    ----------
+    axes : sequence of calib.axis.AxisFit
+        Fitted axes (camera frame, with ``joint`` set, the direction's sign matching the
+        joint's positive rotation); the first two are the J1-J2 pair.
+    urdf_lines : sequence of tuple
+        For each axis, the ``(point, direction)`` of the same joint's axis in the base frame at
+        the sweep's held angles (m).
+    use : {"cov", "crb"}, optional
+        The weights: the axes' covariances (default) or their Cramer-Rao bounds (no model
+        error then).
+    misfit_p : float, optional
+        p-value of ``chi2`` below which a warning names the mismatch; default
+        :data:`MISFIT_P`.
+    model_error : bool, optional
+        Include the URDF-model error estimated from the J1-J2 discrepancy; default True.
+    urdf_tol_m : float, optional
+        Declared standard uncertainty of each URDF axis line's placement across it (m; type B,
+        both directions, the floor of the estimated shift); default 0.
+    with_region : bool, optional
+        Compute the 95 % region (:func:`region95`); default True.
+
+    Returns
+    -------
+    BasePlacement
+        ``T_camera_base``, its covariance, bound, misfit statistics and budget.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        If fewer than two axes are given, ``axes`` and ``urdf_lines`` differ in length, or the
+        first two URDF axes are parallel (less than 5 deg apart).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position): the base from the
+       intersection of the axes of joints 1 and 2.
+    .. [2] Umeyama 1991, least-squares estimation of transformation parameters between two
+       point patterns, IEEE TPAMI 13(4).
+    .. [3] GUM, JCGM 100:2008, evaluation of measurement data - guide to the expression of
+       uncertainty in measurement, F.2.4.5 and G.4 (Welch-Satterthwaite).
+    .. [4] jointlab calibration (docs/calibration.md).
     """
     if len(axes) < 2 or len(axes) != len(urdf_lines):
         raise InputError(f"base placement needs at least two swept joints, got {len(axes)}")

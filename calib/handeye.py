@@ -28,6 +28,42 @@ from mocap.kinematics import invert_transform, kabsch_batch, rotvec_to_matrix
 
 @dataclass(frozen=True, eq=False)
 class HandEyeResult:
+    """``T_camera_base`` from the hand-eye / robot-world solve, with the link-frame markers.
+
+    What :meth:`HandEyeEstimator.fit` returns: the robot-world transform ``Z`` of
+    ``p_tk = Z T_base_L(q_t) s_k`` [1]_ [2]_, the marker positions ``s_k`` in the link frame
+    and the fit's diagnostics; the properties ``origin_std_mm`` and ``rotation_std_deg``
+    summarise ``cov`` as :class:`calib.base.BasePlacement` does [3]_.
+
+    Attributes
+    ----------
+    T_camera_base : numpy.ndarray
+        (4, 4) homogeneous transform ``Z``, ``p_camera = T @ p_base`` (m).
+    p_link : dict
+        Marker label -> (3,) position in the link frame (m).
+    link : str
+        The URDF link that carries the markers.
+    rms_mm : float
+        RMS 3-D residual of the refined fit (mm).
+    cov : numpy.ndarray
+        (6, 6) covariance of the rotation vector (rad) then origin (m), camera frame.
+    n_frames : int
+        Frames with joint angles used.
+    iterations : int
+        Residual evaluations of the refinement.
+    converged : bool
+        Whether the refinement reported success.
+
+    References
+    ----------
+    .. [1] Park & Martin 1994, robot sensor calibration: solving AX = XB on the Euclidean
+       group, IEEE Trans. Robot. Autom. 10(5).
+    .. [2] Zhuang, Roth & Sudhakar 1994, simultaneous robot/world and tool/flange calibration
+       by solving homogeneous transformation equations of the form AX = YB, IEEE Trans.
+       Robot. Autom. 10(4).
+    .. [3] jointlab calibration (docs/calibration.md), the hand-eye peer.
+    """
+
     T_camera_base: np.ndarray
     p_link: dict            # label -> (3,) marker position in the link frame
     link: str
@@ -54,12 +90,43 @@ class HandEyeResult:
 
 
 class HandEyeEstimator:
-    """Robot-world calibration from a marker cluster on ``link`` and joint angles.
+    r"""Robot-world calibration from a marker cluster on ``link`` and joint angles.
+
+    The peer of the sweep-axis calibration (``jointlab calib --cross-check`` [4]_): the camera
+    sees markers ``s_k`` fixed in link ``L`` while the robot reports ``q_t``, so
+
+    .. math::
+
+        p_{tk} = Z\,T_{base,L}(q_t)\,s_k, \qquad A_t Z = Z C_t, \quad
+        C_t = B_t B_{ref}^{-1}
+
+    with ``Z = T_camera_base`` unknown (the robot-world half of ``A X = Z B`` [2]_), ``A_t``
+    the cluster's pose in frame ``t`` relative to a reference frame (Kabsch/Umeyama) and
+    ``B_t = T_base_L(q_t)``. The rotation of ``Z`` aligns the rotation vectors of ``A_t`` and
+    ``C_t``, the translation solves ``(R_A - I) t_Z = R_Z t_C - t_A`` by linear least squares
+    (Park & Martin [1]_); the refinement is variable projection [3]_: for a given ``Z`` the
+    marker positions ``s_k`` are the mean of the back-transformed observations, so least
+    squares runs over the 6 pose parameters only, with a robust loss. No OpenCV needed.
 
     Parameters
     ----------
-    robust : soft-L1 loss at ``3 sigma`` in the refinement.
-    min_markers : markers a frame needs to enter the Kabsch initialisation.
+    robust : bool, optional
+        Soft-L1 loss at ``3 sigma`` in the refinement; default True.
+    min_markers : int, optional
+        Markers a frame needs to enter the Kabsch initialisation; default 3. Stored only:
+        the initialisation applies the Kabsch fit's own minimum of 3 markers per frame
+        (:func:`mocap.kinematics.kabsch_batch`) whatever the value.
+
+    References
+    ----------
+    .. [1] Park & Martin 1994, robot sensor calibration: solving AX = XB on the Euclidean
+       group, IEEE Trans. Robot. Autom. 10(5).
+    .. [2] Zhuang, Roth & Sudhakar 1994, simultaneous robot/world and tool/flange calibration
+       by solving homogeneous transformation equations of the form AX = YB, IEEE Trans.
+       Robot. Autom. 10(4).
+    .. [3] Golub & Pereyra 1973, the differentiation of pseudo-inverses and nonlinear least
+       squares problems whose variables separate (variable projection).
+    .. [4] jointlab calibration (docs/calibration.md).
     """
 
     def __init__(self, robust: bool = True, min_markers: int = 3):
@@ -67,8 +134,36 @@ class HandEyeEstimator:
         self.min_markers = min_markers
 
     def fit(self, chain, link: str, positions, q, labels=None) -> HandEyeResult:
-        """``positions`` (T, M, 3) camera-frame markers on ``link`` (NaN = occluded),
-        ``q`` (T, n) joint angles at the same frames (frames with NaN angles are dropped)."""
+        """Solve ``T_camera_base`` from markers on ``link`` and the joint angles.
+
+        Parameters
+        ----------
+        chain : mocap.kinematics.Chain
+            The kinematic chain (URDF), for ``T_base_L(q)``.
+        link : str
+            The link that carries the markers.
+        positions : array_like
+            (T, M, 3) camera-frame markers on ``link`` (m; NaN = occluded).
+        q : array_like
+            (T, n) joint angles at the same frames (rad; frames with NaN angles are dropped).
+        labels : sequence of str, optional
+            M marker labels; default ``m0, m1, ...``.
+
+        Returns
+        -------
+        HandEyeResult
+            ``T_camera_base``, the link-frame markers and the fit's diagnostics.
+
+        Raises
+        ------
+        mocap.io.errors.InputError
+            If fewer than 3 markers or fewer than 10 frames with joint angles are given.
+
+        References
+        ----------
+        .. [1] Park & Martin 1994, robot sensor calibration: solving AX = XB on the Euclidean
+           group, IEEE Trans. Robot. Autom. 10(5).
+        """
         P = np.asarray(positions, float)
         Q = np.asarray(q, float)
         labels = tuple(labels) if labels is not None else tuple(f"m{k}" for k in range(P.shape[1]))

@@ -47,7 +47,44 @@ MOVING_DEG = 0.5
 
 @dataclass(frozen=True, eq=False)
 class SweepData:
-    """One calibration sweep ready for the axis fit (camera frame, metres, radians)."""
+    """One calibration sweep ready for the axis fit (camera frame, metres, radians).
+
+    What :func:`prepare_sweep` builds from one ``[[calib]]`` entry of a campaign [2]_: a
+    single-joint sweep [1]_ checked to move its joint alone, far enough, with the markers of the
+    links the joint carries.
+
+    Attributes
+    ----------
+    joint : int
+        The swept joint, 1-based.
+    time : numpy.ndarray
+        (T,) marker times (s).
+    positions : numpy.ndarray
+        (T, M, 3) markers on the links the joint carries (m, camera frame; NaN where occluded).
+    labels : tuple of str
+        The M marker labels.
+    q_held : numpy.ndarray
+        (n,) median encoder angles (rad; the swept joint's entry too), at which the URDF gives
+        the joint's axis line.
+    q_joint : numpy.ndarray
+        (T,) the swept joint's encoder angle at the marker frames (rad; NaN outside the log).
+    range_deg : float
+        Encoder range of the swept joint (deg).
+    links : tuple of str
+        The links whose markers are used.
+    markers_path : pathlib.Path or None, optional
+        The marker file (for error messages).
+    log_path : pathlib.Path or None, optional
+        The robot log (for error messages).
+    q_frames : numpy.ndarray or None, optional
+        (T, n) all encoder angles at the marker frames (rad; NaN outside the log).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position): rotating one joint
+       alone about its fixed axis.
+    .. [2] jointlab data format (docs/format.md), sec. campaign.toml.
+    """
 
     joint: int                  # 1-based
     time: np.ndarray            # (T,) marker times
@@ -64,7 +101,36 @@ class SweepData:
 
 @dataclass(frozen=True, eq=False)
 class CalibResult:
-    """``T_camera_base`` with the fitted axes, the base solve and the sweeps' diagnostics."""
+    """``T_camera_base`` with the fitted axes, the base solve and the sweeps' diagnostics.
+
+    What :func:`calibrate` and :func:`calibrate_sweeps` return [1]_ [2]_; :meth:`to_dict` is
+    the ``calib.json`` document [3]_ (:func:`write_calib_json`). The properties ``warnings``,
+    ``noise_used_mm``, ``origin_std_mm`` and ``rotation_std_deg`` summarise the axes and the
+    base solve.
+
+    Attributes
+    ----------
+    T_camera_base : numpy.ndarray
+        (4, 4) homogeneous transform, ``p_camera = T @ p_base`` (m).
+    axes : tuple of calib.axis.AxisFit
+        The fitted axes (camera frame, labelled and oriented with their joints).
+    base : calib.base.BasePlacement
+        The base solve: covariance, bound, misfit and budget.
+    method : str
+        The axis estimator (``"auto"``, ``"cluster"`` or ``"circle"``).
+    noise_mm : float or None
+        Given 3-D RMS noise (mm), None when estimated from the residuals.
+    sweeps : tuple of SweepData, optional
+        The sweeps the axes were fitted to.
+    extra : dict, optional
+        Further sections of ``calib.json`` (``"handeye"``: the cross-check).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position).
+    .. [2] jointlab calibration (docs/calibration.md).
+    .. [3] jointlab data format (docs/format.md), sec. What the workbench writes.
+    """
 
     T_camera_base: np.ndarray
     axes: tuple
@@ -125,7 +191,27 @@ class CalibResult:
 
 
 def write_calib_json(path, result: CalibResult) -> Path:
-    """Write ``calib.json`` (floats at full precision)."""
+    """Write ``calib.json`` (floats at full precision).
+
+    The document is :meth:`CalibResult.to_dict`: the keys of the data format first [1]_,
+    the diagnostics after; parent folders are created.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to write.
+    result : CalibResult
+        The calibration.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. What the workbench writes.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8")
@@ -391,13 +477,57 @@ def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None
                      urdf_model_error: bool = True, **options) -> CalibResult:
     """Axes from prepared sweeps, then the base from the URDF axis lines (no file I/O).
 
-    ``checks`` runs the boundary checks that refuse silent mistakes (exit 2): the logged swept
-    angle against the markers' rotation (:func:`check_angle_scale`), the URDF's lengths against
-    the marker cloud (:func:`check_urdf_scale`) and the sign of the logged angles
-    (:func:`check_angle_sign`). ``urdf_tol_mm`` is the standard uncertainty of the URDF's axis
-    placement (see :func:`calib.base.place_base`); ``urdf_model_error`` False leaves out the model
-    error estimated from the J1-J2 discrepancy (the URDF's J1-J2 geometry trusted as exact: more
-    precise when it is, biased when it is not; docs/calibration.md)."""
+    The thesis's camera-to-base step [1]_, generalised: each sweep's axis is fitted with
+    ``method`` and oriented with the joint's positive rotation (:func:`fit_axes`), the URDF
+    gives the same joints' axis lines in the base frame at the held encoder angles, and
+    :func:`calib.base.place_base` maps those onto the measured ones. ``checks`` runs the
+    boundary checks that refuse silent mistakes (exit 2) [2]_: the logged swept angle against
+    the markers' rotation (:func:`check_angle_scale`), the URDF's lengths against the marker
+    cloud (:func:`check_urdf_scale`) and the sign of the logged angles
+    (:func:`check_angle_sign`).
+
+    Parameters
+    ----------
+    sweeps : sequence of SweepData
+        Prepared sweeps (:func:`prepare_sweep`), the J1-J2 pair first.
+    chain : mocap.kinematics.Chain
+        The kinematic chain (URDF), for the axis lines in the base frame.
+    method : {"auto", "cluster", "circle"}, optional
+        The axis estimator (``ESTIMATORS``); default ``"auto"``.
+    noise_mm : float or None, optional
+        3-D RMS marker noise for the Cramer-Rao bound (mm); None: estimated from the residuals.
+    frame_step : int, optional
+        Use every ``frame_step``-th frame; default 1.
+    urdf_path : str or pathlib.Path, optional
+        The URDF, named by the URDF-scale check's message.
+    checks : bool, optional
+        Run the boundary checks; default True.
+    urdf_tol_mm : float, optional
+        Standard uncertainty of the URDF's axis placement (mm; see
+        :func:`calib.base.place_base`); default 0.
+    urdf_model_error : bool, optional
+        False leaves out the model error estimated from the J1-J2 discrepancy (the URDF's J1-J2
+        geometry trusted as exact: more precise when it is, biased when it is not [2]_);
+        default True.
+    **options
+        Settings of the axis estimator (e.g. ``robust``, ``min_frames``).
+
+    Returns
+    -------
+    CalibResult
+        ``T_camera_base``, the axes, the base solve and the sweeps.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        If ``urdf_tol_mm`` is not a finite length >= 0, ``method`` is unknown, an axis fit or
+        the base solve cannot run on the data, or a boundary check refuses a sweep.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position).
+    .. [2] jointlab calibration (docs/calibration.md), the checks and the model error.
+    """
     if not (np.isfinite(urdf_tol_mm) and urdf_tol_mm >= 0):
         raise InputError(f"--urdf-tol-mm must be a finite length >= 0 (mm), got {urdf_tol_mm}")
     fits = fit_axes(sweeps, method, noise_mm, frame_step, **options)
@@ -435,12 +565,58 @@ def calibrate(campaign, robot=None, method: str = "auto", sink=None,
               cross_check: bool = False, urdf_tol_mm: float = 0.0, **options) -> CalibResult:
     """Calibrate ``T_camera_base`` for a loaded campaign (:func:`mocap.io.campaign.load_campaign`).
 
-    ``method`` is ``"cluster"`` (rigid-cluster screw axis + ML refinement), ``"circle"``
-    (per-marker Halvorsen circles + common-axis refinement; one marker: the circle-point method)
-    or ``"auto"`` (cluster with 3 or more markers, circle with fewer); ``noise_mm`` (3-D RMS)
-    sets the Cramer-Rao bound's noise, None estimates it from the residuals; ``sink`` (a :class:`viz.Sink`)
-    receives the marker arcs, the fitted axes and the base frame. ``cross_check`` adds the
-    hand-eye peer's solve and its difference under ``extra["handeye"]``.
+    Reads every ``[[calib]]`` entry of ``joints`` [2]_, checks that each sweep moves its joint
+    alone over at least ``min_sweep_deg`` (:func:`prepare_sweep`), fits the joint axes from the
+    markers on the links each joint carries and places the base with the URDF's axis lines at
+    the encoder angles held during each sweep (:func:`calibrate_sweeps`): the thesis's
+    intersection of the axes of joints 1 and 2 [1]_, generalised to offset axes and weighted by
+    the axes' covariances [3]_.
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The loaded campaign.
+    robot : mocap.robot.Robot, optional
+        The robot; default ``campaign.load_robot()``.
+    method : {"auto", "cluster", "circle"}, optional
+        ``"cluster"`` (rigid-cluster screw axis + ML refinement), ``"circle"`` (per-marker
+        Halvorsen circles + common-axis refinement; one marker: the circle-point method) or
+        ``"auto"`` (default: cluster with 3 or more markers, circle with fewer).
+    sink : viz.Sink, optional
+        Receives the marker arcs, the fitted axes and the base frame.
+    noise_mm : float or None, optional
+        3-D RMS marker noise (mm) of the Cramer-Rao bound; None (default) estimates it from the
+        residuals.
+    min_sweep_deg : float, optional
+        Smallest encoder range a sweep must cover (deg); default 15.
+    joints : sequence of int, optional
+        The swept joints, 1-based; default ``(1, 2)``.
+    cross_check : bool, optional
+        Add the hand-eye peer's solve (:class:`calib.handeye.HandEyeEstimator`) and its
+        difference under ``extra["handeye"]``; default False.
+    urdf_tol_mm : float, optional
+        Standard uncertainty of the URDF's axis placement (mm); default 0.
+    **options
+        Passed to :func:`calibrate_sweeps` (``frame_step``, ``checks``, ``urdf_model_error``,
+        estimator settings).
+
+    Returns
+    -------
+    CalibResult
+        ``T_camera_base``, the axes, the base solve and the sweeps.
+
+    Raises
+    ------
+    mocap.io.errors.InputError
+        If a sweep of ``joints`` is missing or refused (another joint moves, too short a sweep,
+        too few markers, a log or URDF that does not fit the markers); the message names the
+        file.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), sec. 3.2 (Estimation of Link Position).
+    .. [2] jointlab data format (docs/format.md), sec. campaign.toml.
+    .. [3] jointlab calibration (docs/calibration.md).
     """
     if robot is None:
         robot = campaign.load_robot()
