@@ -42,6 +42,7 @@ QUICK = dict(joints="2,5", loads="0", vmax="0.3,0.6,1.0", reps=2, duration=8.0, 
 GOAL_S = 180.0
 GOAL13_S = 90.0
 GOAL_GB = 4.0
+GOAL_MEM_RATIO = 1.2          # issue 30: a 10x study within 1.2x the peak memory of a 1x one
 
 
 class PeakRSS:
@@ -57,6 +58,7 @@ class PeakRSS:
         self._psutil = psutil
         self.period = period
         self.peak = 0
+        self.by_role: dict = {}     # "main" / "workers" -> largest RSS of one such process
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
 
@@ -64,9 +66,12 @@ class PeakRSS:
         total = 0
         for p in [self._p] + self._p.children(recursive=True):
             try:
-                total += p.memory_info().rss
+                rss = p.memory_info().rss
             except (self._psutil.NoSuchProcess, self._psutil.AccessDenied):
-                pass
+                continue
+            total += rss
+            role = "main" if p.pid == self._p.pid else "worker"
+            self.by_role[role] = max(self.by_role.get(role, 0), rss)
         return total
 
     def _run(self):
@@ -122,7 +127,33 @@ def run_once(camp: Path, out: Path, settings: StudySettings, workers: int | None
     finally:
         ex.close()
     return {"wall": wall, "peak_gb": mem.peak / 1e9, "stages": res.stages, "errors": res.errors,
-            "verdicts": res.verdicts, "load": os.getloadavg()[0]}
+            "verdicts": res.verdicts, "load": os.getloadavg()[0],
+            "role_gb": {k: v / 1e9 for k, v in mem.by_role.items()}}
+
+
+def memory_scaling(args) -> int:
+    """Peak resident memory (this process + its workers) of an N-trial study and of a
+    ``scale`` x N-trial one of the same design (more repetitions of every condition), in this
+    invocation, through the real pipeline; prints the ratio against the 1.2 goal."""
+    joints = args.mem_joints.split(",")
+    per_rep = len(joints) * 2 * 3            # 2 loads x 3 speed ranges
+    if args.trials % per_rep:
+        raise SystemExit(f"--trials must be a multiple of {per_rep} (joints x 2 loads x 3 speeds)")
+    peaks = {}
+    for n in (args.trials, args.scale * args.trials):
+        cfg = dict(FULL, joints=args.mem_joints, reps=n // per_rep, duration=args.duration)
+        camp = make_campaign(cfg, args.cache)
+        r = run_once(camp, args.cache / f"out-{_key(cfg)}-mem", StudySettings(), workers=args.mem_workers)
+        peaks[n] = r["peak_gb"]
+        roles = ", ".join(f"{k} {v:.2f} GB" for k, v in sorted(r["role_gb"].items()))
+        print(f"{n:5d} trials of {args.duration:g} s, {args.mem_workers} worker(s): wall {r['wall']:.1f} s, "
+              f"peak {r['peak_gb']:.2f} GB (largest single process: {roles}); load avg {r['load']:.1f}"
+              + (f"\n{'':6}errors: {r['errors']}" if r["errors"] else ""), flush=True)
+        shutil.rmtree(args.cache / f"out-{_key(cfg)}-mem", ignore_errors=True)
+    big, small = peaks[args.scale * args.trials], peaks[args.trials]
+    print(f"peak ratio {args.scale * args.trials} / {args.trials} trials: {big / small:.2f} "
+          f"(goal <= {GOAL_MEM_RATIO:g}: {'met' if big / small <= GOAL_MEM_RATIO else 'NOT met'})", flush=True)
+    return 0
 
 
 def resume(camp: Path, out: Path, settings: StudySettings, workers: int) -> float:
@@ -166,7 +197,18 @@ def main(argv=None) -> int:
     ap.add_argument("--dask", action="store_true", help="also run on a 2-worker Dask LocalCluster")
     ap.add_argument("--no-resume", action="store_true", help="skip the resume (all up to date) timing")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "jointlab-bench-study")
+    ap.add_argument("--memory", action="store_true",
+                    help="only the memory scaling: an N-trial and a 10N-trial study, peak RSS ratio")
+    ap.add_argument("--trials", type=int, default=180, help="--memory: N (default 180)")
+    ap.add_argument("--scale", type=int, default=10, help="--memory: the larger study's factor (default 10)")
+    ap.add_argument("--duration", type=float, default=20.0,
+                    help="--memory: trial length in s (default 20; shorter keeps a 10x study quick)")
+    ap.add_argument("--mem-joints", default="1,2,3,4,5,6", help="--memory: joints (default 1-6)")
+    ap.add_argument("--mem-workers", type=int, default=2, help="--memory: local workers (default 2)")
     args = ap.parse_args(argv)
+    if args.memory:
+        args.cache.mkdir(parents=True, exist_ok=True)
+        return memory_scaling(args)
     cfg = QUICK if args.quick else FULL
     args.cache.mkdir(parents=True, exist_ok=True)
     camp = make_campaign(cfg, args.cache)
