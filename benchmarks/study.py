@@ -121,13 +121,13 @@ def run_once(camp: Path, out: Path, settings: StudySettings, workers: int | None
         ex = make_executor(workers, progress=False)
     try:
         with PeakRSS() as mem:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             res = Study(settings, ex, progress=False).run(camp, out)
-            wall = time.perf_counter() - t0
+            wall, main_cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         ex.close()
     return {"wall": wall, "peak_gb": mem.peak / 1e9, "stages": res.stages, "errors": res.errors,
-            "verdicts": res.verdicts, "load": os.getloadavg()[0],
+            "verdicts": res.verdicts, "load": os.getloadavg()[0], "main_cpu": main_cpu,
             "role_gb": {k: v / 1e9 for k, v in mem.by_role.items()}}
 
 
@@ -174,19 +174,22 @@ def show(name: str, r: dict, base: float | None, workers: int):
     # parallel efficiency of the mapped stages: the items' own wall times (measured in the
     # workers) over workers x stage wall time; near 1 = the seam keeps every worker busy, even
     # when other load on a shared machine slows every item down
+    # (the diagnosis' items are queued behind the fits': the two stages share one span)
     eff = []
-    for k in ("mocap", "fits", "diagnosis"):
-        v = r["stages"].get(k, {})
-        if v.get("seconds") and v.get("work_s"):
-            eff.append(f"{k} {v['work_s'] / (workers * v['seconds']):.2f}")
+    for ks in (("mocap",), ("fits", "diagnosis")):
+        vs = [r["stages"].get(k, {}) for k in ks]
+        sec, work = sum(v.get("seconds", 0) for v in vs), sum(v.get("work_s", 0) for v in vs)
+        if sec and work:
+            eff.append(f"{' + '.join(ks)} {work / (workers * sec):.2f}")
     cpu = []
     for k in ("mocap", "fits", "diagnosis"):
         v = r["stages"].get(k, {})
         if v.get("computed") and v.get("cpu_s"):
             cpu.append(f"{k} {v['cpu_s'] / v['computed']:.2f} s/item ({v['cpu_s']:.1f} s)")
+    cpu.append(f"this process {r['main_cpu']:.1f} s")
     print(f"{name:<16} wall {r['wall']:7.1f} s  peak {r['peak_gb']:.2f} GB  load avg {r['load']:.1f}{ratio}\n"
           f"{'':16} {st}\n{'':16} parallel efficiency (items' time / (workers x stage time)): "
-          f"{', '.join(eff)}\n{'':16} CPU time in the workers: {', '.join(cpu)}"
+          f"{', '.join(eff)}\n{'':16} CPU time (items as the workers measured them; this process: the rest, everything with 1 worker): {', '.join(cpu)}"
           + (f"\n{'':16} errors: {r['errors']}" if r["errors"] else ""), flush=True)
 
 

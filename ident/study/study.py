@@ -446,13 +446,19 @@ class Study:
             ctx.man["records"][rel] = ctx.hasher.file(p)
 
     def _map(self, fn, items, desc):
-        if not items:
-            return []
-        if self.executor is None:
-            from ident.study.executor import SerialExecutor
+        return self._submit(fn, items, desc).result()
 
-            return SerialExecutor(self.progress).map(fn, items, desc)
-        return self.executor.map(fn, items, desc)
+    def _submit(self, fn, items, desc):
+        """``fn`` over ``items`` in flight on the executor (its ``submit_map``; an executor with
+        ``map`` alone runs when the result is asked for)."""
+        from ident.study.executor import Pending, SerialExecutor
+
+        if not items:
+            return Pending(list)
+        ex = self.executor if self.executor is not None else SerialExecutor(self.progress)
+        if hasattr(ex, "submit_map"):
+            return ex.submit_map(fn, items, desc)
+        return Pending(lambda: ex.map(fn, items, desc))
 
     # main ------------------------------------------------------------------------------------
     def run(self, campaign, out, rrd: str | Path | None = None, spawn: bool = False) -> StudyResult:
@@ -501,11 +507,15 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         angles_dir, mocap_summary, refs = self._mocap(ctx, T_cb)
         _write_manifest(manifest_path, man, tmp_dir)
-        fits = self._fits(ctx, angles_dir)
+        # the fits' and the diagnosis' items are queued together (fits first): while the
+        # workers run the diagnosis, this process writes fits/ and the multi-joint stage
+        fits_run = self._fits_start(ctx, angles_dir)
+        diag_run = self._diagnosis_start(ctx, angles_dir)
+        fits = self._fits_finish(ctx, fits_run)
         _write_manifest(manifest_path, man, tmp_dir)
         self._rigidbody(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
-        diag = self._diagnosis(ctx, angles_dir)
+        diag = self._diagnosis_finish(ctx, diag_run)
         _write_manifest(manifest_path, man, tmp_dir)
         self._coast_md = self._coastdown(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
@@ -635,7 +645,11 @@ class Study:
 
     # stage 3: friction fits ------------------------------------------------------------------
     def _fits(self, ctx, angles_dir):
-        from ident.thesis.campaign import FitsResult, campaign_tasks
+        return self._fits_finish(ctx, self._fits_start(ctx, angles_dir))
+
+    def _fits_start(self, ctx, angles_dir):
+        """The fit items to compute (the others are reused from their records), queued."""
+        from ident.thesis.campaign import campaign_tasks
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
@@ -666,7 +680,15 @@ class Study:
                 continue
             jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h))
         self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
-        for job, res in zip(jobs, self._map(_run_fit_job, jobs, "fits")):
+        pending = self._submit(_run_fit_job, jobs, "fits")
+        return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending)
+
+    def _fits_finish(self, ctx, run):
+        from ident.thesis.campaign import FitsResult
+
+        camp, s = ctx.camp, self.settings
+        t0, jobs, done, hashes, skipped = (run[k] for k in ("t0", "jobs", "done", "hashes", "skipped"))
+        for job, res in zip(jobs, run["pending"].result()):
             done[job.trial] = res
             self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
@@ -734,20 +756,24 @@ class Study:
 
     # stage 4: gap diagnosis ------------------------------------------------------------------
     def _diagnosis(self, ctx, angles_dir):
+        return self._diagnosis_finish(ctx, self._diagnosis_start(ctx, angles_dir))
+
+    def _diagnosis_start(self, ctx, angles_dir):
+        """The joints to diagnose (the others are reused from their records), queued (what
+        :meth:`_diagnosis_finish` collects)."""
         from ident.gap import DiagnosisSettings
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
         if not s.diagnose:
-            ctx.stages["diagnosis"] = _stage_row(note="switched off")
-            return None
+            return {"off": True}
         dset = DiagnosisSettings(seed=s.seed)
         by_joint: dict = {}
         for t in camp.trials:  # loop over trials
             if len(t.joints) == 1:
                 by_joint.setdefault(int(t.joints[0]), []).append(t)
         if not by_joint:
-            return self._diagnosis_records(ctx, dset, t0)
+            return {"records": (dset, t0)}
         jobs, done, hashes = [], {}, {}
         for j, trials in sorted(by_joint.items()):  # loop over joints
             files = [[ctx.hasher.file(t.log),
@@ -763,7 +789,22 @@ class Study:
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
                                  dset, str(ctx.state / record), str(ctx.tmp_dir), h))
         self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
-        for job, res in zip(jobs, self._map(_run_diag_job, jobs, "diagnosis")):
+        pending = self._submit(_run_diag_job, jobs, "diagnosis")
+        return dict(dset=dset, jobs=jobs, done=done, hashes=hashes, pending=pending,
+                    prep_s=time.perf_counter() - t0)
+
+    def _diagnosis_finish(self, ctx, run):
+        """Collect the diagnosis items; ``seconds``: the preparation plus the wait beyond the
+        stages queued before it (its items run while the fits finish)."""
+        if "off" in run:
+            ctx.stages["diagnosis"] = _stage_row(note="switched off")
+            return None
+        if "records" in run:
+            return self._diagnosis_records(ctx, *run["records"])
+        t0 = time.perf_counter() - run["prep_s"]
+        camp = ctx.camp
+        dset, jobs, done, hashes = (run[k] for k in ("dset", "jobs", "done", "hashes"))
+        for job, res in zip(jobs, run["pending"].result()):
             done[job.joint] = res
             self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
         failed = {j: r["error"] for j, r in done.items() if not r.get("ok")}
