@@ -317,6 +317,42 @@ def _run_diag_job(job: _DiagJob) -> dict:
     return result
 
 
+@dataclass(frozen=True)
+class _PlotJob:
+    """PNGs of one joint drawn by a worker into ``out_dir``: ``kind`` "fits" (``fits/plots/``,
+    :meth:`ident.thesis.campaign.FitsResult.write_plots`; ``data`` = (entries, models)), "study"
+    (``plots/``, :func:`write_study_plots`; the same ``data``) or "diagnosis"
+    (:func:`ident.gap.report.make_plots`; ``data`` = (report, series) of that joint)."""
+
+    kind: str
+    out_dir: str
+    data: tuple
+
+
+def _run_plot_job(job: _PlotJob):
+    """The file names the job wrote (a list for "fits", {key: name} otherwise)."""
+    out = Path(job.out_dir)
+    if job.kind == "diagnosis":
+        from ident.gap.report import make_plots
+
+        out.mkdir(parents=True, exist_ok=True)
+        return make_plots(*job.data, out)
+    from ident.thesis.campaign import FitsResult
+
+    fits = FitsResult(*job.data)
+    if job.kind == "fits":
+        return [p.name for p in fits.write_plots(out)]
+    return write_study_plots(fits, out)
+
+
+def _by_joint(entries) -> dict:
+    """Fit entries grouped by joint, in joint order (each group in the entries' order)."""
+    out: dict = {}
+    for e in entries:
+        out.setdefault(e.task.joint, []).append(e)
+    return {j: tuple(out[j]) for j in sorted(out)}
+
+
 # ---------------------------------------------------------------------------------------------
 # the mocap stage adapter (the one place that knows the mocap API)
 # ---------------------------------------------------------------------------------------------
@@ -516,6 +552,7 @@ class Study:
         self._rigidbody(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
         diag = self._diagnosis_finish(ctx, diag_run)
+        self._fits_commit(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
         self._coast_md = self._coastdown(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
@@ -644,9 +681,6 @@ class Study:
         return (angles_dir if items else None), summary, refs
 
     # stage 3: friction fits ------------------------------------------------------------------
-    def _fits(self, ctx, angles_dir):
-        return self._fits_finish(ctx, self._fits_start(ctx, angles_dir))
-
     def _fits_start(self, ctx, angles_dir):
         """The fit items to compute (the others are reused from their records), queued."""
         from ident.thesis.campaign import campaign_tasks
@@ -700,14 +734,22 @@ class Study:
         stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots)
         fits_dir = ctx.out / "fits"
         prev = ctx.old.get("stages", {}).get("fits", {})
+        man = {"hash": stage_hash, "outputs": ["fits/"],
+               "items": {tid: {"hash": h} for tid, h in hashes.items() if tid in done and done[tid].get("ok")}}
+        ctx.fits_commit = (None, None, man)
         if not (prev.get("hash") == stage_hash and _tree_ok(ctx, "fits/", "fits/fits.json")):
             if entries:
                 tmp = ctx.tmp_dir / "fits-new"
-                result.write(tmp, plots=s.plots)
-                ctx.od.commit(tmp, "fits", prune=True)
-        ctx.man["stages"]["fits"] = {"hash": stage_hash, "outputs": ["fits/"],
-                                     "items": {tid: {"hash": h} for tid, h in hashes.items()
-                                               if tid in done and done[tid].get("ok")}}
+                result.write(tmp, plots=False)
+                plots = None
+                if s.plots:     # drawn by the workers (after the diagnosis' items), per joint
+                    groups = _by_joint(entries)
+                    plots = self._submit(_run_plot_job, [_PlotJob("fits", str(tmp / "plots"), (g, result.models))
+                                                         for g in groups.values()], "plots")
+                    ctx.study_plots = self._submit(
+                        _run_plot_job, [_PlotJob("study", str(ctx.tmp_dir / "plots-new"), (g, result.models))
+                                        for g in groups.values()], "plots")
+                ctx.fits_commit = (tmp, plots, man)
         if entries:
             ctx.paths["fits"] = fits_dir / "fits.json"
         ctx.stages["fits"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
@@ -716,6 +758,19 @@ class Study:
                                         work=_work(jobs, done, "trial"),
                                         cpu=_work(jobs, done, "trial", "cpu_s"))
         return result
+
+    def _fits_commit(self, ctx) -> None:
+        """Install ``fits/`` once its plots are drawn, then record the stage in the manifest
+        (never before: a rerun trusts a recorded stage whose files are the study's)."""
+        tmp, plots, man = ctx.fits_commit
+        if man is None:
+            return
+        if tmp is not None:
+            if plots is not None:
+                plots.result()
+            ctx.od.commit(tmp, "fits", prune=True)
+            ctx.fits_commit = (None, None, man)
+        ctx.man["stages"]["fits"] = man
 
     # stage 3b: multi-joint records ------------------------------------------------------------
     def _rigidbody(self, ctx):
@@ -755,9 +810,6 @@ class Study:
         return res
 
     # stage 4: gap diagnosis ------------------------------------------------------------------
-    def _diagnosis(self, ctx, angles_dir):
-        return self._diagnosis_finish(ctx, self._diagnosis_start(ctx, angles_dir))
-
     def _diagnosis_start(self, ctx, angles_dir):
         """The joints to diagnose (the others are reused from their records), queued (what
         :meth:`_diagnosis_finish` collects)."""
@@ -824,7 +876,14 @@ class Study:
             from ident.gap.report import write_report
 
             tmp = ctx.tmp_dir / "diagnosis-new"
-            write_report(report, series, tmp, None)
+            pending = self._submit(_run_plot_job, [_PlotJob("diagnosis", str(tmp), ({"joints": {j: r}},
+                                                                                   {j: series.get(j)}))
+                                                   for j, r in report["joints"].items()], "plots")
+            self._fits_commit(ctx)       # its plots were queued before these
+            plots = {}
+            for names in pending.result():
+                plots.update(names)
+            write_report(report, series, tmp, None, plots=plots)
             ctx.od.commit(tmp, "diagnosis", prune=True)
         ctx.man["stages"]["diagnosis"] = {"hash": stage_hash, "outputs": ["diagnosis/"],
                                           "items": {str(j): {"hash": h} for j, h in hashes.items()
@@ -937,7 +996,12 @@ class Study:
         plots = {}
         if s.plots and fits is not None and fits.entries:
             tmp = ctx.tmp_dir / "plots-new"
-            plots = write_study_plots(fits, tmp)
+            if ctx.study_plots is None:     # fits/ was up to date: not drawn with it
+                ctx.study_plots = self._submit(_run_plot_job, [_PlotJob("study", str(tmp), (g, fits.models))
+                                                               for g in _by_joint(fits.entries).values()],
+                                               "plots")
+            for names in ctx.study_plots.result():
+                plots.update(names)
             ctx.od.commit(tmp, "plots", prune=True)
         tmp = ctx.tmp_dir / "csv-new"
         write_study_csvs(ctx.camp, mocap_summary, fits, diag[0] if diag else None, tmp)
@@ -976,6 +1040,8 @@ class _Context:
     paths: dict
     od: OutputDir
     angles_ok: frozenset = frozenset()
+    fits_commit: tuple = (None, None, None)   # (tmp folder, its plots in flight, manifest entry)
+    study_plots: object = None                # plots/ in flight (ident.study.executor.Pending)
 
 
 def _read_manifest(path: Path) -> dict:
