@@ -264,10 +264,13 @@ class _FitJob:
     record: str
     tmp_dir: str
     input_hash: str
+    keep_plot: bool = True      # return the plot samples (else only the record keeps them)
 
 
 def _run_fit_job(job: _FitJob) -> dict:
-    """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign.fit_trial_joint`)."""
+    """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign.fit_trial_joint`).
+    The record holds the whole result; the study gets the plot samples only when it draws or
+    logs this trial (``keep_plot``): what it holds stays small however many trials there are."""
     from ident.thesis.campaign import fit_trial_joint
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -278,7 +281,28 @@ def _run_fit_job(job: _FitJob) -> dict:
     result = {"ok": True, "entries": entries, "seconds": time.perf_counter() - t0,
               "cpu_s": time.process_time() - c0}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
-    return result
+    return result if job.keep_plot else _without_plots(result)
+
+
+def _without_plots(result: dict) -> dict:
+    """A fit result whose entries carry no plot samples."""
+    if not result.get("ok"):
+        return result
+    return {**result, "entries": [dataclasses.replace(e, plot={}) for e in result["entries"]]}
+
+
+def _plotted_trials(entries, campaign, which: str, bad=frozenset()) -> set:
+    """Ids of the trials whose plot samples the outputs use: per (joint, load, speed range) the
+    first of the lowest repetition among ``entries`` (``fits/plots/``, ``plots/``; the order
+    :meth:`ident.thesis.campaign.FitsResult.write_plots` and :func:`write_study_plots` pick
+    in), and the trials of the recording (:func:`_rrd_trials` of the trials not in ``bad``).
+    ``entries``: objects with ``.trial``, ``.joint``, ``.load_kg``, ``.vmax_frac``,
+    ``.repetition`` (fit tasks, or ``e.task`` of fit entries)."""
+    first: dict = {}
+    for e in sorted(entries, key=lambda e: e.repetition):     # stable: entry order on ties
+        first.setdefault((e.joint, e.load_kg, e.vmax_frac), e.trial)
+    shown = dataclasses.replace(campaign, trials=tuple(t for t in campaign.trials if t.id not in bad))
+    return set(first.values()) | {t.id for t in _rrd_trials(shown, which)}
 
 
 @dataclass(frozen=True)
@@ -695,6 +719,8 @@ class Study:
             by_trial.setdefault(t.trial, []).append(t)
         jobs, done, hashes = [], {}, {}
         fit_settings = [list(s.models), s.n_starts, s.seed, s.sync]
+        bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith("mocap/")}
+        plotted = _plotted_trials(tasks, camp, s.rrd_trials, bad)
         for tr in camp.trials:  # loop over trials
             if tr.id not in by_trial:
                 continue
@@ -710,9 +736,10 @@ class Study:
             record = f"records/fits/{_record_name(tr.id)}"
             rec = self._record(ctx, record, h)
             if rec is not None:
-                done[tr.id] = rec["result"]
+                done[tr.id] = rec["result"] if tr.id in plotted else _without_plots(rec["result"])
                 continue
-            jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h))
+            jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h,
+                                keep_plot=tr.id in plotted))
         self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
         pending = self._submit(_run_fit_job, jobs, "fits")
         return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending)
@@ -728,6 +755,17 @@ class Study:
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
         for tid, msg in failed.items():
             ctx.errors[f"fits/{tid}"] = msg
+        # a failed trial hands its place in the plots to the next repetition: read that
+        # trial's plot samples back from its record
+        bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
+        ok_entries = [e.task for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
+                      for e in done[tr.id]["entries"]]
+        for tid in _plotted_trials(ok_entries, camp, s.rrd_trials, bad):
+            if tid in done and not all(e.plot for e in done[tid]["entries"]):
+                rel = f"records/fits/{_record_name(tid)}"
+                rec = self._record(ctx, rel, hashes[tid])
+                if rec is not None:
+                    done[tid] = rec["result"]
         entries = tuple(e for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
                         for e in done[tr.id]["entries"])
         result = FitsResult(entries, tuple(s.models), camp.name, tuple(skipped))
