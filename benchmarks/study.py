@@ -143,10 +143,12 @@ def memory_scaling(args) -> int:
     for n in (args.trials, args.scale * args.trials):
         cfg = dict(FULL, joints=args.mem_joints, reps=n // per_rep, duration=args.duration)
         camp = make_campaign(cfg, args.cache)
-        r = run_once(camp, args.cache / f"out-{_key(cfg)}-mem", StudySettings(), workers=args.mem_workers)
+        r = run_once(camp, args.cache / f"out-{_key(cfg)}-mem", StudySettings(diagnosis_reps=args.diagnosis_reps),
+                     workers=args.mem_workers)
         peaks[n] = r["peak_gb"]
         roles = ", ".join(f"{k} {v:.2f} GB" for k, v in sorted(r["role_gb"].items()))
-        print(f"{n:5d} trials of {args.duration:g} s, {args.mem_workers} worker(s): wall {r['wall']:.1f} s, "
+        print(f"{n:5d} trials of {args.duration:g} s, {args.mem_workers} worker(s), diagnosis reps "
+              f"{args.diagnosis_reps or 'all'}: wall {r['wall']:.1f} s, "
               f"peak {r['peak_gb']:.2f} GB (largest single process: {roles}); load avg {r['load']:.1f}"
               + (f"\n{'':6}errors: {r['errors']}" if r["errors"] else ""), flush=True)
         shutil.rmtree(args.cache / f"out-{_key(cfg)}-mem", ignore_errors=True)
@@ -207,6 +209,8 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=20.0,
                     help="--memory: trial length in s (default 20; shorter keeps a 10x study quick)")
     ap.add_argument("--mem-joints", default="1,2,3,4,5,6", help="--memory: joints (default 1-6)")
+    ap.add_argument("--diagnosis-reps", type=int, default=0,
+                    help="--memory: the diagnosis reads the first R repetitions per condition (default 0: all)")
     ap.add_argument("--mem-workers", type=int, default=2, help="--memory: local workers (default 2)")
     args = ap.parse_args(argv)
     if args.memory:

@@ -274,6 +274,31 @@ def test_settings_are_validated():
         StudySettings(models=("nope",)).validate()
     with pytest.raises(InputError, match="rrd_trials"):
         StudySettings(rrd_trials="some").validate()
+    with pytest.raises(InputError, match="diagnosis_reps"):
+        StudySettings(diagnosis_reps=-1).validate()
+
+
+def test_diagnosis_reps_diagnoses_the_first_repetitions_and_fits_every_trial(tiny, tmp_path):
+    """``diagnosis_reps=1``: the diagnosis of the 4-trial campaign is the one of its two
+    first-repetition trials alone; the fits still cover all four."""
+    import dataclasses
+
+    camp, _, _ = tiny
+    fast = dataclasses.replace(FAST, plots=False)
+    res = Study(dataclasses.replace(fast, diagnosis_reps=1), None, progress=False).run(camp, tmp_path / "a")
+    assert res.stages["fits"]["computed"] == 4
+    assert "2 of 4 trials" in res.stages["diagnosis"]["note"]
+    from ident.gap import DiagnosisSettings
+    from ident.gap.campaign import diagnose_campaign, load_angles_dir
+    from ident.common import to_jsonable
+
+    loaded = load_campaign(camp)
+    firsts = dataclasses.replace(loaded, trials=tuple(t for t in loaded.trials if t.repetition == 1))
+    assert len(firsts.trials) == 2
+    angles = load_angles_dir(tmp_path / "a" / "angles", list(firsts.trials))
+    ref, _ = diagnose_campaign(firsts, loaded.load_robot(), angles, DiagnosisSettings(seed=fast.seed), joints=[5])
+    a = json.loads((tmp_path / "a" / "diagnosis" / "diagnosis.json").read_text())["joints"]
+    assert a == json.loads(json.dumps(to_jsonable(ref["joints"])))
 
 
 def test_scheduler_without_the_dask_extra_says_how_to_install(tiny, tmp_path, capsys):

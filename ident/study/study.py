@@ -77,7 +77,10 @@ class StudySettings:
     :func:`ident.thesis.campaign.fit_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
     ``mocap``/``diagnose``: run those stages; ``plots``: PNG plots; ``rrd``: write the study
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
-    speed) condition to the recording (keeps it small), ``"all"`` every trial."""
+    speed) condition to the recording (keeps it small), ``"all"`` every trial;
+    ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
+    every condition (0: all). It holds all of a joint's samples at once, so its memory grows with
+    the trials per joint; this bounds it (the fits use every trial regardless)."""
 
     models: tuple = ("cv", "stribeck", "hyperbolic")
     n_starts: int = 8
@@ -89,6 +92,7 @@ class StudySettings:
     plots: bool = True
     rrd: bool = True
     rrd_trials: str = "first"
+    diagnosis_reps: int = 0
 
     def validate(self) -> "StudySettings":
         from ident.model.onelink import model_class
@@ -108,6 +112,8 @@ class StudySettings:
             raise InputError(f"rrd_trials must be 'first' or 'all', got {self.rrd_trials!r}")
         if self.n_starts < 1:
             raise InputError("n_starts must be >= 1")
+        if self.diagnosis_reps < 0:
+            raise InputError(f"diagnosis_reps must be >= 0 (0: all), got {self.diagnosis_reps}")
         return self
 
     def to_dict(self) -> dict:
@@ -291,6 +297,19 @@ def _without_plots(result: dict) -> dict:
     return {**result, "entries": [dataclasses.replace(e, plot={}) for e in result["entries"]]}
 
 
+def _first_repetitions(trials, n: int) -> list:
+    """The trials among the ``n`` lowest repetitions of their condition (joints, load, speed
+    range, kind), in campaign order."""
+    rank: dict = {}
+    keep = set()
+    for t in sorted(trials, key=lambda t: t.repetition):   # stable: campaign order on ties
+        key = (tuple(t.joints), t.load_kg, t.vmax_frac, t.kind)
+        rank[key] = rank.get(key, 0) + 1
+        if rank[key] <= n:
+            keep.add(t.id)
+    return [t for t in trials if t.id in keep]
+
+
 def _plotted_trials(entries, campaign, which: str, bad=frozenset()) -> set:
     """Ids of the trials whose plot samples the outputs use: per (joint, load, speed range) the
     first of the lowest repetition among ``entries`` (``fits/plots/``, ``plots/``; the order
@@ -314,6 +333,7 @@ class _DiagJob:
     record: str
     tmp_dir: str
     input_hash: str
+    trials: tuple | None = None     # the ids of the joint's trials to read (None: all)
 
 
 def _run_diag_job(job: _DiagJob) -> dict:
@@ -324,6 +344,9 @@ def _run_diag_job(job: _DiagJob) -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         camp, robot = _load(job.manifest)
+        if job.trials is not None:
+            keep = set(job.trials)
+            camp = dataclasses.replace(camp, trials=tuple(t for t in camp.trials if t.id in keep))
         angles = None
         if job.angles_dir is not None:
             trials = [t for t in camp.trials if tuple(t.joints) == (job.joint,)]
@@ -865,6 +888,10 @@ class Study:
         if not by_joint:
             return {"records": (dset, t0)}
         jobs, done, hashes = [], {}, {}
+        n_all = sum(len(v) for v in by_joint.values())
+        if s.diagnosis_reps:
+            by_joint = {j: _first_repetitions(v, s.diagnosis_reps) for j, v in by_joint.items()}
+        n_read = sum(len(v) for v in by_joint.values())
         for j, trials in sorted(by_joint.items()):  # loop over joints
             files = [[ctx.hasher.file(t.log),
                       ctx.hasher.file(angles_dir / f"{t.id}.csv") if angles_dir is not None else None]
@@ -877,11 +904,14 @@ class Study:
                 done[j] = rec["result"]
                 continue
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
-                                 dset, str(ctx.state / record), str(ctx.tmp_dir), h))
+                                 dset, str(ctx.state / record), str(ctx.tmp_dir), h,
+                                 tuple(t.id for t in trials) if s.diagnosis_reps else None))
         self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
         pending = self._submit(_run_diag_job, jobs, "diagnosis")
+        note = (f"the first {s.diagnosis_reps} repetition(s) of each condition: {n_read} of {n_all} trials"
+                if n_read < n_all else "")
         return dict(dset=dset, jobs=jobs, done=done, hashes=hashes, pending=pending,
-                    prep_s=time.perf_counter() - t0)
+                    prep_s=time.perf_counter() - t0, note=note)
 
     def _diagnosis_finish(self, ctx, run):
         """Collect the diagnosis items; ``seconds``: the preparation plus the wait beyond the
@@ -930,7 +960,8 @@ class Study:
             ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
                                              len(done) - len(jobs), len(failed),
-                                             time.perf_counter() - t0, work=_work(jobs, done, "joint"),
+                                             time.perf_counter() - t0, run["note"],
+                                             work=_work(jobs, done, "joint"),
                                              cpu=_work(jobs, done, "joint", "cpu_s"))
         return report, series
 
