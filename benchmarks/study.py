@@ -48,35 +48,45 @@ GOAL_MEM_RATIO = 1.2          # issue 30: a 10x study within 1.2x the peak memor
 class PeakRSS:
     """Largest summed RSS of this process and its descendants, sampled in a thread."""
 
-    def __init__(self, period: float = 0.1):
+    def __init__(self, period: float = 0.1, pid: int | None = None):
         try:
             import psutil
         except ImportError:
             raise SystemExit("benchmarks/study.py needs psutil: pip install -e \".[bench]\"") from None
 
-        self._p = psutil.Process()
+        self._p = psutil.Process(pid)
         self._psutil = psutil
         self.period = period
         self.peak = 0
-        self.by_role: dict = {}     # "main" / "workers" -> largest RSS of one such process
+        self.peak_pss = 0           # the same sum of proportional set sizes (shared pages split)
+        self.by_role: dict = {}     # "main" / "worker" -> largest RSS of one such process
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
 
-    def _sample(self) -> int:
-        total = 0
-        for p in [self._p] + self._p.children(recursive=True):
+    def _sample(self) -> tuple[int, int]:
+        total = pss = 0
+        try:
+            procs = [self._p] + self._p.children(recursive=True)
+        except self._psutil.NoSuchProcess:
+            return 0, 0
+        for p in procs:
             try:
                 rss = p.memory_info().rss
+                pss += getattr(p.memory_full_info(), "pss", rss)
             except (self._psutil.NoSuchProcess, self._psutil.AccessDenied):
                 continue
             total += rss
             role = "main" if p.pid == self._p.pid else "worker"
             self.by_role[role] = max(self.by_role.get(role, 0), rss)
-        return total
+        return total, pss
+
+    def _update(self):
+        rss, pss = self._sample()
+        self.peak, self.peak_pss = max(self.peak, rss), max(self.peak_pss, pss)
 
     def _run(self):
         while not self._stop.is_set():
-            self.peak = max(self.peak, self._sample())
+            self._update()
             self._stop.wait(self.period)
 
     def __enter__(self):
@@ -86,7 +96,7 @@ class PeakRSS:
     def __exit__(self, *exc):
         self._stop.set()
         self._t.join()
-        self.peak = max(self.peak, self._sample())
+        self._update()
 
 
 def _key(cfg: dict) -> str:
@@ -132,9 +142,16 @@ def run_once(camp: Path, out: Path, settings: StudySettings, workers: int | None
 
 
 def memory_scaling(args) -> int:
-    """Peak resident memory (this process + its workers) of an N-trial study and of a
-    ``scale`` x N-trial one of the same design (more repetitions of every condition), in this
-    invocation, through the real pipeline; prints the ratio against the 1.2 goal."""
+    """Peak resident memory of an N-trial study and of a ``scale`` x N-trial one of the same
+    design (more repetitions of every condition), through the real pipeline. Each study runs
+    in a fresh child process of this invocation (``--mem-run``): a worker forked from a main
+    process that an earlier study grew would count that study's pages again. The peak is the
+    largest sum over the child and its workers of the resident set sizes (RSS; pages shared
+    after the fork count once per process) and of the proportional set sizes (PSS: shared
+    pages split between the processes); the ratio is printed against the 1.2 goal."""
+    import json
+    import subprocess
+
     joints = args.mem_joints.split(",")
     per_rep = len(joints) * 2 * 3            # 2 loads x 3 speed ranges
     if args.trials % per_rep:
@@ -143,18 +160,45 @@ def memory_scaling(args) -> int:
     for n in (args.trials, args.scale * args.trials):
         cfg = dict(FULL, joints=args.mem_joints, reps=n // per_rep, duration=args.duration)
         camp = make_campaign(cfg, args.cache)
-        r = run_once(camp, args.cache / f"out-{_key(cfg)}-mem", StudySettings(diagnosis_reps=args.diagnosis_reps),
-                     workers=args.mem_workers)
-        peaks[n] = r["peak_gb"]
-        roles = ", ".join(f"{k} {v:.2f} GB" for k, v in sorted(r["role_gb"].items()))
+        out = args.cache / f"out-{_key(cfg)}-mem"
+        res = args.cache / f"mem-{_key(cfg)}.json"
+        cmd = [sys.executable, __file__, "--mem-run", str(camp), str(out), str(res),
+               "--mem-workers", str(args.mem_workers), "--diagnosis-reps", str(args.diagnosis_reps)]
+        child = subprocess.Popen(cmd)
+        with PeakRSS(pid=child.pid) as mem:
+            rc = child.wait()
+        if rc != 0:
+            raise SystemExit(f"the {n}-trial study failed ({rc})")
+        r = json.loads(res.read_text())
+        peaks[n] = (mem.peak, mem.peak_pss)
+        roles = ", ".join(f"{k} {v / 1e9:.2f} GB" for k, v in sorted(mem.by_role.items()))
         print(f"{n:5d} trials of {args.duration:g} s, {args.mem_workers} worker(s), diagnosis reps "
-              f"{args.diagnosis_reps or 'all'}: wall {r['wall']:.1f} s, "
-              f"peak {r['peak_gb']:.2f} GB (largest single process: {roles}); load avg {r['load']:.1f}"
-              + (f"\n{'':6}errors: {r['errors']}" if r["errors"] else ""), flush=True)
-        shutil.rmtree(args.cache / f"out-{_key(cfg)}-mem", ignore_errors=True)
+              f"{args.diagnosis_reps or 'all'}: wall {r['wall']:.1f} s, peak RSS {mem.peak / 1e9:.2f} GB, "
+              f"PSS {mem.peak_pss / 1e9:.2f} GB (largest single process RSS: {roles}); "
+              f"load avg {os.getloadavg()[0]:.1f}" + (f"\n{'':6}errors: {r['errors']}" if r["errors"] else ""),
+              flush=True)
+        shutil.rmtree(out, ignore_errors=True)
     big, small = peaks[args.scale * args.trials], peaks[args.trials]
-    print(f"peak ratio {args.scale * args.trials} / {args.trials} trials: {big / small:.2f} "
-          f"(goal <= {GOAL_MEM_RATIO:g}: {'met' if big / small <= GOAL_MEM_RATIO else 'NOT met'})", flush=True)
+    for k, name in enumerate(("RSS", "PSS")):
+        ratio = big[k] / small[k]
+        print(f"peak {name} ratio {args.scale * args.trials} / {args.trials} trials: {ratio:.2f} "
+              f"(goal <= {GOAL_MEM_RATIO:g}: {'met' if ratio <= GOAL_MEM_RATIO else 'NOT met'})", flush=True)
+    return 0
+
+
+def _mem_run(args) -> int:
+    """One study for :func:`memory_scaling`, in this (child) process; its figures to a JSON file."""
+    import json
+
+    camp, out, res = args.mem_run
+    ex = make_executor(args.mem_workers, progress=False)
+    try:
+        t0 = time.perf_counter()
+        r = Study(StudySettings(diagnosis_reps=args.diagnosis_reps), ex, progress=False).run(Path(camp), Path(out))
+        wall = time.perf_counter() - t0
+    finally:
+        ex.close()
+    Path(res).write_text(json.dumps({"wall": wall, "errors": r.errors}))
     return 0
 
 
@@ -212,7 +256,10 @@ def main(argv=None) -> int:
     ap.add_argument("--diagnosis-reps", type=int, default=0,
                     help="--memory: the diagnosis reads the first R repetitions per condition (default 0: all)")
     ap.add_argument("--mem-workers", type=int, default=2, help="--memory: local workers (default 2)")
+    ap.add_argument("--mem-run", nargs=3, metavar=("CAMPAIGN", "OUT", "RESULT"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.mem_run:
+        return _mem_run(args)
     if args.memory:
         args.cache.mkdir(parents=True, exist_ok=True)
         return memory_scaling(args)
