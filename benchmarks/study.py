@@ -48,7 +48,7 @@ GOAL_MEM_RATIO = 1.2          # issue 30: a 10x study within 1.2x the peak memor
 class PeakRSS:
     """Largest summed RSS of this process and its descendants, sampled in a thread."""
 
-    def __init__(self, period: float = 0.1, pid: int | None = None):
+    def __init__(self, period: float = 0.1, pid: int | None = None, pss: bool = False):
         try:
             import psutil
         except ImportError:
@@ -58,6 +58,7 @@ class PeakRSS:
         self._psutil = psutil
         self.period = period
         self.peak = 0
+        self.pss = pss              # also sum the proportional set sizes (reads smaps: slower)
         self.peak_pss = 0           # the same sum of proportional set sizes (shared pages split)
         self.by_role: dict = {}     # "main" / "worker" -> largest RSS of one such process
         self._stop = threading.Event()
@@ -72,7 +73,7 @@ class PeakRSS:
         for p in procs:
             try:
                 rss = p.memory_info().rss
-                pss += getattr(p.memory_full_info(), "pss", rss)
+                pss += getattr(p.memory_full_info(), "pss", rss) if self.pss else rss
             except (self._psutil.NoSuchProcess, self._psutil.AccessDenied):
                 continue
             total += rss
@@ -165,7 +166,7 @@ def memory_scaling(args) -> int:
         cmd = [sys.executable, __file__, "--mem-run", str(camp), str(out), str(res),
                "--mem-workers", str(args.mem_workers), "--diagnosis-reps", str(args.diagnosis_reps)]
         child = subprocess.Popen(cmd)
-        with PeakRSS(pid=child.pid) as mem:
+        with PeakRSS(pid=child.pid, pss=True) as mem:
             rc = child.wait()
         if rc != 0:
             raise SystemExit(f"the {n}-trial study failed ({rc})")
