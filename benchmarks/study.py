@@ -10,6 +10,12 @@ printed: other load on a shared machine stretches wall times, much less CPU time
     python benchmarks/study.py            # the full campaign (synthesised once, cached)
     python benchmarks/study.py --quick    # 2 joints x 1 load x 3 speeds x 2 reps, 8 s trials
     python benchmarks/study.py --workers 2 --no-resume   # only the 2-worker run
+    python benchmarks/study.py --memory --trials 180 --duration 20 [--diagnosis-reps 5]
+
+Issue 30: the 180-trial study in at most 35 s on 2 workers; ``--memory``: an N-trial and a
+10 N-trial study (more repetitions), each in a fresh child process, peak memory ratio <= 1.2
+(trial length ``--duration``; ``--diagnosis-reps`` bounds the per-joint diagnosis, whose memory
+grows with the trials per joint).
 
 The campaign is made by ``jointlab synth`` (18 markers: 3 per link, the synthesiser's minimum
 for a rigid-body pose per link; the goal names 16) into a cache folder and reused. Each run goes
