@@ -291,10 +291,13 @@ def _run_fit_job(job: _FitJob) -> dict:
 
 
 def _without_plots(result: dict) -> dict:
-    """A fit result whose entries carry no plot samples."""
+    """A fit result whose entries carry no plot samples and no per-sample fit residuals (no
+    output of the study reads those; the record keeps them)."""
     if not result.get("ok"):
         return result
-    return {**result, "entries": [dataclasses.replace(e, plot={}) for e in result["entries"]]}
+    return {**result, "entries": [dataclasses.replace(
+        e, plot={}, fits={m: dataclasses.replace(f, residuals=np.empty(0)) for m, f in e.fits.items()})
+        for e in result["entries"]]}
 
 
 def _first_repetitions(trials, n: int) -> list:
