@@ -10,6 +10,12 @@ printed: other load on a shared machine stretches wall times, much less CPU time
     python benchmarks/study.py            # the full campaign (synthesised once, cached)
     python benchmarks/study.py --quick    # 2 joints x 1 load x 3 speeds x 2 reps, 8 s trials
     python benchmarks/study.py --workers 2 --no-resume   # only the 2-worker run
+    python benchmarks/study.py --memory --trials 180 --duration 20 [--diagnosis-reps 5]
+
+Issue 30: the 180-trial study in at most 35 s on 2 workers; ``--memory``: an N-trial and a
+10 N-trial study (more repetitions), each in a fresh child process, peak memory ratio <= 1.2
+(trial length ``--duration``; ``--diagnosis-reps`` bounds the per-joint diagnosis, whose memory
+grows with the trials per joint).
 
 The campaign is made by ``jointlab synth`` (18 markers: 3 per link, the synthesiser's minimum
 for a rigid-body pose per link; the goal names 16) into a cache folder and reused. Each run goes
@@ -42,36 +48,52 @@ QUICK = dict(joints="2,5", loads="0", vmax="0.3,0.6,1.0", reps=2, duration=8.0, 
 GOAL_S = 180.0
 GOAL13_S = 90.0
 GOAL_GB = 4.0
+GOAL_MEM_RATIO = 1.2          # issue 30: a 10x study within 1.2x the peak memory of a 1x one
 
 
 class PeakRSS:
     """Largest summed RSS of this process and its descendants, sampled in a thread."""
 
-    def __init__(self, period: float = 0.1):
+    def __init__(self, period: float = 0.1, pid: int | None = None, pss: bool = False):
         try:
             import psutil
         except ImportError:
             raise SystemExit("benchmarks/study.py needs psutil: pip install -e \".[bench]\"") from None
 
-        self._p = psutil.Process()
+        self._p = psutil.Process(pid)
         self._psutil = psutil
         self.period = period
         self.peak = 0
+        self.pss = pss              # also sum the proportional set sizes (reads smaps: slower)
+        self.peak_pss = 0           # the same sum of proportional set sizes (shared pages split)
+        self.by_role: dict = {}     # "main" / "worker" -> largest RSS of one such process
         self._stop = threading.Event()
         self._t = threading.Thread(target=self._run, daemon=True)
 
-    def _sample(self) -> int:
-        total = 0
-        for p in [self._p] + self._p.children(recursive=True):
+    def _sample(self) -> tuple[int, int]:
+        total = pss = 0
+        try:
+            procs = [self._p] + self._p.children(recursive=True)
+        except self._psutil.NoSuchProcess:
+            return 0, 0
+        for p in procs:
             try:
-                total += p.memory_info().rss
+                rss = p.memory_info().rss
+                pss += getattr(p.memory_full_info(), "pss", rss) if self.pss else rss
             except (self._psutil.NoSuchProcess, self._psutil.AccessDenied):
-                pass
-        return total
+                continue
+            total += rss
+            role = "main" if p.pid == self._p.pid else "worker"
+            self.by_role[role] = max(self.by_role.get(role, 0), rss)
+        return total, pss
+
+    def _update(self):
+        rss, pss = self._sample()
+        self.peak, self.peak_pss = max(self.peak, rss), max(self.peak_pss, pss)
 
     def _run(self):
         while not self._stop.is_set():
-            self.peak = max(self.peak, self._sample())
+            self._update()
             self._stop.wait(self.period)
 
     def __enter__(self):
@@ -81,7 +103,7 @@ class PeakRSS:
     def __exit__(self, *exc):
         self._stop.set()
         self._t.join()
-        self.peak = max(self.peak, self._sample())
+        self._update()
 
 
 def _key(cfg: dict) -> str:
@@ -116,13 +138,75 @@ def run_once(camp: Path, out: Path, settings: StudySettings, workers: int | None
         ex = make_executor(workers, progress=False)
     try:
         with PeakRSS() as mem:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             res = Study(settings, ex, progress=False).run(camp, out)
-            wall = time.perf_counter() - t0
+            wall, main_cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         ex.close()
     return {"wall": wall, "peak_gb": mem.peak / 1e9, "stages": res.stages, "errors": res.errors,
-            "verdicts": res.verdicts, "load": os.getloadavg()[0]}
+            "verdicts": res.verdicts, "load": os.getloadavg()[0], "main_cpu": main_cpu,
+            "role_gb": {k: v / 1e9 for k, v in mem.by_role.items()}}
+
+
+def memory_scaling(args) -> int:
+    """Peak resident memory of an N-trial study and of a ``scale`` x N-trial one of the same
+    design (more repetitions of every condition), through the real pipeline. Each study runs
+    in a fresh child process of this invocation (``--mem-run``): a worker forked from a main
+    process that an earlier study grew would count that study's pages again. The peak is the
+    largest sum over the child and its workers of the resident set sizes (RSS; pages shared
+    after the fork count once per process) and of the proportional set sizes (PSS: shared
+    pages split between the processes); the ratio is printed against the 1.2 goal."""
+    import json
+    import subprocess
+
+    joints = args.mem_joints.split(",")
+    per_rep = len(joints) * 2 * 3            # 2 loads x 3 speed ranges
+    if args.trials % per_rep:
+        raise SystemExit(f"--trials must be a multiple of {per_rep} (joints x 2 loads x 3 speeds)")
+    peaks = {}
+    for n in (args.trials, args.scale * args.trials):
+        cfg = dict(FULL, joints=args.mem_joints, reps=n // per_rep, duration=args.duration)
+        camp = make_campaign(cfg, args.cache)
+        out = args.cache / f"out-{_key(cfg)}-mem"
+        res = args.cache / f"mem-{_key(cfg)}.json"
+        cmd = [sys.executable, __file__, "--mem-run", str(camp), str(out), str(res),
+               "--mem-workers", str(args.mem_workers), "--diagnosis-reps", str(args.diagnosis_reps)]
+        child = subprocess.Popen(cmd)
+        with PeakRSS(pid=child.pid, pss=True) as mem:
+            rc = child.wait()
+        if rc != 0:
+            raise SystemExit(f"the {n}-trial study failed ({rc})")
+        r = json.loads(res.read_text())
+        peaks[n] = (mem.peak, mem.peak_pss)
+        roles = ", ".join(f"{k} {v / 1e9:.2f} GB" for k, v in sorted(mem.by_role.items()))
+        print(f"{n:5d} trials of {args.duration:g} s, {args.mem_workers} worker(s), diagnosis reps "
+              f"{args.diagnosis_reps or 'all'}: wall {r['wall']:.1f} s, peak RSS {mem.peak / 1e9:.2f} GB, "
+              f"PSS {mem.peak_pss / 1e9:.2f} GB (largest single process RSS: {roles}); "
+              f"load avg {os.getloadavg()[0]:.1f}" + (f"\n{'':6}errors: {r['errors']}" if r["errors"] else ""),
+              flush=True)
+        shutil.rmtree(out, ignore_errors=True)
+    big, small = peaks[args.scale * args.trials], peaks[args.trials]
+    for k, name in enumerate(("RSS", "PSS")):
+        ratio = big[k] / small[k]
+        print(f"peak {name} ratio {args.scale * args.trials} / {args.trials} trials: {ratio:.2f} "
+              f"(goal <= {GOAL_MEM_RATIO:g}: {'met' if ratio <= GOAL_MEM_RATIO else 'NOT met'})", flush=True)
+    return 0
+
+
+def _mem_run(args) -> int:
+    """One study for :func:`memory_scaling`, in this (child) process; its figures to a JSON file."""
+    import json
+
+    camp, out, res = args.mem_run
+    ex = make_executor(args.mem_workers, progress=False)
+    try:
+        t0 = time.perf_counter()
+        r = Study(StudySettings(diagnosis_reps=args.diagnosis_reps), ex, progress=False).run(Path(camp), Path(out))
+        wall = time.perf_counter() - t0
+    finally:
+        ex.close()
+    Path(res).write_text(json.dumps({"wall": wall, "errors": r.errors}))
+    return 0
 
 
 def resume(camp: Path, out: Path, settings: StudySettings, workers: int) -> float:
@@ -143,19 +227,22 @@ def show(name: str, r: dict, base: float | None, workers: int):
     # parallel efficiency of the mapped stages: the items' own wall times (measured in the
     # workers) over workers x stage wall time; near 1 = the seam keeps every worker busy, even
     # when other load on a shared machine slows every item down
+    # (the diagnosis' items are queued behind the fits': the two stages share one span)
     eff = []
-    for k in ("mocap", "fits", "diagnosis"):
-        v = r["stages"].get(k, {})
-        if v.get("seconds") and v.get("work_s"):
-            eff.append(f"{k} {v['work_s'] / (workers * v['seconds']):.2f}")
+    for ks in (("mocap",), ("fits", "diagnosis")):
+        vs = [r["stages"].get(k, {}) for k in ks]
+        sec, work = sum(v.get("seconds", 0) for v in vs), sum(v.get("work_s", 0) for v in vs)
+        if sec and work:
+            eff.append(f"{' + '.join(ks)} {work / (workers * sec):.2f}")
     cpu = []
     for k in ("mocap", "fits", "diagnosis"):
         v = r["stages"].get(k, {})
         if v.get("computed") and v.get("cpu_s"):
             cpu.append(f"{k} {v['cpu_s'] / v['computed']:.2f} s/item ({v['cpu_s']:.1f} s)")
+    cpu.append(f"this process {r['main_cpu']:.1f} s")
     print(f"{name:<16} wall {r['wall']:7.1f} s  peak {r['peak_gb']:.2f} GB  load avg {r['load']:.1f}{ratio}\n"
           f"{'':16} {st}\n{'':16} parallel efficiency (items' time / (workers x stage time)): "
-          f"{', '.join(eff)}\n{'':16} CPU time in the workers: {', '.join(cpu)}"
+          f"{', '.join(eff)}\n{'':16} CPU time (items as the workers measured them; this process: the rest, everything with 1 worker): {', '.join(cpu)}"
           + (f"\n{'':16} errors: {r['errors']}" if r["errors"] else ""), flush=True)
 
 
@@ -166,7 +253,23 @@ def main(argv=None) -> int:
     ap.add_argument("--dask", action="store_true", help="also run on a 2-worker Dask LocalCluster")
     ap.add_argument("--no-resume", action="store_true", help="skip the resume (all up to date) timing")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "jointlab-bench-study")
+    ap.add_argument("--memory", action="store_true",
+                    help="only the memory scaling: an N-trial and a 10N-trial study, peak RSS ratio")
+    ap.add_argument("--trials", type=int, default=180, help="--memory: N (default 180)")
+    ap.add_argument("--scale", type=int, default=10, help="--memory: the larger study's factor (default 10)")
+    ap.add_argument("--duration", type=float, default=20.0,
+                    help="--memory: trial length in s (default 20; shorter keeps a 10x study quick)")
+    ap.add_argument("--mem-joints", default="1,2,3,4,5,6", help="--memory: joints (default 1-6)")
+    ap.add_argument("--diagnosis-reps", type=int, default=0,
+                    help="--memory: the diagnosis reads the first R repetitions per condition (default 0: all)")
+    ap.add_argument("--mem-workers", type=int, default=2, help="--memory: local workers (default 2)")
+    ap.add_argument("--mem-run", nargs=3, metavar=("CAMPAIGN", "OUT", "RESULT"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.mem_run:
+        return _mem_run(args)
+    if args.memory:
+        args.cache.mkdir(parents=True, exist_ok=True)
+        return memory_scaling(args)
     cfg = QUICK if args.quick else FULL
     args.cache.mkdir(parents=True, exist_ok=True)
     camp = make_campaign(cfg, args.cache)

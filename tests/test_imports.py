@@ -35,13 +35,6 @@ LOCAL_IMPORT_ALLOWED = {
     ("ident/coastdown/campaign_analysis.py", "viz.plots"): "import cost: matplotlib (figures only)",
 }
 
-# Files owned by a concurrent change when the module-level rule was introduced (their imports
-# move with that change; the integrator deletes each entry when its file has moved them): the
-# number of function-local project imports each still holds, which may only go down.
-LOCAL_IMPORT_PENDING = {
-    "ident/study/study.py": 29, "ident/study/angles.py": 3, "ident/study/executor.py": 2,
-    "ident/study/records.py": 1, "ident/study/view.py": 1,
-}
 
 
 def _modules() -> dict:
@@ -202,21 +195,10 @@ def test_local_import_finder_sees_nested_and_relative_imports(tmp_path):
 
 
 def test_project_imports_at_module_level():
-    """Function-local project imports only where LOCAL_IMPORT_ALLOWED says why (or in a file
-    still listed in LOCAL_IMPORT_PENDING, no more of them than listed)."""
-    found = local_project_imports()
-    counts: dict = {}
-    bad = []
-    for rel, line, mod in found:
-        if _allowed(rel, mod):
-            continue
-        if rel in LOCAL_IMPORT_PENDING:
-            counts[rel] = counts.get(rel, 0) + 1
-            continue
-        bad.append(f"{rel}:{line}: {mod}")
+    """Function-local project imports only where LOCAL_IMPORT_ALLOWED says why."""
+    bad = [f"{rel}:{line}: {mod}" for rel, line, mod in local_project_imports()
+           if not _allowed(rel, mod)]
     assert not bad, "function-local project imports (move them to module level):\n" + "\n".join(bad)
-    grown = {f: (n, LOCAL_IMPORT_PENDING[f]) for f, n in counts.items() if n > LOCAL_IMPORT_PENDING[f]}
-    assert not grown, f"more function-local imports than listed as pending: {grown}"
 
 
 def test_allowlist_entries_are_used():

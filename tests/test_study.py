@@ -112,17 +112,38 @@ def test_study_verdict_matches_truth(serial_run):
     assert res.verdicts == {"5": "none"}
 
 
-def test_pool_of_two_gives_the_serial_numbers(tiny, serial_run, tmp_path):
+@pytest.fixture(scope="module")
+def pool_run(tiny, tmp_path_factory):
     camp, _, _ = tiny
+    out = tmp_path_factory.mktemp("pool")
     ex = PoolExecutor(2, progress=False)
     try:
-        res = Study(FAST, ex, progress=False).run(camp, tmp_path)
+        res = Study(FAST, ex, progress=False).run(camp, out)
     finally:
         ex.close()
+    return out, res
+
+
+def _same_outputs(a: Path, b: Path) -> None:
+    """Two study folders with the same numbers: fits, angles, diagnosis, tables, PNGs."""
+    assert json.loads((a / "fits" / "fits.json").read_text()) == json.loads((b / "fits" / "fits.json").read_text())
+    names = sorted(p.relative_to(a).as_posix() for p in a.rglob("*")
+                   if p.is_file() and p.suffix in (".csv", ".png") and STATE_DIR not in p.parts)
+    assert names and names == sorted(p.relative_to(b).as_posix() for p in b.rglob("*")
+                                     if p.is_file() and p.suffix in (".csv", ".png") and STATE_DIR not in p.parts)
+    for n in names:
+        assert (a / n).read_bytes() == (b / n).read_bytes(), n
+    da = json.loads((a / "diagnosis" / "diagnosis.json").read_text())
+    db = json.loads((b / "diagnosis" / "diagnosis.json").read_text())
+    assert da == db
+
+
+def test_pool_of_two_gives_the_serial_numbers(tiny, serial_run, pool_run):
+    out, res = pool_run
     assert res.errors == {}
-    _assert_same_fits(_fits(serial_run[0]), _fits(tmp_path))
-    a = (serial_run[0] / "angles" / "j5-load0-v50-r1.csv").read_bytes()
-    assert (tmp_path / "angles" / "j5-load0-v50-r1.csv").read_bytes() == a
+    _assert_same_fits(_fits(serial_run[0]), _fits(out))
+    _same_outputs(serial_run[0], out)
+    assert res.verdicts == serial_run[1].verdicts
 
 
 def test_rerun_skips_and_a_changed_input_reruns_only_its_trial(tiny, serial_run, tmp_path):
@@ -161,7 +182,7 @@ def dataclass_replace(obj, **kw):
 
 def test_interrupted_study_leaves_no_half_files_and_resumes(tiny, serial_run, tmp_path, monkeypatch):
     camp, _, _ = tiny
-    import ident.thesis.campaign_fit as fitting
+    import ident.study.study as fitting   # the name the study calls
 
     real = fitting.fit_trial_joint
     calls = {"n": 0}
@@ -190,7 +211,10 @@ def test_interrupted_study_leaves_no_half_files_and_resumes(tiny, serial_run, tm
     assert not (tmp_path / STATE_DIR / "tmp").exists()
 
 
-def test_dask_local_cluster_same_code_path(tiny, serial_run, tmp_path):
+def test_dask_local_cluster_gives_the_process_pool_results(tiny, pool_run, tmp_path):
+    """The same study on a 2-worker Dask LocalCluster (worker processes): every number and
+    file the process pool gave (fits, angles, diagnosis, tables, plots), the same items
+    computed."""
     distributed = pytest.importorskip("distributed")
     from ident.study.executor import DaskExecutor
 
@@ -202,7 +226,10 @@ def test_dask_local_cluster_same_code_path(tiny, serial_run, tmp_path):
         res = Study(FAST, ex, progress=False).run(camp, tmp_path)
         ex.close()
     assert res.errors == {}
-    _assert_same_fits(_fits(serial_run[0]), _fits(tmp_path))
+    _same_outputs(pool_run[0], tmp_path)
+    assert res.verdicts == pool_run[1].verdicts
+    assert {k: v["computed"] for k, v in res.stages.items()} == \
+        {k: v["computed"] for k, v in pool_run[1].stages.items()}
 
 
 def test_cli_study_writes_recording_and_json(tiny, tmp_path, capsys):
@@ -247,6 +274,31 @@ def test_settings_are_validated():
         StudySettings(models=("nope",)).validate()
     with pytest.raises(InputError, match="rrd_trials"):
         StudySettings(rrd_trials="some").validate()
+    with pytest.raises(InputError, match="diagnosis_reps"):
+        StudySettings(diagnosis_reps=-1).validate()
+
+
+def test_diagnosis_reps_diagnoses_the_first_repetitions_and_fits_every_trial(tiny, tmp_path):
+    """``diagnosis_reps=1``: the diagnosis of the 4-trial campaign is the one of its two
+    first-repetition trials alone; the fits still cover all four."""
+    import dataclasses
+
+    camp, _, _ = tiny
+    fast = dataclasses.replace(FAST, plots=False)
+    res = Study(dataclasses.replace(fast, diagnosis_reps=1), None, progress=False).run(camp, tmp_path / "a")
+    assert res.stages["fits"]["computed"] == 4
+    assert "2 of 4 trials" in res.stages["diagnosis"]["note"]
+    from ident.gap import DiagnosisSettings
+    from ident.gap.campaign_diagnosis import diagnose_single_joint_campaign, load_angles_dir
+    from ident.common import to_jsonable
+
+    loaded = load_campaign(camp)
+    firsts = dataclasses.replace(loaded, trials=tuple(t for t in loaded.trials if t.repetition == 1))
+    assert len(firsts.trials) == 2
+    angles = load_angles_dir(tmp_path / "a" / "angles", list(firsts.trials))
+    ref, _ = diagnose_single_joint_campaign(firsts, loaded.load_robot(), angles, DiagnosisSettings(seed=fast.seed), joints=[5])
+    a = json.loads((tmp_path / "a" / "diagnosis" / "diagnosis.json").read_text())["joints"]
+    assert a == json.loads(json.dumps(to_jsonable(ref["joints"])))
 
 
 def test_scheduler_without_the_dask_extra_says_how_to_install(tiny, tmp_path, capsys):
@@ -289,3 +341,33 @@ def test_two_concurrent_studies_on_one_out_both_complete(tiny, serial_run, tmp_p
     assert second.stages["fits"]["reused"] == 4 and second.stages["fits"]["computed"] == 0
     _assert_same_fits(_fits(out), _fits(serial_run[0]))
     assert (out / "report.md").is_file()
+
+
+def test_a_failed_first_repetition_hands_its_plot_to_the_next(tiny, tmp_path, monkeypatch):
+    """The study holds plot samples only for the trials it draws; when the first repetition of
+    a condition fails, the next one's samples are read back from its record and drawn."""
+    import ident.study.study as fitting   # the name the study calls
+    from ident.study.records import read_record
+    from ident.study.study import CACHE_VERSION, _record_name
+
+    camp, _, _ = tiny
+    real = fitting.fit_trial_joint
+    gone = "j5-load0-v50-r1"
+
+    def failing(task):
+        if task.trial == gone:
+            raise ValueError("no fit")
+        return real(task)
+
+    monkeypatch.setattr(fitting, "fit_trial_joint", failing)
+    res = Study(FAST, SerialExecutor(progress=False), progress=False).run(camp, tmp_path)
+    assert list(res.errors) == [f"fits/{gone}"]
+    man = json.loads((tmp_path / MANIFEST_NAME).read_text())
+    rel = f"records/fits/{_record_name('j5-load0-v50-r2')}"
+    h = man["stages"]["fits"]["items"]["j5-load0-v50-r2"]["hash"]
+    rec, problem = read_record(tmp_path / STATE_DIR / rel, h, CACHE_VERSION)
+    assert problem is None and rec["result"]["entries"][0].plot
+    ref = fitting.FitsResult(tuple(rec["result"]["entries"]), FAST.models).write_plots(tmp_path / "ref")
+    assert len(ref) == 1
+    drawn = tmp_path / "fits" / "plots" / ref[0].name
+    assert drawn.read_bytes() == ref[0].read_bytes()

@@ -506,7 +506,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 p_value=p, p_min_attainable=p_min,
                 shape=cand.describe(hp) + ("; also times the selected effects' friction levels" if composed else ""),
                 evidence={**_size_evidence(mse_cur - mse_e, noise, decl_ms),
-                          "removed_variance_over_floor_lcb95": _over_floor(lcb_mse, noise)}), cvr, cols)
+                          "removed_variance_over_floor_lcb95": _over_floor(lcb_mse, noise)}), cvr,
+                {cvr.hp_all: cols[cvr.hp_all]})   # the chosen shape's columns only (memory)
         adj = holm(pvals)
         for name, r in rows.items():
             if not r.test.identifiable:

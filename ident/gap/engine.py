@@ -28,16 +28,19 @@ class Grams:
 
 
 def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
-    """Per block ``A_blk^T B_blk``: (n_blocks, p, k)."""
+    """Per block ``A_blk^T B_blk``: (n_blocks, p, k). Blocks of many samples (motion cycles):
+    one BLAS product per block; many short blocks: chunks of the (N, p, k) products summed
+    per block."""
     nt, p, k = bounds.shape[0], A.shape[1], B.shape[1]
     out = np.zeros((nt, p, k))
     if nt == 0 or p == 0 or k == 0:
         return out
     step = max(1, int(2e7 // max(p * k, 1)))     # samples per chunk of the (N, p, k) products
     s, e = bounds[:, 0], bounds[:, 1]
-    if not (np.all(e > s) and np.all(s[1:] == e[:-1])):
-        for i, (a, b) in enumerate(bounds):  # loop over blocks
-            out[i] = A[a:b].T @ B[a:b]
+    if not (np.all(e > s) and np.all(s[1:] == e[:-1])) or e[-1] - s[0] >= 64 * nt:
+        for i, (a, b) in enumerate(bounds.tolist()):  # loop over blocks
+            if b > a:
+                np.matmul(A[a:b].T, B[a:b], out=out[i])
         return out
     i0 = 0
     while i0 < nt:   # loop over chunks of whole blocks

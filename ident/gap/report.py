@@ -188,11 +188,13 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
     return paths
 
 
-def write_report(report: dict, series: dict, out_dir: Path, sink=None) -> dict:
-    """Write diagnosis.json, diagnosis.md and PNG plots into ``out_dir``; log to ``sink``."""
+def write_report(report: dict, series: dict, out_dir: Path, sink=None, plots: dict | None = None) -> dict:
+    """Write diagnosis.json, diagnosis.md and PNG plots into ``out_dir``; log to ``sink``.
+    ``plots``: the :func:`make_plots` result when the PNGs are already in ``out_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    plots = make_plots(report, series, out_dir)
+    if plots is None:
+        plots = make_plots(report, series, out_dir)
     md = markdown(report, plots)
     paths = {"json": out_dir / "diagnosis.json", "md": out_dir / "diagnosis.md"}
     tmp = paths["json"].with_suffix(".json.tmp")

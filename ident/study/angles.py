@@ -6,12 +6,14 @@ when they fix it (two or more poses differing in two non-parallel joints), or th
 """
 from __future__ import annotations
 
+from calib.pipeline import calibrate
 from mocap.io.errors import InputError
+from mocap.references import build_references
+from mocap.solve import solve_trial
 
 
 def campaign_references(campaign, robot, T_camera_base=None):
     """(References, where the camera pose came from)."""
-    from mocap.references import build_references
 
     try:
         return build_references(campaign, robot, T_camera_base), (
@@ -20,7 +22,6 @@ def campaign_references(campaign, robot, T_camera_base=None):
         # one static pose does not fix the camera; the thesis's way is the joint 1/2 sweeps
         if T_camera_base is not None or not campaign.calib or "cannot be estimated" not in str(exc):
             raise
-    from calib.pipeline import calibrate
 
     T_cb = calibrate(campaign, robot).T_camera_base
     return build_references(campaign, robot, T_cb), "calib_sweeps"
@@ -29,7 +30,6 @@ def campaign_references(campaign, robot, T_camera_base=None):
 def solve_campaign_angles(campaign, robot, T_camera_base=None, sink=None, progress=True,
                           trials=None) -> dict:
     """trial id -> (marker time, {joint: link angle}) for every trial (flagged frames NaN)."""
-    from mocap.solve import solve_trial
 
     refs, _ = campaign_references(campaign, robot, T_camera_base)
     trials = list(campaign.trials if trials is None else trials)

@@ -7,11 +7,14 @@ and steadier for the small solves here.
 """
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor
 import os
 import re
 import signal
-from concurrent.futures import ProcessPoolExecutor
 from typing import Callable, Iterable
+
+from ident.outputs import cap_workers
+from mocap.io.errors import InputError
 
 
 class WorkerLost(RuntimeError):
@@ -79,8 +82,28 @@ class SerialExecutor:
         items = list(items)
         return [fn(x) for x in _progress(items, len(items), desc, self.progress)]
 
+    def submit_map(self, fn: Callable, items: Iterable, desc: str = "work") -> "Pending":
+        """:meth:`map` deferred: runs when the result is asked for (one process: nothing
+        else could run meanwhile)."""
+        items = list(items)
+        return Pending(lambda: self.map(fn, items, desc))
+
     def close(self):
         pass
+
+
+class Pending:
+    """A mapped batch in flight: ``result()`` waits for it and returns the results in input
+    order (the executor's ``map`` semantics: the same errors, raised there)."""
+
+    def __init__(self, wait: Callable[[], list]):
+        self._wait, self._done, self._value = wait, False, None
+
+    def result(self) -> list:
+        if not self._done:
+            self._value, self._done = self._wait(), True
+            self._wait = None
+        return self._value
 
 
 class PoolExecutor:
@@ -97,14 +120,29 @@ class PoolExecutor:
         items = list(items)
         if self.workers <= 1 or len(items) <= 1:
             return SerialExecutor(self.progress).map(fn, items, desc)
-        from concurrent.futures import as_completed
-        from concurrent.futures.process import BrokenProcessPool
+        return self.submit_map(fn, items, desc).result()
 
+    def submit_map(self, fn: Callable, items: Iterable, desc: str = "work") -> Pending:
+        """Queue every item now (behind the batches submitted before) and return at once:
+        this process can do other work while the workers run them; ``result()`` waits."""
+        items = list(items)
+        if self.workers <= 1 or not items:
+            return Pending(lambda: SerialExecutor(self.progress).map(fn, items, desc))
         try:
             with _sigint_blocked():        # workers are forked inside submit()
                 if self._pool is None:
                     self._pool = ProcessPoolExecutor(self.workers, initializer=_init_pool_worker)
                 futs = [self._pool.submit(fn, x) for x in items]
+        except BaseException:
+            self._kill()
+            raise
+        return Pending(lambda: self._wait(futs, desc))
+
+    def _wait(self, futs: list, desc: str) -> list:
+        from concurrent.futures import as_completed
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
             for _ in _progress(as_completed(futs), len(futs), desc, self.progress):
                 pass
             return [f.result() for f in futs]
@@ -160,10 +198,19 @@ class DaskExecutor:
         self.workers = len(self.client.scheduler_info().get("workers", {})) or 1
 
     def map(self, fn: Callable, items: Iterable, desc: str = "work") -> list:
+        return self.submit_map(fn, items, desc).result()
+
+    def submit_map(self, fn: Callable, items: Iterable, desc: str = "work") -> Pending:
+        """Send every item to the cluster now; ``result()`` gathers them."""
+        items = list(items)
+        if not items:
+            return Pending(list)
+        futs = self.client.map(fn, items, pure=False)
+        return Pending(lambda: self._gather(futs, desc))
+
+    def _gather(self, futs: list, desc: str) -> list:
         from distributed import as_completed
 
-        items = list(items)
-        futs = self.client.map(fn, items, pure=False)
         for _ in _progress(as_completed(futs), len(futs), desc, self.progress):
             pass
         return self.client.gather(futs)
@@ -179,9 +226,7 @@ _SCHEDULER_URL = re.compile(r"^(tcp|tls|ws|wss|ucx|inproc)://[^\s/:]+(:[0-9]{1,5
 def make_executor(workers: int | None = None, scheduler: str | None = None, progress: bool = True):
     """``scheduler`` -> Dask; ``workers == 1`` -> serial; else a local process pool of at most
     one worker per CPU (a larger ``workers`` is capped with a note)."""
-    from mocap.io.errors import InputError
 
-    from ident.outputs import cap_workers
 
     if scheduler is not None:
         if not _SCHEDULER_URL.match(str(scheduler)):

@@ -26,11 +26,13 @@ import hashlib
 import importlib
 import json
 import math
+from pathlib import Path, PurePath
 import re
 import sys
-from pathlib import Path, PurePath
 
 import numpy as np
+
+from ident.friction.base import FrictionModel
 
 FORMAT = 1
 _MODULE = re.compile(r"^(ident|calib|mocap)(\.[A-Za-z_][A-Za-z0-9_]*)+$")
@@ -94,7 +96,6 @@ def encode(x):
 def _plain_class(cls) -> bool:
     """Classes rebuilt from their attributes alone: the friction models (parameters and
     settings, :class:`ident.friction.base.FrictionModel`)."""
-    from ident.friction.base import FrictionModel
 
     return isinstance(cls, type) and issubclass(cls, FrictionModel)
 

@@ -38,27 +38,44 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+from dataclasses import dataclass, field
+from functools import lru_cache
 import hashlib
 import io
 import json
 import os
+from pathlib import Path
 import shutil
 import sys
 import time
-from dataclasses import dataclass, field
-from functools import lru_cache
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from calib.pipeline import calibrate, log_calibration, summary_markdown
+from ident.coastdown.campaign_analysis import (analyse_campaign, coastdown_table, coastdown_trials,
+                                               write_coastdown)
 from ident.common import to_jsonable as _jsonable
-
-from mocap.io.errors import InputError
-
+from ident.gap import DiagnosisSettings
+from ident.gap.campaign_diagnosis import (diagnose_single_joint_campaign, load_angles_dir,
+                                          read_angles_csv)
+from ident.gap.report import make_plots, markdown, write_report
+from ident.model.multijoint import diagnose_records, fit_multijoint_campaign, multijoint_trials
+from ident.model.onelink import model_class
 from ident.outputs import FolderLock, OutputDir, file_sha256
+from ident.signals.smoothing import one_blas_thread
+from ident.study.executor import Pending, SerialExecutor
 from ident.study.records import dumps_record, read_record
+from ident.study.view import log_campaign
+from ident.thesis.campaign_fit import FitsResult, campaign_tasks, fit_trial_joint, log_fits
 from ident.workflow import plan
+from mocap.io.campaign import Campaign, load_campaign
+from mocap.io.errors import InputError
+from mocap.quality import marker_report
+from mocap.references import build_references
+from mocap.solve import solve_trial
+from viz import make_sink
+from viz.plots import new_figure, save_png
 
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
 
@@ -78,7 +95,10 @@ class StudySettings:
     :func:`ident.thesis.campaign_fit.fit_onelink_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
     ``mocap``/``diagnose``: run those stages; ``plots``: PNG plots; ``rrd``: write the study
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
-    speed) condition to the recording (keeps it small), ``"all"`` every trial."""
+    speed) condition to the recording (keeps it small), ``"all"`` every trial;
+    ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
+    every condition (0: all). It holds all of a joint's samples at once, so its memory grows with
+    the trials per joint; this bounds it (the fits use every trial regardless)."""
 
     models: tuple = ("cv", "stribeck", "hyperbolic")
     n_starts: int = 8
@@ -90,9 +110,9 @@ class StudySettings:
     plots: bool = True
     rrd: bool = True
     rrd_trials: str = "first"
+    diagnosis_reps: int = 0
 
     def validate(self) -> "StudySettings":
-        from ident.model.onelink import model_class
 
         if not self.models:
             raise InputError("no friction models given")
@@ -109,6 +129,8 @@ class StudySettings:
             raise InputError(f"rrd_trials must be 'first' or 'all', got {self.rrd_trials!r}")
         if self.n_starts < 1:
             raise InputError("n_starts must be >= 1")
+        if self.diagnosis_reps < 0:
+            raise InputError(f"diagnosis_reps must be >= 0 (0: all), got {self.diagnosis_reps}")
         return self
 
     def to_dict(self) -> dict:
@@ -198,7 +220,6 @@ def _write_record(path: Path, input_hash: str, result, tmp_dir: Path, outputs=No
 @lru_cache(maxsize=4)
 def _campaign_and_robot(manifest: str, stamp: int):
     """The campaign and its robot, loaded once per worker process (keyed by the manifest's mtime)."""
-    from mocap.io.campaign import load_campaign
 
     camp = load_campaign(manifest)
     return camp, camp.load_robot()
@@ -230,7 +251,6 @@ def _run_mocap_job(job: _MocapJob) -> dict:
     """Solve one trial's link angles, write the record (with the sha256 of the angles file) and
     then rename ``angles/<id>.csv`` into place (the study registered the path as its own before
     the job ran). OS errors while writing propagate: the run stops with one line."""
-    from ident.signals.smoothing import one_blas_thread
 
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -265,11 +285,13 @@ class _FitJob:
     record: str
     tmp_dir: str
     input_hash: str
+    keep_plot: bool = True      # return the plot samples (else only the record keeps them)
 
 
 def _run_fit_job(job: _FitJob) -> dict:
-    """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign_fit.fit_trial_joint`)."""
-    from ident.thesis.campaign_fit import fit_trial_joint
+    """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign_fit.fit_trial_joint`).
+    The record holds the whole result; the study gets the plot samples only when it draws or
+    logs this trial (``keep_plot``): what it holds stays small however many trials there are."""
 
     t0, c0 = time.perf_counter(), time.process_time()
     try:
@@ -279,7 +301,44 @@ def _run_fit_job(job: _FitJob) -> dict:
     result = {"ok": True, "entries": entries, "seconds": time.perf_counter() - t0,
               "cpu_s": time.process_time() - c0}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
-    return result
+    return result if job.keep_plot else _without_plots(result)
+
+
+def _without_plots(result: dict) -> dict:
+    """A fit result whose entries carry no plot samples and no per-sample fit residuals (no
+    output of the study reads those; the record keeps them)."""
+    if not result.get("ok"):
+        return result
+    return {**result, "entries": [dataclasses.replace(
+        e, plot={}, fits={m: dataclasses.replace(f, residuals=np.empty(0)) for m, f in e.fits.items()})
+        for e in result["entries"]]}
+
+
+def _first_repetitions(trials, n: int) -> list:
+    """The trials among the ``n`` lowest repetitions of their condition (joints, load, speed
+    range, kind), in campaign order."""
+    rank: dict = {}
+    keep = set()
+    for t in sorted(trials, key=lambda t: t.repetition):   # stable: campaign order on ties
+        key = (tuple(t.joints), t.load_kg, t.vmax_frac, t.kind)
+        rank[key] = rank.get(key, 0) + 1
+        if rank[key] <= n:
+            keep.add(t.id)
+    return [t for t in trials if t.id in keep]
+
+
+def _plotted_trials(entries, campaign, which: str, bad=frozenset()) -> set:
+    """Ids of the trials whose plot samples the outputs use: per (joint, load, speed range) the
+    first of the lowest repetition among ``entries`` (``fits/plots/``, ``plots/``; the order
+    :meth:`ident.thesis.campaign_fit.FitsResult.write_plots` and :func:`write_study_plots` pick
+    in), and the trials of the recording (:func:`_rrd_trials` of the trials not in ``bad``).
+    ``entries``: objects with ``.trial``, ``.joint``, ``.load_kg``, ``.vmax_frac``,
+    ``.repetition`` (fit tasks, or ``e.task`` of fit entries)."""
+    first: dict = {}
+    for e in sorted(entries, key=lambda e: e.repetition):     # stable: entry order on ties
+        first.setdefault((e.joint, e.load_kg, e.vmax_frac), e.trial)
+    shown = dataclasses.replace(campaign, trials=tuple(t for t in campaign.trials if t.id not in bad))
+    return set(first.values()) | {t.id for t in _rrd_trials(shown, which)}
 
 
 @dataclass(frozen=True)
@@ -291,16 +350,18 @@ class _DiagJob:
     record: str
     tmp_dir: str
     input_hash: str
+    trials: tuple | None = None     # the ids of the joint's trials to read (None: all)
 
 
 def _run_diag_job(job: _DiagJob) -> dict:
     """The gap diagnosis of one joint (:func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign`)."""
-    from ident.gap.campaign_diagnosis import diagnose_single_joint_campaign, load_angles_dir
-    from ident.signals.smoothing import one_blas_thread
 
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         camp, robot = _load(job.manifest)
+        if job.trials is not None:
+            keep = set(job.trials)
+            camp = dataclasses.replace(camp, trials=tuple(t for t in camp.trials if t.id in keep))
         angles = None
         if job.angles_dir is not None:
             trials = [t for t in camp.trials if tuple(t.joints) == (job.joint,)]
@@ -318,6 +379,40 @@ def _run_diag_job(job: _DiagJob) -> dict:
     return result
 
 
+@dataclass(frozen=True)
+class _PlotJob:
+    """PNGs of one joint drawn by a worker into ``out_dir``: ``kind`` "fits" (``fits/plots/``,
+    :meth:`ident.thesis.campaign_fit.FitsResult.write_plots`; ``data`` = (entries, models)), "study"
+    (``plots/``, :func:`write_study_plots`; the same ``data``) or "diagnosis"
+    (:func:`ident.gap.report.make_plots`; ``data`` = (report, series) of that joint)."""
+
+    kind: str
+    out_dir: str
+    data: tuple
+
+
+def _run_plot_job(job: _PlotJob):
+    """The file names the job wrote (a list for "fits", {key: name} otherwise)."""
+    out = Path(job.out_dir)
+    if job.kind == "diagnosis":
+
+        out.mkdir(parents=True, exist_ok=True)
+        return make_plots(*job.data, out)
+
+    fits = FitsResult(*job.data)
+    if job.kind == "fits":
+        return [p.name for p in fits.write_plots(out)]
+    return write_study_plots(fits, out)
+
+
+def _by_joint(entries) -> dict:
+    """Fit entries grouped by joint, in joint order (each group in the entries' order)."""
+    out: dict = {}
+    for e in entries:
+        out.setdefault(e.task.joint, []).append(e)
+    return {j: tuple(out[j]) for j in sorted(out)}
+
+
 # ---------------------------------------------------------------------------------------------
 # the mocap stage adapter (the one place that knows the mocap API)
 # ---------------------------------------------------------------------------------------------
@@ -332,16 +427,8 @@ def _mocap_stage(campaign, robot, T_camera_base):
     Returns ``(references, solve, report)``: ``solve(campaign, trial_id, references, robot=)`` ->
     an object with ``write_csv(path, overwrite=)``, ``to_dict()`` and ``.solve``;
     ``report(solve)`` -> per-marker summary (or ``None``). Raises :class:`_StageUnavailable` with
-    the reason when the stage cannot run. Rewire here when the mocap API changes."""
-    try:
-        from mocap.references import build_references
-        from mocap.solve import solve_trial
-    except ImportError as exc:
-        raise _StageUnavailable(f"the mocap solver is not available ({exc})") from None
-    try:
-        from mocap.quality import marker_report
-    except ImportError:
-        marker_report = None
+    the reason when the stage cannot run (no marker references). Rewire here when the mocap API
+    changes."""
     try:
         refs = build_references(campaign, robot, T_camera_base)
     except InputError as exc:
@@ -447,13 +534,18 @@ class Study:
             ctx.man["records"][rel] = ctx.hasher.file(p)
 
     def _map(self, fn, items, desc):
-        if not items:
-            return []
-        if self.executor is None:
-            from ident.study.executor import SerialExecutor
+        return self._submit(fn, items, desc).result()
 
-            return SerialExecutor(self.progress).map(fn, items, desc)
-        return self.executor.map(fn, items, desc)
+    def _submit(self, fn, items, desc):
+        """``fn`` over ``items`` in flight on the executor (its ``submit_map``; an executor with
+        ``map`` alone runs when the result is asked for)."""
+
+        if not items:
+            return Pending(list)
+        ex = self.executor if self.executor is not None else SerialExecutor(self.progress)
+        if hasattr(ex, "submit_map"):
+            return ex.submit_map(fn, items, desc)
+        return Pending(lambda: ex.map(fn, items, desc))
 
     # main ------------------------------------------------------------------------------------
     def run(self, campaign, out, rrd: str | Path | None = None, spawn: bool = False) -> StudyResult:
@@ -461,7 +553,6 @@ class Study:
         :class:`mocap.io.campaign.Campaign`) into the folder ``out``. ``rrd``: where to write the
         recording (default ``out/study.rrd`` when ``settings.rrd``); ``spawn``: also stream it to
         a viewer."""
-        from mocap.io.campaign import Campaign, load_campaign
 
         camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
         od = OutputDir(out, "study", inputs=[camp.root])
@@ -502,11 +593,16 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         angles_dir, mocap_summary, refs = self._mocap(ctx, T_cb)
         _write_manifest(manifest_path, man, tmp_dir)
-        fits = self._fits(ctx, angles_dir)
+        # the fits' and the diagnosis' items are queued together (fits first): while the
+        # workers run the diagnosis, this process writes fits/ and the multi-joint stage
+        fits_run = self._fits_start(ctx, angles_dir)
+        diag_run = self._diagnosis_start(ctx, angles_dir)
+        fits = self._fits_finish(ctx, fits_run)
         _write_manifest(manifest_path, man, tmp_dir)
         self._rigidbody(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
-        diag = self._diagnosis(ctx, angles_dir)
+        diag = self._diagnosis_finish(ctx, diag_run)
+        self._fits_commit(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
         self._coast_md = self._coastdown(ctx)
         _write_manifest(manifest_path, man, tmp_dir)
@@ -544,10 +640,8 @@ class Study:
             res = rec["result"]
             ctx.stages["calib"] = _stage_row(reused=1, seconds=time.perf_counter() - t0)
         else:
-            from calib.pipeline import calibrate
 
             self._say("calibrating the camera from the [[calib]] sweeps")
-            from ident.signals.smoothing import one_blas_thread
 
             try:
                 with one_blas_thread():
@@ -578,7 +672,6 @@ class Study:
             ctx.stages["mocap"] = _stage_row(note="no motion capture in this campaign: the logged "
                                                   "angles are the link angles")
             return None, None, None
-        from ident.signals.smoothing import one_blas_thread
 
         try:
             with one_blas_thread():
@@ -635,8 +728,8 @@ class Study:
         return (angles_dir if items else None), summary, refs
 
     # stage 3: friction fits ------------------------------------------------------------------
-    def _fits(self, ctx, angles_dir):
-        from ident.thesis.campaign_fit import FitsResult, campaign_tasks
+    def _fits_start(self, ctx, angles_dir):
+        """The fit items to compute (the others are reused from their records), queued."""
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
@@ -648,6 +741,8 @@ class Study:
             by_trial.setdefault(t.trial, []).append(t)
         jobs, done, hashes = [], {}, {}
         fit_settings = [list(s.models), s.n_starts, s.seed, s.sync]
+        bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith("mocap/")}
+        plotted = _plotted_trials(tasks, camp, s.rrd_trials, bad)
         for tr in camp.trials:  # loop over trials
             if tr.id not in by_trial:
                 continue
@@ -663,30 +758,57 @@ class Study:
             record = f"records/fits/{_record_name(tr.id)}"
             rec = self._record(ctx, record, h)
             if rec is not None:
-                done[tr.id] = rec["result"]
+                done[tr.id] = rec["result"] if tr.id in plotted else _without_plots(rec["result"])
                 continue
-            jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h))
+            jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h,
+                                keep_plot=tr.id in plotted))
         self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
-        for job, res in zip(jobs, self._map(_run_fit_job, jobs, "fits")):
+        pending = self._submit(_run_fit_job, jobs, "fits")
+        return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending)
+
+    def _fits_finish(self, ctx, run):
+
+        camp, s = ctx.camp, self.settings
+        t0, jobs, done, hashes, skipped = (run[k] for k in ("t0", "jobs", "done", "hashes", "skipped"))
+        for job, res in zip(jobs, run["pending"].result()):
             done[job.trial] = res
             self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
         for tid, msg in failed.items():
             ctx.errors[f"fits/{tid}"] = msg
+        # a failed trial hands its place in the plots to the next repetition: read that
+        # trial's plot samples back from its record
+        bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
+        ok_entries = [e.task for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
+                      for e in done[tr.id]["entries"]]
+        for tid in _plotted_trials(ok_entries, camp, s.rrd_trials, bad):
+            if tid in done and not all(e.plot for e in done[tid]["entries"]):
+                rel = f"records/fits/{_record_name(tid)}"
+                rec = self._record(ctx, rel, hashes[tid])
+                if rec is not None:
+                    done[tid] = rec["result"]
         entries = tuple(e for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
                         for e in done[tr.id]["entries"])
         result = FitsResult(entries, tuple(s.models), camp.name, tuple(skipped))
         stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots)
         fits_dir = ctx.out / "fits"
         prev = ctx.old.get("stages", {}).get("fits", {})
+        man = {"hash": stage_hash, "outputs": ["fits/"],
+               "items": {tid: {"hash": h} for tid, h in hashes.items() if tid in done and done[tid].get("ok")}}
+        ctx.fits_commit = (None, None, man)
         if not (prev.get("hash") == stage_hash and _tree_ok(ctx, "fits/", "fits/fits.json")):
             if entries:
                 tmp = ctx.tmp_dir / "fits-new"
-                result.write(tmp, plots=s.plots)
-                ctx.od.commit(tmp, "fits", prune=True)
-        ctx.man["stages"]["fits"] = {"hash": stage_hash, "outputs": ["fits/"],
-                                     "items": {tid: {"hash": h} for tid, h in hashes.items()
-                                               if tid in done and done[tid].get("ok")}}
+                result.write(tmp, plots=False)
+                plots = None
+                if s.plots:     # drawn by the workers (after the diagnosis' items), per joint
+                    groups = _by_joint(entries)
+                    plots = self._submit(_run_plot_job, [_PlotJob("fits", str(tmp / "plots"), (g, result.models))
+                                                         for g in groups.values()], "plots")
+                    ctx.study_plots = self._submit(
+                        _run_plot_job, [_PlotJob("study", str(ctx.tmp_dir / "plots-new"), (g, result.models))
+                                        for g in groups.values()], "plots")
+                ctx.fits_commit = (tmp, plots, man)
         if entries:
             ctx.paths["fits"] = fits_dir / "fits.json"
         ctx.stages["fits"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
@@ -696,13 +818,25 @@ class Study:
                                         cpu=_work(jobs, done, "trial", "cpu_s"))
         return result
 
+    def _fits_commit(self, ctx) -> None:
+        """Install ``fits/`` once its plots are drawn, then record the stage in the manifest
+        (never before: a rerun trusts a recorded stage whose files are the study's)."""
+        tmp, plots, man = ctx.fits_commit
+        if man is None:
+            return
+        if tmp is not None:
+            if plots is not None:
+                plots.result()
+            ctx.od.commit(tmp, "fits", prune=True)
+            ctx.fits_commit = (None, None, man)
+        ctx.man["stages"]["fits"] = man
+
     # stage 3b: multi-joint records ------------------------------------------------------------
     def _rigidbody(self, ctx):
         """Multi-joint continuous records (``joints = [1, 2, ...]``): the rigid-body
         identification (:mod:`ident.model.multijoint`) with the study's friction models, written
         to ``rigidbody/`` (``fits.json``, ``rigidbody.json``, ``rigidbody.md``); resumed when the
         logs and settings are unchanged."""
-        from ident.model.multijoint import fit_multijoint_campaign, multijoint_trials
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
@@ -734,22 +868,26 @@ class Study:
         return res
 
     # stage 4: gap diagnosis ------------------------------------------------------------------
-    def _diagnosis(self, ctx, angles_dir):
-        from ident.gap import DiagnosisSettings
+    def _diagnosis_start(self, ctx, angles_dir):
+        """The joints to diagnose (the others are reused from their records), queued (what
+        :meth:`_diagnosis_finish` collects)."""
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
         if not s.diagnose:
-            ctx.stages["diagnosis"] = _stage_row(note="switched off")
-            return None
+            return {"off": True}
         dset = DiagnosisSettings(seed=s.seed)
         by_joint: dict = {}
         for t in camp.trials:  # loop over trials
             if len(t.joints) == 1:
                 by_joint.setdefault(int(t.joints[0]), []).append(t)
         if "single_joint" not in plan(camp).diagnosis_paths:
-            return self._diagnosis_records(ctx, dset, t0)
+            return {"records": (dset, t0)}
         jobs, done, hashes = [], {}, {}
+        n_all = sum(len(v) for v in by_joint.values())
+        if s.diagnosis_reps:
+            by_joint = {j: _first_repetitions(v, s.diagnosis_reps) for j, v in by_joint.items()}
+        n_read = sum(len(v) for v in by_joint.values())
         for j, trials in sorted(by_joint.items()):  # loop over joints
             files = [[ctx.hasher.file(t.log),
                       ctx.hasher.file(angles_dir / f"{t.id}.csv") if angles_dir is not None else None]
@@ -762,9 +900,27 @@ class Study:
                 done[j] = rec["result"]
                 continue
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
-                                 dset, str(ctx.state / record), str(ctx.tmp_dir), h))
+                                 dset, str(ctx.state / record), str(ctx.tmp_dir), h,
+                                 tuple(t.id for t in trials) if s.diagnosis_reps else None))
         self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
-        for job, res in zip(jobs, self._map(_run_diag_job, jobs, "diagnosis")):
+        pending = self._submit(_run_diag_job, jobs, "diagnosis")
+        note = (f"the first {s.diagnosis_reps} repetition(s) of each condition: {n_read} of {n_all} trials"
+                if n_read < n_all else "")
+        return dict(dset=dset, jobs=jobs, done=done, hashes=hashes, pending=pending,
+                    prep_s=time.perf_counter() - t0, note=note)
+
+    def _diagnosis_finish(self, ctx, run):
+        """Collect the diagnosis items; ``seconds``: the preparation plus the wait beyond the
+        stages queued before it (its items run while the fits finish)."""
+        if "off" in run:
+            ctx.stages["diagnosis"] = _stage_row(note="switched off")
+            return None
+        if "records" in run:
+            return self._diagnosis_records(ctx, *run["records"])
+        t0 = time.perf_counter() - run["prep_s"]
+        camp = ctx.camp
+        dset, jobs, done, hashes = (run[k] for k in ("dset", "jobs", "done", "hashes"))
+        for job, res in zip(jobs, run["pending"].result()):
             done[job.joint] = res
             self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
         failed = {j: r["error"] for j, r in done.items() if not r.get("ok")}
@@ -781,10 +937,16 @@ class Study:
         prev = ctx.old.get("stages", {}).get("diagnosis", {})
         if report["joints"] and not (prev.get("hash") == stage_hash
                                      and _tree_ok(ctx, "diagnosis/", "diagnosis/diagnosis.json")):
-            from ident.gap.report import write_report
 
             tmp = ctx.tmp_dir / "diagnosis-new"
-            write_report(report, series, tmp, None)
+            pending = self._submit(_run_plot_job, [_PlotJob("diagnosis", str(tmp), ({"joints": {j: r}},
+                                                                                   {j: series.get(j)}))
+                                                   for j, r in report["joints"].items()], "plots")
+            self._fits_commit(ctx)       # its plots were queued before these
+            plots = {}
+            for names in pending.result():
+                plots.update(names)
+            write_report(report, series, tmp, None, plots=plots)
             ctx.od.commit(tmp, "diagnosis", prune=True)
         ctx.man["stages"]["diagnosis"] = {"hash": stage_hash, "outputs": ["diagnosis/"],
                                           "items": {str(j): {"hash": h} for j, h in hashes.items()
@@ -793,15 +955,14 @@ class Study:
             ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
                                              len(done) - len(jobs), len(failed),
-                                             time.perf_counter() - t0, work=_work(jobs, done, "joint"),
+                                             time.perf_counter() - t0, run["note"],
+                                             work=_work(jobs, done, "joint"),
                                              cpu=_work(jobs, done, "joint", "cpu_s"))
         return report, series
 
     def _diagnosis_records(self, ctx, dset, t0):
         """Diagnosis of multi-joint records (:func:`ident.model.multijoint.diagnose_records`),
         serial, recomputed when the logs or settings change."""
-        from ident.gap.report import write_report
-        from ident.model.multijoint import diagnose_records, multijoint_trials
 
         camp = ctx.camp
         trials = multijoint_trials(camp)
@@ -836,8 +997,6 @@ class Study:
     def _coastdown(self, ctx) -> str:
         """Run :mod:`ident.coastdown.campaign_analysis` on the coast-down trials into ``coastdown/``;
         returns the report's section (empty without coast-down trials)."""
-        from ident.coastdown.campaign_analysis import (analyse_campaign, coastdown_table, coastdown_trials,
-                                              write_coastdown)
 
         t0 = time.perf_counter()
         trials = coastdown_trials(ctx.camp)
@@ -897,7 +1056,12 @@ class Study:
         plots = {}
         if s.plots and fits is not None and fits.entries:
             tmp = ctx.tmp_dir / "plots-new"
-            plots = write_study_plots(fits, tmp)
+            if ctx.study_plots is None:     # fits/ was up to date: not drawn with it
+                ctx.study_plots = self._submit(_run_plot_job, [_PlotJob("study", str(tmp), (g, fits.models))
+                                                               for g in _by_joint(fits.entries).values()],
+                                               "plots")
+            for names in ctx.study_plots.result():
+                plots.update(names)
             ctx.od.commit(tmp, "plots", prune=True)
         tmp = ctx.tmp_dir / "csv-new"
         write_study_csvs(ctx.camp, mocap_summary, fits, diag[0] if diag else None, tmp)
@@ -936,6 +1100,8 @@ class _Context:
     paths: dict
     od: OutputDir
     angles_ok: frozenset = frozenset()
+    fits_commit: tuple = (None, None, None)   # (tmp folder, its plots in flight, manifest entry)
+    study_plots: object = None                # plots/ in flight (ident.study.executor.Pending)
 
 
 def _read_manifest(path: Path) -> dict:
@@ -976,7 +1142,6 @@ def write_study_plots(fits, out_dir: Path) -> dict:
     repetition of every condition with its fitted curve, thesis Figs. 5-1/5-2) and
     ``spread_joint<j>.png`` (each parameter of the Coulomb + viscous and Stribeck models over
     the repetitions of every condition: dots, mean and +-1 std). Returns {name: file name}."""
-    from viz.plots import new_figure, save_png
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1158,7 +1323,6 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
         L += ["", "Failures:", ""] + [f"- `{k}`: {v}" for k, v in sorted(errors.items())]
     L += ["", "## Camera-to-base calibration", ""]
     if calib_res is not None:
-        from calib.pipeline import summary_markdown
 
         L += [summary_markdown(calib_res).replace("## ", "### ", 1), "", "Written to `calib.json`."]
     else:
@@ -1259,19 +1423,15 @@ def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, dia
 
 
 def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report_md, out, ids):
-    from viz import make_sink
 
-    from ident.study.view import log_campaign
 
     T_cb = None if calib_res is None else np.asarray(calib_res.T_camera_base, float)
     with make_sink(str(tmp) if tmp else None, spawn, app_id="jointlab-study") as sink:
         logged = log_campaign(sub, sink, robot, T_camera_base=T_cb, max_signal_rate_hz=100.0)
         if calib_res is not None:
-            from calib.pipeline import log_calibration
 
             log_calibration(sink, calib_res, prefix="campaign/calib")
         if angles_dir is not None:
-            from ident.gap.campaign_diagnosis import read_angles_csv
 
             for t in sub.trials:  # loop over logged trials
                 p = Path(angles_dir) / f"{t.id}.csv"
@@ -1281,13 +1441,11 @@ def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report
                         sink.scalars(f"mocap/{t.id}", ta, np.column_stack([q[j] for j in sorted(q)]),
                                      names=[f"q_{j}" for j in sorted(q)])
         if fits is not None and fits.entries:
-            from ident.thesis.campaign_fit import FitsResult, log_fits
 
             log_fits(FitsResult(tuple(e for e in fits.entries if e.task.trial in ids), fits.models,
                                 fits.campaign, fits.skipped), sink)
         if diag is not None:
             report, series = diag
-            from ident.gap.report import markdown
 
             diag_dir = Path(out) / "diagnosis"
             plots = {p.stem: p.name for p in sorted(diag_dir.glob("*.png"))}

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mocap.urdf import load_link_meshes
 
 MAX_ROBOT_RATE_HZ = 60.0
 MARKER_RADIUS_M = 0.008
@@ -34,12 +35,8 @@ UNASSIGNED_COLOR = (90, 90, 90)
 
 def load_meshes(urdf) -> dict:
     """``{link: (vertices, faces)}`` from :func:`mocap.urdf.load_link_meshes`, or ``{}``
-    when that loader is not available (the robot then shows as link frames)."""
+    without a URDF (the robot then shows as link frames)."""
     if urdf is None:
-        return {}
-    try:
-        from mocap.urdf import load_link_meshes
-    except ImportError:
         return {}
     return dict(load_link_meshes(Path(urdf), missing="warn"))   # meshes are optional
 

@@ -32,6 +32,9 @@ def add_study_options(p) -> None:
     p.add_argument("--no-rrd", action="store_true", help="do not write DIR/study.rrd")
     p.add_argument("--rrd-trials", choices=("first", "all"), default="first",
                    help="trials in the recording: the first repetition of each condition (default) or all")
+    p.add_argument("--diagnosis-reps", type=int, default=0, metavar="R",
+                   help="the gap diagnosis reads the first R repetitions of every condition (default 0: "
+                        "all); its memory grows with the trials per joint, this bounds it")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -50,9 +53,12 @@ def settings_from_args(args):
     models = tuple(m.strip() for m in args.models.split(",") if m.strip())
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
+    if args.diagnosis_reps < 0:
+        raise InputError(f"--diagnosis-reps must be >= 0 (0: all), got {args.diagnosis_reps}")
     return StudySettings(models=models, n_starts=args.starts, seed=args.seed, sync=args.sync,
                          mocap=not args.no_mocap, diagnose=not args.no_diagnosis, plots=not args.no_plots,
-                         rrd=not args.no_rrd, rrd_trials=args.rrd_trials).validate()
+                         rrd=not args.no_rrd, rrd_trials=args.rrd_trials,
+                         diagnosis_reps=args.diagnosis_reps).validate()
 
 
 def run_from_args(args, campaign_path: Path) -> int:
