@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ident.friction.constants import KV_DEFAULT
+
 KINDS = ("impossible", "unidentifiable", "extrapolated")
 CANCEL_RATIO = 100.0     # a term this many times the torque scale cancels another one
 _2_PI = 2.0 / np.pi
@@ -188,7 +190,7 @@ def _arctan(p, lo, hi, scale, out, Kv=1000.0):
 
 def _energy(model, lo, hi, out, names):
     """Static friction that feeds energy (``f(v) v < 0``) inside the sampled speeds."""
-    if model is None or hi is None or getattr(model, "dynamic", False):
+    if model is None or hi is None or model.dynamic:
         return
     v = np.concatenate([-np.geomspace(hi, max(lo, 1e-4 * hi), 200),
                         np.geomspace(max(lo, 1e-4 * hi), hi, 200)])
@@ -224,7 +226,7 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
         return out
     lo, hi = _speeds(qd)
     if fit_scale is None and model is not None and hi is not None \
-            and not getattr(model, "dynamic", False):
+            and not model.dynamic:
         try:
             fit_scale = float(np.max(np.abs(model.torque(np.array([lo, hi, -lo, -hi])))))
         except Exception:  # noqa: BLE001
@@ -249,7 +251,7 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
     elif m == "hyperbolic" and {"g1", "g2", "g3", "g4", "g5", "g6"} <= set(p):
         _hyperbolic(p, lo, hi, fit_scale, tau_scale, out)
     elif m == "arctan" and {"tau_s", "tau_sc", "tau_v", "tau_nlv", "delta"} <= set(p):
-        _arctan(p, lo, hi, fit_scale, out, getattr(model, "Kv", 1000.0))
+        _arctan(p, lo, hi, fit_scale, out, KV_DEFAULT if model is None else model.Kv)
     elif m in ("dm1", "dm2"):
         if p.get("sigma0", 1.0) <= 0:
             _put(out, "sigma0", "impossible", f"bristle stiffness sigma0 = {p['sigma0']:.3g} <= 0")

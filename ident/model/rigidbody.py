@@ -487,7 +487,7 @@ class RigidBodyIdentifier:
         own = [[k for k, nm in enumerate(names) if nm in (f"offset_{j + 1}", f"Ia_{j + 1}")]
                for j in range(n)]
         notes, failed = [], {}
-        dynamic = getattr(self.model_cls, "dynamic", False)
+        dynamic = self.model_cls.dynamic
         solve = self._wls_factor(A2, w)        # same rows and weights in every alternation
         scale = np.sqrt(np.sum(np.where(rows, rec.tau, 0.0) ** 2, axis=0) / np.maximum(rows.sum(0), 1))
         for it in range(n_iter):
