@@ -53,14 +53,13 @@ from typing import Callable
 import numpy as np
 
 from calib.pipeline import calibrate, log_calibration, summary_markdown
-from ident.coastdown.campaign_analysis import (analyse_campaign, coastdown_table, coastdown_trials,
-                                               write_coastdown)
+from ident.coastdown.campaign_analysis import analyse_campaign, coastdown_table, write_coastdown
 from ident.common import to_jsonable as _jsonable
 from ident.gap import DiagnosisSettings
 from ident.gap.campaign_diagnosis import (diagnose_single_joint_campaign, load_angles_dir,
                                           read_angles_csv)
 from ident.gap.report import make_plots, markdown, write_report
-from ident.model.multijoint import diagnose_records, fit_multijoint_campaign, multijoint_trials
+from ident.model.multijoint import diagnose_records, fit_multijoint_campaign
 from ident.model.onelink import model_class
 from ident.outputs import FolderLock, OutputDir, file_sha256
 from ident.signals.smoothing import one_blas_thread
@@ -403,6 +402,13 @@ def _run_plot_job(job: _PlotJob):
     if job.kind == "fits":
         return [p.name for p in fits.write_plots(out)]
     return write_study_plots(fits, out)
+
+
+def _planned_trials(camp, path: str) -> list:
+    """The trials :func:`ident.workflow.plan` routes to ``path`` (``single_joint``,
+    ``multi_joint`` or ``coastdown``), in campaign order: the study runs what the plan decides."""
+    ids = set(getattr(plan(camp), path))
+    return [t for t in camp.trials if t.id in ids]
 
 
 def _by_joint(entries) -> dict:
@@ -840,7 +846,7 @@ class Study:
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
-        trials = multijoint_trials(camp)
+        trials = _planned_trials(camp, "multi_joint")
         if not trials:
             return None
         h = ctx.hasher.combine("rigidbody", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
@@ -878,9 +884,8 @@ class Study:
             return {"off": True}
         dset = DiagnosisSettings(seed=s.seed)
         by_joint: dict = {}
-        for t in camp.trials:  # loop over trials
-            if len(t.joints) == 1:
-                by_joint.setdefault(int(t.joints[0]), []).append(t)
+        for t in _planned_trials(camp, "single_joint"):  # loop over trials
+            by_joint.setdefault(int(t.joints[0]), []).append(t)
         if "single_joint" not in plan(camp).diagnosis_paths:
             return {"records": (dset, t0)}
         jobs, done, hashes = [], {}, {}
@@ -929,7 +934,7 @@ class Study:
         ok = {j: r for j, r in sorted(done.items()) if r.get("ok")}
         report = {"format": 1, "campaign": camp.name, "settings": dset.to_dict(),
                   "joints": {str(j): r["report"] for j, r in ok.items() if r["report"] is not None},
-                  "skipped_trials": [t.id for t in camp.trials if len(t.joints) != 1],
+                  "skipped_trials": list(plan(camp).multi_joint),
                   "link_angles": any(r["link_angles"] for r in ok.values())}
         series = {str(j): r["series"] for j, r in ok.items()}
         stage_hash = ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()))
@@ -965,7 +970,7 @@ class Study:
         serial, recomputed when the logs or settings change."""
 
         camp = ctx.camp
-        trials = multijoint_trials(camp)
+        trials = _planned_trials(camp, "multi_joint")
         if not trials:
             ctx.stages["diagnosis"] = _stage_row(note="no single-joint trials to diagnose")
             return None
@@ -999,7 +1004,7 @@ class Study:
         returns the report's section (empty without coast-down trials)."""
 
         t0 = time.perf_counter()
-        trials = coastdown_trials(ctx.camp)
+        trials = _planned_trials(ctx.camp, "coastdown")
         if not trials:      # no stage row: campaigns without coast-downs keep their report
             return ""
         h = ctx.hasher.combine("coastdown", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
