@@ -27,11 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ident.friction import laws
 from ident.friction.constants import KV_DEFAULT
 
 KINDS = ("impossible", "unidentifiable", "extrapolated")
 CANCEL_RATIO = 100.0     # a term this many times the torque scale cancels another one
-_2_PI = 2.0 / np.pi
 
 #: what each parameter is (printed beside the tables)
 MEANING = {
@@ -128,7 +128,7 @@ def _hyperbolic(p, lo, hi, scale, tau_scale, out):
     if hi is None:
         return
     v = np.geomspace(max(lo, 1e-6), hi, 200)
-    hump = p["g1"] * (np.tanh(p["g2"] * v) - np.tanh(p["g3"] * v))
+    hump = p["g1"] * laws.hyperbolic_columns(v, p["g2"], p["g3"], p["g5"])[:, 0]
     if abs(p["g2"] - p["g3"]) <= 0.05 * max(abs(p["g2"]), abs(p["g3"]), 1e-12) or \
             (scale and np.max(np.abs(hump)) < 0.02 * scale):
         _put(out, ["g1", "g2", "g3"], "unidentifiable",
@@ -168,7 +168,7 @@ def _arctan(p, lo, hi, scale, out, Kv=1000.0):
         _put(out, "delta", "impossible", f"delta = {p['delta']:.3g} < 0")
     if hi is None:
         return
-    term = np.max(np.abs(p["tau_sc"] * _2_PI * np.arctan(np.array([lo, hi]) * p["delta"])))
+    term = np.max(np.abs(p["tau_sc"] * laws.arctan_columns(np.array([lo, hi]), p["delta"], Kv)[:, 1]))
     if scale and term < 0.02 * scale:
         _put(out, "delta", "unidentifiable",
              "the Stribeck term tau_sc 2/pi arctan(delta v) is ~0 on the sampled speeds")
@@ -182,7 +182,7 @@ def _arctan(p, lo, hi, scale, out, Kv=1000.0):
              f"delta = {p['delta']:.3g} s/rad: the Stribeck transition (|v| ~ 1/delta = "
              f"{1 / p['delta']:.3g} rad/s) lies beyond the sampled speeds (up to {hi:.3g} rad/s)")
     v = np.geomspace(max(lo, 1e-6), hi, 200)
-    visc = p["tau_v"] * v + p["tau_nlv"] * v * v * _2_PI * np.arctan(Kv * v)
+    visc = laws.arctan_viscous(v, p["tau_v"], p["tau_nlv"], Kv)
     if np.min(visc + p["tau_s"] + p["tau_sc"]) < 0 and p["tau_nlv"] < 0:
         _put(out, "tau_nlv", "impossible",
              "the nonlinear viscous term makes the friction push the motion at the sampled speeds")

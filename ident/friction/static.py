@@ -384,7 +384,7 @@ class Hyperbolic(_StaticModel):
             return "no moving samples: nothing is identifiable"
         p = self._p
         lo, hi = np.percentile(a, [2.0, 98.0])
-        hump = p["g1"] * (np.tanh(p["g2"] * a) - np.tanh(p["g3"] * a))
+        hump = p["g1"] * laws.hyperbolic_columns(a, p["g2"], p["g3"], p["g5"])[:, 0]
         if np.max(np.abs(hump)) < 0.02 * fit_scale:
             why = ("g2 ~ g3" if abs(p["g2"] - p["g3"]) <= 0.05 * max(p["g2"], p["g3"])
                    else "g1 ~ 0" if abs(p["g1"]) < 0.02 * fit_scale

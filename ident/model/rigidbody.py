@@ -176,7 +176,8 @@ TRANSITION_ROWS = 50_000
 
 
 def _tanh_width(a, y, lo, hi, n_grid: int = 121):
-    """Least-squares width ``vs`` of ``y = c tanh(a / vs) + fv a`` on the rows ``lo <= a <= hi``
+    """Least-squares width ``vs`` of ``y = c tanh(a / vs) + fv a`` (the smoothed sign of
+    :func:`ident.friction.laws.smooth_sign` at width ``vs``) on the rows ``lo <= a <= hi``
     (``a = |qd|``, ``y = sign(qd) f``): a grid of log-spaced widths from 1e-4 to 1 times ``hi``,
     ``c`` and ``fv`` linear at each width (2 x 2 normal equations). ``(vs, c)``; vs is NaN when
     the best width is at an end of the grid or fewer than 20 rows take part."""
@@ -188,7 +189,7 @@ def _tanh_width(a, y, lo, hi, n_grid: int = 121):
     saa, say, syy = float(a @ a), float(a @ y), float(y @ y)
     best = (np.inf, 0, np.nan)
     for k, vs in enumerate(grid):                  # widths of the grid, the rows vectorised
-        t = np.tanh(a / vs)
+        t = laws.smooth_sign(a, vs)
         stt, sta, sty = float(t @ t), float(t @ a), float(t @ y)
         det = stt * saa - sta * sta
         if det <= 1e-12 * stt * saa:
@@ -277,7 +278,6 @@ class RigidBodyIdentifier:
                  v_zero_frac: float = 0.02, armature: bool = True, offset: bool = True,
                  coupled_motors: bool = True, n_iter: int = 3, folds: int = 5, n_starts: int = 4,
                  seed: int = 0, lower=None, upper=None, v_zero=None):
-
         if model not in MODELS:
             raise KeyError(f"unknown friction model {model!r} (known: {', '.join(MODELS)})")
         self.chain = chain
@@ -465,7 +465,6 @@ class RigidBodyIdentifier:
         return Gi * s2 / np.outer(cn, cn)
 
     def _alternate(self, rec, A, F, rows, w, quick, init=None) -> dict:
-
         T, n, p = A.shape
         A2 = A.reshape(T * n, p)
         ff = [None] * n

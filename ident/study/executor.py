@@ -226,8 +226,6 @@ _SCHEDULER_URL = re.compile(r"^(tcp|tls|ws|wss|ucx|inproc)://[^\s/:]+(:[0-9]{1,5
 def make_executor(workers: int | None = None, scheduler: str | None = None, progress: bool = True):
     """``scheduler`` -> Dask; ``workers == 1`` -> serial; else a local process pool of at most
     one worker per CPU (a larger ``workers`` is capped with a note)."""
-
-
     if scheduler is not None:
         if not _SCHEDULER_URL.match(str(scheduler)):
             raise InputError(f"--scheduler {scheduler!r} is not a Dask scheduler address "

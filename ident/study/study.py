@@ -112,7 +112,6 @@ class StudySettings:
     diagnosis_reps: int = 0
 
     def validate(self) -> "StudySettings":
-
         if not self.models:
             raise InputError("no friction models given")
         for m in self.models:
@@ -773,7 +772,6 @@ class Study:
         return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending)
 
     def _fits_finish(self, ctx, run):
-
         camp, s = ctx.camp, self.settings
         t0, jobs, done, hashes, skipped = (run[k] for k in ("t0", "jobs", "done", "hashes", "skipped"))
         for job, res in zip(jobs, run["pending"].result()):
@@ -1428,8 +1426,6 @@ def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, dia
 
 
 def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report_md, out, ids):
-
-
     T_cb = None if calib_res is None else np.asarray(calib_res.T_camera_base, float)
     with make_sink(str(tmp) if tmp else None, spawn, app_id="jointlab-study") as sink:
         logged = log_campaign(sub, sink, robot, T_camera_base=T_cb, max_signal_rate_hz=100.0)
