@@ -644,11 +644,10 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
     check_campaign_motion(campaign, robot.n)
     p = plan(campaign)
     paths = p.diagnosis_paths
-    if "multi_joint" not in paths:
+    if "single_joint" in paths or "multi_joint" not in paths:
         report, series = _diagnose_single(campaign, robot, ang, settings, joints=joints, progress=progress)
-        return CampaignDiagnosis(p, report, series)
-    if "single_joint" in paths:
-        report, series = _diagnose_single(campaign, robot, ang, settings, joints=joints, progress=progress)
+        if "multi_joint" not in paths:
+            return CampaignDiagnosis(p, report, series)
     else:
         report = {"format": 1, "campaign": campaign.name, "settings": settings.to_dict(), "joints": {},
                   "skipped_trials": [], "link_angles": False}
