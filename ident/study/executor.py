@@ -7,7 +7,8 @@ and steadier for the small solves here.
 """
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 import os
 import re
 import signal
@@ -139,9 +140,6 @@ class PoolExecutor:
         return Pending(lambda: self._wait(futs, desc))
 
     def _wait(self, futs: list, desc: str) -> list:
-        from concurrent.futures import as_completed
-        from concurrent.futures.process import BrokenProcessPool
-
         try:
             for _ in _progress(as_completed(futs), len(futs), desc, self.progress):
                 pass
