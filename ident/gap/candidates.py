@@ -33,8 +33,9 @@ V_EPS = 2e-3  # rad/s: width of the smoothed sign used for Coulomb-type terms
 
 
 def ssign(qd: np.ndarray) -> np.ndarray:
-    """Smoothed sign of velocity (Coulomb direction)."""
-    return np.tanh(qd / V_EPS)
+    """Smoothed sign of velocity (Coulomb direction), :func:`ident.friction.laws.smooth_sign` at
+    the width :data:`V_EPS`."""
+    return laws.smooth_sign(qd, V_EPS)
 
 
 def _sg(d) -> np.ndarray:
@@ -321,12 +322,12 @@ def _backlash(d, hp):
     deflection has no finite stiffness at zero load, unlike a spring's)."""
     kind, src, width = hp
     if kind == "motion":
-        return np.tanh(d.qd_m / (width * max(_tref(d.qd_m), 1e-9)))[:, None]
+        return laws.smooth_sign(d.qd_m, width * max(_tref(d.qd_m), 1e-9))[:, None]
     tau = _torque_m(d, src)
     T = _tref(tau)
     if kind == "contact":
         return (np.sign(tau) * np.abs(tau / T) ** width)[:, None]
-    return np.tanh(tau / (width * T))[:, None]
+    return laws.smooth_sign(tau, width * T)[:, None]
 
 
 _BACKLASH_GRID = (tuple(("torque", src, w) for src in ("rigid", "motor") for w in (0.002, 0.005, 0.02, 0.05))
