@@ -541,7 +541,7 @@ def fit_campaign(campaign, *, models=("cv", "stribeck", "hyperbolic"), angles=No
     if "multi_joint" in p.models:
         rs, v_zero = settings.record_settings()
         res = fit_multijoint_campaign(campaign, p.models["multi_joint"], record=rs, seed=settings.seed,
-                                      v_zero=v_zero, n_starts=settings.n_starts)
+                                      v_zero=v_zero, n_starts=settings.n_starts, sink=sink)
         return FitResult(p, rigidbody=res)
     one = dyn = None
     if p.models.get("single_joint"):

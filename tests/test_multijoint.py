@@ -270,3 +270,47 @@ def test_tiago_log_sampling_is_reported(capsys):
     assert sp["step_median_s"] == pytest.approx(np.median(steps))
     log = read_robot_log(path)
     assert log.qd is not None and log.qd.shape == (t.size, 7) and np.isfinite(log.qd).all()
+
+
+def test_multijoint_fit_logs_torques_and_friction_to_rerun(tmp_path, capsys):
+    """``fit --rrd`` on a multi-joint record: per joint the logged and predicted torques and the
+    friction against speed; the friction the record shows (logged torque less the fitted
+    rigid-body part) scatters around the simulated law by the simulated noise."""
+    from rerun.chunk import RrdReader
+
+    from ident.model.multijoint import fit_multijoint_campaign
+    from mocap.io.campaign import load_campaign
+    from viz import Sink
+
+    class Recorder(Sink):
+        enabled = True
+
+        def __init__(self):
+            self.calls = {}
+
+        def scalars(self, path, time, values, names=None, timeline="time"):
+            self.calls[path] = (np.asarray(time), np.asarray(values), names)
+
+        def points(self, path, positions, **kw):
+            self.calls[path] = np.asarray(positions)
+
+    _write_arm7_campaign(tmp_path / "c")
+    sink = Recorder()
+    fit_multijoint_campaign(load_campaign(tmp_path / "c"), ("cv",), sink=sink)
+    for j in range(1, 8):
+        base = f"fits/rec/joint{j}"
+        t, vals, names = sink.calls[f"{base}/torque"]
+        assert names == ["tau_logged", "pred_cv"] and vals.shape == (t.size, 2)
+        assert np.sqrt(np.mean((vals[:, 0] - vals[:, 1]) ** 2)) < 2 * NOISE[j - 1]
+        data = sink.calls[f"{base}/friction_vs_speed/data"]
+        law = C_TRUE[j - 1] * np.sign(data[:, 0]) + V_TRUE[j - 1] * data[:, 0]
+        assert np.sqrt(np.mean((data[:, 1] - law) ** 2)) < 2 * NOISE[j - 1], j
+        curve = sink.calls[f"{base}/friction_vs_speed/cv"]
+        ref = C_TRUE[j - 1] * np.sign(curve[:, 0]) + V_TRUE[j - 1] * curve[:, 0]
+        assert np.max(np.abs(curve[:, 1] - ref)) < 0.15 * np.max(np.abs(ref)), j
+    rrd = tmp_path / "fit.rrd"
+    assert main(["fit", str(tmp_path / "c"), "--out", str(tmp_path / "o"), "--models", "cv",
+                 "--rrd", str(rrd)]) == 0
+    capsys.readouterr()
+    paths = {str(ch.entity_path) for ch in RrdReader(rrd).stream()}
+    assert {"/fits/rec/joint7/torque/tau_logged", "/fits/rec/joint7/friction_vs_speed/cv"} <= paths

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ident.common import to_jsonable
+from ident.friction import MODELS
 from ident.model.record import RecordSettings, coupling_matrix, load_record, prepare_record
 from ident.friction.plausibility import Flag, fmt, meaning_line
 from ident.gap import diagnose_joint
@@ -167,7 +168,7 @@ class MultiJointFits:
 
 
 def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | None = None,
-                            seed: int = 0, v_zero="auto", **settings) -> MultiJointFits:
+                            seed: int = 0, v_zero="auto", sink=None, **settings) -> MultiJointFits:
     r"""Identify every multi-joint trial of a campaign with every friction model.
 
     The rigid-body model of thesis eq. 2-1 [1]_ with friction on every joint,
@@ -194,6 +195,9 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
         ``"auto"`` (default): the low-speed cut of each joint chosen from the data
         (:func:`ident.model.rigidbody.low_speed_cut`, reported in the preprocessing); a number:
         a fraction of each joint's 99th-percentile speed (``v_zero_frac``).
+    sink : viz.Sink, optional
+        Receives, per trial and joint, the logged and the predicted torques over time and the
+        friction against speed (:func:`log_record_fits`).
     **settings
         Keyword settings of :class:`ident.model.rigidbody.RigidBodyIdentifier`.
 
@@ -237,11 +241,50 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
             pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [_cut_text(cut)]
         else:
             kw["v_zero_frac"] = float(v_zero)
-        fits[tr.id] = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **kw).fit(rec)
-                       for m in models}
+        idts = {m: RigidBodyIdentifier(chain, base, model=m, seed=seed, **kw) for m in models}
+        fits[tr.id] = {m: idt.fit(rec) for m, idt in idts.items()}
+        if sink is not None and sink.enabled:
+            log_record_fits(sink, tr.id, rec, {m: idt.predicted(rec) for m, idt in idts.items()},
+                            fits[tr.id])
         _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
+
+
+def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict) -> None:
+    """Log one record's multi-joint fits to a rerun sink, under ``fits/<trial>/joint<j>``:
+    ``torque`` (the logged torque and each model's prediction over time), ``friction_vs_speed/
+    data`` (the friction the record shows: the logged torque less the first model's rigid-body,
+    offset and armature part, as (qd, f, 0) points on the rows the fit used) and
+    ``friction_vs_speed/<model>`` (each model's friction law over the joint's speed range; a
+    state-dependent law's value on the rows). ``predicted``: model ->
+    :meth:`ident.model.rigidbody.RigidBodyIdentifier.predicted`."""
+    first = next(iter(fits))
+    for js, e in fits[first].joints.items():
+        j = int(js) - 1
+        base = f"fits/{trial_id}/joint{js}"
+        names = ["tau_logged"] + [f"pred_{m}" for m in fits]
+        sink.scalars(f"{base}/torque", rec.t, np.column_stack(
+            [rec.tau[:, j]] + [predicted[m][0][:, j] for m in fits]), names=names)
+        pred, fric = predicted[first]
+        used = np.abs(rec.qd[:, j]) >= e["v_zero"]
+        f_data = rec.tau[used, j] - (pred[used, j] - fric[used, j])
+        sink.points(f"{base}/friction_vs_speed/data",
+                    np.column_stack([rec.qd[used, j], f_data, np.zeros(int(used.sum()))]))
+        top = float(np.max(np.abs(rec.qd[:, j])))
+        v = np.linspace(-top, top, 401)
+        order = np.argsort(rec.qd[:, j])
+        for m, fit in fits.items():
+            je = fit.joints.get(js)
+            if je is None:                         # not identified on this joint
+                continue
+            if not MODELS[m].dynamic:
+                law = MODELS[m](**je["params"], **je.get("settings", {}))
+                curve = np.column_stack([v, law.torque(v), np.zeros_like(v)])
+            else:                                  # a state-dependent law: its value on the rows
+                curve = np.column_stack([rec.qd[order, j], predicted[m][1][order, j],
+                                         np.zeros(rec.t.size)])
+            sink.points(f"{base}/friction_vs_speed/{m}", curve)
 
 
 def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:

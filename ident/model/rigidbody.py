@@ -395,7 +395,24 @@ class RigidBodyIdentifier:
                 sse += np.sum(r ** 2, axis=0)
                 cnt += np.sum(M & ~tr[:, None], axis=0)
             held = np.where(cnt > 0, np.sqrt(sse / np.maximum(cnt, 1)), np.nan)
+        self._sol = sol
         return self._result(rec, sol, names, sigma, v0, held, M)
+
+    def predicted(self, rec) -> tuple:
+        """After :meth:`fit` on ``rec``: ``(tau_model, friction_model)``, each (T, n), the
+        torque the fitted model predicts (eq. of the module docstring) and its per-joint
+        friction part ``f_j(qd_j)`` (coupled motors' friction stays in ``tau_model``)."""
+        rec = without_unlogged(rec)
+        A, names, F, M, _, sigma, self._dropped = self._prepared(rec)
+        s = self._sol
+        pred = self._predict(rec, A, F, s)
+        if self.model in LINEAR_MODELS:
+            fric = np.einsum("tjp,p->tj", F, s["bf"])
+        else:
+            fric = np.column_stack([f.model.torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)
+                                    if f is not None else np.zeros(rec.t.size)
+                                    for j, f in enumerate(s["ff"])])
+        return pred, fric
 
     def _predict(self, rec, A, F, s):
         pred = np.einsum("tjp,p->tj", A, s["b"])
