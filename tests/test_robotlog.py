@@ -164,3 +164,24 @@ def test_files_from_a_megabyte_on_stream(tmp_path, monkeypatch):
 
     monkeypatch.setattr(rl, "_read_careful", refuse)
     _same(read_robot_log(p), slow)
+
+
+def test_streaming_reader_grows_past_a_short_row_estimate(tmp_path, monkeypatch):
+    """Long lines at both ends of the file and short ones in between: the row count estimated
+    from the ends is too small, the reader grows its arrays and still reads every row."""
+    monkeypatch.setattr(rl, "_CHUNK", 256)
+    monkeypatch.setattr(rl, "_TAIL", 256)
+    T = 2000
+    t = np.arange(T) * 1e-3
+    q = np.sin(np.arange(T) * 0.01)
+    rows = [f"{tt:.17g},{x:.17g},{-x:.17g}" if (k < 50 or k >= T - 50) else f"{tt:.3f},{x:.1f},{-x:.1f}"
+            for k, (tt, x) in enumerate(zip(t, q))]
+    p = tmp_path / "log.csv"
+    p.write_text("time,qm_1,tau_1\n" + "\n".join(rows) + "\n")
+    with open(p, "rb") as fh:
+        head = fh.read(rl._CHUNK)
+        start = head.find(b"\n") + 1
+        assert rl._row_capacity(fh, head[start:], start) < T          # the estimate falls short
+    fast = rl._read_fast(p, None)
+    assert fast is not None and fast.time.size == T
+    _same(fast, rl._read_careful(p, None))

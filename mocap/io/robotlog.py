@@ -1,6 +1,7 @@
 """Robot controller logs (FORMAT.md, "Robot log (.csv)")."""
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -334,6 +335,7 @@ def _check_values(data: np.ndarray, header: list[str], path: Path, line_no: np.n
 #: any case); every other cell must be a number pyarrow's float parser takes whole
 _NAN_SPELLINGS = ["", "nan", "naN", "nAn", "nAN", "Nan", "NaN", "NAn", "NAN"]
 _CHUNK = 1 << 24
+_TAIL = 1 << 20          # bytes at the end of a file whose mean line length bounds the row count
 #: files from this size on stream through :func:`_read_fast`
 STREAM_MIN_BYTES = 1 << 20
 
@@ -355,6 +357,28 @@ def _count_rows(fh, first: bytes) -> int | None:
     return n_lf + (0 if last in (b"\n", b"") else 1)
 
 
+def _row_capacity(fh, body: bytes, start: int) -> int | None:
+    """The number of rows to allocate for the lines below the header (``start``: the header's
+    end in bytes; ``body``: the bytes read past it). Exact when ``body`` holds the whole file or
+    the file has carriage returns (:func:`_count_rows`); otherwise an upper estimate from the
+    shortest mean line length of the first block and of the last MiB, so that the file is read
+    once, not counted first (the streaming reader grows its arrays in the rare file whose lines
+    are shorter in between). None: no row."""
+    size = os.fstat(fh.fileno()).st_size
+    if start + len(body) >= size or b"\r" in body:
+        return _count_rows(fh, body)
+    fh.seek(max(start + len(body), size - _TAIL))
+    tail = fh.read()
+    if b"\r" in tail:
+        fh.seek(start + len(body))
+        return _count_rows(fh, body)
+    tail = tail[tail.find(b"\n") + 1:]
+    lens = [len(b[:b.rfind(b"\n") + 1]) / b.count(b"\n") for b in (body, tail) if b.count(b"\n")]
+    if not lens:
+        return None
+    return int((size - start) / min(lens) * 1.01) + 64
+
+
 def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
     """The streaming reader: the log read block by block by pyarrow's CSV reader straight into
     the float64 arrays of the :class:`RobotLog` (no text copy of the file, no per-cell Python
@@ -370,8 +394,8 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
         return None
     with open(path, "rb") as fh:
         head = fh.read(_CHUNK)
-        if head.startswith(b"\xef\xbb\xbf"):
-            head = head[3:]
+        bom = 3 if head.startswith(b"\xef\xbb\xbf") else 0
+        head = head[bom:]
         cut = head.find(b"\n")
         if cut < 0:
             return None
@@ -390,7 +414,7 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
             check_header(header, path, n_joints)
         except InputError:
             return None
-        T = _count_rows(fh, head[cut + 1:])
+        T = _row_capacity(fh, head[cut + 1:], bom + cut + 1)
     if not T:
         return None
     joint_cols = [(h, m) for h in header for m in [_QM.match(h) or _TAU.match(h)] if m]
@@ -399,25 +423,31 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
         n_joints = n_found
     elif n_found > n_joints:
         return None
-    time = np.empty(T)
-    qm, tau = np.empty((T, n_joints)), np.empty((T, n_joints))
-    extra, dest = {}, []
-    for h in header:
-        m_q, m_t = _QM.match(h), _TAU.match(h)
-        if h == "time":
-            dest.append(time)
-        elif m_q:
-            dest.append(qm[:, int(m_q.group(1)) - 1])
-        elif m_t:
-            dest.append(tau[:, int(m_t.group(1)) - 1])
-        else:
-            extra[h] = np.empty(T)
-            dest.append(extra[h])
-    for X, p in ((qm, _QM), (tau, _TAU)):
-        have = {int(m.group(1)) for h in header for m in [p.match(h)] if m}
-        for j in range(n_joints):
-            if j + 1 not in have:
-                X[:, j] = np.nan
+    def alloc(cap):
+        """The arrays of ``cap`` rows and, per file column, the array (or column view) it fills."""
+        time = np.empty(cap)
+        qm, tau = np.empty((cap, n_joints)), np.empty((cap, n_joints))
+        extra, dest = {}, []
+        for h in header:
+            m_q, m_t = _QM.match(h), _TAU.match(h)
+            if h == "time":
+                dest.append(time)
+            elif m_q:
+                dest.append(qm[:, int(m_q.group(1)) - 1])
+            elif m_t:
+                dest.append(tau[:, int(m_t.group(1)) - 1])
+            else:
+                extra[h] = np.empty(cap)
+                dest.append(extra[h])
+        for X, p in ((qm, _QM), (tau, _TAU)):
+            have = {int(m.group(1)) for h in header for m in [p.match(h)] if m}
+            for j in range(n_joints):
+                if j + 1 not in have:
+                    X[:, j] = np.nan
+        return time, qm, tau, extra, dest
+
+    cap = T
+    time, qm, tau, extra, dest = alloc(cap)
     names = [f"c{k}" for k in range(len(header))]
     kind = [0 if h == "time" else 1 if _CANONICAL.match(h) else 2 for h in header]
     pool = pa.system_memory_pool()                      # gives freed blocks back at once
@@ -433,8 +463,14 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
         pos = 0
         for batch in reader:
             n = batch.num_rows
-            if pos + n > T:
-                return None
+            if pos + n > cap:                       # lines shorter than the estimate's: grow
+                cap = max(int(cap * 1.25), pos + n)
+                old = (time, qm, tau, extra)
+                time, qm, tau, extra, dest = alloc(cap)
+                time[:pos], qm[:pos], tau[:pos] = old[0][:pos], old[1][:pos], old[2][:pos]
+                for h in extra:
+                    extra[h][:pos] = old[3][h][:pos]
+                del old
             for k, col in enumerate(batch.columns):
                 c = col.to_numpy(zero_copy_only=False)
                 if kind[k] == 0 and not (np.isfinite(c).all() and (pos == 0 or c[0] > time[pos - 1])
@@ -449,9 +485,10 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
         return None                                     # a cell that is no number, a row's width
     finally:
         pool.release_unused()
-    if pos != T:
+    if pos == 0:
         return None
-    return RobotLog(time, qm, tau, extra, path, range(2, T + 2))
+    return RobotLog(time[:pos], qm[:pos], tau[:pos], {h: v[:pos] for h, v in extra.items()},
+                    path, range(2, pos + 2))
 
 
 def read_robot_log(path: str | Path, n_joints: int | None = None) -> RobotLog:
