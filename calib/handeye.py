@@ -113,9 +113,9 @@ class HandEyeEstimator:
     robust : bool, optional
         Soft-L1 loss at ``3 sigma`` in the refinement; default True.
     min_markers : int, optional
-        Markers a frame needs to enter the Kabsch initialisation; default 3. Stored only:
-        the initialisation applies the Kabsch fit's own minimum of 3 markers per frame
-        (:func:`mocap.kinematics.kabsch_batch`) whatever the value.
+        Markers a frame must share with the reference frame to enter the Kabsch
+        initialisation (at least 3, the Kabsch fit's own minimum,
+        :func:`mocap.kinematics.kabsch_batch`); default 3.
 
     References
     ----------
@@ -130,8 +130,11 @@ class HandEyeEstimator:
     """
 
     def __init__(self, robust: bool = True, min_markers: int = 3):
+        if int(min_markers) < 3:
+            raise InputError(f"hand-eye min_markers must be >= 3 (a rigid pose needs 3 markers), "
+                             f"got {min_markers}")
         self.robust = robust
-        self.min_markers = min_markers
+        self.min_markers = int(min_markers)
 
     def fit(self, chain, link: str, positions, q, labels=None) -> HandEyeResult:
         """Solve ``T_camera_base`` from markers on ``link`` and the joint angles.
@@ -177,7 +180,10 @@ class HandEyeEstimator:
         ref = int(np.argmax(vis.sum(axis=1)))
         w = (vis & vis[ref][None]).astype(float)
         RA, tA = kabsch_batch(np.where(vis[ref][:, None], P[ref], 0.0), P, w)
-        good = np.all(np.isfinite(RA), axis=(1, 2))
+        good = np.all(np.isfinite(RA), axis=(1, 2)) & (w.sum(axis=1) >= self.min_markers)
+        if good.sum() < 2:
+            raise InputError(f"hand-eye: fewer than 2 frames share {self.min_markers} markers on "
+                             f"{link!r} with the best-seen frame")
         C = B @ invert_transform(B[ref])[None]
         a = Rotation.from_matrix(RA[good]).as_rotvec()
         c = Rotation.from_matrix(C[good, :3, :3]).as_rotvec()

@@ -164,6 +164,15 @@ def test_calibrate_sweeps_beats_goals_and_handeye(pa10):
     assert he.rms_mm == pytest.approx(0.85, rel=0.15)
     for lb in sim.markers["link2"]:
         np.testing.assert_allclose(he.p_link[lb], sim.p_link[lb], atol=5e-4)
+    # min_markers: frames sharing fewer markers with the reference frame stay out of the
+    # initialisation; asking more markers than the link carries leaves no frame
+    n_link = len(sim.markers["link2"])
+    he4 = HandEyeEstimator(min_markers=n_link).fit(pa10.chain, "link2", P, Q, sim.markers["link2"])
+    assert pose_errors(he4.T_camera_base, sim.T_camera_base)[0] < 0.5
+    with pytest.raises(InputError, match="share"):
+        HandEyeEstimator(min_markers=n_link + 1).fit(pa10.chain, "link2", P, Q, sim.markers["link2"])
+    with pytest.raises(InputError, match=">= 3"):
+        HandEyeEstimator(min_markers=2)
 
 
 def test_perturbed_robot_offset_axes(pa10_dir, tmp_path):
