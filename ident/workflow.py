@@ -652,7 +652,7 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
         report = {"format": 1, "campaign": campaign.name, "settings": settings.to_dict(), "joints": {},
                   "skipped_trials": [], "link_angles": False}
         series = {}
-    rj, rs = diagnose_records(campaign, robot, settings, joints=joints)
+    rj, rs = diagnose_records(campaign, robot, settings, joints=joints, progress=progress)
     report["joints"].update(rj)
     series.update(rs)
     report["multi_joint_trials"] = list(p.multi_joint)

@@ -446,7 +446,7 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
     n_segments : int, optional
         Held-out folds as this many groups of whole motion cycles; None: one fold per cycle.
     progress : bool, optional
-        Accepted from the CLI; not used (no progress is reported).
+        A progress bar over the joints on stderr (``tqdm``).
 
     Returns
     -------
@@ -486,9 +486,12 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
         warn_input(f"joints {unlogged} ({', '.join(robot.joint_names[j - 1] for j in unlogged)}): "
                    "torque not logged (unlogged_torque); their angles drive the kinematics, they "
                    "are not diagnosed", path=campaign.manifest)
-    for j in moving:
-        if joints and j not in joints:
-            continue
+    todo = [j for j in moving if not joints or j in joints]
+    if progress and todo:
+        from tqdm import tqdm
+
+        todo = tqdm(todo, desc="diagnose", unit="joint", leave=False)
+    for j in todo:
         mine = [(k, g, rec) for k, (g, rec) in enumerate(recs)
                 if j in rec.moving and j not in rec.unlogged]
         if not mine:
