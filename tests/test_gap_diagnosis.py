@@ -249,3 +249,31 @@ def test_ripple_orders_need_half_a_period_of_motion():
     assert min(full["ripple_additive"].grid) == 2.0
     tiny = {c.family: c for c in candidate_effects(None, q_range=0.01)}
     assert tiny["ripple_additive"].grid == ()
+
+
+def test_hardening_spring_deflection_and_its_physical_sign():
+    """The exact deflection of a hardening (Duffing) spring solves s + c s^3 = u; the compliance
+    family's physical check lets a spring softer than declared at zero load grow stiffer than
+    declared at high load only while the whole deflection keeps its slope's sign."""
+    from types import SimpleNamespace
+
+    from ident.gap.candidates import FAMILIES, hardening_deflection
+
+    u = np.linspace(-5.0, 5.0, 201)
+    for c in (0.25, 1.0, 16.0):
+        s = hardening_deflection(u, c)
+        np.testing.assert_allclose(s + c * s ** 3, u, atol=1e-9)
+        np.testing.assert_allclose(s, -s[::-1], atol=1e-12)                    # odd
+    assert (hardening_deflection(1e-6, 16.0) / 1e-6) == pytest.approx(1.0, rel=1e-6)   # slope 1 at 0
+    assert hardening_deflection(1e6, 4.0) == pytest.approx((1e6 / 4.0) ** (1 / 3), rel=1e-3)
+    phys = FAMILIES["compliance"].physical
+    K, k1 = 1.6e5, 2.0e4                   # declared spring; the real one is 8x softer at zero load
+    flexible, rigid = SimpleNamespace(stiffness=K), SimpleNamespace(stiffness=0.0)
+    hp = ("rigid", "hardening", 64.0)     # strong hardening: slope 0.09 of the zero-load one at T
+    # the exact model of tau = k1 x + k3 x^3 beside the declared spring: extra = tau/K - x(tau)
+    exact = np.array([1.0 / K, -1.0 / k1])
+    assert phys(hp, exact, flexible)
+    assert not phys(hp, exact, rigid)          # without the declared spring it would turn back
+    assert not phys(hp, np.array([0.0, 1.0 / k1]), flexible)         # stiffer than declared at 0
+    assert phys(("rigid", "linear"), np.array([-1.0 / k1]), rigid)
+    assert not phys(("rigid", "linear"), np.array([1.0 / k1]), rigid)

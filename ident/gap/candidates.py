@@ -72,7 +72,7 @@ class Candidate:
     columns: Callable                  # (data view, hp) -> (N, k)
     describe: Callable = lambda hp: ""  # noqa: E731
     family: str = ""
-    physical: Callable = lambda hp, theta: True  # noqa: E731  (hp, amplitudes) -> sign is physical
+    physical: Callable = lambda hp, theta, d: True  # noqa: E731  (hp, amplitudes, data) -> physical
     coulomb: tuple = ()                # columns that are Coulomb-level terms: sgn(qd) x a level factor
     viscous: tuple = ()                # columns that are viscous terms: (a function of) qd x a level factor
 
@@ -93,11 +93,17 @@ class Family:
 
 def _pos(k=0):
     """Physical when amplitude ``k`` is positive."""
-    return lambda hp, th: th.shape[0] > k and th[k] > 0
+    return lambda hp, th, d: th.shape[0] > k and th[k] > 0
 
 
 def _neg(k=0):
-    return lambda hp, th: th.shape[0] > k and th[k] < 0
+    """Physical when amplitude ``k`` is negative."""
+    return lambda hp, th, d: th.shape[0] > k and th[k] < 0
+
+
+def _any_sign(hp, th, d) -> bool:
+    """Every amplitude is physical (the effect has no sign of its own)."""
+    return True
 
 
 def _vref(d):
@@ -160,11 +166,14 @@ def _elastoplastic(d, hp):
                             elastoplastic_sign(d.q, d.qd, d.trial, 4 * hp) - _sg(d)])
 
 
-def _presliding_sum_pos(hp, th):
+def _presliding_sum_pos(hp, th, d):
+    """A bristle's presliding friction opposes the motion: a positive amplitude."""
     return th.shape[0] > 0 and th[0] > 0
 
 
-def _maxwell_pos(hp, th):
+def _maxwell_pos(hp, th, d):
+    """Elasto-plastic elements oppose the motion: a positive total, neither element much
+    negative."""
     return th.shape[0] > 1 and th[0] + th[1] > 0 and min(th[0], th[1]) > -0.25 * (abs(th[0]) + abs(th[1]))
 
 
@@ -236,7 +245,7 @@ def _thermal(d, hp):
     return np.column_stack([_sg(d) * w, d.qd * w])
 
 
-def _thermal_physical(hp, th):
+def _thermal_physical(hp, th, d):
     """Friction falls as the joint warms: the cold excess of the Coulomb (or, if that is nil,
     the viscous) level is positive."""
     return th.shape[0] > 1 and (th[0] > 0 or (abs(th[0]) < 0.1 * abs(th[1]) and th[1] > 0))
@@ -294,25 +303,54 @@ def _torque_m(d, src):
     return d.tau_m if src == "rigid" else d.y_m
 
 
+def hardening_deflection(u, c: float) -> np.ndarray:
+    r"""The deflection ``s`` of a hardening (Duffing) spring under the normalised torque ``u``:
+    the real root of :math:`s + c s^3 = u` (Cardano), odd in ``u``, slope 1 at zero load and
+    :math:`(u / c)^{1/3}` at high load; ``c`` is the cubic stiffness over the linear one at the
+    reference torque, :math:`k_3 T^2 / k_1^3` for :math:`\tau = k_1 x + k_3 x^3`."""
+    u = np.asarray(u, float)
+    h = 0.5 * u / c
+    r = np.sqrt(h * h + (1.0 / (3.0 * c)) ** 3)
+    return np.cbrt(h + r) + np.cbrt(h - r)
+
+
+#: cubic-over-linear stiffness ratios of the hardening springs tried (k3 T^2 / k1^3)
+_HARDENING_C = (0.25, 1.0, 4.0)
+
+
 def _compliance(d, hp):
     """Deflection beyond the declared stiffness, growing with the transmitted torque: linear (a
-    softer spring) or hardening (a finite stiffness at zero load that grows with the deflection:
-    the deflection's cubic term in the torque bends it back at high load)."""
-    src, kind = hp
+    softer spring) or hardening (a finite stiffness at zero load that grows with the deflection):
+    the deflection's cubic term in the torque (``"hardening"``, a mild hardening), or the exact
+    deflection of a hardening spring ``tau = k1 x + k3 x^3`` (:func:`hardening_deflection`,
+    ``("hardening", c)``), each beside a linear column (the declared stiffness's error)."""
+    src, kind = hp[:2]
     tau = _torque_m(d, src)
     if kind == "linear":
         return tau[:, None]
     T = _tref(tau)
+    if len(hp) > 2:
+        return np.column_stack([tau, T * hardening_deflection(tau / T, hp[2])])
     return np.column_stack([tau, tau * (tau / T) ** 2])
 
 
-def _compliance_physical(hp, th):
-    """A softer joint lags more: q_link - q_motor = -tau / K, the extra compliance at zero load
-    (the linear coefficient) is negative; a hardening spring's cubic term may not make the
-    deflection turn back within the torque range (the deflection stays monotone up to 95 % of it)."""
-    if th.shape[0] == 0 or th[0] >= 0:
+def _compliance_physical(hp, th, d):
+    """A softer joint lags more: q_link - q_motor = -tau / K, so the extra deflection's slope at
+    zero load (the extra compliance) is negative; and the whole deflection, the declared
+    spring's ``-tau / K`` (``d.stiffness``; none for a rigid joint) plus the extra, may not turn
+    back within the torque range: its slope keeps its sign up to 95 % of the torque (a
+    hardening spring, softer than declared at zero load, may be stiffer at high load)."""
+    if th.shape[0] == 0:
         return False
-    return th.shape[0] < 2 or th[0] + 3.0 * th[1] < 0
+    k = float(d.stiffness)
+    declared = 1.0 / k if k > 0 else 0.0
+    if len(hp) > 2:
+        s1 = hardening_deflection(1.0, hp[2])
+        slope_T = 1.0 / (1.0 + 3.0 * hp[2] * s1 * s1)          # ds/du at u = 1
+        return th[0] + th[1] < 0 and th[0] + th[1] * slope_T < declared
+    if th[0] >= 0:
+        return False
+    return th.shape[0] < 2 or th[0] + 3.0 * th[1] < declared
 
 
 def _backlash(d, hp):
@@ -357,10 +395,10 @@ FAMILIES = {
                            lambda hp: f"elasto-plastic (Maxwell-slip) elements, break-away {hp:.2e} and "
                                       f"{4 * hp:.2e} rad", _maxwell_pos),
     "ripple_additive": Family("torque", _ripple_grid, _ripple, lambda hp: f"additive ripple, {hp:g} cycles per joint revolution (and its 2nd harmonic)",
-                        lambda hp, th: True),
+                        _any_sign),
     "ripple_modulation": Family("torque", _ripple_grid, _modulation,
                           lambda hp: f"friction level modulated {hp:g} times per joint revolution",
-                          lambda hp, th: True),
+                          _any_sign),
     "load_transmitted": Family("torque", lambda g: tuple((src, sat) for src in ("rigid", "gravity") for sat in (0, 0.5, 1.5)),
                          _load, lambda hp: f"Coulomb level growing with |{'gravity' if hp[0] == 'gravity' else 'transmitted'}"
                                            f" torque|" + (f", saturating at {hp[1]:g} x its 95th percentile" if hp[1] else ""),
@@ -371,14 +409,16 @@ FAMILIES = {
                             else f"heating by {hp[0]}, time constant {hp[1]:.0f} s"), _thermal_physical),
     "torque_gain": Family("torque", lambda g: ("gain", "efficiency"), _scale,
                     lambda hp: "torque proportional to rigid-body torque" if hp == "gain"
-                    else "direction-dependent efficiency (motoring / back-driven)", lambda hp, th: True),
+                    else "direction-dependent efficiency (motoring / back-driven)", _any_sign),
     "asymmetry": Family("torque", lambda g: (None,), _asym, lambda hp: "direction-dependent Coulomb and viscous",
-                  lambda hp, th: True),
+                  _any_sign),
     "nonlinear_viscous": Family("torque", lambda g: _NLV_GRID, _nlv,
                           lambda hp: f"viscous term |qd|^{hp[1]:g}" if hp[0] == "power"
-                          else f"saturating viscous, knee {hp[1]:g} vmax", lambda hp, th: True),
-    "compliance": Family("transmission", lambda g: tuple((src, k) for src in ("rigid", "motor") for k in ("linear", "hardening")),
-                   _compliance, lambda hp: f"{hp[1]} deflection with the {'transmitted' if hp[0] == 'rigid' else 'motor'} torque",
+                          else f"saturating viscous, knee {hp[1]:g} vmax", _any_sign),
+    "compliance": Family("transmission", lambda g: tuple((src, k) for src in ("rigid", "motor") for k in ("linear", "hardening"))
+                   + tuple((src, "hardening", c) for src in ("rigid", "motor") for c in _HARDENING_C),
+                   _compliance, lambda hp: (f"{hp[1]} deflection with the {'transmitted' if hp[0] == 'rigid' else 'motor'} torque"
+                                            + (f" (spring k3 T^2 / k1^3 = {hp[2]:g})" if len(hp) > 2 else "")),
                    _compliance_physical),
     "backlash": Family("transmission", lambda g: _BACKLASH_GRID, _backlash,
                  lambda hp: (f"smooth contact, deflection ~ |transmitted torque|^{hp[2]:.2g}" if hp[0] == "contact" else
@@ -386,7 +426,7 @@ FAMILIES = {
                  _neg()),
     "time_offset": Family("transmission", lambda g: ("offset", "skew"), _time_offset,
                     lambda hp: "marker clock shifted: q_link(t) = q(t + dt)" if hp == "offset"
-                    else "marker clock shifted and running at another rate", lambda hp, th: True),
+                    else "marker clock shifted and running at another rate", _any_sign),
 }
 
 

@@ -479,7 +479,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 continue
             cvr, _ = _cv(ch, X, fold, gb, guard=design.guard)
             cand, hp = cvr.hp_all
-            physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all][1])))
+            physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all][1]), d))
             composed = cols[cvr.hp_all][1].shape[0] > cache.get(cand, d, ch, hp).shape[1]
             dloss = current_sse - cvr.sse
             if design.mode == "cycles":
