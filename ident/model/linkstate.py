@@ -223,11 +223,20 @@ class LinkStateEstimator:
         self.rest_frac = REST_FRAC
 
     @staticmethod
-    def _eq24_rss(q, qd, qdd, y, keep):
-        """(RSS, coefficients) of the Coulomb + viscous regression of eq. 2-4 on ``keep``."""
-        X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])[keep]
-        b, *_ = np.linalg.lstsq(X, y[keep], rcond=None)
-        r = y[keep] - X @ b
+    def _eq24_rss(q, qd, qdd, y, keep, coef: bool = True):
+        """(RSS, coefficients) of the Coulomb + viscous regression of eq. 2-4 on ``keep``.
+        ``coef=False``: the RSS alone (coefficients None), from the triangular factor of the
+        design with ``y`` appended (its last diagonal entry is the residual norm), unless the
+        design is near rank deficient (then the minimum-norm least-squares solve)."""
+        X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd), y[:, None]])[keep]
+        p = X.shape[1] - 1
+        if not coef and X.shape[0] > p:
+            R = np.linalg.qr(X, mode="r")
+            d = np.abs(np.diag(R)[:p])
+            if d.min() > 1e-10 * d.max():
+                return float(R[p, p] ** 2), None
+        b, *_ = np.linalg.lstsq(X[:, :p], X[:, p], rcond=None)
+        r = X[:, p] - X[:, :p] @ b
         return float(r @ r), b
 
     def _encoder_candidates(self, t, motor_fit: SmoothFit, qm_samples=None) -> list:
@@ -284,9 +293,9 @@ class LinkStateEstimator:
             return SavGolSmoother("auto").fit(t, -y / K), "link", 0
 
         def rss_of(q, qd, qdd):
-            return self._eq24_rss(q, qd, qdd, y, keep)
+            return self._eq24_rss(q, qd, qdd, y, keep, coef=False)
 
-        rss0, b0 = rss_of(qm, qmd, qmdd)
+        rss0, b0 = self._eq24_rss(qm, qmd, qmdd, y, keep)
         eps = self.rest_frac * peak
         f_motor = laws.coulomb_viscous(qmd, b0[3], b0[4], sign=lambda v: laws.smooth_sign(v, eps))
         sides = {"link": y, "motor": y - f_motor}
@@ -455,7 +464,8 @@ class LinkStateEstimator:
             alt = 0.0 if none_fit is not None else 1.0      # the dynamics' own choice
             d1 = qm + parts[0] - (gain - alt) * dn[0], qmd + parts[1] - (gain - alt) * dn[1], \
                 qmdd + parts[2] - (gain - alt) * dn[2]
-            refit = self._eq24_rss(*d1, yy, keep)[0] <= self._eq24_rss(q, qd, qdd, yy, keep)[0]
+            refit = (self._eq24_rss(*d1, yy, keep, coef=False)[0]
+                     <= self._eq24_rss(q, qd, qdd, yy, keep, coef=False)[0])
         if refit and none_fit is not None:
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
                 time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None))
