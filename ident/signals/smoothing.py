@@ -42,7 +42,7 @@ from mocap.io.errors import InputError
 
 from ident.friction.constants import REST_FRAC
 from ident.signals.blas import one_blas_thread  # noqa: F401  (re-exported)
-from ident.signals.fourier import FourierSeries, design_matrix
+from ident.signals.fourier import FourierSeries, design_matrices
 
 __all__ = ["savgol_window", "differentiate", "SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundamental",
            "select_harmonics", "estimate_time_offset", "JointSignals",
@@ -392,8 +392,9 @@ def _ordered_design_T(t, wf, n, extra=None):
         np.multiply(E[k - 1], e, out=E[k])
     XT = np.empty((2 * n + 1 + (extra is not None), t.size))
     XT[0] = 1.0
-    XT[1:2 * n + 1:2] = E.imag / wl[:, None]
-    XT[2:2 * n + 1:2] = -E.real / wl[:, None]
+    np.divide(E.imag, wl[:, None], out=XT[1:2 * n + 1:2])
+    np.divide(E.real, wl[:, None], out=XT[2:2 * n + 1:2])
+    np.negative(XT[2:2 * n + 1:2], out=XT[2:2 * n + 1:2])
     if extra is not None:
         XT[-1] = extra
     return XT
@@ -557,16 +558,17 @@ class FourierSmoother:
         t, q = _clean(t, q)
         wf = float(self.wf) if self.wf else estimate_fundamental(t, q, self.max_harmonics)
         n = int(self.n_harmonics) if self.n_harmonics else select_harmonics(t, q, wf, self.max_harmonics)[0]
-        X = design_matrix(t, wf, n)
-        coef, *_ = np.linalg.lstsq(X, q, rcond=None)
+        X, D1, D2 = design_matrices(t, wf, n)
+        coef, _, _, sv = np.linalg.lstsq(X, q, rcond=None)
         r = q - X @ coef
         series = FourierSeries(coef[1:1 + n], coef[1 + n:], wf, float(coef[0]))
         sigma = float(np.sqrt(r @ r / max(t.size - X.shape[1], 1)))
         C = np.linalg.pinv(X.T @ X)
-        D1, D2 = (design_matrix(t, wf, n, k) for k in (1, 2))
         sd = [sigma * np.sqrt(np.mean(np.sum((D @ C) * D, axis=1))) for D in (D1, D2)]
+        # condition number: the singular values the least-squares solve computed
+        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
         return SmoothFit("fourier", float(np.sqrt(np.mean(r ** 2))), float(np.max(np.abs(r))),
-                         int(t.size), float(t[0]), float(t[-1]), series, float(np.linalg.cond(X)),
+                         int(t.size), float(t[0]), float(t[-1]), series, cond,
                          sigma=sigma, qd_noise=float(sd[0]), qdd_noise=float(sd[1]),
                          bandwidth_hz=float(wf * n / (2 * np.pi)))
 
