@@ -101,6 +101,33 @@ def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
                      bandwidth_hz=f.bandwidth_hz)
 
 
+def _ordered_projections(X, y) -> np.ndarray:
+    """Squared components of ``y`` along the columns of ``X`` orthogonalised in order (the last
+    column of the triangular factor ``R`` of ``[X, y]``, squared); 0 for a column that adds no
+    direction (``|R_jj|`` under 1e-10 of the largest). ``R`` comes from the Cholesky factor of
+    the Gram matrix of the unit-scaled columns (a fraction of a QR's work for the slow cosine
+    series here, whose columns are near orthogonal); a QR of ``[X, y]`` when a column is near
+    dependent on the earlier ones (scaled pivot under 1e-4 of the largest, where the Gram
+    matrix would lose the digits the projections need) or drops out."""
+    p = X.shape[1]
+    Xa = np.column_stack([X, y])
+    nrm = np.sqrt(np.einsum("ij,ij->j", Xa, Xa))
+    if np.all(nrm > 0) and np.all(np.isfinite(nrm)):
+        Xs = Xa / nrm
+        try:
+            L = np.linalg.cholesky(Xs.T @ Xs)
+        except np.linalg.LinAlgError:
+            L = None
+        if L is not None:
+            ds = np.abs(np.diag(L)[:p])
+            d = ds * nrm[:p]                       # the diagonal of the unscaled factor
+            if ds.min() > 1e-4 * ds.max() and d.min() > 1e-10 * d.max():
+                return (L[p, :p] * nrm[p]) ** 2
+    R = np.linalg.qr(Xa, mode="r")
+    d = np.abs(np.diag(R)[:p])
+    return np.where(d > 1e-10 * d.max(), R[:p, p] ** 2, 0.0)
+
+
 @dataclass(frozen=True, eq=False)
 class DeflectionFit:
     """``delta(t) = offset + gain delta_nom(t) + sum_m c_m cos(pi m (t - t0) / D)``."""
@@ -398,14 +425,9 @@ class LinkStateEstimator:
         fixed = [np.ones_like(tm)] + ([dn_m] if use_gain else [])
         target = d_meas - (0.0 if use_gain else dn_m)
         X = np.column_stack(fixed + [_cosine_basis(tm, t0, D, cands[-1])])
-        # all candidate sizes from one QR (columns ordered by frequency) of the design with the
-        # target appended: the last column of R is Q^T target (Q is never formed)
-        p = X.shape[1]
-        R = np.linalg.qr(np.column_stack([X, target]), mode="r")
-        proj = R[:p, p] ** 2
-        ok_cols = np.abs(np.diag(R)[:p]) > 1e-10 * np.max(np.abs(np.diag(R)[:p]))
-        proj = np.where(ok_cols, proj, 0.0)
-        cum = np.cumsum(proj)
+        # all candidate sizes from one triangular factor (columns ordered by frequency) of the
+        # design with the target appended: its last column is Q^T target
+        cum = np.cumsum(_ordered_projections(X, target))
         total = float(target @ target)
         nf = len(fixed)
         n = tm.size
