@@ -427,8 +427,8 @@ def _bic(rss, n, k):
     return n * np.log(rss / n) + k * np.log(n)
 
 
-def _max_harmonics(t, wf, cap):
-    dt = float(np.median(np.diff(t)))
+def _max_harmonics(t, wf, cap, dt=None):
+    dt = float(np.median(np.diff(t))) if dt is None else dt
     nyq = np.pi / dt
     n_samples_cap = (t.size - 2) // 4
     return int(max(1, min(cap, np.floor(0.8 * nyq / wf), n_samples_cap)))
@@ -444,8 +444,8 @@ def select_harmonics(t, q, wf: float, max_harmonics: int = 20) -> tuple[int, flo
     return int(n[k]), float(rss[k])
 
 
-def _best_bic(t, q, wf, max_harmonics):
-    nmax = _max_harmonics(t, wf, max_harmonics)
+def _best_bic(t, q, wf, max_harmonics, dt=None):
+    nmax = _max_harmonics(t, wf, max_harmonics, dt)
     rss = _rss_by_harmonics(t, q, wf, nmax)
     b = _bic(rss, t.size, 2 * np.arange(1, nmax + 1) + 1)
     k = int(np.argmin(b))
@@ -483,16 +483,25 @@ def _estimate_fundamental(t, q, max_harmonics, max_periods, max_samples, n_refin
     ts, qs = t[::stride], q[::stride]
     cands = {2 * np.pi * k / D for k in range(1, max_periods + 1)}
     cands |= {w_peak / h for h in range(1, 7) if w_peak / h >= 2 * np.pi / D}
-    scored = sorted((_best_bic(ts, qs, w, max_harmonics)[0], w) for w in cands)
+    dt_s = float(np.median(np.diff(ts)))
+    memo: dict = {}
+
+    def bic(w):
+        """The best BIC at ``w`` (remembered: a refinement grid holds its own centre)."""
+        w = float(w)
+        if w not in memo:
+            memo[w] = _best_bic(ts, qs, w, max_harmonics, dt_s)[0]
+        return memo[w]
+
+    scored = sorted((bic(w), w) for w in cands)
     half_bin = np.pi / D
     best = None
     for _, w0 in scored[:n_refine]:
         grid = np.linspace(max(w0 - half_bin, 0.95 * 2 * np.pi / D), w0 + half_bin, 9)
-        vals = np.array([_best_bic(ts, qs, w, max_harmonics)[0] for w in grid])
+        vals = np.array([bic(w) for w in grid])
         k = int(np.argmin(vals))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
-        res = minimize_scalar(lambda w: _best_bic(ts, qs, w, max_harmonics)[0], bounds=(lo, hi),
-                              method="bounded", options={"xatol": 1e-6 * w0})
+        res = minimize_scalar(bic, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6 * w0})
         cand = (float(res.fun), float(res.x)) if res.fun <= vals[k] else (float(vals[k]), float(grid[k]))
         if best is None or cand[0] < best[0]:
             best = cand
