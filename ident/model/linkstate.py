@@ -353,7 +353,8 @@ class LinkStateEstimator:
         return best[1], best[2], best[3]
 
     def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
-            stiffness: float | None = None, _nominal=None, qm_samples=None) -> LinkState:
+            stiffness: float | None = None, _nominal=None, qm_samples=None,
+            _motor=None) -> LinkState:
         """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
         ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
         ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
@@ -361,9 +362,9 @@ class LinkStateEstimator:
         ``qm_samples``: the raw encoder angle on ``time`` (optional): with ``y`` and
         ``stiffness`` the encoder is re-smoothed at the window that, with the deflection's,
         best explains eq. 2-4 (:meth:`_encoder_candidates`); the state's ``motor_fit`` is the
-        smoothing used."""
+        smoothing used. ``_motor``: ``motor_fit.evaluate(time)`` when the caller has it."""
         t = np.asarray(time, float)
-        qm, qmd, qmdd = motor_fit.evaluate(t)
+        qm, qmd, qmdd = motor_fit.evaluate(t) if _motor is None else _motor
         mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
 
         def nominal_and_encoder():
@@ -490,11 +491,13 @@ class LinkStateEstimator:
                      <= self._eq24_rss(q, qd, qdd, yy, keep, coef=False)[0])
         if refit and none_fit is not None:
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
-                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None))
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None),
+                _motor=(qm, qmd, qmdd))
         if refit:
             # the markers do not tell the gain from the declared stiffness's: keep K as declared
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
-                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side))
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side),
+                _motor=(qm, qmd, qmdd))
         return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal,
                          side)
 
@@ -622,6 +625,7 @@ def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, dr
         y = tau[keep] - J * qmdd - B * qmd
         K = K if np.isfinite(K) and K > 0 else None
     est = estimator if estimator is not None else LinkStateEstimator()
-    st = est.fit(t, fm, ta, ql, y if K is not None else None, K, qm_samples=qm[keep])
+    st = est.fit(t, fm, ta, ql, y if K is not None else None, K, qm_samples=qm[keep],
+                 _motor=(qms, qmd, qmdd))
     return JointSignals(joint, t, st.q, st.qd, st.qdd, qms, qmd, qmdd, tau[keep], st.as_smooth_fit(), fm,
                         "mocap" if ql is not None else "motor", offset, st.to_dict())
