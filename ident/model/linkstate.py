@@ -255,7 +255,8 @@ class LinkStateEstimator:
         ``coef=False``: the RSS alone (coefficients None), from the triangular factor of the
         design with ``y`` appended (its last diagonal entry is the residual norm), unless the
         design is near rank deficient (then the minimum-norm least-squares solve)."""
-        X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd), y[:, None]])[keep]
+        X = np.hstack([onelink_regressor(q[keep], qdd[keep]), CoulombViscous.regressor(qd[keep]),
+                       y[keep][:, None]])
         p = X.shape[1] - 1
         if not coef and X.shape[0] > p:
             R = np.linalg.qr(X, mode="r")
