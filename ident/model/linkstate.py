@@ -255,14 +255,21 @@ class LinkStateEstimator:
         ``coef=False``: the RSS alone (coefficients None), from the triangular factor of the
         design with ``y`` appended (its last diagonal entry is the residual norm), unless the
         design is near rank deficient (then the minimum-norm least-squares solve)."""
-        X = np.hstack([onelink_regressor(q[keep], qdd[keep]), CoulombViscous.regressor(qd[keep]),
-                       y[keep][:, None]])
-        p = X.shape[1] - 1
-        if not coef and X.shape[0] > p:
-            R = np.linalg.qr(X, mode="r")
+        p = 5
+        qk = q[keep]
+        if not coef and qk.size > p:
+            XT = np.empty((p + 1, qk.size))     # the rows of [qdd, -sin q, cos q, sign qd, qd, y]
+            XT[0] = qdd[keep]
+            np.negative(np.sin(qk), out=XT[1])
+            np.cos(qk, out=XT[2])
+            XT[3:5] = CoulombViscous.regressor(qd[keep]).T
+            XT[5] = y[keep]
+            R = np.linalg.qr(XT.T, mode="r")
             d = np.abs(np.diag(R)[:p])
             if d.min() > 1e-10 * d.max():
                 return float(R[p, p] ** 2), None
+        X = np.hstack([onelink_regressor(qk, qdd[keep]), CoulombViscous.regressor(qd[keep]),
+                       y[keep][:, None]])
         b, *_ = np.linalg.lstsq(X[:, :p], X[:, p], rcond=None)
         r = X[:, p] - X[:, :p] @ b
         return float(r @ r), b
@@ -331,7 +338,7 @@ class LinkStateEstimator:
         for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
                 sm = _crossfit_smooth(t, -ts / K, float(w))
-                d0, d1, d2 = sm.evaluate(t)
+                d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
                 if rss < best[0]:
                     best = (rss, sm, side, 0)
@@ -342,7 +349,7 @@ class LinkStateEstimator:
                 best = (rss, None, None, k)
             for side, ts in sides.items():
                 sm = _crossfit_smooth(t, -ts / K, float(enc.window_s))
-                d0, d1, d2 = sm.evaluate(t)
+                d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(em + d0, emd + d1, emdd + d2)
                 if rss < best[0]:
                     best = (rss, sm, side, k)
