@@ -63,11 +63,24 @@ def _clean(t, q):
     return t[ok], q[ok]
 
 
+_GRIDS: dict = {}      # sample times (bytes) -> (uniform grid, interval): a few recent ones
+
+
 def _uniform(t, q):
-    """Resample onto a uniform grid at the median interval (linear interpolation over gaps)."""
-    dt = float(np.median(np.diff(t)))
-    n = int(np.floor((t[-1] - t[0]) / dt)) + 1
-    tu = t[0] + dt * np.arange(n)
+    """Resample onto a uniform grid at the median interval (linear interpolation over gaps).
+    The grid of the last few time bases is remembered (a search smooths many signals, or one
+    signal at many windows, on the same samples)."""
+    key = t.tobytes()
+    hit = _GRIDS.get(key)
+    if hit is None:
+        dt = float(np.median(np.diff(t)))
+        n = int(np.floor((t[-1] - t[0]) / dt)) + 1
+        hit = (t[0] + dt * np.arange(n), dt)
+        hit[0].setflags(write=False)
+        if len(_GRIDS) >= 8:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[key] = hit
+    tu, dt = hit
     return tu, np.interp(tu, t, q), dt
 
 
