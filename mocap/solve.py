@@ -780,15 +780,18 @@ class AnglesResult:
         if path.exists() and not overwrite:
             raise FileExistsError(f"{path} exists; refusing to overwrite")
         names = ["time"] + [f"q_{j}" for j in self.joints] + ["rms_mm", "n_markers"]
-        data = np.column_stack([self.time, self.q_link, 1e3 * self.rms_m, self.n_markers])
-        body = np.char.mod("%.10g", data)
-        body[~np.isfinite(data)] = ""
-        body[:, -1] = self.n_markers.astype(int).astype(str)
+        data = np.column_stack([self.time, self.q_link, 1e3 * self.rms_m])
+        counts = self.n_markers.astype(int).tolist()
+        full = np.isfinite(data).all(axis=1).tolist()
+        row = ",".join(["%.10g"] * data.shape[1]) + ",%d"     # one format per row, not per cell
+        lines = [row % (*v, n) if ok else
+                 ",".join("%.10g" % x if np.isfinite(x) else "" for x in v) + f",{n}"
+                 for v, n, ok in zip(data.tolist(), counts, full)]
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(",".join(names) + "\n")
-            if body.size:
-                fh.write("\n".join(",".join(r) for r in body) + "\n")
+            if lines:
+                fh.write("\n".join(lines) + "\n")
         return path
 
 

@@ -359,9 +359,9 @@ class _VarPro:
         Pr = A[:, :m]
         b, U, sv, V, nrm = _ls_svd(Pr, self.yr)
         r = self.yr - Pr @ b
-        dxdu = x if self.all_log else np.where(self.tr.log, x, 1.0)
-        dA = A[:, m:] * dxdu                                  # d(column cols[j]) / du_j
-        self._state = (u.copy(), U, sv, V, nrm, dA, cols, b, r)
+        # d(column cols[j]) / du_j, A[:, m:] * dx/du, is formed when the Jacobian asks for it
+        # (a step the trust region rejects needs only the residual)
+        self._state = (u.copy(), U, sv, V, nrm, A, m, x, cols, b, r)
         return r
 
     def solution(self, u):
@@ -369,7 +369,7 @@ class _VarPro:
         solution the residual used (the extras from the target minus the model's columns)."""
         u = np.asarray(u, float)
         self.resid(u)
-        b = self._state[7]
+        b = self._state[9]
         Phi = self.cls.design_grad(self.qd, dict(zip(self.nl, self.tr.to_x(u))))[0]
         rw = self.tau - Phi @ b
         return self.proj.coefficients(rw if self.sw is None else self.sw * rw), b
@@ -378,7 +378,8 @@ class _VarPro:
         u = np.asarray(u, float)
         if self._state is None or not np.array_equal(self._state[0], u):
             self.resid(u)
-        _, U, sv, V, nrm, dA, cols, b, r = self._state
+        _, U, sv, V, nrm, A, m, x, cols, b, r = self._state
+        dA = A[:, m:] * (x if self.all_log else np.where(self.tr.log, x, 1.0))
         t1 = dA * b[cols]                                     # dA_j b, (T, n_nl)
         c = np.zeros((nrm.size, dA.shape[1]))                 # dA_j^T r, (m, n_nl)
         c[cols, np.arange(dA.shape[1])] = r @ dA

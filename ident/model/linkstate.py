@@ -101,6 +101,33 @@ def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
                      bandwidth_hz=f.bandwidth_hz)
 
 
+def _ordered_projections(X, y) -> np.ndarray:
+    """Squared components of ``y`` along the columns of ``X`` orthogonalised in order (the last
+    column of the triangular factor ``R`` of ``[X, y]``, squared); 0 for a column that adds no
+    direction (``|R_jj|`` under 1e-10 of the largest). ``R`` comes from the Cholesky factor of
+    the Gram matrix of the unit-scaled columns (a fraction of a QR's work for the slow cosine
+    series here, whose columns are near orthogonal); a QR of ``[X, y]`` when a column is near
+    dependent on the earlier ones (scaled pivot under 1e-4 of the largest, where the Gram
+    matrix would lose the digits the projections need) or drops out."""
+    p = X.shape[1]
+    Xa = np.column_stack([X, y])
+    nrm = np.sqrt(np.einsum("ij,ij->j", Xa, Xa))
+    if np.all(nrm > 0) and np.all(np.isfinite(nrm)):
+        Xs = Xa / nrm
+        try:
+            L = np.linalg.cholesky(Xs.T @ Xs)
+        except np.linalg.LinAlgError:
+            L = None
+        if L is not None:
+            ds = np.abs(np.diag(L)[:p])
+            d = ds * nrm[:p]                       # the diagonal of the unscaled factor
+            if ds.min() > 1e-4 * ds.max() and d.min() > 1e-10 * d.max():
+                return (L[p, :p] * nrm[p]) ** 2
+    R = np.linalg.qr(Xa, mode="r")
+    d = np.abs(np.diag(R)[:p])
+    return np.where(d > 1e-10 * d.max(), R[:p, p] ** 2, 0.0)
+
+
 @dataclass(frozen=True, eq=False)
 class DeflectionFit:
     """``delta(t) = offset + gain delta_nom(t) + sum_m c_m cos(pi m (t - t0) / D)``."""
@@ -223,11 +250,28 @@ class LinkStateEstimator:
         self.rest_frac = REST_FRAC
 
     @staticmethod
-    def _eq24_rss(q, qd, qdd, y, keep):
-        """(RSS, coefficients) of the Coulomb + viscous regression of eq. 2-4 on ``keep``."""
-        X = np.hstack([onelink_regressor(q, qdd), CoulombViscous.regressor(qd)])[keep]
-        b, *_ = np.linalg.lstsq(X, y[keep], rcond=None)
-        r = y[keep] - X @ b
+    def _eq24_rss(q, qd, qdd, y, keep, coef: bool = True):
+        """(RSS, coefficients) of the Coulomb + viscous regression of eq. 2-4 on ``keep``.
+        ``coef=False``: the RSS alone (coefficients None), from the triangular factor of the
+        design with ``y`` appended (its last diagonal entry is the residual norm), unless the
+        design is near rank deficient (then the minimum-norm least-squares solve)."""
+        p = 5
+        qk = q[keep]
+        if not coef and qk.size > p:
+            XT = np.empty((p + 1, qk.size))     # the rows of [qdd, -sin q, cos q, sign qd, qd, y]
+            XT[0] = qdd[keep]
+            np.negative(np.sin(qk), out=XT[1])
+            np.cos(qk, out=XT[2])
+            XT[3:5] = CoulombViscous.regressor(qd[keep]).T
+            XT[5] = y[keep]
+            R = np.linalg.qr(XT.T, mode="r")
+            d = np.abs(np.diag(R)[:p])
+            if d.min() > 1e-10 * d.max():
+                return float(R[p, p] ** 2), None
+        X = np.hstack([onelink_regressor(qk, qdd[keep]), CoulombViscous.regressor(qd[keep]),
+                       y[keep][:, None]])
+        b, *_ = np.linalg.lstsq(X[:, :p], X[:, p], rcond=None)
+        r = X[:, p] - X[:, :p] @ b
         return float(r @ r), b
 
     def _encoder_candidates(self, t, motor_fit: SmoothFit, qm_samples=None) -> list:
@@ -284,9 +328,9 @@ class LinkStateEstimator:
             return SavGolSmoother("auto").fit(t, -y / K), "link", 0
 
         def rss_of(q, qd, qdd):
-            return self._eq24_rss(q, qd, qdd, y, keep)
+            return self._eq24_rss(q, qd, qdd, y, keep, coef=False)
 
-        rss0, b0 = rss_of(qm, qmd, qmdd)
+        rss0, b0 = self._eq24_rss(qm, qmd, qmdd, y, keep)
         eps = self.rest_frac * peak
         f_motor = laws.coulomb_viscous(qmd, b0[3], b0[4], sign=lambda v: laws.smooth_sign(v, eps))
         sides = {"link": y, "motor": y - f_motor}
@@ -294,7 +338,7 @@ class LinkStateEstimator:
         for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
                 sm = _crossfit_smooth(t, -ts / K, float(w))
-                d0, d1, d2 = sm.evaluate(t)
+                d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
                 if rss < best[0]:
                     best = (rss, sm, side, 0)
@@ -305,7 +349,7 @@ class LinkStateEstimator:
                 best = (rss, None, None, k)
             for side, ts in sides.items():
                 sm = _crossfit_smooth(t, -ts / K, float(enc.window_s))
-                d0, d1, d2 = sm.evaluate(t)
+                d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(em + d0, emd + d1, emdd + d2)
                 if rss < best[0]:
                     best = (rss, sm, side, k)
@@ -317,7 +361,8 @@ class LinkStateEstimator:
         return best[1], best[2], best[3]
 
     def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
-            stiffness: float | None = None, _nominal=None, qm_samples=None) -> LinkState:
+            stiffness: float | None = None, _nominal=None, qm_samples=None,
+            _motor=None) -> LinkState:
         """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
         ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
         ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
@@ -325,9 +370,9 @@ class LinkStateEstimator:
         ``qm_samples``: the raw encoder angle on ``time`` (optional): with ``y`` and
         ``stiffness`` the encoder is re-smoothed at the window that, with the deflection's,
         best explains eq. 2-4 (:meth:`_encoder_candidates`); the state's ``motor_fit`` is the
-        smoothing used."""
+        smoothing used. ``_motor``: ``motor_fit.evaluate(time)`` when the caller has it."""
         t = np.asarray(time, float)
-        qm, qmd, qmdd = motor_fit.evaluate(t)
+        qm, qmd, qmdd = motor_fit.evaluate(t) if _motor is None else _motor
         mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
 
         def nominal_and_encoder():
@@ -389,14 +434,9 @@ class LinkStateEstimator:
         fixed = [np.ones_like(tm)] + ([dn_m] if use_gain else [])
         target = d_meas - (0.0 if use_gain else dn_m)
         X = np.column_stack(fixed + [_cosine_basis(tm, t0, D, cands[-1])])
-        # all candidate sizes from one QR (columns ordered by frequency) of the design with the
-        # target appended: the last column of R is Q^T target (Q is never formed)
-        p = X.shape[1]
-        R = np.linalg.qr(np.column_stack([X, target]), mode="r")
-        proj = R[:p, p] ** 2
-        ok_cols = np.abs(np.diag(R)[:p]) > 1e-10 * np.max(np.abs(np.diag(R)[:p]))
-        proj = np.where(ok_cols, proj, 0.0)
-        cum = np.cumsum(proj)
+        # all candidate sizes from one triangular factor (columns ordered by frequency) of the
+        # design with the target appended: its last column is Q^T target
+        cum = np.cumsum(_ordered_projections(X, target))
         total = float(target @ target)
         nf = len(fixed)
         n = tm.size
@@ -455,14 +495,17 @@ class LinkStateEstimator:
             alt = 0.0 if none_fit is not None else 1.0      # the dynamics' own choice
             d1 = qm + parts[0] - (gain - alt) * dn[0], qmd + parts[1] - (gain - alt) * dn[1], \
                 qmdd + parts[2] - (gain - alt) * dn[2]
-            refit = self._eq24_rss(*d1, yy, keep)[0] <= self._eq24_rss(q, qd, qdd, yy, keep)[0]
+            refit = (self._eq24_rss(*d1, yy, keep, coef=False)[0]
+                     <= self._eq24_rss(q, qd, qdd, yy, keep, coef=False)[0])
         if refit and none_fit is not None:
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
-                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None))
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None),
+                _motor=(qm, qmd, qmdd))
         if refit:
             # the markers do not tell the gain from the declared stiffness's: keep K as declared
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
-                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side))
+                time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side),
+                _motor=(qm, qmd, qmdd))
         return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal,
                          side)
 
@@ -590,6 +633,7 @@ def _encoder_deflection_signals(joint, log_time, qm, tau, ta, ql, fm, offset, dr
         y = tau[keep] - J * qmdd - B * qmd
         K = K if np.isfinite(K) and K > 0 else None
     est = estimator if estimator is not None else LinkStateEstimator()
-    st = est.fit(t, fm, ta, ql, y if K is not None else None, K, qm_samples=qm[keep])
+    st = est.fit(t, fm, ta, ql, y if K is not None else None, K, qm_samples=qm[keep],
+                 _motor=(qms, qmd, qmdd))
     return JointSignals(joint, t, st.q, st.qd, st.qdd, qms, qmd, qmdd, tau[keep], st.as_smooth_fit(), fm,
                         "mocap" if ql is not None else "motor", offset, st.to_dict())

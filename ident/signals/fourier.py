@@ -52,21 +52,32 @@ class FourierSeries:
 
 def design_matrix(t, wf: float, n_harmonics: int, order: int = 0) -> np.ndarray:
     """Columns multiplying ``[q0, a_1..a_N, b_1..b_N]`` for the ``order``-th derivative of q."""
+    if order not in (0, 1, 2):
+        raise ValueError("order must be 0, 1 or 2")
+    return design_matrices(t, wf, n_harmonics, (order,))[0]
+
+
+def design_matrices(t, wf: float, n_harmonics: int, orders=(0, 1, 2)) -> tuple:
+    """:func:`design_matrix` of each of ``orders`` (0, 1, 2), from one evaluation of the
+    sines and cosines of the harmonics at ``t``."""
     t = np.asarray(t, float)
     l = np.arange(1, n_harmonics + 1)
     wl = wf * l
     ph = np.multiply.outer(t, wl)
     s, c = np.sin(ph), np.cos(ph)
-    one = np.ones((t.shape[0], 1)) if order == 0 else np.zeros((t.shape[0], 1))
-    if order == 0:
-        A, B = s / wl, -c / wl
-    elif order == 1:
-        A, B = c, s
-    elif order == 2:
-        A, B = -s * wl, c * wl
-    else:
-        raise ValueError("order must be 0, 1 or 2")
-    return np.hstack([one, A, B])
+    out = []
+    for order in orders:  # loop over the (at most three) derivative orders
+        one = np.ones((t.shape[0], 1)) if order == 0 else np.zeros((t.shape[0], 1))
+        if order == 0:
+            A, B = s / wl, -c / wl
+        elif order == 1:
+            A, B = c, s
+        elif order == 2:
+            A, B = -s * wl, c * wl
+        else:
+            raise ValueError("order must be 0, 1 or 2")
+        out.append(np.hstack([one, A, B]))
+    return tuple(out)
 
 
 @dataclass(frozen=True)

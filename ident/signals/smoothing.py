@@ -42,7 +42,7 @@ from mocap.io.errors import InputError
 
 from ident.friction.constants import REST_FRAC
 from ident.signals.blas import one_blas_thread  # noqa: F401  (re-exported)
-from ident.signals.fourier import FourierSeries, design_matrix
+from ident.signals.fourier import FourierSeries, design_matrices
 
 __all__ = ["savgol_window", "differentiate", "SmoothFit", "FourierSmoother", "SavGolSmoother", "estimate_fundamental",
            "select_harmonics", "estimate_time_offset", "JointSignals",
@@ -63,11 +63,24 @@ def _clean(t, q):
     return t[ok], q[ok]
 
 
+_GRIDS: dict = {}      # sample times (bytes) -> (uniform grid, interval): a few recent ones
+
+
 def _uniform(t, q):
-    """Resample onto a uniform grid at the median interval (linear interpolation over gaps)."""
-    dt = float(np.median(np.diff(t)))
-    n = int(np.floor((t[-1] - t[0]) / dt)) + 1
-    tu = t[0] + dt * np.arange(n)
+    """Resample onto a uniform grid at the median interval (linear interpolation over gaps).
+    The grid of the last few time bases is remembered (a search smooths many signals, or one
+    signal at many windows, on the same samples)."""
+    key = t.tobytes()
+    hit = _GRIDS.get(key)
+    if hit is None:
+        dt = float(np.median(np.diff(t)))
+        n = int(np.floor((t[-1] - t[0]) / dt)) + 1
+        hit = (t[0] + dt * np.arange(n), dt)
+        hit[0].setflags(write=False)
+        if len(_GRIDS) >= 8:
+            _GRIDS.pop(next(iter(_GRIDS)))
+        _GRIDS[key] = hit
+    tu, dt = hit
     return tu, np.interp(tu, t, q), dt
 
 
@@ -392,8 +405,9 @@ def _ordered_design_T(t, wf, n, extra=None):
         np.multiply(E[k - 1], e, out=E[k])
     XT = np.empty((2 * n + 1 + (extra is not None), t.size))
     XT[0] = 1.0
-    XT[1:2 * n + 1:2] = E.imag / wl[:, None]
-    XT[2:2 * n + 1:2] = -E.real / wl[:, None]
+    np.divide(E.imag, wl[:, None], out=XT[1:2 * n + 1:2])
+    np.divide(E.real, wl[:, None], out=XT[2:2 * n + 1:2])
+    np.negative(XT[2:2 * n + 1:2], out=XT[2:2 * n + 1:2])
     if extra is not None:
         XT[-1] = extra
     return XT
@@ -426,8 +440,8 @@ def _bic(rss, n, k):
     return n * np.log(rss / n) + k * np.log(n)
 
 
-def _max_harmonics(t, wf, cap):
-    dt = float(np.median(np.diff(t)))
+def _max_harmonics(t, wf, cap, dt=None):
+    dt = float(np.median(np.diff(t))) if dt is None else dt
     nyq = np.pi / dt
     n_samples_cap = (t.size - 2) // 4
     return int(max(1, min(cap, np.floor(0.8 * nyq / wf), n_samples_cap)))
@@ -443,8 +457,8 @@ def select_harmonics(t, q, wf: float, max_harmonics: int = 20) -> tuple[int, flo
     return int(n[k]), float(rss[k])
 
 
-def _best_bic(t, q, wf, max_harmonics):
-    nmax = _max_harmonics(t, wf, max_harmonics)
+def _best_bic(t, q, wf, max_harmonics, dt=None):
+    nmax = _max_harmonics(t, wf, max_harmonics, dt)
     rss = _rss_by_harmonics(t, q, wf, nmax)
     b = _bic(rss, t.size, 2 * np.arange(1, nmax + 1) + 1)
     k = int(np.argmin(b))
@@ -482,16 +496,25 @@ def _estimate_fundamental(t, q, max_harmonics, max_periods, max_samples, n_refin
     ts, qs = t[::stride], q[::stride]
     cands = {2 * np.pi * k / D for k in range(1, max_periods + 1)}
     cands |= {w_peak / h for h in range(1, 7) if w_peak / h >= 2 * np.pi / D}
-    scored = sorted((_best_bic(ts, qs, w, max_harmonics)[0], w) for w in cands)
+    dt_s = float(np.median(np.diff(ts)))
+    memo: dict = {}
+
+    def bic(w):
+        """The best BIC at ``w`` (remembered: a refinement grid holds its own centre)."""
+        w = float(w)
+        if w not in memo:
+            memo[w] = _best_bic(ts, qs, w, max_harmonics, dt_s)[0]
+        return memo[w]
+
+    scored = sorted((bic(w), w) for w in cands)
     half_bin = np.pi / D
     best = None
     for _, w0 in scored[:n_refine]:
         grid = np.linspace(max(w0 - half_bin, 0.95 * 2 * np.pi / D), w0 + half_bin, 9)
-        vals = np.array([_best_bic(ts, qs, w, max_harmonics)[0] for w in grid])
+        vals = np.array([bic(w) for w in grid])
         k = int(np.argmin(vals))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
-        res = minimize_scalar(lambda w: _best_bic(ts, qs, w, max_harmonics)[0], bounds=(lo, hi),
-                              method="bounded", options={"xatol": 1e-6 * w0})
+        res = minimize_scalar(bic, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6 * w0})
         cand = (float(res.fun), float(res.x)) if res.fun <= vals[k] else (float(vals[k]), float(grid[k]))
         if best is None or cand[0] < best[0]:
             best = cand
@@ -557,16 +580,17 @@ class FourierSmoother:
         t, q = _clean(t, q)
         wf = float(self.wf) if self.wf else estimate_fundamental(t, q, self.max_harmonics)
         n = int(self.n_harmonics) if self.n_harmonics else select_harmonics(t, q, wf, self.max_harmonics)[0]
-        X = design_matrix(t, wf, n)
-        coef, *_ = np.linalg.lstsq(X, q, rcond=None)
+        X, D1, D2 = design_matrices(t, wf, n)
+        coef, _, _, sv = np.linalg.lstsq(X, q, rcond=None)
         r = q - X @ coef
         series = FourierSeries(coef[1:1 + n], coef[1 + n:], wf, float(coef[0]))
         sigma = float(np.sqrt(r @ r / max(t.size - X.shape[1], 1)))
         C = np.linalg.pinv(X.T @ X)
-        D1, D2 = (design_matrix(t, wf, n, k) for k in (1, 2))
         sd = [sigma * np.sqrt(np.mean(np.sum((D @ C) * D, axis=1))) for D in (D1, D2)]
+        # condition number: the singular values the least-squares solve computed
+        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
         return SmoothFit("fourier", float(np.sqrt(np.mean(r ** 2))), float(np.max(np.abs(r))),
-                         int(t.size), float(t[0]), float(t[-1]), series, float(np.linalg.cond(X)),
+                         int(t.size), float(t[0]), float(t[-1]), series, cond,
                          sigma=sigma, qd_noise=float(sd[0]), qdd_noise=float(sd[1]),
                          bandwidth_hz=float(wf * n / (2 * np.pi)))
 
