@@ -96,8 +96,9 @@ class StudySettings:
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
     speed) condition to the recording (keeps it small), ``"all"`` every trial;
     ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
-    every condition (0: all). It holds all of a joint's samples at once, so its memory grows with
-    the trials per joint; this bounds it (the fits use every trial regardless)."""
+    every condition (0: all). It holds a joint's kept samples (a few hundred bytes each) while it
+    runs; the rest of its memory does not grow with the trials (docs/study-memory.md). This
+    bounds it further (the fits use every trial regardless)."""
 
     models: tuple = ("cv", "stribeck", "hyperbolic")
     n_starts: int = 8
