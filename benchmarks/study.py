@@ -14,8 +14,8 @@ printed: other load on a shared machine stretches wall times, much less CPU time
 
 Issue 30: the 180-trial study in at most 35 s on 2 workers; ``--memory``: an N-trial and a
 10 N-trial study (more repetitions), each in a fresh child process, peak memory ratio <= 1.2
-(trial length ``--duration``; ``--diagnosis-reps`` bounds the per-joint diagnosis, whose memory
-grows with the trials per joint).
+(trial length ``--duration``; ``--diagnosis-reps`` bounds the per-joint diagnosis further, which
+holds a joint's kept samples while it runs: docs/study-memory.md).
 
 The campaign is made by ``jointlab synth`` (18 markers: 3 per link, the synthesiser's minimum
 for a rigid-body pose per link; the goal names 16) into a cache folder and reused. Each run goes

@@ -9,7 +9,7 @@ from mocap.io.angles import read_angles
 from mocap.io.errors import InputError
 from mocap.io.plausibility import check_angles_dir, check_joints_option, check_seed
 
-from ident.gap.data import build_joint_data
+from ident.gap.data import build_joint_data, joint_log
 from ident.gap.diagnose import DiagnosisSettings, diagnose_joint
 from ident.gap.nominal import check_held_nominal, check_nominal
 
@@ -63,7 +63,8 @@ def diagnose_single_joint_campaign(campaign, robot=None, angles: dict | None = N
         items = tqdm(items, desc="diagnose", unit="joint")
     series = {}
     for j, trials in items:
-        logs = [campaign.read_log(t, robot) for t in trials]
+        # one log read at a time, only the joint's columns kept (JointLog)
+        logs = [joint_log(campaign.read_log(t, robot), j) for t in trials]
         ang = None
         if angles:
             ang = {tid: (tq[0], tq[1][j]) for tid, tq in angles.items() if j in tq[1]}

@@ -212,6 +212,43 @@ def campaign_clock(logs: list) -> list[float]:
     return offsets
 
 
+@dataclass(frozen=True)
+class JointLog:
+    """What the gap diagnosis reads of one trial's robot log for one joint (:func:`joint_log`):
+    a trial's few columns instead of the whole log, so that a joint's logs can be held while its
+    data are built (:func:`build_joint_data` reads them once per derivative window).
+
+    Attributes
+    ----------
+    time : numpy.ndarray
+        (T,) sample times (s).
+    qm : numpy.ndarray
+        (T,) the joint's motor angle (rad; NaN where not logged).
+    tau : numpy.ndarray
+        (T,) the joint's torque (N m; NaN where not logged).
+    rest : numpy.ndarray
+        (n,) the rest pose of the other joints: each logged column's median (0 where the first
+        sample is not logged), 0 for the joint itself (rad).
+    """
+
+    time: np.ndarray
+    qm: np.ndarray
+    tau: np.ndarray
+    rest: np.ndarray
+
+
+def joint_log(lg, joint: int) -> JointLog:
+    """The :class:`JointLog` of ``joint`` (1-based) from a :class:`mocap.io.robotlog.RobotLog`
+    (or a :class:`JointLog` of that joint, returned as it is)."""
+    if isinstance(lg, JointLog):
+        return lg
+    j0 = joint - 1
+    rest = np.where(np.isfinite(lg.qm[0]), np.nanmedian(lg.qm, axis=0), 0.0)
+    rest[j0] = 0.0
+    # copies: a view would keep the whole log's arrays alive
+    return JointLog(lg.time.copy(), lg.qm[:, j0].copy(), lg.tau[:, j0].copy(), rest)
+
+
 #: derivative windows tried when ``deriv_window_s`` is None (s)
 DERIV_WINDOWS = (0.02, 0.04, 0.1)
 
@@ -240,8 +277,8 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
         The joint, 1-based; the trials move only that joint.
     trials : sequence of mocap.io.campaign.Trial
         The campaign's trials (manifest order).
-    logs : sequence of mocap.io.robotlog.RobotLog
-        ``logs[i]`` is the robot log of ``trials[i]``.
+    logs : sequence of mocap.io.robotlog.RobotLog or JointLog
+        ``logs[i]`` is the robot log of ``trials[i]`` (or its :func:`joint_log` for ``joint``).
     robot : mocap.robot.Robot
         The robot (URDF and drives.toml): rigid-body dynamics, motor inertia and viscous
         coefficient, declared ``stiffness``.
@@ -266,6 +303,7 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
     .. [2] jointlab gap diagnosis (docs/gap-diagnosis.md).
     """
     stiff = float(robot.drives[joint - 1].extra.get("stiffness", 0.0) or 0.0) > 0
+    logs = [joint_log(lg, joint) for lg in logs]
     sides = {}
     for side in (("motor", "link") if stiff else ("rigid",)):
         best = None
@@ -346,7 +384,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                       friction_side: str = "motor") -> JointData:
     """Assemble :class:`JointData` for ``joint`` (1-based) from trials moving only that joint.
 
-    ``logs[i]`` is the RobotLog of ``trials[i]``; ``angles`` maps trial id -> (t_marker, q_link)
+    ``logs[i]`` is the :class:`JointLog` of ``trials[i]``; ``angles`` maps trial id -> (t_marker, q_link)
     of the joint (mocap), or is None. The payload ``load_kg`` is a point mass at the flange
     origin unless the trial carries the optional key ``payload_com = [x, y, z]`` (metres, flange
     frame; an extra manifest key, kept per FORMAT.md). Torque-channel samples slower than ``v_zero`` are left
@@ -370,8 +408,8 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
     cache = {}
     for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
         t = lg.time
-        qm = fill_nan(t, lg.qm[:, j0])
-        tau = fill_nan(t, lg.tau[:, j0])
+        qm = fill_nan(t, lg.qm)
+        tau = fill_nan(t, lg.tau)
         # short derivative window: friction transients at reversals last tens of ms, and a
         # longer window smears them into J qdd (measured on the foreign world: a 0.1 s window
         # hid two thirds of a Stribeck drop); at least 11 samples on slow logs
@@ -379,8 +417,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         q, qd, qdd = savgol_derivatives(t, qm, window_s=window_s)
         q_enc = q
         y = tau - J * qdd - B * qd          # motor side of eq. 2-2 moved to the right
-        rest = np.where(np.isfinite(lg.qm[0]), np.nanmedian(lg.qm, axis=0), 0.0)
-        rest[j0] = 0.0
+        rest = lg.rest
         p_com = payload_com(tr)
         key = (round(tr.load_kg, 9), tuple(np.round(rest, 4)), p_com)
         if key not in cache:

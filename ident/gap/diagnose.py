@@ -127,11 +127,16 @@ def _columns(cand: Candidate, d: JointData, hp):
     return np.asarray(cand.columns(src, hp), float)
 
 
+#: bytes of candidate columns :class:`_ColumnCache` keeps: a fixed budget, so that the
+#: diagnosis' memory does not grow with the samples (columns beyond it are built again)
+COLUMN_CACHE_BYTES = 3e7
+
+
 class _ColumnCache:
     """Candidate columns kept across selection steps (they do not change when the model grows),
-    up to a memory budget."""
+    up to a memory budget (:data:`COLUMN_CACHE_BYTES`)."""
 
-    def __init__(self, budget_bytes: float = 3e8):
+    def __init__(self, budget_bytes: float = COLUMN_CACHE_BYTES):
         self.store, self.left = {}, budget_bytes
 
     def get(self, cand: Candidate, d: JointData, ch: Channel, hp) -> np.ndarray:
@@ -150,14 +155,17 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
     """(candidate, hp) -> Grams of ``[X | C]`` over every family and shape parameter of one
     effect, built once. Columns that lie in the span of ``X`` (e.g. a direction-independent
     Coulomb excess when the nominal model has a torque offset) are dropped; a shape with no
-    column left is left out. ``cols`` keeps the columns used and which of the family's columns
-    they are (for the sign check). ``levels``: the Coulomb and viscous levels selected so far
-    (torque channel), composed by product with the candidate's own (:func:`level_interactions`)."""
+    column left is left out. ``cols`` maps each shape to its :class:`_Cols` (which of the
+    family's columns are used, for the sign check; the columns themselves are rebuilt on demand,
+    so that one effect's grid never holds its samples at once). ``levels``: the Coulomb and
+    viscous levels selected so far (torque channel), composed by product with the candidate's
+    own (:func:`level_interactions`)."""
     out, cols = {}, {}
     p = X.shape[1]
     for cand in cands:
         for hp in cand.grid:
             C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
+            raw = C.shape[1]
             C = level_interactions(C, cand, levels)   # unchanged unless a level was selected
             if C.shape[0] == 0 or not np.all(np.isfinite(C)):
                 continue
@@ -169,8 +177,33 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
                 C = C[:, keep]
                 g = grams_augmented(base, X, C, ch.target, ch.blocks)
             out[(cand, hp)] = g
-            cols[(cand, hp)] = (C, keep)
+            cols[(cand, hp)] = _Cols(cand, hp, levels, keep, raw)
+            del C
     return out, cols
+
+
+@dataclass(frozen=True)
+class _Cols:
+    """The columns one shape of a candidate adds to the model, as a recipe: the family's columns
+    at ``hp`` (prepared for the channel, composed with the selected ``levels``), those marked in
+    ``keep``. :meth:`build` makes them (the same values :func:`_effect_grams` used); only the
+    chosen shapes' columns are ever built again, so the grid's columns are never all held."""
+
+    cand: Candidate
+    hp: object
+    levels: tuple
+    keep: np.ndarray
+    raw_width: int      # the family's own columns (before the composition with the levels)
+
+    @property
+    def composed(self) -> bool:
+        """Whether the columns include products with the selected effects' levels."""
+        return self.keep.shape[0] > self.raw_width
+
+    def build(self, d: JointData, ch: Channel, cache: _ColumnCache | None = None) -> np.ndarray:
+        C = cache.get(self.cand, d, ch, self.hp) if cache is not None else ch.prep(_columns(self.cand, d, self.hp))
+        C = level_interactions(C, self.cand, self.levels)
+        return C if self.keep.all() else C[:, self.keep]
 
 
 def _amplitudes(theta: np.ndarray, p: int, keep: np.ndarray) -> np.ndarray:
@@ -297,7 +330,8 @@ def _sse(X: np.ndarray, y: np.ndarray) -> float:
     return float(r @ r)
 
 
-def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray) -> "_Row":
+def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointData,
+                  cache: _ColumnCache | None = None) -> "_Row":
     """Choose among significant candidates by their signatures, not only by fit quality.
 
     For the best-fitting candidate and each of its registered confounders that was tested
@@ -312,15 +346,18 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray) -> "_Row":
     s0 = _sse(X, y) if X.shape[1] else float(y @ y)
 
     def cols(r):
-        return r.cols[r.cv.hp_all][0]
+        return r.cols[r.cv.hp_all].build(d, ch, cache)
 
     choice = best
+    Ca = None
     conf, _ = confounders(best.effect)
     for name in conf:
         other = rows.get(name)
         if other is None or not other.test.identifiable or other.cv is None:
             continue
-        Ca, Cb = cols(best), cols(other)
+        if Ca is None:
+            Ca = cols(best)
+        Cb = cols(other)
         sa, sb = _sse(np.column_stack([X, Ca]), y), _sse(np.column_stack([X, Cb]), y)
         sab = _sse(np.column_stack([X, Ca, Cb]), y)
         ua = (sb - sab) / max(s0 - sa, 1e-300)   # leader's reduction left given the confounder
@@ -479,8 +516,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 continue
             cvr, _ = _cv(ch, X, fold, gb, guard=design.guard)
             cand, hp = cvr.hp_all
-            physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all][1]), d))
-            composed = cols[cvr.hp_all][1].shape[0] > cache.get(cand, d, ch, hp).shape[1]
+            physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all].keep), d))
+            composed = cols[cvr.hp_all].composed
             dloss = current_sse - cvr.sse
             if design.mode == "cycles":
                 p = sign_flip_pvalue(dloss, settings.n_perm, settings.seed)
@@ -507,7 +544,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 shape=cand.describe(hp) + ("; also times the selected effects' friction levels" if composed else ""),
                 evidence={**_size_evidence(mse_cur - mse_e, noise, decl_ms),
                           "removed_variance_over_floor_lcb95": _over_floor(lcb_mse, noise)}), cvr,
-                {cvr.hp_all: cols[cvr.hp_all]})   # the chosen shape's columns only (memory)
+                {cvr.hp_all: cols[cvr.hp_all]})   # the chosen shape's recipe (its columns are rebuilt)
         adj = holm(pvals)
         for name, r in rows.items():
             if not r.test.identifiable:
@@ -524,12 +561,12 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         sig = [r for r in rows.values() if r.test.significant]
         if not sig:
             break
-        best = _discriminate(sig, rows, ch, X)
+        best = _discriminate(sig, rows, ch, X, d, cache)
         t = best.test
         steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
                                     t.explained_share, t.shape, t.family,
                                     t.evidence["removed_variance_over_floor"]), best.cv.sse))
-        C, keep = best.cols[best.cv.hp_all]
+        C, keep = best.cols[best.cv.hp_all].build(d, ch, cache), best.cols[best.cv.hp_all].keep
         cand, hp = best.cv.hp_all
         if cand.coulomb or cand.viscous:   # torque-channel families only
             # the selected effect's fitted levels join those later candidates are composed with

@@ -175,6 +175,10 @@ def unexplained_fraction(gr: Grams, p: int) -> float:
 
 #: blocks beyond which :func:`sign_flip_pvalue` takes the normal limit of its randomisation
 LARGE_N = 400
+#: sign patterns per chunk of :func:`sign_flip_pvalue`'s null distribution. Even: numpy draws two
+#: signs per 64-bit word and drops the unused half at the end of a call, so with an even count
+#: per chunk the chunks' patterns are those of one draw of all of them (tests/test_gap_engine.py)
+SIGN_CHUNK = 1000
 
 
 def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float:
@@ -200,12 +204,19 @@ def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float
         from scipy.stats import norm
 
         return float(max(norm.sf(obs), 1.0 / (1 + n_perm)))
-    if 2 ** n <= n_perm:
-        signs = 1 - 2 * ((np.arange(2 ** n)[:, None] >> np.arange(n)) & 1)
-    else:
-        signs = rng.choice([-1.0, 1.0], size=(n_perm, n))
-    null = tstat(signs * d)
-    return float((1 + np.sum(null >= obs - 1e-12)) / (1 + null.shape[0]))
+    # the null distribution in chunks of SIGN_CHUNK patterns (the same patterns, drawn in the
+    # same order, as one (n_perm, n) draw: memory bounded whatever the number of blocks)
+    exact = 2 ** n <= n_perm
+    total = 2 ** n if exact else n_perm
+    hits = 0
+    for lo in range(0, total, SIGN_CHUNK):   # loop over chunks of sign patterns
+        m = min(SIGN_CHUNK, total - lo)
+        if exact:
+            signs = 1 - 2 * ((np.arange(lo, lo + m)[:, None] >> np.arange(n)) & 1)
+        else:
+            signs = rng.choice([-1.0, 1.0], size=(m, n))
+        hits += int(np.sum(tstat(signs * d) >= obs - 1e-12))
+    return float((1 + hits) / (1 + total))
 
 
 def sign_flip_min_p(n: int, n_perm: int = 20000) -> float:

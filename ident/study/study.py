@@ -96,8 +96,9 @@ class StudySettings:
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
     speed) condition to the recording (keeps it small), ``"all"`` every trial;
     ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
-    every condition (0: all). It holds all of a joint's samples at once, so its memory grows with
-    the trials per joint; this bounds it (the fits use every trial regardless)."""
+    every condition (0: all). It holds a joint's kept samples (a few hundred bytes each) while it
+    runs; the rest of its memory does not grow with the trials (docs/study-memory.md). This
+    bounds it further (the fits use every trial regardless)."""
 
     models: tuple = ("cv", "stribeck", "hyperbolic")
     n_starts: int = 8
@@ -351,6 +352,62 @@ class _DiagJob:
     trials: tuple | None = None     # the ids of the joint's trials to read (None: all)
 
 
+def _series_file(record: str | Path) -> Path:
+    """The file beside a joint's diagnosis record that holds its per-sample series."""
+    return Path(record).with_suffix(".series.npz")
+
+
+def _store_series(series: dict | None, record: str | Path, tmp_dir: str | Path) -> dict | None:
+    """Write a joint's per-sample diagnosis series (``t``, ``qd``, ``q``, ``residual_nominal``,
+    ``trial``: what the plots and the recording read) to an ``.npz`` beside its record, and
+    return what the record keeps instead: ``{"file": name, "sha256": ..., "spectrum": ...}``
+    (the spectrum is small and stays). The study then holds no joint's samples across joints:
+    each reader loads one joint's series (:func:`_series_arrays`) when it needs them."""
+    if series is None:
+        return None
+    path = _series_file(record)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _tmp_name(Path(tmp_dir), path)
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    with open(tmp, "wb") as fh:
+        np.savez(fh, **{k: np.asarray(v) for k, v in series.items() if k != "spectrum"})
+    sha = file_sha256(tmp)
+    os.replace(tmp, path)
+    return {"file": path.name, "sha256": sha, "spectrum": series.get("spectrum")}
+
+
+def _series_ref(ref, folder: Path):
+    """A stored series reference (:func:`_store_series`) with its file's absolute path, for
+    readers in other processes; anything else (series held in memory, None) as it is."""
+    if isinstance(ref, dict) and "file" in ref:
+        return {**ref, "file": str(Path(folder) / ref["file"])}
+    return ref
+
+
+def _series_ok(ref, folder: Path) -> bool:
+    """Whether a stored series' file is still the one its record names (always, for series held
+    in the record itself)."""
+    if not (isinstance(ref, dict) and "file" in ref):
+        return True
+    p = Path(folder) / ref["file"]
+    return p.is_file() and file_sha256(p) == ref["sha256"]
+
+
+def _series_arrays(ref):
+    """A joint's series as arrays: loaded from its ``.npz`` (checked against the sha256 the
+    record keeps; :class:`ValueError` when it differs) when ``ref`` is a stored reference with an
+    absolute path (:func:`_series_ref`), else ``ref`` itself."""
+    if not (isinstance(ref, dict) and "file" in ref):
+        return ref
+    path = Path(ref["file"])
+    if file_sha256(path) != ref["sha256"]:
+        raise ValueError(f"{path}: not the series the study wrote (changed since)")
+    with np.load(path, allow_pickle=False) as z:
+        out = {k: z[k] for k in z.files}
+    out["spectrum"] = ref.get("spectrum")
+    return out
+
+
 def _run_diag_job(job: _DiagJob) -> dict:
     """The gap diagnosis of one joint (:func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign`)."""
 
@@ -367,7 +424,9 @@ def _run_diag_job(job: _DiagJob) -> dict:
         with one_blas_thread():
             report, series = diagnose_single_joint_campaign(camp, robot, angles, job.settings, joints=[job.joint])
         key = str(job.joint)
-        result = {"ok": True, "report": report["joints"].get(key), "series": series.get(key),
+        stored = _store_series(series.pop(key, None), job.record, job.tmp_dir)
+        del series
+        result = {"ok": True, "report": report["joints"].get(key), "series": stored,
                   "link_angles": bool(report.get("link_angles")),
                   "skipped_trials": report.get("skipped_trials", []),
                   "seconds": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
@@ -395,7 +454,8 @@ def _run_plot_job(job: _PlotJob):
     if job.kind == "diagnosis":
 
         out.mkdir(parents=True, exist_ok=True)
-        return make_plots(*job.data, out)
+        report, series = job.data
+        return make_plots(report, {j: _series_arrays(s) for j, s in series.items()}, out)
 
     fits = FitsResult(*job.data)
     if job.kind == "fits":
@@ -899,7 +959,7 @@ class Study:
             hashes[j] = h
             record = f"records/diagnosis/joint{j}.json"
             rec = self._record(ctx, record, h)
-            if rec is not None:
+            if rec is not None and _series_ok(rec["result"].get("series"), (ctx.state / record).parent):
                 done[j] = rec["result"]
                 continue
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
@@ -934,7 +994,8 @@ class Study:
                   "joints": {str(j): r["report"] for j, r in ok.items() if r["report"] is not None},
                   "skipped_trials": list(plan(camp).multi_joint),
                   "link_angles": any(r["link_angles"] for r in ok.values())}
-        series = {str(j): r["series"] for j, r in ok.items()}
+        folder = ctx.state / "records" / "diagnosis"
+        series = {str(j): _series_ref(r["series"], folder) for j, r in ok.items()}
         stage_hash = ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()))
         diag_dir = ctx.out / "diagnosis"
         prev = ctx.old.get("stages", {}).get("diagnosis", {})
@@ -1451,7 +1512,8 @@ def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report
             diag_dir = Path(out) / "diagnosis"
             plots = {p.stem: p.name for p in sorted(diag_dir.glob("*.png"))}
             sink.text("diagnosis/report", markdown(report, plots))
-            for j, srs in series.items():  # loop over joints
+            for j, srs in series.items():  # loop over joints, one joint's samples at a time
+                srs = _series_arrays(srs)
                 if srs is not None and "residual_nominal" in srs:
                     t = srs["t"] if "t" in srs else np.arange(srs["residual_nominal"].size, dtype=float)
                     sink.scalars(f"diagnosis/joint{j}/residual_nominal", t, srs["residual_nominal"])
