@@ -311,18 +311,40 @@ def check_marker_time(markers) -> None:
     _check_time_jump(np.asarray(markers.time, float), markers.source, "the marker file's time")
 
 
-def _distances(P) -> np.ndarray:
-    """(M, M) median over frames of the distances between markers ``P`` (T, M, 3)."""
-    D = np.linalg.norm(P[:, :, None, :] - P[:, None, :, :], axis=-1)
+def _pair_distances(P, i, j) -> np.ndarray:
+    """(K,) median over frames of the distances between markers ``i[k]`` and ``j[k]`` of ``P``
+    (T, M, 3)."""
+    if len(i) == 0:
+        return np.empty(0)
+    D = np.linalg.norm(P[:, i] - P[:, j], axis=-1)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         return np.nanmedian(D, axis=0)
 
 
+#: id(reference recording) -> (the recording, its pair indices, their median distances): a
+#: static reference is checked against every trial of a campaign; its distances are computed once
+_REF_PAIRS: dict = {}
+
+
+def _reference_pair_distances(reference, i, j) -> np.ndarray:
+    key = (tuple(i), tuple(j))
+    hit = _REF_PAIRS.get(id(reference))
+    if hit is not None and hit[0] is reference and hit[1] == key:
+        return hit[2]
+    d = _pair_distances(reference.positions, i, j)
+    if len(_REF_PAIRS) >= 4:
+        _REF_PAIRS.clear()
+    _REF_PAIRS[id(reference)] = (reference, key, d)
+    return d
+
+
 def check_marker_shapes(markers, reference, link_labels: dict) -> None:
     """Each link's markers keep the distances they have in the static ``reference`` recording
     (a rigid link): a link whose median distances are off by more than 20 mm RMS (markers
-    collapsed to one point, a unit declared wrong) is refused with that residual."""
+    collapsed to one point, a unit declared wrong) is refused with that residual. The
+    ``reference`` is read, never changed (its distances are kept for the next trial)."""
+    links, mi, mj, ri, rj = [], [], [], [], []
     for link, labels in link_labels.items():
         idx = [k for k, lb in enumerate(markers.labels) if lb in labels]
         ref = [reference.labels.index(markers.labels[k]) for k in idx
@@ -330,10 +352,18 @@ def check_marker_shapes(markers, reference, link_labels: dict) -> None:
         idx = [k for k in idx if markers.labels[k] in reference.labels]
         if len(idx) < 2:
             continue
-        A = _distances(markers.positions[:, idx])
-        B = _distances(reference.positions[:, ref])
         iu = np.triu_indices(len(idx), 1)
-        a, b = A[iu], B[iu]
+        links.append((link, len(mi), len(mi) + len(iu[0])))
+        mi += [idx[a] for a in iu[0]]
+        mj += [idx[b] for b in iu[1]]
+        ri += [ref[a] for a in iu[0]]
+        rj += [ref[b] for b in iu[1]]
+    if not links:
+        return
+    A = _pair_distances(markers.positions, mi, mj)
+    B = _reference_pair_distances(reference, ri, rj)
+    for link, lo, hi in links:
+        a, b = A[lo:hi], B[lo:hi]
         ok = np.isfinite(a) & np.isfinite(b)
         if not ok.any() or float(np.max(b[ok])) < 5e-3:
             continue
