@@ -305,8 +305,9 @@ class Campaign:
         m = read_markers(rec.markers)
         check_marker_time(m)
         ours = [k for k, lb in enumerate(m.labels) if lb in self.link_of_label()]
-        if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
-            check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,
+        P = m.positions if len(ours) == len(m.labels) else m.positions[:, ours]   # all ours: no copy
+        if robot is not None and ours and np.isfinite(P).any():
+            check_marker_units(P, [m.labels[k] for k in ours], robot.chain,
                                path=m.source, check_motion=False)
 
             check_marker_extent(m, self.link_of_label(), robot.chain)
