@@ -520,29 +520,36 @@ def braked_marker_residuals(markers, log, refs, robot, trial, T_camera_base=None
         return [], []
     q = np.where(np.isfinite(q), q, 0.0)
     T_cb = np.asarray(refs.T_camera_base if T_camera_base is None else T_camera_base, float)
-    res, names = [], []
+    res, names, T_link = [], [], {}
     for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
         if link not in frames or frames[link][0] >= first or lb not in markers.labels:
             continue
         P = markers.positions[:, markers.labels.index(lb)]
-        ok = np.all(np.isfinite(P), axis=1)
-        if ok.sum() < 1:
+        f = np.isfinite(P)
+        ok = f[:, 0] & f[:, 1] & f[:, 2]
+        if not ok.any():
             continue
-        meas = np.median(P[ok], axis=0)
-        p = T_cb @ robot.frame_transform(link, q) @ np.append(refs.p_link[k], 1.0)
+        meas = np.median(P if ok.all() else P[ok], axis=0)
+        if link not in T_link:
+            T_link[link] = robot.frame_transform(link, q)
+        p = T_cb @ T_link[link] @ np.append(refs.p_link[k], 1.0)
         res.append(float(np.linalg.norm(meas - p[:3])))
         names.append(lb)
     return res, names
 
 
-def _kabsch_rms(A, B) -> float:
-    """RMS residual of the best proper rigid motion (rotation with det +1, translation) taking
-    points ``A`` (k, 3) onto ``B`` (k, 3) (Kabsch; a mirror image cannot be matched)."""
-    a, b = A - A.mean(axis=0), B - B.mean(axis=0)
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    R = (U @ np.diag([1.0, 1.0, d]) @ Vt).T
-    return float(np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
+def _kabsch_rms(A, B) -> np.ndarray:
+    """(F,) RMS residuals of the best proper rigid motion (rotation with det +1, translation)
+    taking points ``A`` (k, 3) onto each ``B[f]`` (F, k, 3) (Kabsch; a mirror image cannot be
+    matched), batched over the F point sets."""
+    a, b = A - A.mean(axis=0), B - B.mean(axis=1, keepdims=True)
+    U, _, Vt = np.linalg.svd(np.matmul(a.T, b))
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.zeros((len(B), 3, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = np.where(d == 0, 1.0, d)
+    X = U @ D @ Vt                                      # the rotation's transpose
+    return np.sqrt(np.mean(np.sum((a @ X - b) ** 2, axis=2), axis=1))
 
 
 def moving_group_residual(markers, log, refs, robot, trial, n_frames: int = 60):
@@ -561,21 +568,23 @@ def moving_group_residual(markers, log, refs, robot, trial, n_frames: int = 60):
     if q.shape[0] != robot.n or not np.all(np.isfinite(np.delete(q, first))):
         return float("nan"), 0
     q = np.where(np.isfinite(q), q, 0.0)
-    ks, pred = [], []
+    ks, pred, T_link = [], [], {}
     for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
         if link in frames and frames[link][0] >= first and lb in markers.labels:
             ks.append(markers.labels.index(lb))
-            pred.append((robot.frame_transform(link, q) @ np.append(refs.p_link[k], 1.0))[:3])
+            if link not in T_link:
+                T_link[link] = robot.frame_transform(link, q)
+            pred.append((T_link[link] @ np.append(refs.p_link[k], 1.0))[:3])
     if len(ks) < 4:
         return float("nan"), len(ks)
     pred = np.array(pred)
-    P = markers.positions[:, ks]
-    ok = np.flatnonzero(np.all(np.isfinite(P), axis=(1, 2)))
+    f = np.isfinite(markers.positions)
+    ok = np.flatnonzero((f[..., 0] & f[..., 1] & f[..., 2])[:, ks].all(axis=1))
     if ok.size == 0:
         return float("nan"), len(ks)
     pick = ok[np.linspace(0, ok.size - 1, min(n_frames, ok.size)).astype(int)]
     # the best tenth of the frames: label swaps spoil some frames, a mirrored file every frame
-    return float(np.percentile([_kabsch_rms(pred, P[i]) for i in pick], 10)), len(ks)
+    return float(np.percentile(_kabsch_rms(pred, markers.positions[pick][:, ks]), 10)), len(ks)
 
 
 def check_trial_rigid_fit(markers, log, refs, robot, trial, T_camera_base=None) -> None:
