@@ -319,7 +319,15 @@ def _pair_distances(P, i, j) -> np.ndarray:
     D = np.linalg.norm(P[:, i] - P[:, j], axis=-1)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmedian(D, axis=0)
+        if D.shape[0] < 600:              # numpy's small-array nanmedian
+            return np.nanmedian(D, axis=0)
+        holes = np.isnan(D).any(axis=0)
+        if not holes.any():               # the median of each column, as nanmedian takes it
+            return np.median(D, axis=0)
+        out = np.empty(D.shape[1])
+        out[~holes] = np.median(D[:, ~holes], axis=0)
+        out[holes] = np.nanmedian(D[:, holes], axis=0)
+        return out
 
 
 #: id(reference recording) -> (the recording, its pair indices, their median distances): a
@@ -520,16 +528,19 @@ def braked_marker_residuals(markers, log, refs, robot, trial, T_camera_base=None
         return [], []
     q = np.where(np.isfinite(q), q, 0.0)
     T_cb = np.asarray(refs.T_camera_base if T_camera_base is None else T_camera_base, float)
+    use = [(k, lb, link, markers.labels.index(lb)) for k, (lb, link) in enumerate(zip(refs.labels, refs.links))
+           if link in frames and frames[link][0] < first and lb in markers.labels]
+    f = np.isfinite(markers.positions[:, [c for *_, c in use]])
+    ok = f[..., 0] & f[..., 1] & f[..., 2]                           # (T, markers used)
+    whole = ok.all(axis=0)
+    # per marker, the median over its frames; of the markers seen in every frame, all at once
+    med = np.median(markers.positions[:, [c for (*_, c), w in zip(use, whole) if w]], axis=0)
     res, names, T_link = [], [], {}
-    for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
-        if link not in frames or frames[link][0] >= first or lb not in markers.labels:
+    for u, (k, lb, link, c) in enumerate(use):
+        if not ok[:, u].any():
             continue
-        P = markers.positions[:, markers.labels.index(lb)]
-        f = np.isfinite(P)
-        ok = f[:, 0] & f[:, 1] & f[:, 2]
-        if not ok.any():
-            continue
-        meas = np.median(P if ok.all() else P[ok], axis=0)
+        meas = med[int(np.count_nonzero(whole[:u]))] if whole[u] else \
+            np.median(markers.positions[ok[:, u], c], axis=0)
         if link not in T_link:
             T_link[link] = robot.frame_transform(link, q)
         p = T_cb @ T_link[link] @ np.append(refs.p_link[k], 1.0)
