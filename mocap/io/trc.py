@@ -160,8 +160,8 @@ def read_trc(path: str | Path) -> MarkerRecording:
 
 
 _LINE_END = re.compile(rb"\r\n|\r|\n")
-#: files from this size on stream through :func:`_read_fast`
-STREAM_MIN_BYTES = 1 << 20
+#: files from this size on stream through :func:`_read_fast` (the quicker reader from here on)
+STREAM_MIN_BYTES = 1 << 17
 #: files up to this size are read into memory in one piece by :func:`_read_fast`, larger ones in blocks
 WHOLE_MAX_BYTES = 16 << 20
 #: cells the streaming reader reads as an occlusion (empty or ``nan`` in any case)
