@@ -340,7 +340,7 @@ class Campaign:
 #: (path -> (file identity, log)); each is taken once, at most a few small ones are held
 _LOG_HANDOFF: dict = {}
 _HANDOFF_MAX_LOGS = 4
-_HANDOFF_MAX_BYTES = 64 << 20
+_HANDOFF_MAX_BYTES = 16 << 20
 
 
 def _file_key(path) -> tuple | None:
