@@ -8,6 +8,8 @@ the Jacobian of eq. 3-5's residual), so no unbiased per-frame estimator can beat
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from mocap.io.errors import InputError
@@ -224,9 +226,10 @@ def check_marker_units(positions, labels, chain, path=None, joint: int | None = 
         "units suspected", naming the file and the marker.
     """
     P = np.asarray(positions, float)
-    ext = np.nanmax(P, axis=0) - np.nanmin(P, axis=0)             # (M, 3) per-marker extent
+    hi, lo = np.nanmax(P, axis=0), np.nanmin(P, axis=0)           # (M, 3) per-marker bounds
+    ext = hi - lo                                                 # (M, 3) per-marker extent
     ext_m = np.nanmax(ext, axis=1)
-    allx = float(np.nanmax(np.nanmax(P.reshape(-1, 3), axis=0) - np.nanmin(P.reshape(-1, 3), axis=0)))
+    allx = float(np.nanmax(np.nanmax(hi, axis=0) - np.nanmin(lo, axis=0)))
     reach = chain_reach(chain)
     what = f"sweep of joint {joint}" if joint is not None else "marker cloud"
     if allx > 3.0 * reach + 1.0:
@@ -247,11 +250,17 @@ def check_marker_extent(markers, labels, chain) -> None:
     idx = [k for k, lb in enumerate(markers.labels) if lb in labels]
     if len(idx) < 2:
         return
-    P = markers.positions[:, idx].reshape(-1, 3)
-    P = P[np.all(np.isfinite(P), axis=1)]
-    if P.shape[0] < 2:
+    P = markers.positions[:, idx]                                 # (T, k, 3)
+    f = np.isfinite(P)
+    whole = f[..., 0] & f[..., 1] & f[..., 2]                     # points with all 3 axes
+    if np.count_nonzero(whole) < 2:
         return
-    ext = float(np.max(np.ptp(P, axis=0)))
+    P = np.where(whole[..., None], P, np.nan).reshape(P.shape[0], -1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)           # a marker never seen whole
+        hi = np.nanmax(np.nanmax(P, axis=0).reshape(-1, 3), axis=0)
+        lo = np.nanmin(np.nanmin(P, axis=0).reshape(-1, 3), axis=0)
+    ext = float(np.max(hi - lo))
     reach = chain_reach(chain)
     if reach > 0 and ext < 0.005 * reach:
         raise InputError(f"the campaign's {len(idx)} markers span {1e3 * ext:.3g} mm, {ext / reach:.2g} of the "

@@ -264,7 +264,9 @@ class Campaign:
         if n is None and self.coupling is not None:
             n = len(self.coupling)
 
-        log = read_robot_log(rec.log, n_joints=n)
+        log = _take_log(rec.log, n)
+        if log is None:
+            log = read_robot_log(rec.log, n_joints=n)
         if self.coupling is not None:
             log = log.coupled(self.coupling)
         kind = "trial" if isinstance(rec, Trial) else "calib" if isinstance(rec, CalibSweep) else "static"
@@ -303,8 +305,9 @@ class Campaign:
         m = read_markers(rec.markers)
         check_marker_time(m)
         ours = [k for k, lb in enumerate(m.labels) if lb in self.link_of_label()]
-        if robot is not None and ours and np.isfinite(m.positions[:, ours]).any():
-            check_marker_units(m.positions[:, ours], [m.labels[k] for k in ours], robot.chain,
+        P = m.positions if len(ours) == len(m.labels) else m.positions[:, ours]   # all ours: no copy
+        if robot is not None and ours and np.isfinite(P).any():
+            check_marker_units(P, [m.labels[k] for k in ours], robot.chain,
                                path=m.source, check_motion=False)
 
             check_marker_extent(m, self.link_of_label(), robot.chain)
@@ -315,7 +318,9 @@ class Campaign:
     def _check_trial_markers(self, m, rec) -> None:
         """A trial's marker file against its log's time span and each link's marker distances
         against the first static recording (:mod:`mocap.io.plausibility`)."""
-        check_marker_timing(m, read_robot_log(rec.log))
+        log = read_robot_log(rec.log)
+        check_marker_timing(m, log)
+        _hand_log(rec.log, log)
         if self.static and self.static[0].markers is not None:
             p = self.static[0].markers
             st = p.stat()
@@ -329,6 +334,59 @@ class Campaign:
             yield "calib", f"calib-joint-{c.joint}", c
         for t in self.trials:
             yield "trial", t.id, t
+
+
+#: the logs a trial's marker check read, kept for the :meth:`Campaign.read_log` that follows it
+#: (path -> (file identity, log)); each is taken once, at most a few small ones are held
+_LOG_HANDOFF: dict = {}
+_HANDOFF_MAX_LOGS = 4
+_HANDOFF_MAX_BYTES = 16 << 20
+
+
+def _file_key(path) -> tuple | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def _hand_log(path, log) -> None:
+    """Keep ``log`` (``read_robot_log(path)``, joints as found) for one :func:`_take_log`."""
+    cells = log.time.size * (1 + log.qm.shape[1] + log.tau.shape[1] + len(log.extra))
+    key = _file_key(path)
+    if key is None or 8 * cells > _HANDOFF_MAX_BYTES:
+        return
+    _LOG_HANDOFF.pop(str(path), None)
+    while len(_LOG_HANDOFF) >= _HANDOFF_MAX_LOGS:
+        _LOG_HANDOFF.pop(next(iter(_LOG_HANDOFF)), None)
+    _LOG_HANDOFF[str(path)] = (key, log)
+
+
+def _take_log(path, n_joints: int | None):
+    """``read_robot_log(path, n_joints)`` from the log :func:`_hand_log` kept for ``path`` (the
+    same file, unchanged), or None: read it. The kept log has the joints the file names; a
+    wider robot gets NaN columns, as the reader gives them. Only where the reader's header
+    check is the same for both widths (up to 9 joints) and the file names no joint beyond
+    ``n_joints`` (that error comes from the reader)."""
+    import numpy as np
+
+    got = _LOG_HANDOFF.pop(str(path), None)
+    if got is None or got[0] != _file_key(path):
+        return None
+    log = got[1]
+    w = log.qm.shape[1]
+    if n_joints is None or n_joints == w:
+        return log
+    if w > n_joints or n_joints > 9 or log.tau.shape[1] != w:
+        return None
+
+    def widen(X):
+        out = np.full((X.shape[0], n_joints), np.nan)
+        out[:, :w] = X
+        return out
+
+    return dataclasses.replace(log, qm=widen(log.qm), tau=widen(log.tau))
 
 
 @functools.lru_cache(maxsize=4)

@@ -311,18 +311,48 @@ def check_marker_time(markers) -> None:
     _check_time_jump(np.asarray(markers.time, float), markers.source, "the marker file's time")
 
 
-def _distances(P) -> np.ndarray:
-    """(M, M) median over frames of the distances between markers ``P`` (T, M, 3)."""
-    D = np.linalg.norm(P[:, :, None, :] - P[:, None, :, :], axis=-1)
+def _pair_distances(P, i, j) -> np.ndarray:
+    """(K,) median over frames of the distances between markers ``i[k]`` and ``j[k]`` of ``P``
+    (T, M, 3)."""
+    if len(i) == 0:
+        return np.empty(0)
+    D = np.linalg.norm(P[:, i] - P[:, j], axis=-1)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmedian(D, axis=0)
+        if D.shape[0] < 600:              # numpy's small-array nanmedian
+            return np.nanmedian(D, axis=0)
+        holes = np.isnan(D).any(axis=0)
+        if not holes.any():               # the median of each column, as nanmedian takes it
+            return np.median(D, axis=0)
+        out = np.empty(D.shape[1])
+        out[~holes] = np.median(D[:, ~holes], axis=0)
+        out[holes] = np.nanmedian(D[:, holes], axis=0)
+        return out
+
+
+#: id(reference recording) -> (the recording, its pair indices, their median distances): a
+#: static reference is checked against every trial of a campaign; its distances are computed once
+_REF_PAIRS: dict = {}
+
+
+def _reference_pair_distances(reference, i, j) -> np.ndarray:
+    key = (tuple(i), tuple(j))
+    hit = _REF_PAIRS.get(id(reference))
+    if hit is not None and hit[0] is reference and hit[1] == key:
+        return hit[2]
+    d = _pair_distances(reference.positions, i, j)
+    if len(_REF_PAIRS) >= 4:
+        _REF_PAIRS.clear()
+    _REF_PAIRS[id(reference)] = (reference, key, d)
+    return d
 
 
 def check_marker_shapes(markers, reference, link_labels: dict) -> None:
     """Each link's markers keep the distances they have in the static ``reference`` recording
     (a rigid link): a link whose median distances are off by more than 20 mm RMS (markers
-    collapsed to one point, a unit declared wrong) is refused with that residual."""
+    collapsed to one point, a unit declared wrong) is refused with that residual. The
+    ``reference`` is read, never changed (its distances are kept for the next trial)."""
+    links, mi, mj, ri, rj = [], [], [], [], []
     for link, labels in link_labels.items():
         idx = [k for k, lb in enumerate(markers.labels) if lb in labels]
         ref = [reference.labels.index(markers.labels[k]) for k in idx
@@ -330,10 +360,18 @@ def check_marker_shapes(markers, reference, link_labels: dict) -> None:
         idx = [k for k in idx if markers.labels[k] in reference.labels]
         if len(idx) < 2:
             continue
-        A = _distances(markers.positions[:, idx])
-        B = _distances(reference.positions[:, ref])
         iu = np.triu_indices(len(idx), 1)
-        a, b = A[iu], B[iu]
+        links.append((link, len(mi), len(mi) + len(iu[0])))
+        mi += [idx[a] for a in iu[0]]
+        mj += [idx[b] for b in iu[1]]
+        ri += [ref[a] for a in iu[0]]
+        rj += [ref[b] for b in iu[1]]
+    if not links:
+        return
+    A = _pair_distances(markers.positions, mi, mj)
+    B = _reference_pair_distances(reference, ri, rj)
+    for link, lo, hi in links:
+        a, b = A[lo:hi], B[lo:hi]
         ok = np.isfinite(a) & np.isfinite(b)
         if not ok.any() or float(np.max(b[ok])) < 5e-3:
             continue
@@ -490,29 +528,39 @@ def braked_marker_residuals(markers, log, refs, robot, trial, T_camera_base=None
         return [], []
     q = np.where(np.isfinite(q), q, 0.0)
     T_cb = np.asarray(refs.T_camera_base if T_camera_base is None else T_camera_base, float)
-    res, names = [], []
-    for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
-        if link not in frames or frames[link][0] >= first or lb not in markers.labels:
+    use = [(k, lb, link, markers.labels.index(lb)) for k, (lb, link) in enumerate(zip(refs.labels, refs.links))
+           if link in frames and frames[link][0] < first and lb in markers.labels]
+    f = np.isfinite(markers.positions[:, [c for *_, c in use]])
+    ok = f[..., 0] & f[..., 1] & f[..., 2]                           # (T, markers used)
+    whole = ok.all(axis=0)
+    # per marker, the median over its frames; of the markers seen in every frame, all at once
+    med = np.median(markers.positions[:, [c for (*_, c), w in zip(use, whole) if w]], axis=0)
+    res, names, T_link = [], [], {}
+    for u, (k, lb, link, c) in enumerate(use):
+        if not ok[:, u].any():
             continue
-        P = markers.positions[:, markers.labels.index(lb)]
-        ok = np.all(np.isfinite(P), axis=1)
-        if ok.sum() < 1:
-            continue
-        meas = np.median(P[ok], axis=0)
-        p = T_cb @ robot.frame_transform(link, q) @ np.append(refs.p_link[k], 1.0)
+        meas = med[int(np.count_nonzero(whole[:u]))] if whole[u] else \
+            np.median(markers.positions[ok[:, u], c], axis=0)
+        if link not in T_link:
+            T_link[link] = robot.frame_transform(link, q)
+        p = T_cb @ T_link[link] @ np.append(refs.p_link[k], 1.0)
         res.append(float(np.linalg.norm(meas - p[:3])))
         names.append(lb)
     return res, names
 
 
-def _kabsch_rms(A, B) -> float:
-    """RMS residual of the best proper rigid motion (rotation with det +1, translation) taking
-    points ``A`` (k, 3) onto ``B`` (k, 3) (Kabsch; a mirror image cannot be matched)."""
-    a, b = A - A.mean(axis=0), B - B.mean(axis=0)
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    R = (U @ np.diag([1.0, 1.0, d]) @ Vt).T
-    return float(np.sqrt(np.mean(np.sum((a @ R.T - b) ** 2, axis=1))))
+def _kabsch_rms(A, B) -> np.ndarray:
+    """(F,) RMS residuals of the best proper rigid motion (rotation with det +1, translation)
+    taking points ``A`` (k, 3) onto each ``B[f]`` (F, k, 3) (Kabsch; a mirror image cannot be
+    matched), batched over the F point sets."""
+    a, b = A - A.mean(axis=0), B - B.mean(axis=1, keepdims=True)
+    U, _, Vt = np.linalg.svd(np.matmul(a.T, b))
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.zeros((len(B), 3, 3))
+    D[:, 0, 0] = D[:, 1, 1] = 1.0
+    D[:, 2, 2] = np.where(d == 0, 1.0, d)
+    X = U @ D @ Vt                                      # the rotation's transpose
+    return np.sqrt(np.mean(np.sum((a @ X - b) ** 2, axis=2), axis=1))
 
 
 def moving_group_residual(markers, log, refs, robot, trial, n_frames: int = 60):
@@ -531,21 +579,23 @@ def moving_group_residual(markers, log, refs, robot, trial, n_frames: int = 60):
     if q.shape[0] != robot.n or not np.all(np.isfinite(np.delete(q, first))):
         return float("nan"), 0
     q = np.where(np.isfinite(q), q, 0.0)
-    ks, pred = [], []
+    ks, pred, T_link = [], [], {}
     for k, (lb, link) in enumerate(zip(refs.labels, refs.links)):
         if link in frames and frames[link][0] >= first and lb in markers.labels:
             ks.append(markers.labels.index(lb))
-            pred.append((robot.frame_transform(link, q) @ np.append(refs.p_link[k], 1.0))[:3])
+            if link not in T_link:
+                T_link[link] = robot.frame_transform(link, q)
+            pred.append((T_link[link] @ np.append(refs.p_link[k], 1.0))[:3])
     if len(ks) < 4:
         return float("nan"), len(ks)
     pred = np.array(pred)
-    P = markers.positions[:, ks]
-    ok = np.flatnonzero(np.all(np.isfinite(P), axis=(1, 2)))
+    f = np.isfinite(markers.positions)
+    ok = np.flatnonzero((f[..., 0] & f[..., 1] & f[..., 2])[:, ks].all(axis=1))
     if ok.size == 0:
         return float("nan"), len(ks)
     pick = ok[np.linspace(0, ok.size - 1, min(n_frames, ok.size)).astype(int)]
     # the best tenth of the frames: label swaps spoil some frames, a mirrored file every frame
-    return float(np.percentile([_kabsch_rms(pred, P[i]) for i in pick], 10)), len(ks)
+    return float(np.percentile(_kabsch_rms(pred, markers.positions[pick][:, ks]), 10)), len(ks)
 
 
 def check_trial_rigid_fit(markers, log, refs, robot, trial, T_camera_base=None) -> None:

@@ -30,6 +30,7 @@ looks at single cells, to name the bad one.
 """
 from __future__ import annotations
 
+import contextlib
 import io
 import re
 from pathlib import Path
@@ -159,16 +160,19 @@ def read_trc(path: str | Path) -> MarkerRecording:
 
 
 _LINE_END = re.compile(rb"\r\n|\r|\n")
-#: files from this size on stream through :func:`_read_fast`
-STREAM_MIN_BYTES = 1 << 20
+#: files from this size on stream through :func:`_read_fast` (the quicker reader from here on)
+STREAM_MIN_BYTES = 1 << 17
+#: files up to this size are read into memory in one piece by :func:`_read_fast`, larger ones in blocks
+WHOLE_MAX_BYTES = 16 << 20
 #: cells the streaming reader reads as an occlusion (empty or ``nan`` in any case)
 _NAN_SPELLINGS = ["", "nan", "naN", "nAn", "nAN", "Nan", "NaN", "NAn", "NAN"]
 
 
 def _read_fast(path: Path) -> MarkerRecording | None:
     """The streaming reader: the header's five lines parsed by :func:`_parse_header`, the data
-    rows by pyarrow's CSV reader in blocks straight into one float64 array (no text copy of the
-    file). It takes only a well-formed file: UTF-8 header lines, every row as wide as the first
+    rows by pyarrow's CSV reader in blocks straight into one float64 array (files up to
+    :data:`WHOLE_MAX_BYTES` are read into memory in one piece, larger ones block by block; no
+    per-cell Python object). It takes only a well-formed file: UTF-8 header lines, every row as wide as the first
     (at least ``2 + 3 * markers`` cells, the ones beyond empty), cells that are numbers or
     occlusions (:data:`_NAN_SPELLINGS`), finite values within :data:`ABSURD_M`, a strictly
     increasing time, and no partly empty marker in rows wider than the header. Anything else
@@ -179,8 +183,14 @@ def _read_fast(path: Path) -> MarkerRecording | None:
         import pyarrow.csv as pacsv
     except ImportError:                                  # pragma: no cover - pyarrow optional
         return None
+    size = path.stat().st_size
+    whole = None
     with open(path, "rb") as fh:
-        head = fh.read(1 << 20)
+        if size <= WHOLE_MAX_BYTES:               # read once: the header, the row count, the rows
+            whole = fh.read()
+            head = whole[:1 << 20]
+        else:
+            head = fh.read(1 << 20)
     start = 3 if head.startswith(b"\xef\xbb\xbf") else 0
     ends = []
     for m in _LINE_END.finditer(head, start):   # the header's lines and the first rows
@@ -209,21 +219,27 @@ def _read_fast(path: Path) -> MarkerRecording | None:
     if k < n_cols:
         return None
     names = [f"c{i}" for i in range(k)]
-    with open(path, "rb") as fh:                # rows at most: the line ends below the header
-        fh.seek(body_at)
-        n_lf = n_cr = 0
-        while True:
-            chunk = fh.read(1 << 24)
-            if not chunk:
-                break
-            n_lf += chunk.count(b"\n")
-            n_cr += chunk.count(b"\r")
-        rows_max = n_lf + n_cr + 1
+    if whole is not None:                       # rows at most: the line ends below the header
+        body = memoryview(whole)[body_at:]
+        rows_max = whole.count(b"\n", body_at) + whole.count(b"\r", body_at) + 1
+    else:
+        with open(path, "rb") as fh:
+            fh.seek(body_at)
+            n_lf = n_cr = 0
+            while True:
+                chunk = fh.read(1 << 24)
+                if not chunk:
+                    break
+                n_lf += chunk.count(b"\n")
+                n_cr += chunk.count(b"\r")
+            rows_max = n_lf + n_cr + 1
     values = np.empty((rows_max, n_cols))
     pool = pa.system_memory_pool()
     try:
-        with open(path, "rb") as fh:
-            fh.seek(body_at)
+        with (contextlib.nullcontext(pa.BufferReader(body)) if whole is not None
+              else open(path, "rb")) as fh:
+            if whole is None:
+                fh.seek(body_at)
             reader = pacsv.open_csv(
                 fh, memory_pool=pool,
                 read_options=pacsv.ReadOptions(column_names=names, block_size=1 << 20),
@@ -251,9 +267,11 @@ def _read_fast(path: Path) -> MarkerRecording | None:
     if n == 0:
         return None
     scale = UNIT_SCALE[h["units"]]
+    a = np.abs(values)
     with np.errstate(invalid="ignore"):
-        if np.isinf(values).any() or (np.abs(values[:, 2:]) * scale > ABSURD_M).any():
+        if (a == np.inf).any() or (a[:, 2:] * scale > ABSURD_M).any():
             return None
+    del a
     t = values[:, 1]
     if not np.isfinite(t).all() or (np.diff(t) <= 0).any():
         return None
@@ -261,7 +279,7 @@ def _read_fast(path: Path) -> MarkerRecording | None:
         fin = np.isfinite(values[:, 2:].reshape(n, -1, 3)).sum(axis=2)
         if ((fin > 0) & (fin < 3)).any():
             return None                                 # partly empty marker in a wide row
-    return _finish(values, np.full(n, k), np.arange(n), h, path)
+    return _finish(values, np.full(n, k), np.arange(n), h, path, checked=True)
 
 
 def _parse_header(lines: list[str], path: Path) -> dict:
@@ -343,15 +361,17 @@ def _parse_header(lines: list[str], path: Path) -> dict:
             "labels": labels, "n_markers": n_markers, "data_start": data_start}
 
 
-def _finish(values, n_cells, line_no, h: dict, path: Path) -> MarkerRecording:
+def _finish(values, n_cells, line_no, h: dict, path: Path, checked: bool = False) -> MarkerRecording:
     """The recording from the parsed data cells ``values`` (rows, 2 + 3 markers): checks of the
-    cells and the time, occlusions, units, the header's agreement with the rows."""
+    cells and the time, occlusions, units, the header's agreement with the rows. ``checked``:
+    the cells are known finite or NaN and within :data:`ABSURD_M` (:func:`_check_finite` passes)."""
     labels, n_markers, header, meta = h["labels"], h["n_markers"], h["header"], h["meta"]
     units, rate = h["units"], h["rate"]
     n_cols = 2 + 3 * n_markers
     if values.shape[0] == 0:
         raise InputError("no data rows: the file has only its header", path=path)
-    _check_finite(values, UNIT_SCALE[units], labels, line_no, path)
+    if not checked:
+        _check_finite(values, UNIT_SCALE[units], labels, line_no, path)
     frame_col, time = values[:, 0], values[:, 1]
     bad_t = np.flatnonzero(~np.isfinite(time))
     if bad_t.size:
@@ -364,7 +384,8 @@ def _finish(values, n_cells, line_no, h: dict, path: Path) -> MarkerRecording:
 
     xyz = values[:, 2:].reshape(-1, n_markers, 3)
     finite = np.isfinite(xyz)
-    partial = np.any(finite, axis=2) & ~np.all(finite, axis=2)
+    n_fin = finite[..., 0].astype(np.int8) + finite[..., 1] + finite[..., 2]   # (T, M) finite axes
+    partial = (n_fin > 0) & (n_fin < 3)
     shifted = partial & (n_cells > n_cols)[:, None]
     if shifted.any():
         # an occluded marker is three empty cells (FORMAT.md); a row with more cells than the
@@ -376,7 +397,7 @@ def _finish(values, n_cells, line_no, h: dict, path: Path) -> MarkerRecording:
                          f"three (columns {3 + 3 * m}-{5 + 3 * m}): a damaged row (doubled or "
                          "missing separator?) would shift every later marker", path=path,
                          line=int(line_no[r]), label=labels[m])
-    missing = ~np.all(finite, axis=2)   # a blank/NaN cell: the marker is out for that frame
+    missing = n_fin < 3                 # a blank/NaN cell: the marker is out for that frame
     meta["partial_markers"] = int(partial.sum())   # frames x markers with 1-2 blank cells
     xyz[missing] = np.nan
     positions = xyz * UNIT_SCALE[units]
