@@ -41,7 +41,7 @@ sys.path.insert(0, str(REPO))
 
 from ident.cli.main import main as cli  # noqa: E402
 from ident.study.executor import make_executor  # noqa: E402
-from ident.study.study import Study, StudySettings  # noqa: E402
+from ident.study.study import DIAGNOSIS_SAMPLES, Study, StudySettings  # noqa: E402
 
 FULL = dict(joints="1,2,3,4,5,6", loads="0,3.373", vmax="0.3,0.6,1.0", reps=5, duration=20.0, rate=200.0)
 QUICK = dict(joints="2,5", loads="0", vmax="0.3,0.6,1.0", reps=2, duration=8.0, rate=200.0)
@@ -170,7 +170,8 @@ def memory_scaling(args) -> int:
         out = args.cache / f"out-{_key(cfg)}-mem"
         res = args.cache / f"mem-{_key(cfg)}.json"
         cmd = [sys.executable, __file__, "--mem-run", str(camp), str(out), str(res),
-               "--mem-workers", str(args.mem_workers), "--diagnosis-reps", str(args.diagnosis_reps)]
+               "--mem-workers", str(args.mem_workers)] + (
+            [] if args.diagnosis_reps is None else ["--diagnosis-reps", str(args.diagnosis_reps)])
         child = subprocess.Popen(cmd)
         with PeakRSS(pid=child.pid, pss=True) as mem:
             rc = child.wait()
@@ -180,7 +181,7 @@ def memory_scaling(args) -> int:
         peaks[n] = (mem.peak, mem.peak_pss)
         roles = ", ".join(f"{k} {v / 1e9:.2f} GB" for k, v in sorted(mem.by_role.items()))
         print(f"{n:5d} trials of {args.duration:g} s, {args.mem_workers} worker(s), diagnosis reps "
-              f"{args.diagnosis_reps or 'all'}: wall {r['wall']:.1f} s, peak RSS {mem.peak / 1e9:.2f} GB, "
+              f"{_reps_label(args.diagnosis_reps)}: wall {r['wall']:.1f} s, peak RSS {mem.peak / 1e9:.2f} GB, "
               f"PSS {mem.peak_pss / 1e9:.2f} GB (largest single process RSS: {roles}); "
               f"load avg {os.getloadavg()[0]:.1f}" + (f"\n{'':6}errors: {r['errors']}" if r["errors"] else ""),
               flush=True)
@@ -191,6 +192,11 @@ def memory_scaling(args) -> int:
         print(f"peak {name} ratio {args.scale * args.trials} / {args.trials} trials: {ratio:.2f} "
               f"(goal <= {GOAL_MEM_RATIO:g}: {'met' if ratio <= GOAL_MEM_RATIO else 'NOT met'})", flush=True)
     return 0
+
+
+def _reps_label(reps) -> str:
+    return (f"within {DIAGNOSIS_SAMPLES} samples per joint (default)" if reps is None
+            else "all" if reps == 0 else str(reps))
 
 
 def _mem_run(args) -> int:
@@ -260,8 +266,9 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=20.0,
                     help="--memory: trial length in s (default 20; shorter keeps a 10x study quick)")
     ap.add_argument("--mem-joints", default="1,2,3,4,5,6", help="--memory: joints (default 1-6)")
-    ap.add_argument("--diagnosis-reps", type=int, default=0,
-                    help="--memory: the diagnosis reads the first R repetitions per condition (default 0: all)")
+    ap.add_argument("--diagnosis-reps", type=int, default=None,
+                    help="--memory: the diagnosis reads the first R repetitions per condition (0: all; "
+                         "default: the study's default, the most within its sample budget)")
     ap.add_argument("--mem-workers", type=int, default=2, help="--memory: local workers (default 2)")
     ap.add_argument("--mem-run", nargs=3, metavar=("CAMPAIGN", "OUT", "RESULT"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)

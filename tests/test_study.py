@@ -301,6 +301,29 @@ def test_diagnosis_reps_diagnoses_the_first_repetitions_and_fits_every_trial(tin
     assert a == json.loads(json.dumps(to_jsonable(ref["joints"])))
 
 
+def test_default_diagnosis_reads_whole_repetitions_within_the_sample_budget(tiny, tmp_path, monkeypatch):
+    """The default (``diagnosis_reps=None``): as many repetitions of every condition as fit the
+    sample budget per joint; all of them when they fit, the first one when even two do not."""
+    import dataclasses
+
+    from ident.study import study as st
+
+    camp, _, _ = tiny
+    loaded = load_campaign(camp)
+    rows = {t.id: st._log_rows(t.log) for t in loaded.trials}
+    assert all(r > 100 for r in rows.values())
+    keep, reps = st._within_samples(list(loaded.trials), sum(rows.values()))
+    assert reps == 2 and len(keep) == 4
+    firsts = [t for t in loaded.trials if t.repetition == 1]
+    keep, reps = st._within_samples(list(loaded.trials), sum(rows[t.id] for t in firsts))
+    assert reps == 1 and [t.id for t in keep] == [t.id for t in firsts]
+    monkeypatch.setattr(st, "DIAGNOSIS_SAMPLES", 1)
+    fast = dataclasses.replace(FAST, plots=False)
+    res = Study(fast, None, progress=False).run(camp, tmp_path / "a")
+    assert res.stages["fits"]["computed"] == 4
+    assert "2 of 4 trials" in res.stages["diagnosis"]["note"] and "samples per joint" in res.stages["diagnosis"]["note"]
+
+
 def test_scheduler_without_the_dask_extra_says_how_to_install(tiny, tmp_path, capsys):
     try:
         import distributed  # noqa: F401

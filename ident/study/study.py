@@ -96,9 +96,11 @@ class StudySettings:
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
     speed) condition to the recording (keeps it small), ``"all"`` every trial;
     ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
-    every condition (0: all). It holds a joint's kept samples (a few hundred bytes each) while it
-    runs; the rest of its memory does not grow with the trials (docs/study-memory.md). This
-    bounds it further (the fits use every trial regardless)."""
+    every condition (0: all; None, the default: the most repetitions whose samples stay within
+    :data:`DIAGNOSIS_SAMPLES` per joint, at least one). It holds a joint's samples (a few hundred
+    bytes each) while it runs; the rest of its memory does not grow with the trials
+    (docs/study-memory.md), so the budget keeps a study's memory flat in its number of trials
+    (the fits use every trial regardless)."""
 
     models: tuple = ("cv", "stribeck", "hyperbolic")
     n_starts: int = 8
@@ -110,7 +112,7 @@ class StudySettings:
     plots: bool = True
     rrd: bool = True
     rrd_trials: str = "first"
-    diagnosis_reps: int = 0
+    diagnosis_reps: int | None = None
 
     def validate(self) -> "StudySettings":
         if not self.models:
@@ -128,7 +130,7 @@ class StudySettings:
             raise InputError(f"rrd_trials must be 'first' or 'all', got {self.rrd_trials!r}")
         if self.n_starts < 1:
             raise InputError("n_starts must be >= 1")
-        if self.diagnosis_reps < 0:
+        if self.diagnosis_reps is not None and self.diagnosis_reps < 0:
             raise InputError(f"diagnosis_reps must be >= 0 (0: all), got {self.diagnosis_reps}")
         return self
 
@@ -311,6 +313,36 @@ def _without_plots(result: dict) -> dict:
     return {**result, "entries": [dataclasses.replace(
         e, plot={}, fits={m: dataclasses.replace(f, residuals=np.empty(0)) for m, f in e.fits.items()})
         for e in result["entries"]]}
+
+
+#: samples of one joint the study's gap diagnosis reads by default: whole repetitions of every
+#: condition, as many as fit (:func:`_within_samples`; docs/study-memory.md)
+DIAGNOSIS_SAMPLES = 200_000
+
+
+def _log_rows(path) -> int:
+    """Data rows of a robot log (its line feeds less the header's; a last line without one
+    counts), read in blocks of 1 MiB."""
+    n, last = 0, b"\n"
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            n += block.count(b"\n")
+            last = block[-1:]
+    return max(n - 1 + (last != b"\n"), 0)
+
+
+def _within_samples(trials, budget: int) -> tuple[list, int]:
+    """``(trials, R)``: the trials of the first ``R`` repetitions of every condition
+    (:func:`_first_repetitions`) for the largest ``R`` whose logs hold at most ``budget`` rows
+    together (at least one repetition)."""
+    rows = {t.id: _log_rows(t.log) for t in trials}
+    top = max((t.repetition for t in trials), default=1)
+    reps = max(1, top)
+    keep = _first_repetitions(trials, reps)
+    while reps > 1 and sum(rows[t.id] for t in keep) > budget:
+        reps -= 1
+        keep = _first_repetitions(trials, reps)
+    return keep, reps
 
 
 def _first_repetitions(trials, n: int) -> list:
@@ -948,7 +980,12 @@ class Study:
             return {"records": (dset, t0)}
         jobs, done, hashes = [], {}, {}
         n_all = sum(len(v) for v in by_joint.values())
-        if s.diagnosis_reps:
+        n_joint = {j: len(v) for j, v in by_joint.items()}
+        reps_used: dict = {}
+        if s.diagnosis_reps is None:
+            for j, v in list(by_joint.items()):
+                by_joint[j], reps_used[j] = _within_samples(v, DIAGNOSIS_SAMPLES)
+        elif s.diagnosis_reps:
             by_joint = {j: _first_repetitions(v, s.diagnosis_reps) for j, v in by_joint.items()}
         n_read = sum(len(v) for v in by_joint.values())
         for j, trials in sorted(by_joint.items()):  # loop over joints
@@ -964,11 +1001,19 @@ class Study:
                 continue
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
                                  dset, str(ctx.state / record), str(ctx.tmp_dir), h,
-                                 tuple(t.id for t in trials) if s.diagnosis_reps else None))
+                                 tuple(t.id for t in trials) if len(trials) < n_joint[j] else None))
         self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
         pending = self._submit(_run_diag_job, jobs, "diagnosis")
-        note = (f"the first {s.diagnosis_reps} repetition(s) of each condition: {n_read} of {n_all} trials"
-                if n_read < n_all else "")
+        if n_read == n_all:
+            note = ""
+        elif s.diagnosis_reps is None:
+            cut = ", ".join(f"joint {j}: {r}" for j, r in sorted(reps_used.items())
+                            if len(by_joint[j]) < n_joint[j])
+            note = (f"the first repetitions of each condition within {DIAGNOSIS_SAMPLES} samples per "
+                    f"joint ({cut}; --diagnosis-reps 0 reads all): {n_read} of {n_all} trials")
+        else:
+            note = (f"the first {s.diagnosis_reps} repetition(s) of each condition: {n_read} of "
+                    f"{n_all} trials")
         return dict(dset=dset, jobs=jobs, done=done, hashes=hashes, pending=pending,
                     prep_s=time.perf_counter() - t0, note=note)
 

@@ -32,9 +32,10 @@ def add_study_options(p) -> None:
     p.add_argument("--no-rrd", action="store_true", help="do not write DIR/study.rrd")
     p.add_argument("--rrd-trials", choices=("first", "all"), default="first",
                    help="trials in the recording: the first repetition of each condition (default) or all")
-    p.add_argument("--diagnosis-reps", type=int, default=0, metavar="R",
-                   help="the gap diagnosis reads the first R repetitions of every condition (default 0: "
-                        "all); its memory grows with the trials per joint, this bounds it")
+    p.add_argument("--diagnosis-reps", type=int, default=None, metavar="R",
+                   help="the gap diagnosis reads the first R repetitions of every condition (0: all; "
+                        "default: the most repetitions within 200000 samples per joint, which keeps "
+                        "the study's memory flat in its number of trials)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -53,7 +54,7 @@ def settings_from_args(args):
     models = tuple(m.strip() for m in args.models.split(",") if m.strip())
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
-    if args.diagnosis_reps < 0:
+    if args.diagnosis_reps is not None and args.diagnosis_reps < 0:
         raise InputError(f"--diagnosis-reps must be >= 0 (0: all), got {args.diagnosis_reps}")
     return StudySettings(models=models, n_starts=args.starts, seed=args.seed, sync=args.sync,
                          mocap=not args.no_mocap, diagnose=not args.no_diagnosis, plots=not args.no_plots,
