@@ -392,7 +392,11 @@ def _read_fast(path: Path, n_joints: int | None) -> RobotLog | None:
         import pyarrow.csv as pacsv
     except ImportError:                                  # pragma: no cover - pyarrow optional
         return None
-    with open(path, "rb") as fh:
+    try:
+        fh = open(path, "rb")
+    except OSError:
+        return None                              # the careful parser says why, naming the file
+    with fh:
         head = fh.read(_CHUNK)
         bom = 3 if head.startswith(b"\xef\xbb\xbf") else 0
         head = head[bom:]

@@ -185,12 +185,15 @@ def _read_fast(path: Path) -> MarkerRecording | None:
         return None
     size = path.stat().st_size
     whole = None
-    with open(path, "rb") as fh:
-        if size <= WHOLE_MAX_BYTES:               # read once: the header, the row count, the rows
-            whole = fh.read()
-            head = whole[:1 << 20]
-        else:
-            head = fh.read(1 << 20)
+    if size <= WHOLE_MAX_BYTES:                   # read once: the header, the row count, the rows
+        whole = read_bytes(path)                  # a file that cannot be read: one InputError
+        head = whole[:1 << 20]
+    else:
+        try:
+            with open(path, "rb") as fh:
+                head = fh.read(1 << 20)
+        except OSError:
+            return None                           # the careful reader says why, naming the file
     start = 3 if head.startswith(b"\xef\xbb\xbf") else 0
     ends = []
     for m in _LINE_END.finditer(head, start):   # the header's lines and the first rows
