@@ -336,8 +336,7 @@ def _within_samples(trials, budget: int) -> tuple[list, int]:
     (:func:`_first_repetitions`) for the largest ``R`` whose logs hold at most ``budget`` rows
     together (at least one repetition)."""
     rows = {t.id: _log_rows(t.log) for t in trials}
-    top = max((t.repetition for t in trials), default=1)
-    reps = max(1, top)
+    reps = max([1] + [t.repetition for t in trials])
     keep = _first_repetitions(trials, reps)
     while reps > 1 and sum(rows[t.id] for t in keep) > budget:
         reps -= 1
