@@ -87,7 +87,12 @@ class SerialExecutor:
         """:meth:`map` deferred: runs when the result is asked for (one process: nothing
         else could run meanwhile)."""
         items = list(items)
-        return Pending(lambda: self.map(fn, items, desc))
+
+        def each():
+            for i, x in enumerate(_progress(items, len(items), desc, self.progress)):
+                yield i, fn(x)
+
+        return Pending(lambda: self.map(fn, items, desc), each)
 
     def close(self):
         pass
@@ -95,16 +100,35 @@ class SerialExecutor:
 
 class Pending:
     """A mapped batch in flight: ``result()`` waits for it and returns the results in input
-    order (the executor's ``map`` semantics: the same errors, raised there)."""
+    order (the executor's ``map`` semantics: the same errors, raised there); ``each()`` yields
+    ``(index, result)`` as the items finish (then ``result()`` returns them all at once)."""
 
-    def __init__(self, wait: Callable[[], list]):
+    def __init__(self, wait: Callable[[], list], each: Callable | None = None):
         self._wait, self._done, self._value = wait, False, None
+        self._each = each
 
     def result(self) -> list:
         if not self._done:
             self._value, self._done = self._wait(), True
-            self._wait = None
+            self._wait = self._each = None
         return self._value
+
+    def each(self):
+        """``(index, result)`` of every item in the order they finish (input order where the
+        executor runs them one by one)."""
+        if self._done or self._each is None:
+            yield from enumerate(self.result())
+            return
+        values: dict = {}
+        items = self._each()
+        try:
+            for i, r in items:
+                values[i] = r
+                yield i, r
+        finally:        # the caller stopped early (an error, Ctrl-C): the executor's cleanup
+            items.close()
+        self._value, self._done = [values[i] for i in range(len(values))], True
+        self._wait = self._each = None
 
 
 class PoolExecutor:
@@ -137,13 +161,18 @@ class PoolExecutor:
         except BaseException:
             self._kill()
             raise
-        return Pending(lambda: self._wait(futs, desc))
+        return Pending(lambda: self._wait(futs, desc), lambda: self._each(futs, desc))
 
     def _wait(self, futs: list, desc: str) -> list:
+        for _ in self._each(futs, desc):
+            pass
+        return [f.result() for f in futs]
+
+    def _each(self, futs: list, desc: str):
+        index = {f: i for i, f in enumerate(futs)}
         try:
-            for _ in _progress(as_completed(futs), len(futs), desc, self.progress):
-                pass
-            return [f.result() for f in futs]
+            for f in _progress(as_completed(futs), len(futs), desc, self.progress):
+                yield index[f], f.result()
         except BrokenProcessPool:
             self._kill()
             raise WorkerLost(f"a worker process of the {desc} stage died (killed or out of memory); "

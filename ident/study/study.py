@@ -36,6 +36,7 @@ campaign and the study folder must be on a file system every worker sees at the 
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 from dataclasses import dataclass, field
@@ -381,6 +382,7 @@ class _DiagJob:
     tmp_dir: str
     input_hash: str
     trials: tuple | None = None     # the ids of the joint's trials to read (None: all)
+    plots_dir: str | None = None    # draw the joint's diagnosis PNGs here too (the report's)
 
 
 def _series_file(record: str | Path) -> Path:
@@ -455,7 +457,8 @@ def _run_diag_job(job: _DiagJob) -> dict:
         with one_blas_thread():
             report, series = diagnose_single_joint_campaign(camp, robot, angles, job.settings, joints=[job.joint])
         key = str(job.joint)
-        stored = _store_series(series.pop(key, None), job.record, job.tmp_dir)
+        srs = series.pop(key, None)
+        stored = _store_series(srs, job.record, job.tmp_dir)
         del series
         result = {"ok": True, "report": report["joints"].get(key), "series": stored,
                   "link_angles": bool(report.get("link_angles")),
@@ -464,6 +467,13 @@ def _run_diag_job(job: _DiagJob) -> dict:
     except Exception as exc:           # one bad trial fails alone, with its reason
         return {"ok": False, "error": _error_text(exc)}
     _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
+    if job.plots_dir is not None and result["report"] is not None:
+        # drawn here, where the joint's series are in memory; the record does not keep the names
+        # (the PNGs live in this run's temporary folder)
+        p0 = time.process_time()
+        plots = _run_plot_job(_PlotJob("diagnosis", job.plots_dir,
+                                       ({"joints": {key: result["report"]}}, {key: srs})))
+        result = {**result, "plots": plots, "plots_cpu_s": time.process_time() - p0}
     return result
 
 
@@ -689,10 +699,11 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         angles_dir, mocap_summary, refs = self._mocap(ctx, T_cb)
         _write_manifest(manifest_path, man, tmp_dir)
-        # the fits' and the diagnosis' items are queued together (fits first): while the
-        # workers run the diagnosis, this process writes fits/ and the multi-joint stage
-        fits_run = self._fits_start(ctx, angles_dir)
+        # the diagnosis' and the fits' items are queued together, the few long diagnosis items
+        # first (longest first balances the workers: the many short fits fill in behind them);
+        # while the workers run the last fits, this process writes the multi-joint stage
         diag_run = self._diagnosis_start(ctx, angles_dir)
+        fits_run = self._fits_start(ctx, angles_dir)
         fits = self._fits_finish(ctx, fits_run)
         _write_manifest(manifest_path, man, tmp_dir)
         self._rigidbody(ctx)
@@ -860,49 +871,56 @@ class Study:
                                 keep_plot=tr.id in plotted))
         self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
         pending = self._submit(_run_fit_job, jobs, "fits")
-        return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending)
+        return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending,
+                    by_trial=by_trial)
 
     def _fits_finish(self, ctx, run):
         camp, s = ctx.camp, self.settings
         t0, jobs, done, hashes, skipped = (run[k] for k in ("t0", "jobs", "done", "hashes", "skipped"))
-        for job, res in zip(jobs, run["pending"].result()):
-            done[job.trial] = res
-            self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
+        stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots)
+        prev = ctx.old.get("stages", {}).get("fits", {})
+        current = prev.get("hash") == stage_hash and _tree_ok(ctx, "fits/", "fits/fits.json")
+        tmp = ctx.tmp_dir / "fits-new"
+        models = tuple(s.models)
+        # each joint's PNGs are drawn by this process as soon as the joint's last item is in
+        # (while the workers fit the other joints), not all after the last item
+        joints_of = {tid: {t.joint for t in ts} for tid, ts in run["by_trial"].items()}
+        left: dict = {}
+        for job in jobs:   # loop over the items to compute
+            for j in joints_of[job.trial]:
+                left[j] = left.get(j, 0) + 1
+        drawn: dict = {}
+        if s.plots and not current:
+            for j in sorted(j for j in {j for js in joints_of.values() for j in js} if j not in left):
+                drawn[j] = self._draw_joint_fits(ctx, j, done, hashes, tmp, models)
+        with contextlib.closing(run["pending"].each()) as finished:   # stops the workers on an error
+            for i, res in finished:
+                job = jobs[i]
+                done[job.trial] = res
+                self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
+                for j in joints_of[job.trial]:
+                    left[j] -= 1
+                    if left[j] == 0 and s.plots and not current:
+                        drawn[j] = self._draw_joint_fits(ctx, j, done, hashes, tmp, models)
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
         for tid, msg in failed.items():
             ctx.errors[f"fits/{tid}"] = msg
-        # a failed trial hands its place in the plots to the next repetition: read that
-        # trial's plot samples back from its record
-        bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
-        ok_entries = [e.task for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
-                      for e in done[tr.id]["entries"]]
-        for tid in _plotted_trials(ok_entries, camp, s.rrd_trials, bad):
-            if tid in done and not all(e.plot for e in done[tid]["entries"]):
-                rel = f"records/fits/{_record_name(tid)}"
-                rec = self._record(ctx, rel, hashes[tid])
-                if rec is not None:
-                    done[tid] = rec["result"]
+        self._plot_samples(ctx, done, hashes, camp.trials)
         entries = tuple(e for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
                         for e in done[tr.id]["entries"])
-        result = FitsResult(entries, tuple(s.models), camp.name, tuple(skipped))
-        stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots)
+        result = FitsResult(entries, models, camp.name, tuple(skipped))
         fits_dir = ctx.out / "fits"
-        prev = ctx.old.get("stages", {}).get("fits", {})
         man = {"hash": stage_hash, "outputs": ["fits/"],
                "items": {tid: {"hash": h} for tid, h in hashes.items() if tid in done and done[tid].get("ok")}}
         ctx.fits_commit = (None, None, man)
-        if not (prev.get("hash") == stage_hash and _tree_ok(ctx, "fits/", "fits/fits.json")):
+        if not current:
             if entries:
-                tmp = ctx.tmp_dir / "fits-new"
                 result.write(tmp, plots=False)
                 plots = None
-                if s.plots:     # drawn by the workers (after the diagnosis' items), per joint
-                    groups = _by_joint(entries)
-                    plots = self._submit(_run_plot_job, [_PlotJob("fits", str(tmp / "plots"), (g, result.models))
-                                                         for g in groups.values()], "plots")
-                    ctx.study_plots = self._submit(
-                        _run_plot_job, [_PlotJob("study", str(ctx.tmp_dir / "plots-new"), (g, result.models))
-                                        for g in groups.values()], "plots")
+                if s.plots:
+                    order = [drawn[j] for j in sorted(drawn) if drawn[j] is not None]
+                    plots = Pending(lambda: [o[0] for o in order])
+                    ctx.study_plots = Pending(lambda: [o[1] for o in order])
                 ctx.fits_commit = (tmp, plots, man)
         if entries:
             ctx.paths["fits"] = fits_dir / "fits.json"
@@ -912,6 +930,32 @@ class Study:
                                         work=_work(jobs, done, "trial"),
                                         cpu=_work(jobs, done, "trial", "cpu_s"))
         return result
+
+    def _plot_samples(self, ctx, done: dict, hashes: dict, trials) -> None:
+        """A failed trial hands its place in the plots to the next repetition: read that trial's
+        plot samples back from its record (``done`` updated; ``trials``: those to look at)."""
+        bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
+        bad |= {tid for tid, r in done.items() if not r.get("ok")}
+        ok_entries = [e.task for tr in trials if tr.id in done and done[tr.id].get("ok")
+                      for e in done[tr.id]["entries"]]
+        for tid in _plotted_trials(ok_entries, ctx.camp, self.settings.rrd_trials, bad):
+            if tid in done and done[tid].get("ok") and not all(e.plot for e in done[tid]["entries"]):
+                rel = f"records/fits/{_record_name(tid)}"
+                rec = self._record(ctx, rel, hashes[tid])
+                if rec is not None:
+                    done[tid] = rec["result"]
+
+    def _draw_joint_fits(self, ctx, joint: int, done: dict, hashes: dict, tmp: Path, models: tuple):
+        """The fits' and the study's PNGs of one joint whose items are all in: (names in
+        ``fits/plots/``, names in ``plots/``), or None when it has no fit."""
+        trials = [tr for tr in ctx.camp.trials if tr.id in done and joint in tr.joints]
+        self._plot_samples(ctx, done, hashes, trials)
+        group = tuple(e for tr in trials if done[tr.id].get("ok") for e in done[tr.id]["entries"]
+                      if e.task.joint == joint)
+        if not group:
+            return None
+        return (_run_plot_job(_PlotJob("fits", str(tmp / "plots"), (group, models))),
+                _run_plot_job(_PlotJob("study", str(ctx.tmp_dir / "plots-new"), (group, models))))
 
     def _fits_commit(self, ctx) -> None:
         """Install ``fits/`` once its plots are drawn, then record the stage in the manifest
@@ -1001,6 +1045,10 @@ class Study:
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
                                  dset, str(ctx.state / record), str(ctx.tmp_dir), h,
                                  tuple(t.id for t in trials) if len(trials) < n_joint[j] else None))
+        if jobs and not self._diagnosis_current(ctx, hashes):
+            # each job draws its joint's PNGs where its series are in memory
+            plots_dir = str(ctx.tmp_dir / "diagnosis-new")
+            jobs = [dataclasses.replace(job, plots_dir=plots_dir) for job in jobs]
         self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
         pending = self._submit(_run_diag_job, jobs, "diagnosis")
         if n_read == n_all:
@@ -1015,6 +1063,13 @@ class Study:
                     f"{n_all} trials")
         return dict(dset=dset, jobs=jobs, done=done, hashes=hashes, pending=pending,
                     prep_s=time.perf_counter() - t0, note=note)
+
+    @staticmethod
+    def _diagnosis_current(ctx, hashes: dict) -> bool:
+        """Whether ``diagnosis/`` is the one these items' hashes wrote (nothing to draw)."""
+        prev = ctx.old.get("stages", {}).get("diagnosis", {})
+        stage_hash = ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()))
+        return prev.get("hash") == stage_hash and _tree_ok(ctx, "diagnosis/", "diagnosis/diagnosis.json")
 
     def _diagnosis_finish(self, ctx, run):
         """Collect the diagnosis items; ``seconds``: the preparation plus the wait beyond the
@@ -1042,16 +1097,17 @@ class Study:
         series = {str(j): _series_ref(r["series"], folder) for j, r in ok.items()}
         stage_hash = ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()))
         diag_dir = ctx.out / "diagnosis"
-        prev = ctx.old.get("stages", {}).get("diagnosis", {})
-        if report["joints"] and not (prev.get("hash") == stage_hash
-                                     and _tree_ok(ctx, "diagnosis/", "diagnosis/diagnosis.json")):
-
+        if report["joints"] and not self._diagnosis_current(ctx, hashes):
             tmp = ctx.tmp_dir / "diagnosis-new"
+            plots = {}
+            for r in ok.values():   # drawn by the items computed in this run
+                plots.update(r.get("plots") or {})
+            drawn = {str(j) for j, r in ok.items() if "plots" in r}
             pending = self._submit(_run_plot_job, [_PlotJob("diagnosis", str(tmp), ({"joints": {j: r}},
                                                                                    {j: series.get(j)}))
-                                                   for j, r in report["joints"].items()], "plots")
+                                                   for j, r in report["joints"].items()
+                                                   if j not in drawn], "plots")
             self._fits_commit(ctx)       # its plots were queued before these
-            plots = {}
             for names in pending.result():
                 plots.update(names)
             write_report(report, series, tmp, None, plots=plots)
