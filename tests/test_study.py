@@ -394,3 +394,53 @@ def test_a_failed_first_repetition_hands_its_plot_to_the_next(tiny, tmp_path, mo
     assert len(ref) == 1
     drawn = tmp_path / "fits" / "plots" / ref[0].name
     assert drawn.read_bytes() == ref[0].read_bytes()
+
+
+def test_recording_begun_early_is_written_again_when_a_shown_trial_fails(tiny, tmp_path, monkeypatch):
+    """The recording's inputs are logged while the fits run, with each condition's first
+    repetition; when that trial then fails its fit, the recording is written again with the next
+    repetition (what the report shows), and nothing of the first one is left."""
+    import dataclasses
+
+    import ident.study.study as fitting
+    from rerun.chunk import RrdReader
+
+    camp, _, _ = tiny
+    real = fitting.fit_trial_joint
+    gone, next_rep = "j5-load0-v50-r1", "j5-load0-v50-r2"
+
+    def failing(task):
+        if task.trial == gone:
+            raise ValueError("no fit")
+        return real(task)
+
+    monkeypatch.setattr(fitting, "fit_trial_joint", failing)
+    started = []
+    real_start = fitting._StudyRecording.start
+
+    def start(self, bad):
+        started.append(set(bad))
+        return real_start(self, bad)
+
+    monkeypatch.setattr(fitting._StudyRecording, "start", start)
+    settings = dataclasses.replace(FAST, rrd=True, diagnose=False)
+    res = Study(settings, SerialExecutor(progress=False), progress=False).run(camp, tmp_path)
+    assert list(res.errors) == [f"fits/{gone}"]
+    assert started == [set()]            # begun before the fits, with no failed trial known
+    ents = {ch.entity_path for ch in RrdReader(tmp_path / "study.rrd").stream()}
+    assert any(f"/{next_rep}/" in e for e in ents)
+    assert not any(gone in e for e in ents)
+    assert not list(tmp_path.rglob("*.early.tmp"))
+
+
+def test_pending_each_yields_every_item_once_then_the_results_in_order():
+    ex = PoolExecutor(2, progress=False)
+    try:
+        p = ex.submit_map(abs, [-3, 1, -2, 5, -8], "test")
+        seen = dict(p.each())
+        assert sorted(seen) == [0, 1, 2, 3, 4] and seen == {0: 3, 1: 1, 2: 2, 3: 5, 4: 8}
+        assert p.result() == [3, 1, 2, 5, 8]
+    finally:
+        ex.close()
+    serial = SerialExecutor(progress=False).submit_map(abs, [-1, 2], "test")
+    assert list(serial.each()) == [(0, 1), (1, 2)] and serial.result() == [1, 2]

@@ -704,19 +704,27 @@ class Study:
         # while the workers run the last fits, this process writes the multi-joint stage
         diag_run = self._diagnosis_start(ctx, angles_dir)
         fits_run = self._fits_start(ctx, angles_dir)
-        fits = self._fits_finish(ctx, fits_run)
-        _write_manifest(manifest_path, man, tmp_dir)
-        self._rigidbody(ctx)
-        _write_manifest(manifest_path, man, tmp_dir)
-        diag = self._diagnosis_finish(ctx, diag_run)
-        self._fits_commit(ctx)
-        _write_manifest(manifest_path, man, tmp_dir)
-        self._coast_md = self._coastdown(ctx)
-        _write_manifest(manifest_path, man, tmp_dir)
         rrd_path = None
         if s.rrd or rrd is not None or spawn:
             rrd_path = Path(rrd).resolve() if rrd is not None else (out / "study.rrd" if s.rrd else None)
-        self._report(ctx, calib_res, refs, mocap_summary, fits, diag, angles_dir, rrd_path, spawn)
+        if (rrd_path is not None or spawn) and (fits_run["jobs"] or diag_run.get("jobs")):
+            # items to compute: the report will be new; its recording's inputs are logged now
+            ctx.recording = self._recording(ctx, calib_res, angles_dir, rrd_path, spawn).start(
+                {k.split("/", 1)[1] for k in ctx.errors if k.startswith("mocap/")})
+        try:
+            fits = self._fits_finish(ctx, fits_run)
+            _write_manifest(manifest_path, man, tmp_dir)
+            self._rigidbody(ctx)
+            _write_manifest(manifest_path, man, tmp_dir)
+            diag = self._diagnosis_finish(ctx, diag_run)
+            self._fits_commit(ctx)
+            _write_manifest(manifest_path, man, tmp_dir)
+            self._coast_md = self._coastdown(ctx)
+            _write_manifest(manifest_path, man, tmp_dir)
+            self._report(ctx, calib_res, refs, mocap_summary, fits, diag, angles_dir, rrd_path, spawn)
+        finally:
+            if ctx.recording is not None:     # not finished: the study stopped
+                ctx.recording.abort()
         _write_manifest(manifest_path, man, tmp_dir)
         shutil.rmtree(tmp_dir, ignore_errors=True)
         paths["manifest"] = manifest_path
@@ -1196,6 +1204,12 @@ class Study:
         return text
 
     # stage 5: report and recording -------------------------------------------------------------
+    def _recording(self, ctx, calib_res, angles_dir, rrd_path, spawn) -> "_StudyRecording":
+        rrd_inside = rrd_path is not None and ctx.out in Path(rrd_path).resolve().parents
+        return _StudyRecording(ctx.camp, ctx.robot, rrd_path, spawn, calib_res, angles_dir, ctx.out,
+                               self.settings.rrd_trials, ctx.tmp_dir,
+                               install=ctx.od.install if rrd_inside else None)
+
     def _report(self, ctx, calib_res, refs, mocap_summary, fits, diag, angles_dir, rrd_path, spawn):
         t0 = time.perf_counter()
         s = self.settings
@@ -1213,6 +1227,9 @@ class Study:
         if rrd_path is not None:
             ctx.paths["rrd"] = rrd_path
         if prev.get("hash") == h and have and not spawn:
+            if ctx.recording is not None:
+                ctx.recording.abort()
+                ctx.recording = None
             up["report"] = prev
             ctx.stages["report"] = _stage_row(reused=1, seconds=time.perf_counter() - t0)
             return
@@ -1239,11 +1256,10 @@ class Study:
         ctx.od.write("report.md", md)
         if rrd_path is not None or spawn:
             bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
-            shown = dataclasses.replace(ctx.camp, trials=tuple(t for t in ctx.camp.trials
-                                                               if t.id not in bad))
-            log_study(shown, ctx.robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, md,
-                      ctx.out, s.rrd_trials, ctx.tmp_dir,   # failed trials are in the report only
-                      install=ctx.od.install if rrd_inside else None)
+            if ctx.recording is None:
+                ctx.recording = self._recording(ctx, calib_res, angles_dir, rrd_path, spawn).start(bad)
+            recording, ctx.recording = ctx.recording, None
+            recording.finish(fits, diag, md, bad)   # failed trials are in the report only
         up["report"] = {"hash": h, "outputs": outputs + ([str(rrd_path)] if rrd_path else [])}
         ctx.stages["report"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
 
@@ -1266,6 +1282,7 @@ class _Context:
     angles_ok: frozenset = frozenset()
     fits_commit: tuple = (None, None, None)   # (tmp folder, its plots in flight, manifest entry)
     study_plots: object = None                # plots/ in flight (ident.study.executor.Pending)
+    recording: object = None                  # the recording begun early (_StudyRecording)
 
 
 def _read_manifest(path: Path) -> dict:
@@ -1587,46 +1604,144 @@ def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, dia
 
 
 def _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report_md, out, ids):
-    T_cb = None if calib_res is None else np.asarray(calib_res.T_camera_base, float)
     with make_sink(str(tmp) if tmp else None, spawn, app_id="jointlab-study") as sink:
-        logged = log_campaign(sub, sink, robot, T_camera_base=T_cb, max_signal_rate_hz=100.0)
-        if calib_res is not None:
-
-            log_calibration(sink, calib_res, prefix="campaign/calib")
-        if angles_dir is not None:
-
-            for t in sub.trials:  # loop over logged trials
-                p = Path(angles_dir) / f"{t.id}.csv"
-                if p.is_file():
-                    ta, q = read_angles_csv(p)
-                    if q:
-                        sink.scalars(f"mocap/{t.id}", ta, np.column_stack([q[j] for j in sorted(q)]),
-                                     names=[f"q_{j}" for j in sorted(q)])
-        if fits is not None and fits.entries:
-
-            log_fits(FitsResult(tuple(e for e in fits.entries if e.task.trial in ids), fits.models,
-                                fits.campaign, fits.skipped), sink)
-        if diag is not None:
-            report, series = diag
-
-            diag_dir = Path(out) / "diagnosis"
-            plots = {p.stem: p.name for p in sorted(diag_dir.glob("*.png"))}
-            sink.text("diagnosis/report", markdown(report, plots))
-            for j, srs in series.items():  # loop over joints, one joint's samples at a time
-                srs = _series_arrays(srs)
-                if srs is not None and "residual_nominal" in srs:
-                    t = srs["t"] if "t" in srs else np.arange(srs["residual_nominal"].size, dtype=float)
-                    sink.scalars(f"diagnosis/joint{j}/residual_nominal", t, srs["residual_nominal"])
-            _log_pngs(sink, diag_dir, "diagnosis/plots")
-        _log_pngs(sink, Path(out) / "plots", "study/plots")
-        sink.text("study/report", report_md)  # the text view's one document
-        trial_sig = [f"/{b}/signals/**" for b in logged if "/trial/" in b]
-        series_views = {"joint signals (robot log)": trial_sig or ["/campaign/**"],
-                        "link angles (markers)": ["/mocap/**"],
-                        "friction fits (eq. 2-4)": ["/fits/**"],
-                        "gap diagnosis": ["/diagnosis/**"]}
-        sink.layout(series=series_views, world="/campaign", text="/study")  # one document per text view
+        logged = _log_inputs(sink, sub, robot, calib_res, angles_dir)
+        _log_results(sink, logged, fits, diag, report_md, out, ids)
     return logged
+
+
+def _log_inputs(sink, sub, robot, calib_res, angles_dir) -> list[str]:
+    """The recording's first part: the campaign (:func:`ident.study.view.log_campaign`), the
+    calibration and the link angles of the trials of ``sub``."""
+    T_cb = None if calib_res is None else np.asarray(calib_res.T_camera_base, float)
+    logged = log_campaign(sub, sink, robot, T_camera_base=T_cb, max_signal_rate_hz=100.0)
+    if calib_res is not None:
+        log_calibration(sink, calib_res, prefix="campaign/calib")
+    if angles_dir is not None:
+        for t in sub.trials:  # loop over logged trials
+            p = Path(angles_dir) / f"{t.id}.csv"
+            if p.is_file():
+                ta, q = read_angles_csv(p)
+                if q:
+                    sink.scalars(f"mocap/{t.id}", ta, np.column_stack([q[j] for j in sorted(q)]),
+                                 names=[f"q_{j}" for j in sorted(q)])
+    return logged
+
+
+def _log_results(sink, logged, fits, diag, report_md, out, ids) -> None:
+    """The recording's second part: the fits, the diagnosis, the PNGs, the report and the
+    blueprint."""
+    if fits is not None and fits.entries:
+
+        log_fits(FitsResult(tuple(e for e in fits.entries if e.task.trial in ids), fits.models,
+                            fits.campaign, fits.skipped), sink)
+    if diag is not None:
+        report, series = diag
+
+        diag_dir = Path(out) / "diagnosis"
+        plots = {p.stem: p.name for p in sorted(diag_dir.glob("*.png"))}
+        sink.text("diagnosis/report", markdown(report, plots))
+        for j, srs in series.items():  # loop over joints, one joint's samples at a time
+            srs = _series_arrays(srs)
+            if srs is not None and "residual_nominal" in srs:
+                t = srs["t"] if "t" in srs else np.arange(srs["residual_nominal"].size, dtype=float)
+                sink.scalars(f"diagnosis/joint{j}/residual_nominal", t, srs["residual_nominal"])
+        _log_pngs(sink, diag_dir, "diagnosis/plots")
+    _log_pngs(sink, Path(out) / "plots", "study/plots")
+    sink.text("study/report", report_md)  # the text view's one document
+    trial_sig = [f"/{b}/signals/**" for b in logged if "/trial/" in b]
+    series_views = {"joint signals (robot log)": trial_sig or ["/campaign/**"],
+                    "link angles (markers)": ["/mocap/**"],
+                    "friction fits (eq. 2-4)": ["/fits/**"],
+                    "gap diagnosis": ["/diagnosis/**"]}
+    sink.layout(series=series_views, world="/campaign", text="/study")  # one document per text view
+
+
+class _StudyRecording:
+    """The study's recording (:func:`log_study`) begun early: :meth:`start` logs the inputs
+    (campaign, calibration, link angles: all known once the link angles are) from a thread of
+    this process while the workers fit, :meth:`finish` the results once the report is written.
+    When the trials the recording shows are no longer those it began with (a trial failed in
+    the fits), :meth:`finish` writes it again from the start, as :func:`log_study` would."""
+
+    def __init__(self, campaign, robot, rrd_path, spawn, calib_res, angles_dir, out, which,
+                 tmp_dir, install=None):
+        self.args = (campaign, robot, rrd_path, spawn, calib_res, angles_dir, out, which, tmp_dir,
+                     install)
+        self.thread, self.error, self.sink, self.tmp, self.ids = None, None, None, None, None
+
+    @staticmethod
+    def shown(campaign, bad) -> tuple:
+        """The recording's trials: :func:`_rrd_trials` of the trials that did not fail."""
+        return tuple(t for t in campaign.trials if t.id not in bad)
+
+    def start(self, bad) -> "_StudyRecording":
+        import threading
+
+        campaign, robot, rrd_path, spawn, calib_res, angles_dir, out, which, tmp_dir, _ = self.args
+        sub = dataclasses.replace(campaign, trials=tuple(_rrd_trials(
+            dataclasses.replace(campaign, trials=self.shown(campaign, bad)), which)))
+        self.ids = {t.id for t in sub.trials}
+        if rrd_path is not None:
+            rrd_path = Path(rrd_path)
+            rrd_path.parent.mkdir(parents=True, exist_ok=True)
+            same_fs = tmp_dir is not None and Path(out).resolve() in rrd_path.resolve().parents
+            self.tmp = ((Path(tmp_dir) if same_fs else rrd_path.parent)
+                        / f".{rrd_path.name}.{os.getpid()}.early.tmp")
+
+        def run():
+            try:
+                self.sink = make_sink(str(self.tmp) if self.tmp else None, spawn, app_id="jointlab-study")
+                self.logged = _log_inputs(self.sink, sub, robot, calib_res, angles_dir)
+            except BaseException as exc:   # noqa: BLE001 - raised again by finish()
+                self.error = exc
+
+        self.thread = threading.Thread(target=run, name="jointlab-recording", daemon=True)
+        self.thread.start()
+        return self
+
+    def _join(self):
+        if self.thread is not None:
+            self.thread.join()
+            self.thread = None
+
+    def abort(self) -> None:
+        """Drop the recording begun (the study stopped, or it is not needed)."""
+        self._join()
+        if self.sink is not None:
+            try:
+                self.sink.close()
+            except Exception:   # noqa: BLE001 - the partial file is removed next
+                pass
+            self.sink = None
+        if self.tmp is not None:
+            self.tmp.unlink(missing_ok=True)
+
+    def finish(self, fits, diag, report_md, bad) -> list[str]:
+        """The complete recording in place (what :func:`log_study` writes)."""
+        campaign, robot, rrd_path, spawn, calib_res, angles_dir, out, which, tmp_dir, install = self.args
+        self._join()
+        if self.error is not None:
+            self.abort()
+            raise self.error
+        shown = dataclasses.replace(campaign, trials=self.shown(campaign, bad))
+        if {t.id for t in _rrd_trials(shown, which)} != self.ids:
+            self.abort()
+            return log_study(shown, robot, rrd_path, spawn, calib_res, angles_dir, fits, diag,
+                             report_md, out, which, tmp_dir, install=install)
+        try:
+            _log_results(self.sink, self.logged, fits, diag, report_md, out, self.ids)
+            self.sink.close()
+            self.sink = None
+        except BaseException:
+            self.abort()
+            raise
+        if self.tmp is not None:
+            if install is not None:
+                install(self.tmp, Path(rrd_path))
+            else:
+                os.replace(self.tmp, rrd_path)
+        return self.logged
 
 
 def _log_pngs(sink, folder: Path, prefix: str) -> None:
