@@ -444,3 +444,35 @@ def test_pending_each_yields_every_item_once_then_the_results_in_order():
         ex.close()
     serial = SerialExecutor(progress=False).submit_map(abs, [-1, 2], "test")
     assert list(serial.each()) == [(0, 1), (1, 2)] and serial.result() == [1, 2]
+
+
+def test_fits_json_files_are_written_one_trial_at_a_time_with_the_same_bytes(tiny, serial_run):
+    """``fits.json`` and ``fits_diagnostics.json`` are streamed trial by trial: the bytes are
+    those of ``json.dumps`` of the whole document (which the streamed writer never holds)."""
+    import io
+
+    from ident.study.records import read_record
+    from ident.study.study import CACHE_VERSION, _record_name
+    from ident.thesis.campaign_fit import FitsResult, _clean_json, write_json_streamed
+
+    camp, _, _ = tiny
+    out, _ = serial_run
+    man = json.loads((out / MANIFEST_NAME).read_text())
+    entries = []
+    for t in load_campaign(camp).trials:  # the study's entries, read back from its records
+        rel = f"records/fits/{_record_name(t.id)}"
+        rec, problem = read_record(out / STATE_DIR / rel, man["stages"]["fits"]["items"][t.id]["hash"],
+                                   CACHE_VERSION)
+        assert problem is None
+        entries += rec["result"]["entries"]
+    res = FitsResult(tuple(entries), FAST.models, load_campaign(camp).name)
+    assert (out / "fits" / "fits.json").read_text() == json.dumps(res.to_dict(), indent=1, allow_nan=False)
+    assert (out / "fits" / "fits_diagnostics.json").read_text() == \
+        json.dumps(_clean_json(res.diagnostics()), indent=1, allow_nan=False)
+    # the writer's edge cases: empty dictionaries, non-ASCII text, NaN cleaned, nested lists
+    nested = {"a": [1.5, {"b": "Grad \u00b0"}], "t": {"x": {"y": [float("nan"), 2]}, "z": {}}, "e": {}}
+    for doc in (nested, {}, {"t": {}}):
+        parts = [(k, ((kk, vv) for kk, vv in v.items()) if isinstance(v, dict) else v) for k, v in doc.items()]
+        s = io.StringIO()
+        write_json_streamed(s, parts, clean=_clean_json)
+        assert s.getvalue() == json.dumps(_clean_json(doc), indent=1, allow_nan=False)

@@ -169,45 +169,72 @@ class FitsResult:
     def summary(self) -> list[dict]:
         return stats.summarize(self.records())
 
+    def _fits_parts(self) -> list:
+        """``fits.json`` as (key, value) pairs, ``trials`` as a generator of (trial id, that
+        trial's document) (:func:`write_json_streamed`)."""
+        by_trial: dict = {}
+        for e in self.entries:  # loop over entries (references only)
+            by_trial.setdefault(e.task.trial, []).append(e)
+
+        def trials():
+            for tid, es in by_trial.items():  # loop over trials: one trial's document at a time
+                doc: dict = {}
+                for e in es:  # loop over the trial's joints
+                    tj = doc.setdefault(str(e.task.joint), {})
+                    for m, f in e.fits.items():
+                        tj[m] = {"params": {k: _jnum(v) for k, v in f.params.items()},
+                                 "stderr": {k: _jnum(f.stderr.get(k, np.nan)) for k in f.params},
+                                 "rms": _jnum(f.rms), "flags": e.param_flags.get(m, {})}
+                yield tid, doc
+
+        summ = [{k: r[k] for k in ("joint", "load_kg", "vmax_frac", "model", "param", "mean", "cv_percent")}
+                for r in self.summary]    # means over the physically valid fits only (n_excluded: diagnostics)
+        return [("format", 1), ("trials", trials()), ("summary", summ)]
+
     def to_dict(self) -> dict:
         """The ``fits.json`` document (FORMAT.md): trials -> id -> joint -> model ->
         {params, stderr, rms}, and the summary list."""
-        trials: dict = {}
-        for e in self.entries:
-            tj = trials.setdefault(e.task.trial, {}).setdefault(str(e.task.joint), {})
-            for m, f in e.fits.items():
-                tj[m] = {"params": {k: _jnum(v) for k, v in f.params.items()},
-                         "stderr": {k: _jnum(f.stderr.get(k, np.nan)) for k in f.params},
-                         "rms": _jnum(f.rms), "flags": e.param_flags.get(m, {})}
-        summ = [{k: r[k] for k in ("joint", "load_kg", "vmax_frac", "model", "param", "mean", "cv_percent")}
-                for r in self.summary]    # means over the physically valid fits only (n_excluded: diagnostics)
-        return {"format": 1, "trials": trials, "summary": summ}
+        return {k: (dict(v) if k == "trials" else v) for k, v in self._fits_parts()}
+
+    def _diagnostics_parts(self) -> list:
+        """``fits_diagnostics.json`` as (key, value) pairs, ``trials`` as a generator of
+        (trial id, that trial's document): :meth:`write` writes it one trial at a time."""
+        recs = self.records()
+        summary = stats.summarize(recs)
+        head = [("format", 1), ("campaign", self.campaign), ("models", list(self.models)),
+                ("skipped", list(self.skipped))]
+        tail = [("rms_summary", stats.rms_summary(recs)), ("summary", summary),
+                ("excluded", stats.excluded_fits(recs)),
+                ("viscous_basis", "link only: v, Fv, g6 exclude the motor viscous B of drives.toml "
+                                  "(removed in the eq. 2-4 target); link + motor viscous is v + B")]
+        by_trial: dict = {}
+        for e in self.entries:  # loop over entries (references only)
+            by_trial.setdefault(e.task.trial, []).append(e)
+
+        def trials():
+            for tid, es in by_trial.items():  # loop over trials: one trial's document at a time
+                yield tid, {str(e.task.joint): {
+                    "signals": e.signals, "notes": list(e.notes), "max_abs_tau": e.max_abs_tau,
+                    "peak_speed": e.peak_speed, "load_kg": e.task.load_kg, "vmax_frac": e.task.vmax_frac,
+                    "repetition": e.task.repetition,
+                    "fits": {m: f.to_dict() for m, f in e.fits.items()}} for e in es}
+
+        return head + [("trials", trials())] + tail
 
     def diagnostics(self) -> dict:
         """Everything else: rigid parameters, conditioning, degenerate forms, signal fits,
         the RMS statistics (``fits_diagnostics.json``)."""
-        out = {"format": 1, "campaign": self.campaign, "models": list(self.models),
-               "skipped": list(self.skipped), "trials": {}, "rms_summary": stats.rms_summary(self.records()),
-               "summary": self.summary, "excluded": stats.excluded_fits(self.records()),
-               "viscous_basis": "link only: v, Fv, g6 exclude the motor viscous B of drives.toml "
-                                "(removed in the eq. 2-4 target); link + motor viscous is v + B"}
-        for e in self.entries:
-            d = out["trials"].setdefault(e.task.trial, {})
-            d[str(e.task.joint)] = {
-                "signals": e.signals, "notes": list(e.notes), "max_abs_tau": e.max_abs_tau,
-                "peak_speed": e.peak_speed, "load_kg": e.task.load_kg, "vmax_frac": e.task.vmax_frac,
-                "repetition": e.task.repetition,
-                "fits": {m: f.to_dict() for m, f in e.fits.items()}}
-        return out
+        return {k: (dict(v) if k == "trials" else v) for k, v in self._diagnostics_parts()}
 
     def write(self, out_dir: str | Path, plots: bool = True) -> dict:
         """Write fits.json, fits_diagnostics.json, tables/ and plots/ into ``out_dir``."""
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
         paths = {"fits": out_dir / "fits.json", "diagnostics": out_dir / "fits_diagnostics.json"}
-        paths["fits"].write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False), encoding="utf-8")
-        paths["diagnostics"].write_text(json.dumps(_clean_json(self.diagnostics()), indent=1,
-                                                   allow_nan=False), encoding="utf-8")
+        with open(paths["fits"], "w", encoding="utf-8") as fh:
+            write_json_streamed(fh, self._fits_parts())
+        with open(paths["diagnostics"], "w", encoding="utf-8") as fh:
+            write_json_streamed(fh, self._diagnostics_parts(), clean=_clean_json)
         recs = self.records()
         paths["tables"] = stats.write_tables(recs, out_dir / "tables", self.models) if recs else []
         paths["plots"] = self.write_plots(out_dir / "plots") if plots else []
@@ -229,6 +256,33 @@ class FitsResult:
             out.append(stats.plot_friction_vs_speed(plot_dir / name, e.plot["qd"], e.plot["f_measured"],
                                                     models, title))
         return out
+
+
+def _json_text(x, depth: int) -> str:
+    """``json.dumps(x, indent=1, allow_nan=False)`` as it reads ``depth`` levels down a document
+    written with ``indent=1`` (JSON strings hold no raw line feed: each one starts a line)."""
+    return json.dumps(x, indent=1, allow_nan=False).replace("\n", "\n" + " " * depth)
+
+
+def write_json_streamed(fh, parts, clean=lambda x: x) -> None:
+    """Write ``json.dumps(clean(doc), indent=1, allow_nan=False)`` of the document whose
+    (key, value) pairs are ``parts`` (the same bytes), where a value that is a generator of
+    (key, value) pairs is a dictionary written one entry at a time: the whole document is never
+    held (a study's per-trial diagnostics of thousands of trials)."""
+    import types
+
+    fh.write("{")
+    for i, (k, v) in enumerate(parts):  # loop over the document's keys
+        fh.write(("," if i else "") + "\n " + json.dumps(str(k)) + ": ")
+        if not isinstance(v, types.GeneratorType):
+            fh.write(_json_text(clean(v), 1))
+            continue
+        n = 0
+        for k2, v2 in v:  # loop over the entries, one at a time
+            fh.write(("," if n else "{") + "\n  " + json.dumps(str(k2)) + ": " + _json_text(clean(v2), 2))
+            n += 1
+        fh.write("\n }" if n else "{}")
+    fh.write("\n}" if parts else "}")
 
 
 def _clean_json(x):
