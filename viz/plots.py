@@ -2,16 +2,21 @@
 
 ``new_figure`` makes a :class:`matplotlib.figure.Figure` bound to an Agg canvas (no display,
 nothing registered with pyplot, so nothing leaks between calls); ``figure_to_rgb`` renders any
-figure to an (H, W, 3) uint8 array, e.g. for :meth:`viz.sink.Sink.image`; ``save_png`` writes a
-PNG and refuses to overwrite unless asked.
+figure to an (H, W, 3) uint8 array, e.g. for :meth:`viz.sink.Sink.image`; ``tight_layout`` sets
+the subplot parameters :meth:`~matplotlib.figure.Figure.tight_layout` sets, at a fraction of its
+cost; ``save_png`` writes a PNG and refuses to overwrite unless asked.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib as mpl
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.font_manager import FontProperties
+from matplotlib.transforms import Bbox
+from matplotlib.layout_engine import PlaceHolderLayoutEngine
 
 
 def new_figure(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, **kw) -> Figure:
@@ -41,6 +46,122 @@ def new_figure(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0
     """
     fig = Figure(figsize=(width_in, height_in), dpi=dpi, **kw)
     FigureCanvasAgg(fig)
+    return fig
+
+
+def _layout_bbox(ax, renderer):
+    """The tight bounding box of one Axes for the layout (display units), as
+    ``ax.get_tightbbox(renderer, for_layout_only=True)`` gives it: the Axes, its axes' tick labels,
+    labels and offset texts (the x label's width and the y label's height left out), its titles
+    (their widths left out), its legend and its texts. Other artists are taken to be clipped to the
+    Axes (as data artists are), so they are not measured."""
+    bbs = [ax.get_window_extent(renderer)]
+    if ax.axison:
+        for axis in (ax.xaxis, ax.yaxis):
+            if axis.get_visible():
+                b = axis.get_tightbbox(renderer, for_layout_only=True)
+                if b is not None:
+                    bbs.append(b)
+    if ax.yaxis.offsetText.get_text() or ax.xaxis.get_ticks_position() in ("top", "unknown") \
+            or ax.xaxis.get_label_position() == "top":
+        # the draw would move the titles above the offset text or top ticks: measure as matplotlib does
+        return ax.get_tightbbox(renderer, for_layout_only=True)
+    for title in (ax.title, getattr(ax, "_left_title", None), getattr(ax, "_right_title", None)):
+        if title is not None and title.get_visible() and title.get_text():
+            bt = title.get_window_extent(renderer)
+            bt.x0 = (bt.x0 + bt.x1) / 2 - 0.5   # its width does not count (tight_layout's rule)
+            bt.x1 = bt.x0 + 1.0
+            bbs.append(bt)
+    legend = ax.get_legend()
+    for a in ([legend] if legend is not None else []) + list(ax.texts):
+        if a.get_visible() and a.get_in_layout():
+            b = a.get_tightbbox(renderer)
+            if b is not None and np.all(np.isfinite(b.extents)):
+                bbs.append(b)
+    return Bbox.union([b for b in bbs if b.width != 0 or b.height != 0])
+
+
+def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
+    """Set the subplot parameters that ``fig.tight_layout(pad=pad)`` sets, measuring each Axes
+    once (:func:`_layout_bbox`) instead of through matplotlib's repeated tick updates, and leave
+    no layout engine behind (so ``savefig`` lays nothing out again).
+
+    The rule is matplotlib's (``_tight_layout._auto_adjust_subplotpars``): the margin on each side
+    is the largest overhang of an Axes' tight box beyond its grid cell on that side plus ``pad``
+    font sizes (rcParams ``font.size``), a suptitle adds its height and ``pad`` to the top margin,
+    and the gaps between cells are the largest overhangs facing each other plus ``pad``. Figures
+    that are not subplots of one grid, one Axes per cell (or whose Axes have a locator, a fixed
+    aspect, twins or super labels) go through ``fig.tight_layout`` itself.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure, its artists in place.
+    pad : float, optional
+        Padding around and between the subplots, as a fraction of the font size.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        ``fig``.
+
+    Examples
+    --------
+    >>> fig = new_figure(3.0, 2.0, dpi=50)
+    >>> ax = fig.add_subplot()
+    >>> _ = ax.set_xlabel("x"), ax.set_ylabel("y"), ax.set_title("t")
+    >>> p = tight_layout(fig).subplotpars
+    >>> 0.0 < p.left < 0.5 < p.right < 1.0, 0.0 < p.bottom < 0.5 < p.top < 1.0
+    (True, True)
+    """
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    specs = [ax.get_subplotspec() for ax in axes]
+    grids = {s.get_gridspec() for s in specs if s is not None}
+    simple = (axes and len(grids) == 1 and len(axes) == len(fig.axes)
+              and all(s is not None and len(s.rowspan) == 1 and len(s.colspan) == 1 for s in specs)
+              and len({(s.rowspan.start, s.colspan.start) for s in specs}) == len(specs)
+              and not next(iter(grids)).locally_modified_subplot_params()
+              and all(ax.get_axes_locator() is None and ax.get_aspect() == "auto" and not ax.child_axes
+                      for ax in axes)
+              and not getattr(fig, "_supxlabel", None) and not getattr(fig, "_supylabel", None))
+    if not simple:
+        fig.tight_layout(pad=pad)
+        fig.set_layout_engine(None)
+        return fig
+    renderer = _agg_canvas(fig).get_renderer()
+    rows, cols = next(iter(grids)).get_geometry()
+    hspaces = np.zeros((rows, cols + 1))   # overhangs left of / right of each cell (figure fraction)
+    vspaces = np.zeros((rows + 1, cols))   # overhangs above / below each cell
+    to_fig = fig.transFigure.inverted()
+    for ax, ss in zip(axes, specs):
+        tb = to_fig.transform_bbox(_layout_bbox(ax, renderer))
+        cell = ss.get_position(fig)
+        r, c = ss.rowspan.start, ss.colspan.start
+        hspaces[r, c] += cell.xmin - tb.xmin
+        hspaces[r, c + 1] += tb.xmax - cell.xmax
+        vspaces[r, c] += tb.ymax - cell.ymax
+        vspaces[r + 1, c] += cell.ymin - tb.ymin
+    w_in, h_in = fig.get_size_inches()
+    pad_in = pad * FontProperties(size=mpl.rcParams["font.size"]).get_size_in_points() / 72
+    left = max(hspaces[:, 0].max(), 0) + pad_in / w_in
+    right = max(hspaces[:, -1].max(), 0) + pad_in / w_in
+    top = max(vspaces[0, :].max(), 0) + pad_in / h_in
+    bottom = max(vspaces[-1, :].max(), 0) + pad_in / h_in
+    sup = getattr(fig, "_suptitle", None)
+    if sup is not None and sup.get_in_layout():
+        top += to_fig.transform_bbox(sup.get_window_extent(renderer)).height + pad_in / h_in
+    kw = dict(left=left, right=1 - right, bottom=bottom, top=1 - top)
+    if cols > 1:
+        hspace = hspaces[:, 1:-1].max() + pad_in / w_in
+        kw["wspace"] = hspace / ((1 - right - left - hspace * (cols - 1)) / cols)
+    if rows > 1:
+        vspace = vspaces[1:-1, :].max() + pad_in / h_in
+        kw["hspace"] = vspace / ((1 - top - bottom - vspace * (rows - 1)) / rows)
+    if left + right >= 1 or top + bottom >= 1 or kw.get("wspace", 1) <= 0 or kw.get("hspace", 1) <= 0:
+        fig.tight_layout(pad=pad)   # no room: matplotlib warns and leaves the figure as it is
+        fig.set_layout_engine(None)
+        return fig
+    fig.subplots_adjust(**kw)
     return fig
 
 
@@ -113,5 +234,7 @@ def save_png(fig: Figure, path: str | Path, overwrite: bool = False, dpi: float 
         raise FileExistsError(f"{path} exists; refusing to overwrite (pass overwrite=True)")
     path.parent.mkdir(parents=True, exist_ok=True)
     _agg_canvas(fig)
+    if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine):
+        fig.set_layout_engine(None)  # laid out already (tight_layout): no layout pass in savefig
     fig.savefig(path, format="png", dpi="figure" if dpi is None else dpi)
     return path

@@ -1251,6 +1251,8 @@ def write_study_plots(fits, out_dir: Path) -> dict:
     ``spread_joint<j>.png`` (each parameter of the Coulomb + viscous and Stribeck models over
     the repetitions of every condition: dots, mean and +-1 std). Returns {name: file name}."""
 
+    from viz.plots import tight_layout
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {}
@@ -1280,7 +1282,7 @@ def write_study_plots(fits, out_dir: Path) -> dict:
         ax.set_ylabel("friction torque (N m)")
         ax.set_title(f"joint {j}: friction vs speed (first repetition of each condition)", fontsize=9)
         ax.legend(fontsize=7, loc="upper left")
-        fig.tight_layout()
+        tight_layout(fig)
         name = f"friction_joint{j}.png"
         save_png(fig, out_dir / name, overwrite=True)
         paths[f"friction_joint{j}"] = name
@@ -1308,7 +1310,7 @@ def write_study_plots(fits, out_dir: Path) -> dict:
             ax.set_title(f"{m}: {p}", fontsize=9)
         fig.suptitle(f"joint {j}: parameter spread over repetitions (dots: repetitions; "
                      "square: mean +- std)", fontsize=9)
-        fig.tight_layout()
+        tight_layout(fig)
         name = f"spread_joint{j}.png"
         save_png(fig, out_dir / name, overwrite=True)
         paths[f"spread_joint{j}"] = name
