@@ -111,7 +111,7 @@ def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
     >>> ax = fig.add_subplot()
     >>> _ = ax.set_xlabel("x"), ax.set_ylabel("y"), ax.set_title("t")
     >>> p = tight_layout(fig).subplotpars
-    >>> 0.0 < p.left < 0.5 < p.right < 1.0, 0.0 < p.bottom < 0.5 < p.top < 1.0
+    >>> bool(0.0 < p.left < 0.5 < p.right < 1.0), bool(0.0 < p.bottom < 0.5 < p.top < 1.0)
     (True, True)
     """
     axes = [ax for ax in fig.axes if ax.get_visible()]
@@ -143,19 +143,19 @@ def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
         vspaces[r + 1, c] += cell.ymin - tb.ymin
     w_in, h_in = fig.get_size_inches()
     pad_in = pad * FontProperties(size=mpl.rcParams["font.size"]).get_size_in_points() / 72
-    left = max(hspaces[:, 0].max(), 0) + pad_in / w_in
-    right = max(hspaces[:, -1].max(), 0) + pad_in / w_in
-    top = max(vspaces[0, :].max(), 0) + pad_in / h_in
-    bottom = max(vspaces[-1, :].max(), 0) + pad_in / h_in
+    left = max(float(hspaces[:, 0].max()), 0.0) + pad_in / w_in
+    right = max(float(hspaces[:, -1].max()), 0.0) + pad_in / w_in
+    top = max(float(vspaces[0, :].max()), 0.0) + pad_in / h_in
+    bottom = max(float(vspaces[-1, :].max()), 0.0) + pad_in / h_in
     sup = getattr(fig, "_suptitle", None)
     if sup is not None and sup.get_in_layout():
         top += to_fig.transform_bbox(sup.get_window_extent(renderer)).height + pad_in / h_in
     kw = dict(left=left, right=1 - right, bottom=bottom, top=1 - top)
     if cols > 1:
-        hspace = hspaces[:, 1:-1].max() + pad_in / w_in
+        hspace = float(hspaces[:, 1:-1].max()) + pad_in / w_in
         kw["wspace"] = hspace / ((1 - right - left - hspace * (cols - 1)) / cols)
     if rows > 1:
-        vspace = vspaces[1:-1, :].max() + pad_in / h_in
+        vspace = float(vspaces[1:-1, :].max()) + pad_in / h_in
         kw["hspace"] = vspace / ((1 - top - bottom - vspace * (rows - 1)) / rows)
     if left + right >= 1 or top + bottom >= 1 or kw.get("wspace", 1) <= 0 or kw.get("hspace", 1) <= 0:
         fig.tight_layout(pad=pad)   # no room: matplotlib warns and leaves the figure as it is
@@ -200,6 +200,11 @@ def figure_to_rgb(fig: Figure) -> np.ndarray:
 def save_png(fig: Figure, path: str | Path, overwrite: bool = False, dpi: float | None = None) -> Path:
     """Write ``fig`` as a PNG at ``path`` (parent folders created).
 
+    At the figure's own resolution the figure is drawn once on its Agg canvas and the pixels
+    written as they are: RGB when every pixel is opaque (RGBA otherwise), zlib level 1, the
+    resolution and matplotlib's ``Software`` entry in the PNG header as ``savefig`` writes them.
+    Another ``dpi`` goes through ``savefig``.
+
     Parameters
     ----------
     fig : matplotlib.figure.Figure
@@ -233,8 +238,20 @@ def save_png(fig: Figure, path: str | Path, overwrite: bool = False, dpi: float 
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; refusing to overwrite (pass overwrite=True)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    _agg_canvas(fig)
+    canvas = _agg_canvas(fig)
     if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine):
         fig.set_layout_engine(None)  # laid out already (tight_layout): no layout pass in savefig
-    fig.savefig(path, format="png", dpi="figure" if dpi is None else dpi)
+    if dpi is not None and dpi != fig.dpi:
+        fig.savefig(path, format="png", dpi=dpi)
+        return path
+    from PIL import Image, PngImagePlugin  # matplotlib's own dependency
+
+    canvas.draw()
+    rgba = np.asarray(canvas.buffer_rgba())
+    img = Image.frombuffer("RGBA", (rgba.shape[1], rgba.shape[0]), rgba, "raw", "RGBA", 0, 1)
+    if int(rgba[..., 3].min()) == 255:
+        img = img.convert("RGB")
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", f"Matplotlib version{mpl.__version__}, https://matplotlib.org/")
+    img.save(path, format="png", dpi=(fig.dpi, fig.dpi), pnginfo=info, compress_level=1)
     return path
