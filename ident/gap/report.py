@@ -138,13 +138,13 @@ def markdown(report: dict, plots: dict) -> str:
 
 
 def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
-    from viz.plots import new_figure, save_png, tight_layout  # optional dependency: matplotlib
+    from viz.plots import new_subplots, save_png, tight_layout  # optional dependency: matplotlib
 
     paths = {}
 
     def subplots(figsize):
-        fig = new_figure(*figsize, dpi=100)
-        return fig, fig.add_subplot()
+        fig = new_subplots(*figsize, dpi=100)
+        return fig, fig.axes[0]
 
     def save(fig, key):
         tight_layout(fig)

@@ -1251,7 +1251,7 @@ def write_study_plots(fits, out_dir: Path) -> dict:
     ``spread_joint<j>.png`` (each parameter of the Coulomb + viscous and Stribeck models over
     the repetitions of every condition: dots, mean and +-1 std). Returns {name: file name}."""
 
-    from viz.plots import tight_layout
+    from viz.plots import new_subplots, tight_layout
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1261,8 +1261,8 @@ def write_study_plots(fits, out_dir: Path) -> dict:
               "tab:pink", "tab:gray", "tab:olive", "tab:cyan"]
     for j in joints:  # loop over joints
         conds = _conditions(fits.entries, j)
-        fig = new_figure(7.0, 4.6, dpi=100)
-        ax = fig.add_subplot(1, 1, 1)
+        fig = new_subplots(7.0, 4.6, dpi=100)
+        ax = fig.axes[0]
         curve_model = next((m for m in ("stribeck", "cv") if m in fits.models), fits.models[0])
         for k, ((load, vf), ents) in enumerate(conds.items()):  # loop over conditions
             e = min(ents, key=lambda x: x.task.repetition)
@@ -1293,10 +1293,10 @@ def write_study_plots(fits, out_dir: Path) -> dict:
             continue
         ncol = min(3, len(params))
         nrow = -(-len(params) // ncol)
-        fig = new_figure(3.2 * ncol, 2.5 * nrow + 0.6, dpi=100)
+        fig = new_subplots(3.2 * ncol, 2.5 * nrow + 0.6, dpi=100, nrows=nrow, ncols=ncol, n=len(params))
         labels = [f"{load:g}kg\n{100 * vf:g}%" for (load, vf) in conds]
         for i, (m, p) in enumerate(params):  # loop over parameters
-            ax = fig.add_subplot(nrow, ncol, i + 1)
+            ax = fig.axes[i]
             for k, ents in enumerate(conds.values()):  # loop over conditions
                 vals = np.array([e.fits[m].params.get(p, np.nan) for e in ents if m in e.fits], float)
                 vals = vals[np.isfinite(vals)]

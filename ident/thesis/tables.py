@@ -331,12 +331,12 @@ def plot_friction_vs_speed(path: str | Path, qd, f_measured, models: dict, title
     """Friction torque vs link speed (thesis Figs. 5-1, 5-2): the measured friction
     (eq. 2-4 target minus the fitted rigid part) as dots and each fitted model as a curve.
     ``models``: {label: object with ``torque(qd)``}. Saved as PNG with matplotlib (Agg)."""
-    from viz.plots import new_figure, save_png, tight_layout  # optional dependency: matplotlib
+    from viz.plots import new_subplots, save_png, tight_layout  # optional dependency: matplotlib
 
     qd = np.asarray(qd, float)
     f = np.asarray(f_measured, float)
-    fig = new_figure(6.4, 4.4, dpi=110)
-    ax = fig.add_subplot()
+    fig = new_subplots(6.4, 4.4, dpi=110)
+    ax = fig.axes[0]
     ax.plot(qd, f, ".", ms=1.5, color="0.6", label="data", rasterized=True)
     lim = float(np.max(np.abs(qd))) if qd.size else 1.0
     v = np.linspace(-lim, lim, 801)
