@@ -1297,14 +1297,17 @@ def write_study_plots(fits, out_dir: Path) -> dict:
         labels = [f"{load:g}kg\n{100 * vf:g}%" for (load, vf) in conds]
         for i, (m, p) in enumerate(params):  # loop over parameters
             ax = fig.axes[i]
+            dots, bars = [], []   # (condition, values), (condition, mean, std): one artist each
             for k, ents in enumerate(conds.values()):  # loop over conditions
                 vals = np.array([e.fits[m].params.get(p, np.nan) for e in ents if m in e.fits], float)
                 vals = vals[np.isfinite(vals)]
-                if vals.size == 0:
-                    continue
-                ax.plot(np.full(vals.size, k), vals, "o", ms=3, color="tab:blue", alpha=0.6)
-                ax.errorbar(k + 0.18, vals.mean(), yerr=vals.std(), fmt="s", ms=4, color="black",
-                            capsize=3)
+                if vals.size:
+                    dots += [(k, v) for v in vals]
+                    bars.append((k + 0.18, vals.mean(), vals.std()))
+            if bars:
+                ax.plot(*np.array(dots).T, "o", ms=3, color="tab:blue", alpha=0.6)
+                x, mean, std = np.array(bars).T
+                ax.errorbar(x, mean, yerr=std, fmt="s", ms=4, color="black", capsize=3)
             ax.set_xticks(range(len(labels)))
             ax.set_xticklabels(labels, fontsize=7)
             ax.set_title(f"{m}: {p}", fontsize=9)
