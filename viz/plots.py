@@ -56,10 +56,10 @@ _TEMPLATES: dict = {}   # (size, dpi, grid, rcParams) -> pickled figure; bytes, 
 
 
 def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, nrows: int = 1,
-                 ncols: int = 1, n: int | None = None) -> Figure:
+                 ncols: int = 1, n: int | None = None, ticks: int = 11, minor_ticks: int = 1) -> Figure:
     """A figure as :func:`new_figure` makes it, holding the subplots ``1 .. n`` of an
     ``nrows`` x ``ncols`` grid (``fig.add_subplot(nrows, ncols, i)``; ``n`` = all by default),
-    each axis already holding its first major ticks.
+    each axis already holding ``ticks`` major and ``minor_ticks`` minor tick artists.
 
     Matplotlib builds tick artists one at a time (two lines and two texts each), the dearest
     part of a small figure; this function builds the figure once per size, grid and rcParams,
@@ -76,6 +76,9 @@ def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100
         The grid.
     n : int, optional
         How many subplots, in row-major order.
+    ticks, minor_ticks : int, optional
+        Tick artists made in advance per axis (a draw adds the ones it lacks and leaves
+        the others out): about the number the plot draws, e.g. 30 minor ticks on a log axis.
 
     Returns
     -------
@@ -92,22 +95,19 @@ def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100
     """
     n = nrows * ncols if n is None else int(n)
     rc = hash(repr(sorted((k, v) for k, v in dict.items(mpl.rcParams) if k != "backend")))
-    key = (float(width_in), float(height_in), float(dpi), int(nrows), int(ncols), n, rc)
+    key = (float(width_in), float(height_in), float(dpi), int(nrows), int(ncols), n, ticks, minor_ticks, rc)
     blob = _TEMPLATES.get(key)
     if blob is None:
         fig = Figure(figsize=(width_in, height_in), dpi=dpi)
         for i in range(n):
             ax = fig.add_subplot(nrows, ncols, i + 1)
             for axis in (ax.xaxis, ax.yaxis):
-                axis.get_major_ticks(_TEMPLATE_TICKS)
-                axis.get_minor_ticks(1)
+                axis.get_major_ticks(ticks)
+                axis.get_minor_ticks(minor_ticks)
         blob = _TEMPLATES[key] = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
     fig = pickle.loads(blob)
     FigureCanvasAgg(fig)
     return fig
-
-
-_TEMPLATE_TICKS = 8  # major ticks made in a template, per axis (more are added when drawn)
 
 
 def _layout_bbox(ax, renderer):
