@@ -56,10 +56,10 @@ _TEMPLATES: dict = {}   # (size, dpi, grid, rcParams) -> pickled figure; bytes, 
 
 
 def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, nrows: int = 1,
-                 ncols: int = 1, n: int | None = None, ticks: int = 11, minor_ticks: int = 1) -> Figure:
+                 ncols: int = 1, n: int | None = None, ticks: int = 11) -> Figure:
     """A figure as :func:`new_figure` makes it, holding the subplots ``1 .. n`` of an
     ``nrows`` x ``ncols`` grid (``fig.add_subplot(nrows, ncols, i)``; ``n`` = all by default),
-    each axis already holding ``ticks`` major and ``minor_ticks`` minor tick artists.
+    each axis already holding ``ticks`` major tick artists (and one minor).
 
     Matplotlib builds tick artists one at a time (two lines and two texts each), the dearest
     part of a small figure; this function builds the figure once per size, grid and rcParams,
@@ -76,9 +76,9 @@ def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100
         The grid.
     n : int, optional
         How many subplots, in row-major order.
-    ticks, minor_ticks : int, optional
-        Tick artists made in advance per axis (a draw adds the ones it lacks and leaves
-        the others out): about the number the plot draws, e.g. 30 minor ticks on a log axis.
+    ticks : int, optional
+        Major tick artists made in advance per axis (a draw adds the ones it lacks and leaves
+        the others out): about the number the plot draws.
 
     Returns
     -------
@@ -95,7 +95,7 @@ def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100
     """
     n = nrows * ncols if n is None else int(n)
     rc = hash(repr(sorted((k, v) for k, v in dict.items(mpl.rcParams) if k != "backend")))
-    key = (float(width_in), float(height_in), float(dpi), int(nrows), int(ncols), n, ticks, minor_ticks, rc)
+    key = (float(width_in), float(height_in), float(dpi), int(nrows), int(ncols), n, ticks, rc)
     blob = _TEMPLATES.get(key)
     if blob is None:
         fig = Figure(figsize=(width_in, height_in), dpi=dpi)
@@ -103,7 +103,7 @@ def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100
             ax = fig.add_subplot(nrows, ncols, i + 1)
             for axis in (ax.xaxis, ax.yaxis):
                 axis.get_major_ticks(ticks)
-                axis.get_minor_ticks(minor_ticks)
+                axis.get_minor_ticks(1)
         blob = _TEMPLATES[key] = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
     fig = pickle.loads(blob)
     FigureCanvasAgg(fig)
@@ -127,6 +127,9 @@ def _layout_bbox(ax, renderer):
             or ax.xaxis.get_label_position() == "top":
         # the draw would move the titles above the offset text or top ticks: measure as matplotlib does
         return ax.get_tightbbox(renderer, for_layout_only=True)
+    # nothing above the Axes for the titles to clear: they stay where they are (y = 1 + pad), so
+    # the draw need not re-measure the y axis to place them (Axes._update_title_position)
+    ax._autotitlepos = False
     for title in (ax.title, getattr(ax, "_left_title", None), getattr(ax, "_right_title", None)):
         if title is not None and title.get_visible() and title.get_text():
             bt = title.get_window_extent(renderer)

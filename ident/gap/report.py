@@ -142,8 +142,8 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
 
     paths = {}
 
-    def subplots(figsize, **ticks):
-        fig = new_subplots(*figsize, dpi=100, **ticks)
+    def subplots(figsize):
+        fig = new_subplots(*figsize, dpi=100)
         return fig, fig.axes[0]
 
     def save(fig, key):
@@ -178,7 +178,7 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
             save(fig, f"joint{j}_residual")
             sp = s.get("spectrum") or {}
             if len(sp.get("f", ())) > 1:
-                fig, ax = subplots((6, 3.5), minor_ticks=32)
+                fig, ax = subplots((6, 3.5))
                 ax.loglog(sp["f"][1:], sp["psd"][1:], label="held-out nominal residual")
                 ax.axhline(sp["floor"], color="tab:red", ls="--", label="white-noise floor")
                 ax.set_xlabel("frequency [Hz]")
