@@ -1,5 +1,6 @@
 """Matplotlib figures as images, headless (Agg), without pyplot's global state.
 
+``young_garbage`` pauses cyclic garbage collection while figures are drawn.
 ``new_figure`` makes a :class:`matplotlib.figure.Figure` bound to an Agg canvas (no display,
 nothing registered with pyplot, so nothing leaks between calls); ``new_subplots`` makes one with
 a grid of subplots from a pickled template (cheaper than building the Axes and their ticks);
@@ -10,6 +11,8 @@ cost; ``save_png`` writes a PNG and refuses to overwrite unless asked.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+import gc
 from pathlib import Path
 import pickle
 
@@ -18,7 +21,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.font_manager import FontProperties
-from matplotlib.transforms import Bbox
+from matplotlib.transforms import Bbox, TransformNode
 from matplotlib.layout_engine import PlaceHolderLayoutEngine
 
 
@@ -52,7 +55,63 @@ def new_figure(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0
     return fig
 
 
-_TEMPLATES: dict = {}   # (size, dpi, grid, rcParams) -> pickled figure; bytes, never mutated
+class _KeepAlivePickler(pickle.Pickler):
+    """A pickler that holds on to every transform it pickles (``kept``)."""
+
+    def __init__(self, file):
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.kept = []
+
+    def persistent_id(self, obj):
+        if isinstance(obj, TransformNode):
+            self.kept.append(obj)
+        return None   # pickled as usual
+
+
+def _pickle_keeping_alive(obj) -> tuple:
+    """(pickled ``obj``, every transform pickled). An unpickled matplotlib transform keys the
+    transforms it invalidates by the ids they had when pickled (``TransformNode.__setstate__``);
+    while those objects live no other object can take their ids, so no id collision drops a
+    dependant from invalidation (which leaves e.g. an axis label at an old Axes position)."""
+    import io
+
+    buf = io.BytesIO()
+    p = _KeepAlivePickler(buf)
+    p.dump(obj)
+    return buf.getvalue(), p.kept
+
+
+@contextmanager
+def young_garbage():
+    """Cyclic garbage collection paused while figures are built and drawn, then one collection
+    of the youngest generation (usable as a decorator of a plotting function: its figures are
+    unreachable once it returns).
+
+    A figure is a web of reference cycles of some ten thousand objects, so building one triggers
+    automatic collections, now and then of the oldest generation, which walk every object of the
+    process (about 0.1 s with a study's results in memory). With collection paused, the figures'
+    objects stay in the youngest generation and one collection of it frees them (milliseconds).
+    Collection is re-enabled only by the caller that found it enabled (nesting and threads are
+    safe).
+
+    Examples
+    --------
+    >>> with young_garbage():
+    ...     _ = save_png  # draw here
+    >>> gc.isenabled()
+    True
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+            gc.collect(0)
+
+
+_TEMPLATES: dict = {}   # (size, dpi, grid, ticks, rcParams) -> (pickled figure, objects kept alive)
 
 
 def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, nrows: int = 1,
@@ -96,16 +155,15 @@ def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100
     n = nrows * ncols if n is None else int(n)
     rc = hash(repr(sorted((k, v) for k, v in dict.items(mpl.rcParams) if k != "backend")))
     key = (float(width_in), float(height_in), float(dpi), int(nrows), int(ncols), n, ticks, rc)
-    blob = _TEMPLATES.get(key)
-    if blob is None:
+    if key not in _TEMPLATES:
         fig = Figure(figsize=(width_in, height_in), dpi=dpi)
         for i in range(n):
             ax = fig.add_subplot(nrows, ncols, i + 1)
             for axis in (ax.xaxis, ax.yaxis):
                 axis.get_major_ticks(ticks)
                 axis.get_minor_ticks(1)
-        blob = _TEMPLATES[key] = pickle.dumps(fig, protocol=pickle.HIGHEST_PROTOCOL)
-    fig = pickle.loads(blob)
+        _TEMPLATES[key] = _pickle_keeping_alive(fig)
+    fig = pickle.loads(_TEMPLATES[key][0])
     FigureCanvasAgg(fig)
     return fig
 

@@ -331,7 +331,15 @@ def plot_friction_vs_speed(path: str | Path, qd, f_measured, models: dict, title
     """Friction torque vs link speed (thesis Figs. 5-1, 5-2): the measured friction
     (eq. 2-4 target minus the fitted rigid part) as dots and each fitted model as a curve.
     ``models``: {label: object with ``torque(qd)``}. Saved as PNG with matplotlib (Agg)."""
-    from viz.plots import new_subplots, save_png, tight_layout  # optional dependency: matplotlib
+    from viz.plots import young_garbage  # optional dependency: matplotlib
+
+    with young_garbage():
+        return _friction_vs_speed_png(path, qd, f_measured, models, title)
+
+
+def _friction_vs_speed_png(path, qd, f_measured, models: dict, title: str) -> Path:
+    """The figure of :func:`plot_friction_vs_speed`, drawn and saved."""
+    from viz.plots import new_subplots, save_png, tight_layout
 
     qd = np.asarray(qd, float)
     f = np.asarray(f_measured, float)
