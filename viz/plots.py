@@ -1,13 +1,13 @@
 """Matplotlib figures as images, headless (Agg), without pyplot's global state.
 
-``young_garbage`` pauses cyclic garbage collection while figures are drawn.
 ``new_figure`` makes a :class:`matplotlib.figure.Figure` bound to an Agg canvas (no display,
 nothing registered with pyplot, so nothing leaks between calls); ``new_subplots`` makes one with
 a grid of subplots from a pickled template (cheaper than building the Axes and their ticks);
-``figure_to_rgb`` renders any
-figure to an (H, W, 3) uint8 array, e.g. for :meth:`viz.sink.Sink.image`; ``tight_layout`` sets
-the subplot parameters :meth:`~matplotlib.figure.Figure.tight_layout` sets, at a fraction of its
-cost; ``save_png`` writes a PNG and refuses to overwrite unless asked.
+``tight_layout`` sets the subplot parameters :meth:`~matplotlib.figure.Figure.tight_layout` sets,
+at a fraction of its cost; ``figure_to_rgb`` renders any figure to an (H, W, 3) uint8 array,
+e.g. for :meth:`viz.sink.Sink.image`; ``save_png`` writes a PNG (one draw) and refuses to
+overwrite unless asked; ``young_garbage`` pauses cyclic garbage collection while figures are
+drawn.
 """
 from __future__ import annotations
 
