@@ -2,9 +2,8 @@
 
 ``new_figure`` makes a :class:`matplotlib.figure.Figure` bound to an Agg canvas (no display,
 nothing registered with pyplot, so nothing leaks between calls); ``new_subplots`` makes one with
-a grid of subplots from a pickled template (cheaper than building the Axes and their ticks);
-``tight_layout`` sets the subplot parameters :meth:`~matplotlib.figure.Figure.tight_layout` sets,
-at a fraction of its cost; ``figure_to_rgb`` renders any figure to an (H, W, 3) uint8 array,
+a grid of subplots; ``tight_layout`` lays it out once (no second layout when saved);
+``figure_to_rgb`` renders any figure to an (H, W, 3) uint8 array,
 e.g. for :meth:`viz.sink.Sink.image`; ``save_png`` writes a PNG (one draw) and refuses to
 overwrite unless asked; ``young_garbage`` pauses cyclic garbage collection while figures are
 drawn.
@@ -14,14 +13,11 @@ from __future__ import annotations
 from contextlib import contextmanager
 import gc
 from pathlib import Path
-import pickle
 
 import matplotlib as mpl
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.font_manager import FontProperties
-from matplotlib.transforms import Bbox, TransformNode
 from matplotlib.layout_engine import PlaceHolderLayoutEngine
 
 
@@ -55,32 +51,6 @@ def new_figure(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0
     return fig
 
 
-class _KeepAlivePickler(pickle.Pickler):
-    """A pickler that holds on to every transform it pickles (``kept``)."""
-
-    def __init__(self, file):
-        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
-        self.kept = []
-
-    def persistent_id(self, obj):
-        if isinstance(obj, TransformNode):
-            self.kept.append(obj)
-        return None   # pickled as usual
-
-
-def _pickle_keeping_alive(obj) -> tuple:
-    """(pickled ``obj``, every transform pickled). An unpickled matplotlib transform keys the
-    transforms it invalidates by the ids they had when pickled (``TransformNode.__setstate__``);
-    while those objects live no other object can take their ids, so no id collision drops a
-    dependant from invalidation (which leaves e.g. an axis label at an old Axes position)."""
-    import io
-
-    buf = io.BytesIO()
-    p = _KeepAlivePickler(buf)
-    p.dump(obj)
-    return buf.getvalue(), p.kept
-
-
 @contextmanager
 def young_garbage():
     """Cyclic garbage collection paused while figures are built and drawn, then one collection
@@ -111,121 +81,27 @@ def young_garbage():
             gc.collect(0)
 
 
-_TEMPLATES: dict = {}   # (size, dpi, grid, ticks, rcParams) -> (pickled figure, objects kept alive)
-
-
 def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, nrows: int = 1,
-                 ncols: int = 1, n: int | None = None, ticks: int = 11) -> Figure:
+                 ncols: int = 1, n: int | None = None) -> Figure:
     """A figure as :func:`new_figure` makes it, holding the subplots ``1 .. n`` of an
-    ``nrows`` x ``ncols`` grid (``fig.add_subplot(nrows, ncols, i)``; ``n`` = all by default),
-    each axis already holding ``ticks`` major tick artists (and one minor).
-
-    Matplotlib builds tick artists one at a time (two lines and two texts each), the dearest
-    part of a small figure; this function builds the figure once per size, grid and rcParams,
-    keeps it pickled, and returns a new unpickled copy on every call, so no figure is shared
-    and nothing drawn on one reaches another. The copy draws as the freshly built figure does.
-
-    Parameters
-    ----------
-    width_in, height_in : float, optional
-        Size (inches).
-    dpi : float, optional
-        Pixels per inch.
-    nrows, ncols : int, optional
-        The grid.
-    n : int, optional
-        How many subplots, in row-major order.
-    ticks : int, optional
-        Major tick artists made in advance per axis (a draw adds the ones it lacks and leaves
-        the others out): about the number the plot draws.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        The figure; its Axes in ``fig.axes``.
+    ``nrows`` x ``ncols`` grid (``fig.add_subplot(nrows, ncols, i)``; ``n`` = all by default).
 
     Examples
     --------
     >>> fig = new_subplots(3.0, 2.0, dpi=50, nrows=2, ncols=2, n=3)
     >>> len(fig.axes), figure_to_rgb(fig).shape
     (3, (100, 150, 3))
-    >>> new_subplots(3.0, 2.0, dpi=50, nrows=2, ncols=2, n=3) is fig
-    False
     """
     n = nrows * ncols if n is None else int(n)
-    rc = hash(repr(sorted((k, v) for k, v in dict.items(mpl.rcParams) if k != "backend")))
-    key = (float(width_in), float(height_in), float(dpi), int(nrows), int(ncols), n, ticks, rc)
-    if key not in _TEMPLATES:
-        fig = Figure(figsize=(width_in, height_in), dpi=dpi)
-        for i in range(n):
-            ax = fig.add_subplot(nrows, ncols, i + 1)
-            for axis in (ax.xaxis, ax.yaxis):
-                axis.get_major_ticks(ticks)
-                axis.get_minor_ticks(1)
-        _TEMPLATES[key] = _pickle_keeping_alive(fig)
-    fig = pickle.loads(_TEMPLATES[key][0])
-    FigureCanvasAgg(fig)
+    fig = new_figure(width_in, height_in, dpi=dpi)
+    for i in range(n):
+        fig.add_subplot(nrows, ncols, i + 1)
     return fig
 
 
-def _layout_bbox(ax, renderer):
-    """The tight bounding box of one Axes for the layout (display units), as
-    ``ax.get_tightbbox(renderer, for_layout_only=True)`` gives it: the Axes, its axes' tick labels,
-    labels and offset texts (the x label's width and the y label's height left out), its titles
-    (their widths left out), its legend and its texts. Other artists are taken to be clipped to the
-    Axes (as data artists are), so they are not measured."""
-    bbs = [ax.get_window_extent(renderer)]
-    if ax.axison:
-        for axis in (ax.xaxis, ax.yaxis):
-            if axis.get_visible():
-                b = axis.get_tightbbox(renderer, for_layout_only=True)
-                if b is not None:
-                    bbs.append(b)
-    if ax.yaxis.offsetText.get_text() or ax.xaxis.get_ticks_position() in ("top", "unknown") \
-            or ax.xaxis.get_label_position() == "top":
-        # the draw would move the titles above the offset text or top ticks: measure as matplotlib does
-        return ax.get_tightbbox(renderer, for_layout_only=True)
-    # nothing above the Axes for the titles to clear: they stay where they are (y = 1 + pad), so
-    # the draw need not re-measure the y axis to place them (Axes._update_title_position)
-    ax._autotitlepos = False
-    for title in (ax.title, getattr(ax, "_left_title", None), getattr(ax, "_right_title", None)):
-        if title is not None and title.get_visible() and title.get_text():
-            bt = title.get_window_extent(renderer)
-            bt.x0 = (bt.x0 + bt.x1) / 2 - 0.5   # its width does not count (tight_layout's rule)
-            bt.x1 = bt.x0 + 1.0
-            bbs.append(bt)
-    legend = ax.get_legend()
-    for a in ([legend] if legend is not None else []) + list(ax.texts):
-        if a.get_visible() and a.get_in_layout():
-            b = a.get_tightbbox(renderer)
-            if b is not None and np.all(np.isfinite(b.extents)):
-                bbs.append(b)
-    return Bbox.union([b for b in bbs if b.width != 0 or b.height != 0])
-
-
 def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
-    """Set the subplot parameters that ``fig.tight_layout(pad=pad)`` sets, measuring each Axes
-    once (:func:`_layout_bbox`) instead of through matplotlib's repeated tick updates, and leave
-    no layout engine behind (so ``savefig`` lays nothing out again).
-
-    The rule is matplotlib's (``_tight_layout._auto_adjust_subplotpars``): the margin on each side
-    is the largest overhang of an Axes' tight box beyond its grid cell on that side plus ``pad``
-    font sizes (rcParams ``font.size``), a suptitle adds its height and ``pad`` to the top margin,
-    and the gaps between cells are the largest overhangs facing each other plus ``pad``. Figures
-    that are not subplots of one grid, one Axes per cell (or whose Axes have a locator, a fixed
-    aspect, twins or super labels) go through ``fig.tight_layout`` itself.
-
-    Parameters
-    ----------
-    fig : matplotlib.figure.Figure
-        The figure, its artists in place.
-    pad : float, optional
-        Padding around and between the subplots, as a fraction of the font size.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        ``fig``.
+    """``fig.tight_layout(pad=pad)``, then no layout engine left on the figure: the subplot
+    parameters are set once, and :func:`save_png` draws without laying the figure out again.
 
     Examples
     --------
@@ -233,57 +109,11 @@ def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
     >>> ax = fig.add_subplot()
     >>> _ = ax.set_xlabel("x"), ax.set_ylabel("y"), ax.set_title("t")
     >>> p = tight_layout(fig).subplotpars
-    >>> bool(0.0 < p.left < 0.5 < p.right < 1.0), bool(0.0 < p.bottom < 0.5 < p.top < 1.0)
+    >>> bool(0.0 < p.left < 0.5 < p.right < 1.0), fig.get_layout_engine() is None
     (True, True)
     """
-    axes = [ax for ax in fig.axes if ax.get_visible()]
-    specs = [ax.get_subplotspec() for ax in axes]
-    grids = {s.get_gridspec() for s in specs if s is not None}
-    simple = (axes and len(grids) == 1 and len(axes) == len(fig.axes)
-              and all(s is not None and len(s.rowspan) == 1 and len(s.colspan) == 1 for s in specs)
-              and len({(s.rowspan.start, s.colspan.start) for s in specs}) == len(specs)
-              and not next(iter(grids)).locally_modified_subplot_params()
-              and all(ax.get_axes_locator() is None and ax.get_aspect() == "auto" and not ax.child_axes
-                      for ax in axes)
-              and not getattr(fig, "_supxlabel", None) and not getattr(fig, "_supylabel", None))
-    if not simple:
-        fig.tight_layout(pad=pad)
-        fig.set_layout_engine(None)
-        return fig
-    renderer = _agg_canvas(fig).get_renderer()
-    rows, cols = next(iter(grids)).get_geometry()
-    hspaces = np.zeros((rows, cols + 1))   # overhangs left of / right of each cell (figure fraction)
-    vspaces = np.zeros((rows + 1, cols))   # overhangs above / below each cell
-    to_fig = fig.transFigure.inverted()
-    for ax, ss in zip(axes, specs):
-        tb = to_fig.transform_bbox(_layout_bbox(ax, renderer))
-        cell = ss.get_position(fig)
-        r, c = ss.rowspan.start, ss.colspan.start
-        hspaces[r, c] += cell.xmin - tb.xmin
-        hspaces[r, c + 1] += tb.xmax - cell.xmax
-        vspaces[r, c] += tb.ymax - cell.ymax
-        vspaces[r + 1, c] += cell.ymin - tb.ymin
-    w_in, h_in = fig.get_size_inches()
-    pad_in = pad * FontProperties(size=mpl.rcParams["font.size"]).get_size_in_points() / 72
-    left = max(float(hspaces[:, 0].max()), 0.0) + pad_in / w_in
-    right = max(float(hspaces[:, -1].max()), 0.0) + pad_in / w_in
-    top = max(float(vspaces[0, :].max()), 0.0) + pad_in / h_in
-    bottom = max(float(vspaces[-1, :].max()), 0.0) + pad_in / h_in
-    sup = getattr(fig, "_suptitle", None)
-    if sup is not None and sup.get_in_layout():
-        top += to_fig.transform_bbox(sup.get_window_extent(renderer)).height + pad_in / h_in
-    kw = dict(left=left, right=1 - right, bottom=bottom, top=1 - top)
-    if cols > 1:
-        hspace = float(hspaces[:, 1:-1].max()) + pad_in / w_in
-        kw["wspace"] = hspace / ((1 - right - left - hspace * (cols - 1)) / cols)
-    if rows > 1:
-        vspace = float(vspaces[1:-1, :].max()) + pad_in / h_in
-        kw["hspace"] = vspace / ((1 - top - bottom - vspace * (rows - 1)) / rows)
-    if left + right >= 1 or top + bottom >= 1 or kw.get("wspace", 1) <= 0 or kw.get("hspace", 1) <= 0:
-        fig.tight_layout(pad=pad)   # no room: matplotlib warns and leaves the figure as it is
-        fig.set_layout_engine(None)
-        return fig
-    fig.subplots_adjust(**kw)
+    fig.tight_layout(pad=pad)
+    fig.set_layout_engine(None)
     return fig
 
 

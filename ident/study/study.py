@@ -1294,8 +1294,7 @@ def write_study_plots(fits, out_dir: Path) -> dict:
                 continue
             ncol = min(3, len(params))
             nrow = -(-len(params) // ncol)
-            fig = new_subplots(3.2 * ncol, 2.5 * nrow + 0.6, dpi=100, nrows=nrow, ncols=ncol, n=len(params),
-                               ticks=8)
+            fig = new_subplots(3.2 * ncol, 2.5 * nrow + 0.6, dpi=100, nrows=nrow, ncols=ncol, n=len(params))
             labels = [f"{load:g}kg\n{100 * vf:g}%" for (load, vf) in conds]
             for i, (m, p) in enumerate(params):  # loop over parameters
                 ax = fig.axes[i]
