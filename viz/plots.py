@@ -1,17 +1,24 @@
 """Matplotlib figures as images, headless (Agg), without pyplot's global state.
 
 ``new_figure`` makes a :class:`matplotlib.figure.Figure` bound to an Agg canvas (no display,
-nothing registered with pyplot, so nothing leaks between calls); ``figure_to_rgb`` renders any
-figure to an (H, W, 3) uint8 array, e.g. for :meth:`viz.sink.Sink.image`; ``save_png`` writes a
-PNG and refuses to overwrite unless asked.
+nothing registered with pyplot, so nothing leaks between calls); ``new_subplots`` makes one with
+a grid of subplots; ``tight_layout`` lays it out once (no second layout when saved);
+``figure_to_rgb`` renders any figure to an (H, W, 3) uint8 array,
+e.g. for :meth:`viz.sink.Sink.image`; ``save_png`` writes a PNG (one draw) and refuses to
+overwrite unless asked; ``young_garbage`` pauses cyclic garbage collection while figures are
+drawn.
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+import gc
 from pathlib import Path
 
+import matplotlib as mpl
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import PlaceHolderLayoutEngine
 
 
 def new_figure(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, **kw) -> Figure:
@@ -41,6 +48,72 @@ def new_figure(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0
     """
     fig = Figure(figsize=(width_in, height_in), dpi=dpi, **kw)
     FigureCanvasAgg(fig)
+    return fig
+
+
+@contextmanager
+def young_garbage():
+    """Cyclic garbage collection paused while figures are built and drawn, then one collection
+    of the youngest generation (usable as a decorator of a plotting function: its figures are
+    unreachable once it returns).
+
+    A figure is a web of reference cycles of some ten thousand objects, so building one triggers
+    automatic collections, now and then of the oldest generation, which walk every object of the
+    process (about 0.1 s with a study's results in memory). With collection paused, the figures'
+    objects stay in the youngest generation and one collection of it frees them (milliseconds).
+    Collection is re-enabled only by the caller that found it enabled (nesting and threads are
+    safe).
+
+    Examples
+    --------
+    >>> with young_garbage():
+    ...     _ = save_png  # draw here
+    >>> gc.isenabled()
+    True
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+            gc.collect(0)
+
+
+def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, nrows: int = 1,
+                 ncols: int = 1, n: int | None = None) -> Figure:
+    """A figure as :func:`new_figure` makes it, holding the subplots ``1 .. n`` of an
+    ``nrows`` x ``ncols`` grid (``fig.add_subplot(nrows, ncols, i)``; ``n`` = all by default).
+
+    Examples
+    --------
+    >>> fig = new_subplots(3.0, 2.0, dpi=50, nrows=2, ncols=2, n=3)
+    >>> len(fig.axes), figure_to_rgb(fig).shape
+    (3, (100, 150, 3))
+    """
+    n = nrows * ncols if n is None else int(n)
+    fig = new_figure(width_in, height_in, dpi=dpi)
+    for i in range(n):
+        fig.add_subplot(nrows, ncols, i + 1)
+    return fig
+
+
+def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
+    """``fig.tight_layout(pad=pad)``, then no layout engine left on the figure: the subplot
+    parameters are set once, and :func:`save_png` draws without laying the figure out again.
+
+    Examples
+    --------
+    >>> fig = new_figure(3.0, 2.0, dpi=50)
+    >>> ax = fig.add_subplot()
+    >>> _ = ax.set_xlabel("x"), ax.set_ylabel("y"), ax.set_title("t")
+    >>> p = tight_layout(fig).subplotpars
+    >>> bool(0.0 < p.left < 0.5 < p.right < 1.0), fig.get_layout_engine() is None
+    (True, True)
+    """
+    fig.tight_layout(pad=pad)
+    fig.set_layout_engine(None)
     return fig
 
 
@@ -79,6 +152,11 @@ def figure_to_rgb(fig: Figure) -> np.ndarray:
 def save_png(fig: Figure, path: str | Path, overwrite: bool = False, dpi: float | None = None) -> Path:
     """Write ``fig`` as a PNG at ``path`` (parent folders created).
 
+    At the figure's own resolution the figure is drawn once on its Agg canvas and the pixels
+    written as they are: RGB when every pixel is opaque (RGBA otherwise), zlib level 1, the
+    resolution and matplotlib's ``Software`` entry in the PNG header as ``savefig`` writes them.
+    Another ``dpi`` goes through ``savefig``.
+
     Parameters
     ----------
     fig : matplotlib.figure.Figure
@@ -112,6 +190,20 @@ def save_png(fig: Figure, path: str | Path, overwrite: bool = False, dpi: float 
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; refusing to overwrite (pass overwrite=True)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    _agg_canvas(fig)
-    fig.savefig(path, format="png", dpi="figure" if dpi is None else dpi)
+    canvas = _agg_canvas(fig)
+    if isinstance(fig.get_layout_engine(), PlaceHolderLayoutEngine):
+        fig.set_layout_engine(None)  # laid out already (tight_layout): no layout pass in savefig
+    if dpi is not None and dpi != fig.dpi:
+        fig.savefig(path, format="png", dpi=dpi)
+        return path
+    from PIL import Image, PngImagePlugin  # matplotlib's own dependency
+
+    canvas.draw()
+    rgba = np.asarray(canvas.buffer_rgba())
+    img = Image.frombuffer("RGBA", (rgba.shape[1], rgba.shape[0]), rgba, "raw", "RGBA", 0, 1)
+    if int(rgba[..., 3].min()) == 255:
+        img = img.convert("RGB")
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", f"Matplotlib version{mpl.__version__}, https://matplotlib.org/")
+    img.save(path, format="png", dpi=(fig.dpi, fig.dpi), pnginfo=info, compress_level=1)
     return path

@@ -138,29 +138,40 @@ def markdown(report: dict, plots: dict) -> str:
 
 
 def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """The PNGs of each joint in ``out_dir`` (where the gap lies, candidate effects, residual
+    against speed, residual spectrum): {key: file name}."""
+    from viz.plots import young_garbage  # optional dependency: matplotlib
+
+    with young_garbage():
+        return _draw_plots(report, series, out_dir)
+
+
+def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
+    """The figures of :func:`make_plots`, drawn and saved."""
+    from viz.plots import new_subplots, save_png, tight_layout
 
     paths = {}
 
+    def subplots(figsize):
+        fig = new_subplots(*figsize, dpi=100)
+        return fig, fig.axes[0]
+
     def save(fig, key):
-        fig.tight_layout()
-        fig.savefig(out_dir / f"{key}.png", dpi=100)
-        plt.close(fig)
+        tight_layout(fig)
+        save_png(fig, Path(out_dir) / f"{key}.png", overwrite=True)
         paths[key] = f"{key}.png"
 
     for j, rep in report["joints"].items():
         if "localisation" not in rep:
             continue
-        fig, ax = plt.subplots(figsize=(6, 3))
+        fig, ax = subplots((6, 3))
         loc = rep["localisation"]
         ax.barh([r["regime"] for r in loc][::-1], [r["share"] for r in loc][::-1], color="tab:blue")
         ax.set_xlabel("share of held-out torque gap")
         ax.set_title(f"joint {j}: where the gap lies")
         save(fig, f"joint{j}_localisation")
         eff = [e for e in rep["effects"] if e.get("identifiable", True)]
-        fig, ax = plt.subplots(figsize=(6, 3.5))
+        fig, ax = subplots((6, 3.5))
         ax.barh([e["effect"] for e in eff][::-1], [e["reduction"] for e in eff][::-1],
                 color=["tab:green" if e["significant"] else "tab:gray" for e in eff][::-1])
         ax.set_xlabel("held-out RMS reduction (fraction of nominal)")
@@ -168,7 +179,7 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
         save(fig, f"joint{j}_effects")
         s = series.get(j)
         if s is not None:
-            fig, ax = plt.subplots(figsize=(6, 3.5))
+            fig, ax = subplots((6, 3.5))
             step = max(1, s["qd"].shape[0] // 20000)
             ax.plot(s["qd"][::step], s["residual_nominal"][::step], ".", ms=1, alpha=0.4)
             ax.set_xlabel("joint velocity [rad/s]")
@@ -177,7 +188,7 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
             save(fig, f"joint{j}_residual")
             sp = s.get("spectrum") or {}
             if len(sp.get("f", ())) > 1:
-                fig, ax = plt.subplots(figsize=(6, 3.5))
+                fig, ax = subplots((6, 3.5))
                 ax.loglog(sp["f"][1:], sp["psd"][1:], label="held-out nominal residual")
                 ax.axhline(sp["floor"], color="tab:red", ls="--", label="white-noise floor")
                 ax.set_xlabel("frequency [Hz]")

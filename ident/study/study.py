@@ -1324,67 +1324,74 @@ def write_study_plots(fits, out_dir: Path) -> dict:
     ``spread_joint<j>.png`` (each parameter of the Coulomb + viscous and Stribeck models over
     the repetitions of every condition: dots, mean and +-1 std). Returns {name: file name}."""
 
+    from viz.plots import new_subplots, tight_layout, young_garbage
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {}
     joints = sorted({e.task.joint for e in fits.entries})
     colors = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown",
               "tab:pink", "tab:gray", "tab:olive", "tab:cyan"]
-    for j in joints:  # loop over joints
-        conds = _conditions(fits.entries, j)
-        fig = new_figure(7.0, 4.6, dpi=100)
-        ax = fig.add_subplot(1, 1, 1)
-        curve_model = next((m for m in ("stribeck", "cv") if m in fits.models), fits.models[0])
-        for k, ((load, vf), ents) in enumerate(conds.items()):  # loop over conditions
-            e = min(ents, key=lambda x: x.task.repetition)
-            c = colors[k % len(colors)]
-            if e.plot:
-                step = max(1, e.plot["qd"].size // 1500)
-                ax.plot(e.plot["qd"][::step], e.plot["f_measured"][::step], ".", ms=1.2, color=c,
-                        alpha=0.35, rasterized=True)
-                lim = float(np.max(np.abs(e.plot["qd"])))
-                v = np.linspace(-lim, lim, 401)
-                if curve_model in e.fits:
-                    ax.plot(v, e.fits[curve_model].friction().torque(v), color=c, lw=1.6,
-                            label=f"{load:g} kg, {100 * vf:g} % speed ({curve_model})")
-        ax.axhline(0, color="0.85", lw=0.8)
-        ax.axvline(0, color="0.85", lw=0.8)
-        ax.set_xlabel("link speed qd (rad/s)")
-        ax.set_ylabel("friction torque (N m)")
-        ax.set_title(f"joint {j}: friction vs speed (first repetition of each condition)", fontsize=9)
-        ax.legend(fontsize=7, loc="upper left")
-        fig.tight_layout()
-        name = f"friction_joint{j}.png"
-        save_png(fig, out_dir / name, overwrite=True)
-        paths[f"friction_joint{j}"] = name
+    with young_garbage():   # the figures are freed by one young-generation collection
+        for j in joints:  # loop over joints
+            conds = _conditions(fits.entries, j)
+            fig = new_subplots(7.0, 4.6, dpi=100)
+            ax = fig.axes[0]
+            curve_model = next((m for m in ("stribeck", "cv") if m in fits.models), fits.models[0])
+            for k, ((load, vf), ents) in enumerate(conds.items()):  # loop over conditions
+                e = min(ents, key=lambda x: x.task.repetition)
+                c = colors[k % len(colors)]
+                if e.plot:
+                    step = max(1, e.plot["qd"].size // 1500)
+                    ax.plot(e.plot["qd"][::step], e.plot["f_measured"][::step], ".", ms=1.2, color=c,
+                            alpha=0.35, rasterized=True)
+                    lim = float(np.max(np.abs(e.plot["qd"])))
+                    v = np.linspace(-lim, lim, 401)
+                    if curve_model in e.fits:
+                        ax.plot(v, e.fits[curve_model].friction().torque(v), color=c, lw=1.6,
+                                label=f"{load:g} kg, {100 * vf:g} % speed ({curve_model})")
+            ax.axhline(0, color="0.85", lw=0.8)
+            ax.axvline(0, color="0.85", lw=0.8)
+            ax.set_xlabel("link speed qd (rad/s)")
+            ax.set_ylabel("friction torque (N m)")
+            ax.set_title(f"joint {j}: friction vs speed (first repetition of each condition)", fontsize=9)
+            ax.legend(fontsize=7, loc="upper left")
+            tight_layout(fig)
+            name = f"friction_joint{j}.png"
+            save_png(fig, out_dir / name, overwrite=True)
+            paths[f"friction_joint{j}"] = name
 
-        params = [(m, p) for m in SPREAD_MODELS if m in fits.models
-                  for p in _param_names(fits.entries, j, m)]
-        if not params:
-            continue
-        ncol = min(3, len(params))
-        nrow = -(-len(params) // ncol)
-        fig = new_figure(3.2 * ncol, 2.5 * nrow + 0.6, dpi=100)
-        labels = [f"{load:g}kg\n{100 * vf:g}%" for (load, vf) in conds]
-        for i, (m, p) in enumerate(params):  # loop over parameters
-            ax = fig.add_subplot(nrow, ncol, i + 1)
-            for k, ents in enumerate(conds.values()):  # loop over conditions
-                vals = np.array([e.fits[m].params.get(p, np.nan) for e in ents if m in e.fits], float)
-                vals = vals[np.isfinite(vals)]
-                if vals.size == 0:
-                    continue
-                ax.plot(np.full(vals.size, k), vals, "o", ms=3, color="tab:blue", alpha=0.6)
-                ax.errorbar(k + 0.18, vals.mean(), yerr=vals.std(), fmt="s", ms=4, color="black",
-                            capsize=3)
-            ax.set_xticks(range(len(labels)))
-            ax.set_xticklabels(labels, fontsize=7)
-            ax.set_title(f"{m}: {p}", fontsize=9)
-        fig.suptitle(f"joint {j}: parameter spread over repetitions (dots: repetitions; "
-                     "square: mean +- std)", fontsize=9)
-        fig.tight_layout()
-        name = f"spread_joint{j}.png"
-        save_png(fig, out_dir / name, overwrite=True)
-        paths[f"spread_joint{j}"] = name
+            params = [(m, p) for m in SPREAD_MODELS if m in fits.models
+                      for p in _param_names(fits.entries, j, m)]
+            if not params:
+                continue
+            ncol = min(3, len(params))
+            nrow = -(-len(params) // ncol)
+            fig = new_subplots(3.2 * ncol, 2.5 * nrow + 0.6, dpi=100, nrows=nrow, ncols=ncol, n=len(params))
+            labels = [f"{load:g}kg\n{100 * vf:g}%" for (load, vf) in conds]
+            for i, (m, p) in enumerate(params):  # loop over parameters
+                ax = fig.axes[i]
+                dots, bars = [], []   # (condition, values), (condition, mean, std): one artist each
+                for k, ents in enumerate(conds.values()):  # loop over conditions
+                    vals = np.array([e.fits[m].params.get(p, np.nan) for e in ents if m in e.fits], float)
+                    vals = vals[np.isfinite(vals)]
+                    if vals.size:
+                        dots += [(k, v) for v in vals]
+                        bars.append((k + 0.18, vals.mean(), vals.std()))
+                if bars:
+                    ax.plot(*np.array(dots).T, "o", ms=3, color="tab:blue", alpha=0.6)
+                    x, mean, std = np.array(bars).T
+                    ax.errorbar(x, mean, yerr=std, fmt="s", ms=4, color="black", capsize=3)
+                ax.set_xticks(range(len(labels)))
+                ax.set_xticklabels(labels, fontsize=7)
+                ax.set_title(f"{m}: {p}", fontsize=9)
+            fig.suptitle(f"joint {j}: parameter spread over repetitions (dots: repetitions; "
+                         "square: mean +- std)", fontsize=9)
+            tight_layout(fig)
+            name = f"spread_joint{j}.png"
+            save_png(fig, out_dir / name, overwrite=True)
+            paths[f"spread_joint{j}"] = name
+        fig = ax = None
     return paths
 
 

@@ -331,14 +331,20 @@ def plot_friction_vs_speed(path: str | Path, qd, f_measured, models: dict, title
     """Friction torque vs link speed (thesis Figs. 5-1, 5-2): the measured friction
     (eq. 2-4 target minus the fitted rigid part) as dots and each fitted model as a curve.
     ``models``: {label: object with ``torque(qd)``}. Saved as PNG with matplotlib (Agg)."""
-    import matplotlib
+    from viz.plots import young_garbage  # optional dependency: matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    with young_garbage():
+        return _friction_vs_speed_png(path, qd, f_measured, models, title)
+
+
+def _friction_vs_speed_png(path, qd, f_measured, models: dict, title: str) -> Path:
+    """The figure of :func:`plot_friction_vs_speed`, drawn and saved."""
+    from viz.plots import new_subplots, save_png, tight_layout
 
     qd = np.asarray(qd, float)
     f = np.asarray(f_measured, float)
-    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=110)
+    fig = new_subplots(6.4, 4.4, dpi=110)
+    ax = fig.axes[0]
     ax.plot(qd, f, ".", ms=1.5, color="0.6", label="data", rasterized=True)
     lim = float(np.max(np.abs(qd))) if qd.size else 1.0
     v = np.linspace(-lim, lim, 801)
@@ -350,9 +356,5 @@ def plot_friction_vs_speed(path: str | Path, qd, f_measured, models: dict, title
     ax.axvline(0, color="0.85", lw=0.8)
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    tight_layout(fig)
+    return save_png(fig, path, overwrite=True)
