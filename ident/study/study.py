@@ -75,7 +75,7 @@ from mocap.quality import marker_report
 from mocap.references import build_references
 from mocap.solve import solve_trial
 from viz import make_sink
-from viz.plots import new_figure, save_png
+from viz.plots import save_png
 
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
 
