@@ -545,6 +545,10 @@ def _mocap_stage(campaign, robot, T_camera_base):
 # ---------------------------------------------------------------------------------------------
 # the study
 # ---------------------------------------------------------------------------------------------
+#: the per-trial numbers of ``mocap.json`` the report and ``csv/trials.csv`` show
+_MOCAP_REPORTED = ("frames", "rms_mm", "flagged_frames", "link_minus_motor_rms_rad")
+
+
 def _tree_ok(ctx, prefix: str, key: str | None = None) -> bool:
     """Every file the study registered under ``prefix`` (a folder 'fits/' or one file) is there
     with the sha256 it was written with, and ``key`` (a rel path) is one of them."""
@@ -833,6 +837,11 @@ class Study:
                    "trials": {tid: done[tid]["summary"] for tid in hashes if done[tid].get("ok")},
                    "failed": failed}
         ctx.od.write("mocap.json", json.dumps(summary, indent=1))
+        # what the report and trials.csv read of it is kept (not each marker's statistics: the
+        # study's memory stays flat in the number of trials)
+        summary = {**summary, "references": None,
+                   "trials": {tid: {k: d[k] for k in _MOCAP_REPORTED if k in d}
+                              for tid, d in summary["trials"].items()}}
         ctx.angles_ok = frozenset(items)
         ctx.paths["angles"] = angles_dir
         ctx.paths["mocap"] = ctx.out / "mocap.json"
