@@ -76,6 +76,15 @@ def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
     return (-E.real * (w ** 2)[:, None]).T
 
 
+def _crossfit_windows(t, x, window_s: float) -> tuple:
+    """The Savitzky-Golay windows (samples) of the two halves of :func:`_crossfit_smooth`
+    at ``window_s``: two calls on the same ``t, x`` whose windows agree give the same fit."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    sm = SavGolSmoother(window_s)
+    return tuple(sm.window_samples(t[p::2], x[p::2]) for p in (0, 1))
+
+
 def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
     """Savitzky-Golay smoothing of ``x`` in which the value (and derivatives) at every sample
     come from the OTHER samples only: the even samples are smoothed and evaluated at the odd
@@ -333,11 +342,24 @@ class LinkStateEstimator:
         rss0, b0 = self._eq24_rss(qm, qmd, qmdd, y, keep)
         eps = self.rest_frac * peak
         f_motor = laws.coulomb_viscous(qmd, b0[3], b0[4], sign=lambda v: laws.smooth_sign(v, eps))
-        sides = {"link": y, "motor": y - f_motor}
+        sides = {"link": -y / K, "motor": -(y - f_motor) / K}
+        fits: dict = {}     # (side, windows in samples) -> the crossfit smoothing
+
+        def crossfit(side, w):
+            """(smoothing of the side's deflection at ``w``, whether it is new): windows that
+            round to the same samples share one smoothing."""
+            key = (side,) + _crossfit_windows(t, sides[side], w)
+            new = key not in fits
+            if new:
+                fits[key] = _crossfit_smooth(t, sides[side], w)
+            return fits[key], new
+
         best = (rss0, None, None, 0)            # no deflection unless one explains eq. 2-4 better
-        for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
+        for side in sides:                      # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
-                sm = _crossfit_smooth(t, -ts / K, float(w))
+                sm, new = crossfit(side, float(w))
+                if not new:                     # the same candidate again: the same residual
+                    continue
                 d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
                 if rss < best[0]:
@@ -347,8 +369,8 @@ class LinkStateEstimator:
             rss, _ = rss_of(em, emd, emdd)
             if rss < best[0]:
                 best = (rss, None, None, k)
-            for side, ts in sides.items():
-                sm = _crossfit_smooth(t, -ts / K, float(enc.window_s))
+            for side in sides:
+                sm, _ = crossfit(side, float(enc.window_s))
                 d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(em + d0, emd + d1, emdd + d2)
                 if rss < best[0]:

@@ -66,9 +66,9 @@ def _clean(t, q):
 _GRIDS: dict = {}      # sample times (bytes) -> (uniform grid, interval): a few recent ones
 
 
-def _uniform(t, q):
-    """Resample onto a uniform grid at the median interval (linear interpolation over gaps).
-    The grid of the last few time bases is remembered (a search smooths many signals, or one
+def _grid(t):
+    """``(tu, dt)``: the uniform grid at the median interval of the sample times ``t``. The
+    grid of the last few time bases is remembered (a search smooths many signals, or one
     signal at many windows, on the same samples)."""
     key = t.tobytes()
     hit = _GRIDS.get(key)
@@ -80,7 +80,12 @@ def _uniform(t, q):
         if len(_GRIDS) >= 8:
             _GRIDS.pop(next(iter(_GRIDS)))
         _GRIDS[key] = hit
-    tu, dt = hit
+    return hit
+
+
+def _uniform(t, q):
+    """Resample onto a uniform grid at the median interval (linear interpolation over gaps)."""
+    tu, dt = _grid(t)
     return tu, np.interp(tu, t, q), dt
 
 
@@ -340,6 +345,16 @@ class SavGolSmoother:
     def _window(self, dt: float, n: int, window_s: float | None = None) -> int:
         return savgol_window(self.window_s if window_s is None else window_s, dt, n,
                              self.polyorder)
+
+    def window_samples(self, t, q) -> int | None:
+        """The window (samples) :meth:`fit` would use on ``(t, q)`` with a fixed ``window_s``
+        (None with ``window_s="auto"``, chosen from the data). Two fits whose windows in
+        samples agree on the same samples are the same fit."""
+        if self.window_s == "auto":
+            return None
+        t, q = _clean(t, q)
+        tu, dt = _grid(t)
+        return self._window(dt, tu.size)
 
     def _gcv_window(self, qu, dt):
         """(window, sigma) minimising GCV over the candidate windows."""
