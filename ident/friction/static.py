@@ -292,14 +292,14 @@ class Hyperbolic(_StaticModel):
     @classmethod
     def design_grad(cls, qd, nl, out=None):
         qd = np.asarray(qd, float)
-        t = np.tanh(np.multiply.outer(qd, [nl["g2"], nl["g3"], nl["g5"]]))     # (T, 3)
+        t = np.tanh(np.multiply.outer([nl["g2"], nl["g3"], nl["g5"]], qd))     # (3, T)
         A = np.empty((qd.size, 6)) if out is None else out
-        np.subtract(t[:, 0], t[:, 1], out=A[:, 0])
-        A[:, 1] = t[:, 2]
+        np.subtract(t[0], t[1], out=A[:, 0])
+        A[:, 1] = t[2]
         A[:, 2] = qd
         s = 1.0 - t * t
         for j in range(3):          # d tanh(g qd)/dg = qd sech^2, column by column
-            np.multiply(qd, s[:, j], out=A[:, 3 + j])
+            np.multiply(qd, s[j], out=A[:, 3 + j])
         np.multiply(A[:, 4], -1.0, out=A[:, 4])
         return A[:, :3], A[:, 3:], _HYPERBOLIC_GRAD_COLS
 
