@@ -76,13 +76,20 @@ def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
     return (-E.real * (w ** 2)[:, None]).T
 
 
-def _crossfit_windows(t, x, window_s: float) -> tuple:
-    """The Savitzky-Golay windows (samples) of the two halves of :func:`_crossfit_smooth`
-    at ``window_s``: two calls on the same ``t, x`` whose windows agree give the same fit."""
+def _crossfit_grids(t, x) -> tuple:
+    """The uniform grids ``(dt, n)`` of the two halves of :func:`_crossfit_smooth` on
+    ``t, x`` (:meth:`SavGolSmoother.grid_of`)."""
     t = np.asarray(t, float)
     x = np.asarray(x, float)
+    return tuple(SavGolSmoother.grid_of(t[p::2], x[p::2]) for p in (0, 1))
+
+
+def _crossfit_windows(grids, window_s: float) -> tuple:
+    """The Savitzky-Golay windows (samples) of the two halves of :func:`_crossfit_smooth`
+    at ``window_s`` on their ``grids`` (:func:`_crossfit_grids`): two calls on the same
+    ``t, x`` whose windows agree give the same fit."""
     sm = SavGolSmoother(window_s)
-    return tuple(sm.window_samples(t[p::2], x[p::2]) for p in (0, 1))
+    return tuple(sm.window_samples(dt, n) for dt, n in grids)
 
 
 def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
@@ -344,11 +351,12 @@ class LinkStateEstimator:
         f_motor = laws.coulomb_viscous(qmd, b0[3], b0[4], sign=lambda v: laws.smooth_sign(v, eps))
         sides = {"link": -y / K, "motor": -(y - f_motor) / K}
         fits: dict = {}     # (side, windows in samples) -> the crossfit smoothing
+        grids = {side: _crossfit_grids(t, x) for side, x in sides.items()}
 
         def crossfit(side, w):
             """(smoothing of the side's deflection at ``w``, whether it is new): windows that
             round to the same samples share one smoothing."""
-            key = (side,) + _crossfit_windows(t, sides[side], w)
+            key = (side,) + _crossfit_windows(grids[side], w)
             new = key not in fits
             if new:
                 fits[key] = _crossfit_smooth(t, sides[side], w)

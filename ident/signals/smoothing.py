@@ -346,15 +346,20 @@ class SavGolSmoother:
         return savgol_window(self.window_s if window_s is None else window_s, dt, n,
                              self.polyorder)
 
-    def window_samples(self, t, q) -> int | None:
-        """The window (samples) :meth:`fit` would use on ``(t, q)`` with a fixed ``window_s``
-        (None with ``window_s="auto"``, chosen from the data). Two fits whose windows in
-        samples agree on the same samples are the same fit."""
-        if self.window_s == "auto":
-            return None
+    @staticmethod
+    def grid_of(t, q) -> tuple[float, int]:
+        """``(dt, n)``: the uniform grid :meth:`fit` resamples ``(t, q)`` onto (interval and
+        number of samples)."""
         t, q = _clean(t, q)
         tu, dt = _grid(t)
-        return self._window(dt, tu.size)
+        return dt, int(tu.size)
+
+    def window_samples(self, dt: float, n: int) -> int | None:
+        """The window (samples) :meth:`fit` uses on a grid of ``n`` samples at ``dt``
+        (:meth:`grid_of`) with a fixed ``window_s`` (None with ``window_s="auto"``, chosen
+        from the data). Two fits whose windows in samples agree on the same samples are the
+        same fit."""
+        return None if self.window_s == "auto" else self._window(dt, n)
 
     def _gcv_window(self, qu, dt):
         """(window, sigma) minimising GCV over the candidate windows."""
