@@ -277,8 +277,14 @@ class _Projector:
             keep = s > s[0] * 1e-12 if s[0] > 0 else s > 0
             self.Q, self.s, self.V = U[:, keep], s[keep], Vt[keep].T
 
-    def __call__(self, A):
-        return A - self.Q @ (self.Q.T @ A) if self.Q.shape[1] else A
+    def __call__(self, A, out=None):
+        """``P(A)``; ``out`` (``A`` itself allowed) receives it."""
+        if self.Q.shape[1]:
+            return np.subtract(A, self.Q @ (self.Q.T @ A), out=out)
+        if out is None:
+            return A
+        out[...] = A
+        return out
 
     def coefficients(self, rw):
         """Least-squares coefficients of the (weighted) extra columns for the weighted target
@@ -382,7 +388,7 @@ class _VarPro:
         m = self.m
         if self.sw is not None:
             np.multiply(A, self.sw[:, None], out=A)
-        A = self.proj(A)
+        A = self.proj(A, out=A)
         Pr = A[:, :m]
         b, U, sv, V, nrm = _ls_svd(Pr, self.yr)
         r = self.yr - Pr @ b

@@ -426,8 +426,7 @@ def _ordered_design_T(t, wf, n, extra=None):
     XT = np.empty((2 * n + 1 + (extra is not None), t.size))
     XT[0] = 1.0
     np.divide(E.imag, wl[:, None], out=XT[1:2 * n + 1:2])
-    np.divide(E.real, wl[:, None], out=XT[2:2 * n + 1:2])
-    np.negative(XT[2:2 * n + 1:2], out=XT[2:2 * n + 1:2])
+    np.divide(E.real, -wl[:, None], out=XT[2:2 * n + 1:2])    # -(c / w) exactly
     if extra is not None:
         XT[-1] = extra
     return XT
