@@ -250,14 +250,21 @@ def _ls_svd(A, y):
     column-scaled ``A`` (singular values under machine precision times the size dropped, as
     lstsq): ``(b, U, s, V, nrm)`` with ``A = U diag(s) V^T diag(nrm)`` on the kept span. The
     orthonormal ``U`` keeps projections accurate when the design is nearly rank deficient."""
-    nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
-    nrm = np.where(nrm > 0, nrm, 1.0)
-    As = np.empty(A.shape[::-1])            # the scaled columns, as rows (LAPACK reads columns)
-    for j in range(A.shape[1]):             # loop over the few columns
+    m = A.shape[1]
+    nrm = np.empty(m)
+    for j in range(m):                      # loop over the few columns: their squared norms
+        nrm[j] = np.einsum("i,i->", A[:, j], A[:, j])
+    np.sqrt(nrm, out=nrm)
+    nrm[~(nrm > 0)] = 1.0
+    As = np.empty((m, A.shape[0]))          # the scaled columns, as rows (LAPACK reads columns)
+    for j in range(m):
         np.divide(A[:, j], nrm[j], out=As[j])
     U, sv, Vt = np.linalg.svd(As.T, full_matrices=False)
     keep = sv > sv[0] * np.finfo(float).eps * max(A.shape) if sv[0] > 0 else sv > 0
-    U, sv, V = U[:, keep], sv[keep], Vt[keep].T
+    if keep.all():                          # the kept span: U by columns, V = Vt^T
+        U, V = np.asfortranarray(U), Vt.copy().T
+    else:
+        U, sv, V = U[:, keep], sv[keep], Vt[keep].T
     return (V @ ((U.T @ y) / sv)) / nrm, U, sv, V, nrm
 
 
@@ -425,7 +432,9 @@ class _VarPro:
         c = np.zeros((nrm.size, n))                           # dA_j^T r, (m, n_nl)
         c[cols, np.arange(n)] = r @ dA
         # P_perp dA_j b + A^+T dA_j^T r with A^+T = U diag(1/s) V^T diag(1/nrm)
-        return -(t1 - U @ (U.T @ t1) + U @ ((V.T @ (c / nrm[:, None])) / sv[:, None]))
+        J = np.subtract(t1, U @ (U.T @ t1), out=t1)
+        J += U @ ((V.T @ (c / nrm[:, None])) / sv[:, None])
+        return np.negative(J, out=J)
 
 
 def _distinct_best(costs, U, span, n: int, sep: float = 0.1) -> list:
