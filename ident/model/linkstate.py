@@ -392,7 +392,7 @@ class LinkStateEstimator:
 
     def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
             stiffness: float | None = None, _nominal=None, qm_samples=None,
-            _motor=None) -> LinkState:
+            _motor=None, _markers=None) -> LinkState:
         """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
         ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
         ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
@@ -400,7 +400,9 @@ class LinkStateEstimator:
         ``qm_samples``: the raw encoder angle on ``time`` (optional): with ``y`` and
         ``stiffness`` the encoder is re-smoothed at the window that, with the deflection's,
         best explains eq. 2-4 (:meth:`_encoder_candidates`); the state's ``motor_fit`` is the
-        smoothing used. ``_motor``: ``motor_fit.evaluate(time)`` when the caller has it."""
+        smoothing used. ``_motor``: ``motor_fit.evaluate(time)`` when the caller has it;
+        ``_markers``: ``(markers minus motor_fit, the cosine basis at the marker times)`` when a
+        refit of the same call has them."""
         t = np.asarray(time, float)
         qm, qmd, qmdd = motor_fit.evaluate(t) if _motor is None else _motor
         mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
@@ -457,13 +459,15 @@ class LinkStateEstimator:
         else:
             dn = (np.zeros_like(t),) * 3
             dn_m = np.zeros_like(tm)
-        d_meas = qk - motor_fit.evaluate(tm, order=0)[0]
         t0, D = float(t[0]), float(max(t[-1] - t[0], 1e-9))
         m_cap = int(min(np.floor(2 * D * self.max_bandwidth_hz), tm.size // 10))
         cands = [0] + [m for m in 2 ** np.arange(0, 16) if m <= m_cap]
+        if _markers is None:
+            _markers = (qk - motor_fit.evaluate(tm, order=0)[0], _cosine_basis(tm, t0, D, cands[-1]))
+        d_meas, basis = _markers
         fixed = [np.ones_like(tm)] + ([dn_m] if use_gain else [])
         target = d_meas - (0.0 if use_gain else dn_m)
-        X = np.column_stack(fixed + [_cosine_basis(tm, t0, D, cands[-1])])
+        X = np.column_stack(fixed + [basis])
         # all candidate sizes from one triangular factor (columns ordered by frequency) of the
         # design with the target appended: its last column is Q^T target
         cum = np.cumsum(_ordered_projections(X, target))
@@ -530,12 +534,12 @@ class LinkStateEstimator:
         if refit and none_fit is not None:
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
                 time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None),
-                _motor=(qm, qmd, qmdd))
+                _motor=(qm, qmd, qmdd), _markers=_markers)
         if refit:
             # the markers do not tell the gain from the declared stiffness's: keep K as declared
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
                 time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side),
-                _motor=(qm, qmd, qmdd))
+                _motor=(qm, qmd, qmdd), _markers=_markers)
         return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal,
                          side)
 
