@@ -356,10 +356,10 @@ class _VarPro:
     coordinates) of a model with ``design_grad`` and zero offset, and its analytic Jacobian
     (Golub & Pereyra 1973: ``dr/du_j = -(P_perp dA_j b + A^+T dA_j^T r)``), the extras projected
     out once. The pieces of the last few evaluations are remembered by ``u``: the Jacobian
-    reuses those of the residual at the same ``u``, and a point evaluated again (a start
-    scored and then refined, a probe continued, the solution) is not recomputed."""
+    reuses those of the residual at the same ``u`` (the trust region asks for it right after
+    accepting a step), and a point evaluated again soon after is not recomputed."""
 
-    KEEP = 4            # evaluations remembered
+    KEEP = 4            # evaluations remembered (each holds a few (T, n) arrays)
 
     def __init__(self, model_cls, nl, tr, qd, tau, sw, proj):
         self.cls, self.nl, self.tr, self.qd, self.proj, self.tau = model_cls, nl, tr, qd, proj, tau
