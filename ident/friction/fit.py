@@ -39,6 +39,7 @@ nonlinear parameter at a bound, or a near-singular Jacobian).
 from __future__ import annotations
 
 import functools
+import inspect
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -249,11 +250,21 @@ def _ls_svd(A, y):
     column-scaled ``A`` (singular values under machine precision times the size dropped, as
     lstsq): ``(b, U, s, V, nrm)`` with ``A = U diag(s) V^T diag(nrm)`` on the kept span. The
     orthonormal ``U`` keeps projections accurate when the design is nearly rank deficient."""
-    nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
-    nrm = np.where(nrm > 0, nrm, 1.0)
-    U, sv, Vt = np.linalg.svd(A / nrm, full_matrices=False)
+    m = A.shape[1]
+    nrm = np.empty(m)
+    for j in range(m):                      # loop over the few columns: their squared norms
+        nrm[j] = np.einsum("i,i->", A[:, j], A[:, j])
+    np.sqrt(nrm, out=nrm)
+    nrm[~(nrm > 0)] = 1.0
+    As = np.empty((m, A.shape[0]))          # the scaled columns, as rows (LAPACK reads columns)
+    for j in range(m):
+        np.divide(A[:, j], nrm[j], out=As[j])
+    U, sv, Vt = np.linalg.svd(As.T, full_matrices=False)
     keep = sv > sv[0] * np.finfo(float).eps * max(A.shape) if sv[0] > 0 else sv > 0
-    U, sv, V = U[:, keep], sv[keep], Vt[keep].T
+    if keep.all():                          # the kept span: U by columns, V = Vt^T
+        U, V = np.asfortranarray(U), Vt.copy().T
+    else:
+        U, sv, V = U[:, keep], sv[keep], Vt[keep].T
     return (V @ ((U.T @ y) / sv)) / nrm, U, sv, V, nrm
 
 
@@ -273,8 +284,14 @@ class _Projector:
             keep = s > s[0] * 1e-12 if s[0] > 0 else s > 0
             self.Q, self.s, self.V = U[:, keep], s[keep], Vt[keep].T
 
-    def __call__(self, A):
-        return A - self.Q @ (self.Q.T @ A) if self.Q.shape[1] else A
+    def __call__(self, A, out=None):
+        """``P(A)``; ``out`` (``A`` itself allowed) receives it."""
+        if self.Q.shape[1]:
+            return np.subtract(A, self.Q @ (self.Q.T @ A), out=out)
+        if out is None:
+            return A
+        out[...] = A
+        return out
 
     def coefficients(self, rw):
         """Least-squares coefficients of the (weighted) extra columns for the weighted target
@@ -338,53 +355,86 @@ class _VarPro:
     """The variable-projection residual over the nonlinear parameters ``u`` (transformed
     coordinates) of a model with ``design_grad`` and zero offset, and its analytic Jacobian
     (Golub & Pereyra 1973: ``dr/du_j = -(P_perp dA_j b + A^+T dA_j^T r)``), the extras projected
-    out once. The Jacobian reuses the pieces of the last residual evaluation at the same u."""
+    out once. The pieces of the last few evaluations are remembered by ``u``: the Jacobian
+    reuses those of the residual at the same ``u`` (the trust region asks for it right after
+    accepting a step), and a point evaluated again soon after is not recomputed."""
+
+    KEEP = 4            # evaluations remembered (each holds a few (T, n) arrays)
 
     def __init__(self, model_cls, nl, tr, qd, tau, sw, proj):
         self.cls, self.nl, self.tr, self.qd, self.proj, self.tau = model_cls, nl, tr, qd, proj, tau
         self.sw = None if np.all(sw == 1.0) else sw
         self.yr = proj(tau if self.sw is None else sw * tau)
         self.all_log = bool(np.all(tr.log))
-        self._state = None
+        self.m = len(model_cls.linear_params())
+        self.k = self.m + len(nl)
+        try:
+            self.into = "out" in inspect.signature(model_cls.design_grad).parameters
+        except (TypeError, ValueError):
+            self.into = False
+        self._states: dict = {}
 
-    def resid(self, u):
+    def _evaluate(self, u):
+        """``(U, sv, V, nrm, A, x, cols, b, r)`` at ``u``: the SVD pieces of the projected
+        (weighted) linear design ``A[:, :m]``, the projected design with its derivative
+        columns ``A[:, m:]`` (d design / dx), the nonlinear values ``x``, the linear solution
+        ``b`` and the residual ``r``."""
         u = np.asarray(u, float)
+        key = u.tobytes()
+        st = self._states.get(key)
+        if st is not None:
+            return st
         x = np.exp(u) if self.all_log else self.tr.to_x(u)
-        Phi, dPhi, cols = self.cls.design_grad(self.qd, dict(zip(self.nl, x)))
-        m = Phi.shape[1]
-        A = np.concatenate([Phi, dPhi], axis=1)
+        nlv = dict(zip(self.nl, x))
+        if self.into:
+            A = np.empty((self.qd.size, self.k))
+            _, _, cols = self.cls.design_grad(self.qd, nlv, out=A)
+        else:
+            Phi, dPhi, cols = self.cls.design_grad(self.qd, nlv)
+            A = np.concatenate([Phi, dPhi], axis=1)
+        m = self.m
         if self.sw is not None:
-            A = A * self.sw[:, None]
-        A = self.proj(A)
+            np.multiply(A, self.sw[:, None], out=A)
+        A = self.proj(A, out=A)
         Pr = A[:, :m]
         b, U, sv, V, nrm = _ls_svd(Pr, self.yr)
         r = self.yr - Pr @ b
         # d(column cols[j]) / du_j, A[:, m:] * dx/du, is formed when the Jacobian asks for it
         # (a step the trust region rejects needs only the residual)
-        self._state = (u.copy(), U, sv, V, nrm, A, m, x, cols, b, r)
-        return r
+        st = (U, sv, V, nrm, A, x, cols, b, r)
+        if len(self._states) >= self.KEEP:
+            self._states.pop(next(iter(self._states)))
+        self._states[key] = st
+        return st
+
+    def resid(self, u):
+        return self._evaluate(u)[-1].copy()
 
     def solution(self, u):
         """``(extra coefficients, linear parameters)`` at ``u``: the same least-squares
         solution the residual used (the extras from the target minus the model's columns)."""
         u = np.asarray(u, float)
-        self.resid(u)
-        b = self._state[9]
-        Phi = self.cls.design_grad(self.qd, dict(zip(self.nl, self.tr.to_x(u))))[0]
+        b = self._evaluate(u)[7]
+        Phi = np.ascontiguousarray(self.cls.design_grad(self.qd, dict(zip(self.nl, self.tr.to_x(u))))[0])
         rw = self.tau - Phi @ b
         return self.proj.coefficients(rw if self.sw is None else self.sw * rw), b
 
     def jac(self, u):
-        u = np.asarray(u, float)
-        if self._state is None or not np.array_equal(self._state[0], u):
-            self.resid(u)
-        _, U, sv, V, nrm, A, m, x, cols, b, r = self._state
-        dA = A[:, m:] * (x if self.all_log else np.where(self.tr.log, x, 1.0))
-        t1 = dA * b[cols]                                     # dA_j b, (T, n_nl)
-        c = np.zeros((nrm.size, dA.shape[1]))                 # dA_j^T r, (m, n_nl)
-        c[cols, np.arange(dA.shape[1])] = r @ dA
+        U, sv, V, nrm, A, x, cols, b, r = self._evaluate(u)
+        m = self.m
+        n = A.shape[1] - m
+        dxdu = x if self.all_log else np.where(self.tr.log, x, 1.0)
+        dA = np.empty((A.shape[0], n))
+        t1 = np.empty((A.shape[0], n))
+        for j in range(n):          # loop over the few nonlinear parameters
+            np.multiply(A[:, m + j], dxdu[j], out=dA[:, j])
+            np.multiply(dA[:, j], b[cols[j]], out=t1[:, j])     # dA_j b, (T, n_nl)
+        c = np.zeros((nrm.size, n))                           # dA_j^T r, (m, n_nl)
+        c[cols, np.arange(n)] = r @ dA
         # P_perp dA_j b + A^+T dA_j^T r with A^+T = U diag(1/s) V^T diag(1/nrm)
-        return -(t1 - U @ (U.T @ t1) + U @ ((V.T @ (c / nrm[:, None])) / sv[:, None]))
+        J = np.subtract(t1, U @ (U.T @ t1), out=t1)
+        J += U @ ((V.T @ (c / nrm[:, None])) / sv[:, None])
+        return np.negative(J, out=J)
 
 
 def _distinct_best(costs, U, span, n: int, sep: float = 0.1) -> list:

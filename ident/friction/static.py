@@ -39,12 +39,14 @@ class _StaticModel(FrictionModel):
     the analytic variable-projection Jacobian and the factored start grid."""
 
     @classmethod
-    def design_grad(cls, qd, nl: dict):
+    def design_grad(cls, qd, nl: dict, out=None):
         """``(Phi (T, n_linear), dPhi (T, n_nonlinear), cols (n_nonlinear,))``: the linear
         design for the nonlinear values ``nl`` and its derivatives with respect to them
         (``nonlinear_names`` order), each nonlinear parameter entering one column of ``Phi``
         (column ``cols[j]`` of the design has derivative ``dPhi[:, j]``, the other columns
-        none), for an analytic variable-projection Jacobian; None: not available."""
+        none), for an analytic variable-projection Jacobian; None: not available. ``out``: a
+        (T, n_linear + n_nonlinear) array that receives ``[Phi, dPhi]`` (then ``Phi`` and
+        ``dPhi`` are views of it)."""
         return None
 
     @classmethod
@@ -119,15 +121,24 @@ class Stribeck(_StaticModel):
         return {"Vc": 0.05 * vmax}, {"Vc": (1e-4 * vmax, 10.0 * vmax)}
 
     @classmethod
-    def design_grad(cls, qd, nl):
+    def design_grad(cls, qd, nl, out=None):
         Vc = float(nl["Vc"])
         qd = np.asarray(qd, float)
-        Phi = cls.regressor(qd, Vc)
-        d = np.zeros((qd.size, 1))
-        if Vc > 0:                                          # Vc = 0: the limit, derivative 0
+        if Vc < 0 or not np.isfinite(Vc):
+            raise ValueError(f"stribeck: Vc must be finite and >= 0, got {Vc}")
+        A = np.empty((qd.size, 4)) if out is None else out
+        sgn = np.sign(qd)
+        A[:, 0] = sgn
+        A[:, 1] = qd
+        if Vc > 0:
             a = np.abs(qd)
-            d[:, 0] = np.sign(qd) * np.exp(-a / Vc) * a / (Vc * Vc)   # d/dVc of the drop
-        return Phi, d, _STRIBECK_GRAD_COLS
+            z = -a / Vc
+            np.multiply(sgn, np.expm1(z), out=A[:, 2])        # laws.stribeck_drop
+            A[:, 3] = sgn * np.exp(z) * a / (Vc * Vc)         # d/dVc of the drop
+        else:                                  # Vc = 0: the limit, a second sign column, derivative 0
+            np.negative(sgn, out=A[:, 2])
+            A[:, 3] = 0.0
+        return A[:, :3], A[:, 3:], _STRIBECK_GRAD_COLS
 
     @classmethod
     def vp_grid(cls, qd, bounds, n=None):
@@ -279,16 +290,18 @@ class Hyperbolic(_StaticModel):
         return {"g2": 50.0 / vmax, "g3": 5.0 / vmax, "g5": 20.0 / vmax}, {"g2": b, "g3": b, "g5": b}
 
     @classmethod
-    def design_grad(cls, qd, nl):
+    def design_grad(cls, qd, nl, out=None):
         qd = np.asarray(qd, float)
-        t = np.tanh(np.multiply.outer(qd, [nl["g2"], nl["g3"], nl["g5"]]))     # (T, 3)
-        Phi = np.empty((qd.size, 3))
-        Phi[:, 0] = t[:, 0] - t[:, 1]
-        Phi[:, 1] = t[:, 2]
-        Phi[:, 2] = qd
-        d = qd[:, None] * (1.0 - t * t)                     # d tanh(g qd)/dg = qd sech^2
-        d[:, 1] *= -1.0
-        return Phi, d, _HYPERBOLIC_GRAD_COLS
+        t = np.tanh(np.multiply.outer([nl["g2"], nl["g3"], nl["g5"]], qd))     # (3, T)
+        A = np.empty((qd.size, 6)) if out is None else out
+        np.subtract(t[0], t[1], out=A[:, 0])
+        A[:, 1] = t[2]
+        A[:, 2] = qd
+        s = 1.0 - t * t
+        for j in range(3):          # d tanh(g qd)/dg = qd sech^2, column by column
+            np.multiply(qd, s[j], out=A[:, 3 + j])
+        np.multiply(A[:, 4], -1.0, out=A[:, 4])
+        return A[:, :3], A[:, 3:], _HYPERBOLIC_GRAD_COLS
 
     @classmethod
     def vp_grid(cls, qd, bounds, n=None):

@@ -76,6 +76,22 @@ def _cosine_basis(t, t0: float, D: float, M: int, order: int = 0) -> np.ndarray:
     return (-E.real * (w ** 2)[:, None]).T
 
 
+def _crossfit_grids(t, x) -> tuple:
+    """The uniform grids ``(dt, n)`` of the two halves of :func:`_crossfit_smooth` on
+    ``t, x`` (:meth:`SavGolSmoother.grid_of`)."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    return tuple(SavGolSmoother.grid_of(t[p::2], x[p::2]) for p in (0, 1))
+
+
+def _crossfit_windows(grids, window_s: float) -> tuple:
+    """The Savitzky-Golay windows (samples) of the two halves of :func:`_crossfit_smooth`
+    at ``window_s`` on their ``grids`` (:func:`_crossfit_grids`): two calls on the same
+    ``t, x`` whose windows agree give the same fit."""
+    sm = SavGolSmoother(window_s)
+    return tuple(sm.window_samples(dt, n) for dt, n in grids)
+
+
 def _crossfit_smooth(t, x, window_s: float) -> SmoothFit:
     """Savitzky-Golay smoothing of ``x`` in which the value (and derivatives) at every sample
     come from the OTHER samples only: the even samples are smoothed and evaluated at the odd
@@ -333,11 +349,25 @@ class LinkStateEstimator:
         rss0, b0 = self._eq24_rss(qm, qmd, qmdd, y, keep)
         eps = self.rest_frac * peak
         f_motor = laws.coulomb_viscous(qmd, b0[3], b0[4], sign=lambda v: laws.smooth_sign(v, eps))
-        sides = {"link": y, "motor": y - f_motor}
+        sides = {"link": -y / K, "motor": -(y - f_motor) / K}
+        fits: dict = {}     # (side, windows in samples) -> the crossfit smoothing
+        grids = {side: _crossfit_grids(t, x) for side, x in sides.items()}
+
+        def crossfit(side, w):
+            """(smoothing of the side's deflection at ``w``, whether it is new): windows that
+            round to the same samples share one smoothing."""
+            key = (side,) + _crossfit_windows(grids[side], w)
+            new = key not in fits
+            if new:
+                fits[key] = _crossfit_smooth(t, sides[side], w)
+            return fits[key], new
+
         best = (rss0, None, None, 0)            # no deflection unless one explains eq. 2-4 better
-        for side, ts in sides.items():          # 2 sides x a few windows: each one vectorised
+        for side in sides:                      # 2 sides x a few windows: each one vectorised
             for w in self.windows_s:
-                sm = _crossfit_smooth(t, -ts / K, float(w))
+                sm, new = crossfit(side, float(w))
+                if not new:                     # the same candidate again: the same residual
+                    continue
                 d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(qm + d0, qmd + d1, qmdd + d2)
                 if rss < best[0]:
@@ -347,8 +377,8 @@ class LinkStateEstimator:
             rss, _ = rss_of(em, emd, emdd)
             if rss < best[0]:
                 best = (rss, None, None, k)
-            for side, ts in sides.items():
-                sm = _crossfit_smooth(t, -ts / K, float(enc.window_s))
+            for side in sides:
+                sm, _ = crossfit(side, float(enc.window_s))
                 d0, d1, d2 = sm.grid[1:]              # (sm is on the samples t)
                 rss, _ = rss_of(em + d0, emd + d1, emdd + d2)
                 if rss < best[0]:
@@ -362,7 +392,7 @@ class LinkStateEstimator:
 
     def fit(self, time, motor_fit: SmoothFit, t_marker=None, q_marker=None, y=None,
             stiffness: float | None = None, _nominal=None, qm_samples=None,
-            _motor=None) -> LinkState:
+            _motor=None, _markers=None) -> LinkState:
         """``time``: robot-log samples where the state is wanted (inside ``motor_fit``'s span);
         ``t_marker`` (already on the robot clock), ``q_marker``: marker link angle (NaN in gaps);
         ``y``: the transmitted torque on ``time`` (eq. 2-4 right-hand side), with ``stiffness``
@@ -370,7 +400,9 @@ class LinkStateEstimator:
         ``qm_samples``: the raw encoder angle on ``time`` (optional): with ``y`` and
         ``stiffness`` the encoder is re-smoothed at the window that, with the deflection's,
         best explains eq. 2-4 (:meth:`_encoder_candidates`); the state's ``motor_fit`` is the
-        smoothing used. ``_motor``: ``motor_fit.evaluate(time)`` when the caller has it."""
+        smoothing used. ``_motor``: ``motor_fit.evaluate(time)`` when the caller has it;
+        ``_markers``: ``(markers minus motor_fit, the cosine basis at the marker times)`` when a
+        refit of the same call has them."""
         t = np.asarray(time, float)
         qm, qmd, qmdd = motor_fit.evaluate(t) if _motor is None else _motor
         mq, mqd, mqdd = (motor_fit.sigma, motor_fit.qd_noise, motor_fit.qdd_noise)
@@ -427,13 +459,15 @@ class LinkStateEstimator:
         else:
             dn = (np.zeros_like(t),) * 3
             dn_m = np.zeros_like(tm)
-        d_meas = qk - motor_fit.evaluate(tm, order=0)[0]
         t0, D = float(t[0]), float(max(t[-1] - t[0], 1e-9))
         m_cap = int(min(np.floor(2 * D * self.max_bandwidth_hz), tm.size // 10))
         cands = [0] + [m for m in 2 ** np.arange(0, 16) if m <= m_cap]
+        if _markers is None:
+            _markers = (qk - motor_fit.evaluate(tm, order=0)[0], _cosine_basis(tm, t0, D, cands[-1]))
+        d_meas, basis = _markers
         fixed = [np.ones_like(tm)] + ([dn_m] if use_gain else [])
         target = d_meas - (0.0 if use_gain else dn_m)
-        X = np.column_stack(fixed + [_cosine_basis(tm, t0, D, cands[-1])])
+        X = np.column_stack(fixed + [basis])
         # all candidate sizes from one triangular factor (columns ordered by frequency) of the
         # design with the target appended: its last column is Q^T target
         cum = np.cumsum(_ordered_projections(X, target))
@@ -500,12 +534,12 @@ class LinkStateEstimator:
         if refit and none_fit is not None:
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
                 time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(none_fit, None),
-                _motor=(qm, qmd, qmdd))
+                _motor=(qm, qmd, qmdd), _markers=_markers)
         if refit:
             # the markers do not tell the gain from the declared stiffness's: keep K as declared
             return LinkStateEstimator(self.max_bandwidth_hz, False, self.nominal_smoother).fit(
                 time, motor_fit, t_marker, q_marker, y, stiffness, _nominal=(nominal, side),
-                _motor=(qm, qmd, qmdd))
+                _motor=(qm, qmd, qmdd), _markers=_markers)
         return LinkState(t, q, qd, qdd, "encoder+deflection", motor_fit, defl, errs, marker_rms, nominal,
                          side)
 

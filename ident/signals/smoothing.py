@@ -66,9 +66,9 @@ def _clean(t, q):
 _GRIDS: dict = {}      # sample times (bytes) -> (uniform grid, interval): a few recent ones
 
 
-def _uniform(t, q):
-    """Resample onto a uniform grid at the median interval (linear interpolation over gaps).
-    The grid of the last few time bases is remembered (a search smooths many signals, or one
+def _grid(t):
+    """``(tu, dt)``: the uniform grid at the median interval of the sample times ``t``. The
+    grid of the last few time bases is remembered (a search smooths many signals, or one
     signal at many windows, on the same samples)."""
     key = t.tobytes()
     hit = _GRIDS.get(key)
@@ -80,7 +80,12 @@ def _uniform(t, q):
         if len(_GRIDS) >= 8:
             _GRIDS.pop(next(iter(_GRIDS)))
         _GRIDS[key] = hit
-    tu, dt = hit
+    return hit
+
+
+def _uniform(t, q):
+    """Resample onto a uniform grid at the median interval (linear interpolation over gaps)."""
+    tu, dt = _grid(t)
     return tu, np.interp(tu, t, q), dt
 
 
@@ -341,6 +346,21 @@ class SavGolSmoother:
         return savgol_window(self.window_s if window_s is None else window_s, dt, n,
                              self.polyorder)
 
+    @staticmethod
+    def grid_of(t, q) -> tuple[float, int]:
+        """``(dt, n)``: the uniform grid :meth:`fit` resamples ``(t, q)`` onto (interval and
+        number of samples)."""
+        t, q = _clean(t, q)
+        tu, dt = _grid(t)
+        return dt, int(tu.size)
+
+    def window_samples(self, dt: float, n: int) -> int | None:
+        """The window (samples) :meth:`fit` uses on a grid of ``n`` samples at ``dt``
+        (:meth:`grid_of`) with a fixed ``window_s`` (None with ``window_s="auto"``, chosen
+        from the data). Two fits whose windows in samples agree on the same samples are the
+        same fit."""
+        return None if self.window_s == "auto" else self._window(dt, n)
+
     def _gcv_window(self, qu, dt):
         """(window, sigma) minimising GCV over the candidate windows."""
         n = qu.size
@@ -406,8 +426,7 @@ def _ordered_design_T(t, wf, n, extra=None):
     XT = np.empty((2 * n + 1 + (extra is not None), t.size))
     XT[0] = 1.0
     np.divide(E.imag, wl[:, None], out=XT[1:2 * n + 1:2])
-    np.divide(E.real, wl[:, None], out=XT[2:2 * n + 1:2])
-    np.negative(XT[2:2 * n + 1:2], out=XT[2:2 * n + 1:2])
+    np.divide(E.real, -wl[:, None], out=XT[2:2 * n + 1:2])    # -(c / w) exactly
     if extra is not None:
         XT[-1] = extra
     return XT
