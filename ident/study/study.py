@@ -64,7 +64,7 @@ from ident.model.multijoint import diagnose_records, fit_multijoint_campaign
 from ident.model.onelink import model_class
 from ident.outputs import FolderLock, OutputDir, file_sha256
 from ident.signals.smoothing import one_blas_thread
-from ident.study.executor import Pending, SerialExecutor
+from ident.study.executor import Pending, SerialExecutor, release_free_memory
 from ident.study.records import dumps_record, read_record
 from ident.study.view import log_campaign
 from ident.thesis.campaign_fit import FitsResult, campaign_tasks, fit_trial_joint, log_fits
@@ -703,6 +703,7 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         angles_dir, mocap_summary, refs = self._mocap(ctx, T_cb)
         _write_manifest(manifest_path, man, tmp_dir)
+        release_free_memory()     # this process holds results from here on, not its temporaries
         # the diagnosis' and the fits' items are queued together, the few long diagnosis items
         # first (longest first balances the workers: the many short fits fill in behind them);
         # while the workers run the last fits, this process writes the multi-joint stage
@@ -718,6 +719,7 @@ class Study:
         try:
             fits = self._fits_finish(ctx, fits_run)
             _write_manifest(manifest_path, man, tmp_dir)
+            release_free_memory()
             self._rigidbody(ctx)
             _write_manifest(manifest_path, man, tmp_dir)
             diag = self._diagnosis_finish(ctx, diag_run)
@@ -1711,6 +1713,7 @@ class _StudyRecording:
                 self.logged = _log_inputs(self.sink, sub, robot, calib_res, angles_dir)
             except BaseException as exc:   # noqa: BLE001 - raised again by finish()
                 self.error = exc
+            release_free_memory()          # the campaign's marker arrays are gone
 
         self.thread = threading.Thread(target=run, name="jointlab-recording", daemon=True)
         self.thread.start()
