@@ -37,7 +37,7 @@ def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
         return out
     step = max(1, int(2e7 // max(p * k, 1)))     # samples per chunk of the (N, p, k) products
     s, e = bounds[:, 0], bounds[:, 1]
-    if not (np.all(e > s) and np.all(s[1:] == e[:-1])) or e[-1] - s[0] >= 64 * nt:
+    if _per_block(bounds):
         for i, (a, b) in enumerate(bounds.tolist()):  # loop over blocks
             if b > a:
                 np.matmul(A[a:b].T, B[a:b], out=out[i])
@@ -51,6 +51,32 @@ def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
         out[i0:i1] = np.add.reduceat(P, s[i0:i1] - lo, axis=0)
         i0 = i1
     return out
+
+
+def _per_block(bounds: np.ndarray) -> bool:
+    """Whether :func:`_outer_sums` takes one BLAS product per block: blocks of many samples
+    (64 on average), or blocks that do not tile one range."""
+    s, e = bounds[:, 0], bounds[:, 1]
+    return bool(not (np.all(e > s) and np.all(s[1:] == e[:-1])) or e[-1] - s[0] >= 64 * bounds.shape[0])
+
+
+def _augmented_sums(X: np.ndarray, C: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> tuple:
+    """``_outer_sums`` of ``(X, C)``, ``(C, C)`` and ``(C, r)`` (the same products, block by
+    block, in one pass over the blocks)."""
+    if bounds.shape[0] == 0 or X.shape[1] == 0 or not _per_block(bounds):
+        return (_outer_sums(X, C, bounds), _outer_sums(C, C, bounds),
+                _outer_sums(C, r[:, None], bounds)[:, :, 0])
+    nt, p, k = bounds.shape[0], X.shape[1], C.shape[1]
+    XC, CC, Cr = np.zeros((nt, p, k)), np.zeros((nt, k, k)), np.zeros((nt, k, 1))
+    R = r[:, None]
+    for i, (a, b) in enumerate(bounds.tolist()):   # loop over blocks
+        if b > a:
+            c = C[a:b]
+            ct = c.T
+            np.matmul(X[a:b].T, c, out=XC[i])
+            np.matmul(ct, c, out=CC[i])
+            np.matmul(ct, R[a:b], out=Cr[i])
+    return XC, CC, Cr[:, :, 0]
 
 
 def grams(X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> Grams:
@@ -71,11 +97,11 @@ def grams_augmented(base: Grams, X: np.ndarray, C: np.ndarray, r: np.ndarray,
     b = np.zeros((nt, p + k))
     G[:, :p, :p] = base.G
     b[:, :p] = base.b
-    XC = _outer_sums(X, C, bounds)
+    XC, CC, Cr = _augmented_sums(X, C, r, bounds)
     G[:, :p, p:] = XC
     G[:, p:, :p] = np.swapaxes(XC, 1, 2)
-    G[:, p:, p:] = _outer_sums(C, C, bounds)
-    b[:, p:] = _outer_sums(C, r[:, None], bounds)[:, :, 0]
+    G[:, p:, p:] = CC
+    b[:, p:] = Cr
     return Grams(G, b, base.yy, base.n)
 
 
