@@ -590,13 +590,27 @@ def level_interactions(C: np.ndarray, cand: "Candidate", levels: tuple) -> np.nd
     ``sgn b`` give ``sgn a b``, the cross term of ``c sgn (1 + a)(1 + b)``. Unchanged when nothing
     is selected or the family has no such column."""
     extra = []
-    for idx, lev in ((cand.coulomb, levels[0]), (cand.viscous, levels[1])):
+    for kind, idx, lev in (("coulomb", cand.coulomb, levels[0]), ("viscous", cand.viscous, levels[1])):
         if lev is None or not idx or C.shape[0] != lev.shape[0]:
             continue
-        scale = float(np.sqrt(np.mean(lev ** 2)))
-        if scale > 0:
-            extra.append(C[:, list(idx)] * (lev / scale)[:, None])
-    return np.column_stack([C] + extra) if extra else C
+        factor = _shared(("level", kind), (lev,), lambda: _unit_rms(lev))
+        if factor is not None:
+            extra.append((list(idx), factor))
+    if not extra:
+        return C
+    out = np.empty((C.shape[0], C.shape[1] + sum(len(idx) for idx, _ in extra)))
+    out[:, :C.shape[1]] = C
+    k = C.shape[1]
+    for idx, factor in extra:
+        np.multiply(C[:, idx], factor[:, None], out=out[:, k:k + len(idx)])
+        k += len(idx)
+    return out
+
+
+def _unit_rms(lev: np.ndarray):
+    """``lev`` over its RMS (None when it is all zero)."""
+    scale = float(np.sqrt(np.mean(lev ** 2)))
+    return lev / scale if scale > 0 else None
 
 
 #: torque-channel families whose columns live at low speed and at velocity reversals, where the

@@ -25,6 +25,7 @@ Protocol (per joint, per channel):
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -186,29 +187,35 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
     viscous levels selected so far (torque channel), composed by product with the candidate's
     own (:func:`level_interactions`)."""
     out, cols = {}, {}
-    p = X.shape[1]
     # built shape by shape across the families (families of one effect with one grid, the ripple
     # orders, share their intermediates), returned family by family
     order = [(cand, hp) for cand in cands for hp in cand.grid]
     position = [(i, k) for k, cand in enumerate(cands) for i in range(len(cand.grid))]
-    for j in sorted(range(len(order)), key=position.__getitem__):
-        cand, hp = order[j]
-        C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
-        raw = C.shape[1]
-        C = level_interactions(C, cand, levels)   # unchanged unless a level was selected
-        if C.shape[0] == 0 or not np.all(np.isfinite(C)):
-            continue
-        g = grams_augmented(base, X, C, ch.target, ch.blocks)
-        keep = unexplained_fractions(g, p) >= 1e-3
-        if not keep.any():
-            continue
-        if not keep.all():
-            C = C[:, keep]
-            g = grams_augmented(base, X, C, ch.target, ch.blocks)
-        out[(cand, hp)] = g
-        cols[(cand, hp)] = _Cols(cand, hp, levels, keep, raw)
-        del C
+    with shared_intermediates(cache.shared) if cache is not None else nullcontext():
+        for j in sorted(range(len(order)), key=position.__getitem__):
+            _effect_gram(order[j], d, ch, X, base, cache, levels, out, cols)
     return {k: out[k] for k in order if k in out}, {k: cols[k] for k in order if k in cols}
+
+
+def _effect_gram(key, d: JointData, ch: Channel, X: np.ndarray, base, cache, levels: tuple,
+                 out: dict, cols: dict) -> None:
+    """One shape of :func:`_effect_grams`: its Grams into ``out``, its recipe into ``cols``."""
+    p = X.shape[1]
+    cand, hp = key
+    C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
+    raw = C.shape[1]
+    C = level_interactions(C, cand, levels)   # unchanged unless a level was selected
+    if C.shape[0] == 0 or not np.all(np.isfinite(C)):
+        return
+    g = grams_augmented(base, X, C, ch.target, ch.blocks)
+    keep = unexplained_fractions(g, p) >= 1e-3
+    if not keep.any():
+        return
+    if not keep.all():
+        C = C[:, keep]
+        g = grams_augmented(base, X, C, ch.target, ch.blocks)
+    out[key] = g
+    cols[key] = _Cols(cand, hp, levels, keep, raw)
 
 
 @dataclass(frozen=True)
@@ -231,7 +238,8 @@ class _Cols:
 
     def build(self, d: JointData, ch: Channel, cache: _ColumnCache | None = None) -> np.ndarray:
         C = cache.get(self.cand, d, ch, self.hp) if cache is not None else ch.prep(_columns(self.cand, d, self.hp))
-        C = level_interactions(C, self.cand, self.levels)
+        with shared_intermediates(cache.shared) if cache is not None else nullcontext():
+            C = level_interactions(C, self.cand, self.levels)
         return C if self.keep.all() else C[:, self.keep]
 
 
