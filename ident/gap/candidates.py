@@ -78,9 +78,9 @@ class SharedIntermediates:
         if hit is not None:
             self.used -= hit[2]
 
-    def discard_below(self, kind: str, level: float) -> None:
+    def discard_below(self, kind: str, level: float = np.inf) -> None:
         """Drop the entries ``(kind, x)`` with ``x < level`` (a sweep over increasing ``x`` no
-        longer needs them)."""
+        longer needs them; all of that kind by default)."""
         for key in [k for k in self.store if k[0] == kind and k[1] < level]:
             self.discard(key)
 

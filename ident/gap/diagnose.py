@@ -36,7 +36,7 @@ from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmissi
                                _transmission_channel, nominal_heldout_rms, undeclared_payload_columns)
 from ident.gap.data import JointData
 from ident.gap.nominal import nominal_model
-from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
+from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm, own_blocks,
                               loss_differential_test, loss_test_min_p, repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
@@ -135,6 +135,9 @@ COLUMN_CACHE_BYTES = 3e7
 #: bytes of the intermediates the candidate columns share (:class:`SharedIntermediates`), a
 #: fixed budget beside :data:`COLUMN_CACHE_BYTES`
 SHARED_BYTES = 1.6e7
+#: bytes of the per-block products of candidate columns with themselves and the target, kept
+#: across selection steps (they do not change when the model grows)
+PRODUCTS_BYTES = 8e6
 
 
 class _ColumnCache:
@@ -144,9 +147,19 @@ class _ColumnCache:
     The builds share their intermediates within :data:`SHARED_BYTES`
     (:class:`ident.gap.candidates.SharedIntermediates`)."""
 
-    def __init__(self, budget_bytes: float = COLUMN_CACHE_BYTES, shared_bytes: float = SHARED_BYTES):
+    def __init__(self, budget_bytes: float = COLUMN_CACHE_BYTES, shared_bytes: float = SHARED_BYTES,
+                 products_bytes: float = PRODUCTS_BYTES):
         self.store, self.budget, self.left = {}, float(budget_bytes), float(budget_bytes)
         self.shared = SharedIntermediates(shared_bytes)
+        self.products, self.products_left = {}, float(products_bytes)
+
+    def keep_products(self, key, g, k: int) -> None:
+        """Keep the blocks of a family's own ``k`` columns with themselves and the target
+        (:func:`ident.gap.engine.own_blocks`) within :data:`PRODUCTS_BYTES`."""
+        nbytes = g.G.shape[0] * (k * k + k) * 8
+        if nbytes <= self.products_left:
+            self.products[key] = own_blocks(g, k)
+            self.products_left -= nbytes
 
     def get(self, cand: Candidate, d: JointData, ch: Channel, hp) -> np.ndarray:
         key = (cand.family, repr(hp))
@@ -194,6 +207,9 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
     with shared_intermediates(cache.shared) if cache is not None else nullcontext():
         for j in sorted(range(len(order)), key=position.__getitem__):
             _effect_gram(order[j], d, ch, X, base, cache, levels, out, cols)
+    if cache is not None:   # the angle multiples are shared within one sweep over the orders
+        cache.shared.discard_below("trig")
+        cache.shared.discard_below("trig2")
     return {k: out[k] for k in order if k in out}, {k: cols[k] for k in order if k in cols}
 
 
@@ -204,10 +220,16 @@ def _effect_gram(key, d: JointData, ch: Channel, X: np.ndarray, base, cache, lev
     cand, hp = key
     C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
     raw = C.shape[1]
-    C = level_interactions(C, cand, levels)   # unchanged unless a level was selected
+    composed = level_interactions(C, cand, levels)   # unchanged unless a level was selected
+    # the family's own columns: their products with themselves do not change with the model
+    plain = cache is not None and composed is C
+    own = cache.products.get((cand.family, repr(hp))) if plain else None
+    C = composed
     if C.shape[0] == 0 or not np.all(np.isfinite(C)):
         return
-    g = grams_augmented(base, X, C, ch.target, ch.blocks)
+    g = grams_augmented(base, X, C, ch.target, ch.blocks, own)
+    if plain and own is None:
+        cache.keep_products((cand.family, repr(hp)), g, raw)
     keep = unexplained_fractions(g, p) >= 1e-3
     if not keep.any():
         return

@@ -88,8 +88,10 @@ def grams(X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> Grams:
 
 
 def grams_augmented(base: Grams, X: np.ndarray, C: np.ndarray, r: np.ndarray,
-                    bounds: np.ndarray) -> Grams:
-    """Grams of ``[X | C]`` given the Grams of ``X`` alone (only the new blocks are computed)."""
+                    bounds: np.ndarray, own: tuple | None = None) -> Grams:
+    """Grams of ``[X | C]`` given the Grams of ``X`` alone (only the new blocks are computed).
+    ``own``: the blocks ``C^T C`` and ``C^T r`` of these columns, (n_blocks, k, k) and
+    (n_blocks, k), when an earlier call computed them (:func:`own_blocks`)."""
     if C.shape[1] == 0:
         return base
     nt, p, k = bounds.shape[0], X.shape[1], C.shape[1]
@@ -97,12 +99,21 @@ def grams_augmented(base: Grams, X: np.ndarray, C: np.ndarray, r: np.ndarray,
     b = np.zeros((nt, p + k))
     G[:, :p, :p] = base.G
     b[:, :p] = base.b
-    XC, CC, Cr = _augmented_sums(X, C, r, bounds)
+    if own is not None:
+        XC, (CC, Cr) = _outer_sums(X, C, bounds), own
+    else:
+        XC, CC, Cr = _augmented_sums(X, C, r, bounds)
     G[:, :p, p:] = XC
     G[:, p:, :p] = np.swapaxes(XC, 1, 2)
     G[:, p:, p:] = CC
     b[:, p:] = Cr
     return Grams(G, b, base.yy, base.n)
+
+
+def own_blocks(g: Grams, k: int) -> tuple:
+    """The blocks of the last ``k`` columns of ``g`` with themselves and with the target (the
+    ``own`` of :func:`grams_augmented`)."""
+    return g.G[:, -k:, -k:].copy(), g.b[:, -k:].copy()
 
 
 def _solve(G: np.ndarray, b: np.ndarray) -> np.ndarray:
