@@ -38,9 +38,10 @@ def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     step = max(1, int(2e7 // max(p * k, 1)))     # samples per chunk of the (N, p, k) products
     s, e = bounds[:, 0], bounds[:, 1]
     if _per_block(bounds):
+        AT = A.T
         for i, (a, b) in enumerate(bounds.tolist()):  # loop over blocks
             if b > a:
-                np.matmul(A[a:b].T, B[a:b], out=out[i])
+                np.dot(AT[:, a:b], B[a:b], out=out[i])
         return out
     i0 = 0
     while i0 < nt:   # loop over chunks of whole blocks
@@ -68,14 +69,14 @@ def _augmented_sums(X: np.ndarray, C: np.ndarray, r: np.ndarray, bounds: np.ndar
                 _outer_sums(C, r[:, None], bounds)[:, :, 0])
     nt, p, k = bounds.shape[0], X.shape[1], C.shape[1]
     XC, CC, Cr = np.zeros((nt, p, k)), np.zeros((nt, k, k)), np.zeros((nt, k, 1))
-    R = r[:, None]
+    XT, CT, R = X.T, C.T, r[:, None]
+    dot = np.dot    # the BLAS products of np.matmul (gemm, syrk, gemv), with less overhead
     for i, (a, b) in enumerate(bounds.tolist()):   # loop over blocks
         if b > a:
-            c = C[a:b]
-            ct = c.T
-            np.matmul(X[a:b].T, c, out=XC[i])
-            np.matmul(ct, c, out=CC[i])
-            np.matmul(ct, R[a:b], out=Cr[i])
+            c, ct = C[a:b], CT[:, a:b]
+            dot(XT[:, a:b], c, out=XC[i])
+            dot(ct, c, out=CC[i])
+            dot(ct, R[a:b], out=Cr[i])
     return XC, CC, Cr[:, :, 0]
 
 
