@@ -225,7 +225,8 @@ def _effect_gram(key, d: JointData, ch: Channel, X: np.ndarray, base, cache, lev
     plain = cache is not None and composed is C
     own = cache.products.get((cand.family, repr(hp))) if plain else None
     C = composed
-    if C.shape[0] == 0 or not np.all(np.isfinite(C)):
+    # a finite sum has only finite terms (one pass); otherwise check each term
+    if C.shape[0] == 0 or not (np.isfinite(np.add.reduce(C, axis=None)) or np.all(np.isfinite(C))):
         return
     g = grams_augmented(base, X, C, ch.target, ch.blocks, own)
     if plain and own is None:
