@@ -134,7 +134,7 @@ def _columns(cand: Candidate, d: JointData, hp):
 COLUMN_CACHE_BYTES = 3e7
 #: bytes of the intermediates the candidate columns share (:class:`SharedIntermediates`), a
 #: fixed budget beside :data:`COLUMN_CACHE_BYTES`
-SHARED_BYTES = 1.6e7
+SHARED_BYTES = 2.4e7
 #: bytes of the per-block products of candidate columns with themselves and the target, kept
 #: across selection steps (they do not change when the model grows)
 PRODUCTS_BYTES = 8e6
