@@ -118,3 +118,26 @@ def test_study_keeps_series_beside_the_record_and_recomputes_a_changed_one(campa
     with np.load(rec_dir / "joint5.series.npz") as z:
         assert z["qd"].size == n
     assert (out / "diagnosis" / "diagnosis.json").read_text() == first
+
+
+def test_block_products_are_the_per_block_matmuls():
+    """The Gram blocks (one pass over the blocks, kept own products) are the products of
+    ``np.matmul`` per block, bit for bit: the diagnosis' numbers do not depend on the route."""
+    from ident.gap.engine import _augmented_sums, _outer_sums, own_blocks
+
+    rng = np.random.default_rng(7)
+    n = 6000
+    cuts = np.sort(rng.choice(np.arange(1, n), 29, replace=False))
+    bounds = np.column_stack([np.r_[0, cuts], np.r_[cuts, n]])
+    r = rng.normal(size=n)
+    for p, k in [(1, 1), (6, 1), (6, 2), (7, 4), (9, 3)]:
+        X, C = rng.normal(size=(n, p)), rng.normal(size=(n, k))
+        ref = [np.array([np.matmul(A[a:b].T, B[a:b]) for a, b in bounds]) for A, B in
+               ((X, C), (C, C), (C, r[:, None]))]
+        XC, CC, Cr = _augmented_sums(X, C, r, bounds)
+        assert np.array_equal(XC, ref[0]) and np.array_equal(CC, ref[1]) and np.array_equal(Cr, ref[2][:, :, 0])
+        assert np.array_equal(_outer_sums(X, C, bounds), ref[0])
+        base = grams(X, r, bounds)
+        g = grams_augmented(base, X, C, r, bounds)
+        g2 = grams_augmented(base, X, C, r, bounds, own_blocks(g, k))
+        assert np.array_equal(g.G, g2.G) and np.array_equal(g.b, g2.b)

@@ -89,7 +89,14 @@ def _scan_small(decay, drive, z0):
     return W @ drive + np.exp(-D) * z0
 
 
-def linear_scan(decay, drive, z0: float, block: int = 8, max_chunks: int = 16384) -> np.ndarray:
+def _weight_pairs(block: int) -> tuple:
+    """The (k, j) pairs with k > j of a block's weight matrix (block+1, block): ``k``,
+    ``j + 1`` and the flat index ``k block + j``."""
+    k, j = np.nonzero(np.arange(block + 1)[:, None] > np.arange(block)[None, :])
+    return k, j + 1, k * block + j
+
+
+def linear_scan(decay, drive, z0: float, block: int = 8, max_chunks: int = 1024) -> np.ndarray:
     r"""Solve the linear recursion of the bristle state, eq. 29, without a loop over samples.
 
     .. math::
@@ -115,7 +122,8 @@ def linear_scan(decay, drive, z0: float, block: int = 8, max_chunks: int = 16384
     block : int, optional
         Steps per block (default 8).
     max_chunks : int, optional
-        Blocks processed together, which bounds the memory (default 16384).
+        Blocks processed together, which bounds the memory (default 1024: the weights of a
+        group stay in the processor's cache). The states do not depend on it.
 
     Returns
     -------
@@ -150,16 +158,17 @@ def linear_scan(decay, drive, z0: float, block: int = 8, max_chunks: int = 16384
     pad = nb * block - n
     dec = np.concatenate([decay, np.zeros(pad)]).reshape(nb, block)
     drv = np.concatenate([drive, np.zeros(pad)]).reshape(nb, block)
-    D = np.concatenate([np.zeros((nb, 1)), np.cumsum(dec, axis=1)], axis=1)   # (nb, block+1)
-    kk = np.arange(block + 1)[:, None]
-    jj = np.arange(block)[None, :]
-    mask = kk > jj
+    D = np.zeros((nb, block + 1))                     # block-local cumulative decays
+    np.cumsum(dec, axis=1, out=D[:, 1:])
+    k, j1, flat = _weight_pairs(block)
     loc = np.empty((nb, block + 1))
-    for g0 in range(0, nb, max_chunks):               # groups of blocks bound the memory
-        Dg = D[g0:g0 + max_chunks]
-        E = np.where(mask, Dg[:, :, None] - Dg[:, None, 1:], 0.0)
-        W = np.where(mask, np.exp(-E), 0.0)
-        loc[g0:g0 + max_chunks] = (W @ drv[g0:g0 + max_chunks, :, None])[..., 0]
+    W = np.zeros((min(nb, max(int(max_chunks), 1)), (block + 1) * block))   # zero where k <= j
+    for g0 in range(0, nb, max(int(max_chunks), 1)):  # groups of blocks bound the memory
+        Dg = D[g0:g0 + W.shape[0]]
+        w = W[:Dg.shape[0]]
+        w[:, flat] = np.exp(-(Dg[:, k] - Dg[:, j1]))   # exp(-(D_k - D_{j+1})), k > j
+        np.matmul(w.reshape(-1, block + 1, block), drv[g0:g0 + W.shape[0], :, None],
+                  out=loc[g0:g0 + W.shape[0], :, None])
     carry = linear_scan(D[:, block], loc[:, block], z0, block, max_chunks)   # (nb+1,)
     z = loc[:, :block] + np.exp(-D[:, :block]) * carry[:nb, None]
     return np.concatenate([z.ravel(), carry[nb:]])[: n + 1]

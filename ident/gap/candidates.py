@@ -19,6 +19,8 @@ Channels: ``torque`` (motor torque against the rigid Coulomb+viscous model) and
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from typing import Callable
 
@@ -43,6 +45,77 @@ def _sg(d) -> np.ndarray:
     return d.sgn if hasattr(d, "sgn") else ssign(d.qd)
 
 
+class SharedIntermediates:
+    """Intermediates of candidate columns that do not depend on the shape parameter, or that
+    several shapes and families share (a sort by time, the bristle's displacement steps, the
+    sines of an angle multiple), computed once while :func:`shared_intermediates` is active,
+    up to a memory budget: an intermediate beyond it is computed again where it is needed (the
+    same values), so the memory does not grow with the samples beyond ``budget_bytes``.
+
+    Each entry keeps the arrays it was computed from (``anchors``) and is used only for those
+    same objects."""
+
+    def __init__(self, budget_bytes: float):
+        self.budget = float(budget_bytes)
+        self.store: dict = {}
+        self.used = 0
+
+    def get(self, key, anchors: tuple, build: Callable):
+        hit = self.store.get(key)
+        if hit is not None and len(hit[0]) == len(anchors) and all(a is b for a, b in zip(hit[0], anchors)):
+            return hit[1]
+        value = build()
+        nbytes = sum(getattr(v, "nbytes", 0) for v in (value if isinstance(value, tuple) else (value,)))
+        if hit is not None:
+            self.discard(key)
+        if self.used + nbytes <= self.budget:
+            self.store[key] = (anchors, value, nbytes)
+            self.used += nbytes
+        return value
+
+    def discard(self, key) -> None:
+        hit = self.store.pop(key, None)
+        if hit is not None:
+            self.used -= hit[2]
+
+    def discard_below(self, kind: str, level: float = np.inf) -> None:
+        """Drop the entries ``(kind, x)`` with ``x < level`` (a sweep over increasing ``x`` no
+        longer needs them; all of that kind by default)."""
+        for key in [k for k in self.store if k[0] == kind and k[1] < level]:
+            self.discard(key)
+
+
+_SHARED: ContextVar = ContextVar("gap_shared_intermediates", default=None)
+
+
+@contextmanager
+def shared_intermediates(store: SharedIntermediates):
+    """Candidate columns built within share the intermediates held in ``store``."""
+    token = _SHARED.set(store)
+    try:
+        yield store
+    finally:
+        _SHARED.reset(token)
+
+
+def _shared(key, anchors: tuple, build: Callable):
+    """``build()``, or the value an active :class:`SharedIntermediates` holds for ``key`` and
+    the same ``anchors``."""
+    store = _SHARED.get()
+    return build() if store is None else store.get(key, anchors, build)
+
+
+def _bristle_steps(q: np.ndarray, qd: np.ndarray, trial: np.ndarray):
+    """The shape-independent part of :func:`bristle_sign`: ``|dq|``, the start of each trial
+    and the direction of each step (the trial's start direction at a trial's first step)."""
+    dq = np.diff(q)
+    new_trial = trial[1:] != trial[:-1]
+    sgn = np.sign(dq)
+    sgn = np.where(sgn == 0, np.sign(qd[1:]), sgn)
+    sgn = np.where(new_trial, np.where(qd[1:] >= 0, 1.0, -1.0), sgn)
+    return np.abs(dq), new_trial, sgn
+
+
 def bristle_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) -> np.ndarray:
     """Normalised bristle deflection ``s = z / x0`` of a LuGre-type contact, driven by the
     joint's displacement: ``ds = (sign(dq) - s) |dq| / x0`` solved exactly between samples,
@@ -52,13 +125,9 @@ def bristle_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) ->
     n = q.shape[0]
     if n == 0:
         return np.zeros(0)
-    dq = np.diff(q)
-    new_trial = trial[1:] != trial[:-1]
-    sgn = np.sign(dq)
-    sgn = np.where(sgn == 0, np.sign(qd[1:]), sgn)
-    decay = np.abs(dq) / x0
+    adq, new_trial, sgn = _shared(("bristle_steps",), (q, qd, trial), lambda: _bristle_steps(q, qd, trial))
+    decay = adq / x0
     decay = np.where(new_trial, 60.0, np.minimum(decay, 60.0))
-    sgn = np.where(new_trial, np.where(qd[1:] >= 0, 1.0, -1.0), sgn)
     drive = -np.expm1(-decay) * sgn
     s0 = 1.0 if qd[0] >= 0 else -1.0
     return linear_scan(decay, drive, s0)[:n]
@@ -134,15 +203,22 @@ def _presliding(d, hp):
     """Bristle deflection minus the Coulomb direction, and its rate (the bristle damping
     ``sigma1 dz/dt`` of LuGre-type models)."""
     s = bristle_sign(d.q, d.qd, d.trial, hp)
-    t = d.t
     ds = np.zeros_like(s)
     if s.size > 2:
-        ds[1:-1] = (s[2:] - s[:-2]) / np.maximum(t[2:] - t[:-2], 1e-9)
-        edge = np.r_[True, d.trial[1:] != d.trial[:-1]] | np.r_[d.trial[1:] != d.trial[:-1], True]
-        ds[edge] = 0.0
-        gap = np.r_[False, np.diff(t) > 3 * np.median(np.diff(t))]
-        ds[gap | np.r_[gap[1:], False]] = 0.0
+        span, still = _shared(("bristle_rate",), (d.t, d.trial), lambda: _rate_steps(d.t, d.trial))
+        ds[1:-1] = (s[2:] - s[:-2]) / span
+        ds[still] = 0.0
     return np.column_stack([s - _sg(d), ds * hp])
+
+
+def _rate_steps(t: np.ndarray, trial: np.ndarray):
+    """The shape-independent part of the bristle rate of :func:`_presliding`: the central
+    difference's time span, and the samples whose rate is set to 0 (a trial's first and last
+    sample, the two sides of a gap in the clock longer than 3 median steps)."""
+    span = np.maximum(t[2:] - t[:-2], 1e-9)
+    still = np.r_[True, trial[1:] != trial[:-1]] | np.r_[trial[1:] != trial[:-1], True]
+    gap = np.r_[False, np.diff(t) > 3 * np.median(np.diff(t))]
+    return span, still | gap | np.r_[gap[1:], False]
 
 
 def elastoplastic_sign(q: np.ndarray, qd: np.ndarray, trial: np.ndarray, x0: float) -> np.ndarray:
@@ -192,17 +268,52 @@ def _ripple_grid(gear_ratio):
     return tuple(float(k) for k in ks)
 
 
+def _sin_cos(a: np.ndarray) -> tuple:
+    return np.sin(a), np.cos(a)
+
+
+def _no_tiny(q: np.ndarray) -> bool:
+    """Whether no multiple ``k q`` (k >= 1) is subnormal: then ``2 (k q) == (2 k) q`` exactly."""
+    return not bool(np.any((q != 0) & (np.abs(q) < 1e-300)))
+
+
+def _angle_harmonics(q: np.ndarray, hp: float, second: bool = True) -> tuple:
+    """``sin, cos`` of ``hp q`` and (``second``) of ``2 hp q``. A sweep over increasing orders
+    shares them (:class:`SharedIntermediates`): an order's double is the fundamental of a later
+    order, and the ripple families of one order use the same fundamental."""
+    store = _SHARED.get()
+    if store is None:
+        a = hp * q
+        return _sin_cos(a) + (_sin_cos(2 * a) if second else ())
+    store.discard_below("trig", float(hp))
+    store.discard_below("trig2", float(hp))
+    a = None
+
+    def fundamental():
+        nonlocal a
+        a = hp * q
+        return _sin_cos(a)
+
+    s1 = store.get(("trig", float(hp)), (q,), fundamental)
+    if not second:
+        return s1
+    exact = store.get(("no_tiny",), (q,), lambda: _no_tiny(q))
+    key2 = ("trig", float(2 * hp)) if exact else ("trig2", float(hp))
+    s2 = store.get(key2, (q,), lambda: _sin_cos(2 * (hp * q if a is None else a)))
+    return s1 + s2
+
+
 def _ripple(d, hp):
     """A torque periodic in the angle with ``hp`` periods per joint revolution, to its second
     harmonic (a ripple is rarely a pure sine: harmonic-drive orders come with their double)."""
-    a = hp * d.q
-    return np.column_stack([np.sin(a), np.cos(a), np.sin(2 * a), np.cos(2 * a)])
+    return np.column_stack(_angle_harmonics(d.q, hp))
 
 
 def _modulation(d, hp):
     """Friction level modulated along the angle: ``c (1 + m sin(n q + p))`` -> ``sgn(qd) sin, cos``."""
     sg = _sg(d)
-    return np.column_stack([sg * np.sin(hp * d.q), sg * np.cos(hp * d.q)])
+    s, c = _angle_harmonics(d.q, hp, second=False)
+    return np.column_stack([sg * s, sg * c])
 
 
 # --- load dependence: Coulomb level growing with the transmitted torque ---------------------
@@ -221,24 +332,38 @@ def _heat(d, hp):
     """First-order thermal state driven by a power proxy (``src``: ``motion`` = |qd|, ``power`` =
     |y qd|) with time constant ``tau`` on the campaign clock (cooling between samples)."""
     src, tau = hp
-    order = np.argsort(d.t, kind="stable")
-    t = d.t[order]
-    P = np.abs(d.qd[order]) if src == "motion" else np.abs(d.y[order] * d.qd[order])
-    dt = np.diff(t)
-    dts = np.minimum(dt, 5 * np.median(dt)) if dt.size else dt
+    if d.t.size == 0:
+        return np.zeros(0)
+    order, dt, P1, ratio = _shared(("heat", src), (d.t, d.qd, d.y), lambda: _heat_steps(d, src))
     decay = dt / tau
-    drive = -np.expm1(-decay) * P[1:] * (dts / np.maximum(dt, 1e-12))
-    h = linear_scan(decay, drive, 0.0)[:t.shape[0]] if t.size else np.zeros(0)
+    drive = -np.expm1(-decay) * P1 * ratio
+    h = linear_scan(decay, drive, 0.0)
     h = h / max(np.max(np.abs(h)), 1e-300)
+    if order is None:      # the samples are in time order
+        return h
     out = np.empty_like(h)
     out[order] = h
     return out
 
 
+def _heat_steps(d, src: str):
+    """The shape-independent part of :func:`_heat`: the time order of the samples (None when
+    they are in it), the time steps, the power proxy driving each step, and the share of each
+    step counted as heating (a step longer than 5 median steps heats for 5)."""
+    order = np.argsort(d.t, kind="stable")
+    t = d.t[order]
+    P = np.abs(d.qd[order]) if src == "motion" else np.abs(d.y[order] * d.qd[order])
+    dt = np.diff(t)
+    dts = np.minimum(dt, 5 * np.median(dt)) if dt.size else dt
+    if np.array_equal(order, np.arange(order.size)):
+        order = None
+    return order, dt, P[1:], dts / np.maximum(dt, 1e-12)
+
+
 def _thermal(d, hp):
     kind = hp[0]
     if kind == "time":
-        tt = d.t - d.t.min()
+        tt = _shared(("elapsed",), (d.t,), lambda: d.t - d.t.min())
         w = np.exp(-tt / hp[1]) if np.isfinite(hp[1]) else 1.0 - tt / max(tt.max(), 1e-9)
     else:
         w = -_heat(d, hp)   # warmer -> less friction: w = -h has the sign of a cold excess
@@ -465,13 +590,27 @@ def level_interactions(C: np.ndarray, cand: "Candidate", levels: tuple) -> np.nd
     ``sgn b`` give ``sgn a b``, the cross term of ``c sgn (1 + a)(1 + b)``. Unchanged when nothing
     is selected or the family has no such column."""
     extra = []
-    for idx, lev in ((cand.coulomb, levels[0]), (cand.viscous, levels[1])):
+    for kind, idx, lev in (("coulomb", cand.coulomb, levels[0]), ("viscous", cand.viscous, levels[1])):
         if lev is None or not idx or C.shape[0] != lev.shape[0]:
             continue
-        scale = float(np.sqrt(np.mean(lev ** 2)))
-        if scale > 0:
-            extra.append(C[:, list(idx)] * (lev / scale)[:, None])
-    return np.column_stack([C] + extra) if extra else C
+        factor = _shared(("level", kind), (lev,), lambda: _unit_rms(lev))
+        if factor is not None:
+            extra.append((list(idx), factor))
+    if not extra:
+        return C
+    out = np.empty((C.shape[0], C.shape[1] + sum(len(idx) for idx, _ in extra)))
+    out[:, :C.shape[1]] = C
+    k = C.shape[1]
+    for idx, factor in extra:
+        np.multiply(C[:, idx], factor[:, None], out=out[:, k:k + len(idx)])
+        k += len(idx)
+    return out
+
+
+def _unit_rms(lev: np.ndarray):
+    """``lev`` over its RMS (None when it is all zero)."""
+    scale = float(np.sqrt(np.mean(lev ** 2)))
+    return lev / scale if scale > 0 else None
 
 
 #: torque-channel families whose columns live at low speed and at velocity reversals, where the

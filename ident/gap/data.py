@@ -325,8 +325,8 @@ def build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float
     keys = [_sample_keys(d) for d in sides.values()]
     common = keys[0]
     for k in keys[1:]:
-        common = np.intersect1d(common, k)
-    scores = {side: nominal_heldout_rms(torque_subset(d, np.isin(k, common)))
+        common = common[_member(common, k)] if _increasing(common) else np.intersect1d(common, k)
+    scores = {side: nominal_heldout_rms(torque_subset(d, _member(k, common)))
               for (side, d), k in zip(sides.items(), keys)}
     side = min(scores, key=scores.get)
     d = sides[side]
@@ -363,6 +363,18 @@ LINK_SPRING_MARGIN = 0.9
 #: of the link's rigid-body torque's (measured: a jointlab Stribeck campaign 0.92, whose torque
 #: channel the hump masks; foreign campaigns, motor-side friction, 0.99-1.16)
 LINK_SPRING_DEFLECTION = 0.95
+
+
+def _increasing(a: np.ndarray) -> bool:
+    return bool(np.all(a[1:] > a[:-1]))
+
+
+def _member(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.isin(a, b)``, by binary search when ``b`` is strictly increasing (sample keys are)."""
+    if b.size == 0 or not _increasing(b):
+        return np.isin(a, b)
+    i = np.minimum(np.searchsorted(b, a), b.size - 1)
+    return b[i] == a
 
 
 def _sample_keys(d: JointData) -> np.ndarray:

@@ -24,17 +24,19 @@ Protocol (per joint, per channel):
 """
 from __future__ import annotations
 
+import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from ident.gap.candidates import (REVERSAL_SHAPED, Candidate, candidate_effects, confounders,
-                                  level_interactions, selected_levels)
+from ident.gap.candidates import (REVERSAL_SHAPED, Candidate, SharedIntermediates, candidate_effects,
+                                  confounders, level_interactions, selected_levels, shared_intermediates)
 from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmission,
                                _transmission_channel, nominal_heldout_rms, undeclared_payload_columns)
 from ident.gap.data import JointData
 from ident.gap.nominal import nominal_model
-from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm,
+from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm, own_blocks,
                               loss_differential_test, loss_test_min_p, repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
                               white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
@@ -130,24 +132,61 @@ def _columns(cand: Candidate, d: JointData, hp):
 #: bytes of candidate columns :class:`_ColumnCache` keeps: a fixed budget, so that the
 #: diagnosis' memory does not grow with the samples (columns beyond it are built again)
 COLUMN_CACHE_BYTES = 3e7
+#: bytes of the intermediates the candidate columns share (:class:`SharedIntermediates`), a
+#: fixed budget beside :data:`COLUMN_CACHE_BYTES`
+SHARED_BYTES = 2.4e7
+#: bytes of the per-block products of candidate columns with themselves and the target, kept
+#: across selection steps (they do not change when the model grows)
+PRODUCTS_BYTES = 8e6
 
 
 class _ColumnCache:
     """Candidate columns kept across selection steps (they do not change when the model grows),
-    up to a memory budget (:data:`COLUMN_CACHE_BYTES`)."""
+    up to a memory budget (:data:`COLUMN_CACHE_BYTES`): those that took the longest to build
+    per byte are kept (a cheaper one gives way to a costlier one), the others are built again.
+    The builds share their intermediates within :data:`SHARED_BYTES`
+    (:class:`ident.gap.candidates.SharedIntermediates`)."""
 
-    def __init__(self, budget_bytes: float = COLUMN_CACHE_BYTES):
-        self.store, self.left = {}, budget_bytes
+    def __init__(self, budget_bytes: float = COLUMN_CACHE_BYTES, shared_bytes: float = SHARED_BYTES,
+                 products_bytes: float = PRODUCTS_BYTES):
+        self.store, self.budget, self.left = {}, float(budget_bytes), float(budget_bytes)
+        self.shared = SharedIntermediates(shared_bytes)
+        self.products, self.products_left = {}, float(products_bytes)
+
+    def keep_products(self, key, g, k: int) -> None:
+        """Keep the blocks of a family's own ``k`` columns with themselves and the target
+        (:func:`ident.gap.engine.own_blocks`) within :data:`PRODUCTS_BYTES`."""
+        nbytes = g.G.shape[0] * (k * k + k) * 8
+        if nbytes <= self.products_left:
+            self.products[key] = own_blocks(g, k)
+            self.products_left -= nbytes
 
     def get(self, cand: Candidate, d: JointData, ch: Channel, hp) -> np.ndarray:
         key = (cand.family, repr(hp))
-        C = self.store.get(key)
-        if C is None:
+        hit = self.store.get(key)
+        if hit is not None:
+            return hit[0]
+        c0 = time.process_time()
+        with shared_intermediates(self.shared):
             C = ch.prep(_columns(cand, d, hp))
-            if C.nbytes <= self.left:
-                self.store[key] = C
-                self.left -= C.nbytes
+        self._keep(key, C, (time.process_time() - c0) / max(C.nbytes, 1))
         return C
+
+    def _keep(self, key, C: np.ndarray, cost: float) -> None:
+        """Keep ``C`` (build seconds per byte ``cost``) if it fits, making room by dropping
+        entries that cost less per byte."""
+        if C.nbytes > self.budget:
+            return
+        if C.nbytes > self.left:
+            cheaper = sorted((v[1], k) for k, v in self.store.items() if v[1] < cost)
+            if self.left + sum(self.store[k][0].nbytes for _, k in cheaper) < C.nbytes:
+                return
+            for _, k in cheaper:   # cheapest first, until C fits
+                self.left += self.store.pop(k)[0].nbytes
+                if C.nbytes <= self.left:
+                    break
+        self.store[key] = (C, cost)
+        self.left -= C.nbytes
 
 
 def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
@@ -161,25 +200,45 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
     viscous levels selected so far (torque channel), composed by product with the candidate's
     own (:func:`level_interactions`)."""
     out, cols = {}, {}
+    # built shape by shape across the families (families of one effect with one grid, the ripple
+    # orders, share their intermediates), returned family by family
+    order = [(cand, hp) for cand in cands for hp in cand.grid]
+    position = [(i, k) for k, cand in enumerate(cands) for i in range(len(cand.grid))]
+    with shared_intermediates(cache.shared) if cache is not None else nullcontext():
+        for j in sorted(range(len(order)), key=position.__getitem__):
+            _effect_gram(order[j], d, ch, X, base, cache, levels, out, cols)
+    if cache is not None:   # the angle multiples are shared within one sweep over the orders
+        cache.shared.discard_below("trig")
+        cache.shared.discard_below("trig2")
+    return {k: out[k] for k in order if k in out}, {k: cols[k] for k in order if k in cols}
+
+
+def _effect_gram(key, d: JointData, ch: Channel, X: np.ndarray, base, cache, levels: tuple,
+                 out: dict, cols: dict) -> None:
+    """One shape of :func:`_effect_grams`: its Grams into ``out``, its recipe into ``cols``."""
     p = X.shape[1]
-    for cand in cands:
-        for hp in cand.grid:
-            C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
-            raw = C.shape[1]
-            C = level_interactions(C, cand, levels)   # unchanged unless a level was selected
-            if C.shape[0] == 0 or not np.all(np.isfinite(C)):
-                continue
-            g = grams_augmented(base, X, C, ch.target, ch.blocks)
-            keep = unexplained_fractions(g, p) >= 1e-3
-            if not keep.any():
-                continue
-            if not keep.all():
-                C = C[:, keep]
-                g = grams_augmented(base, X, C, ch.target, ch.blocks)
-            out[(cand, hp)] = g
-            cols[(cand, hp)] = _Cols(cand, hp, levels, keep, raw)
-            del C
-    return out, cols
+    cand, hp = key
+    C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
+    raw = C.shape[1]
+    composed = level_interactions(C, cand, levels)   # unchanged unless a level was selected
+    # the family's own columns: their products with themselves do not change with the model
+    plain = cache is not None and composed is C
+    own = cache.products.get((cand.family, repr(hp))) if plain else None
+    C = composed
+    # a finite sum has only finite terms (one pass); otherwise check each term
+    if C.shape[0] == 0 or not (np.isfinite(np.add.reduce(C, axis=None)) or np.all(np.isfinite(C))):
+        return
+    g = grams_augmented(base, X, C, ch.target, ch.blocks, own)
+    if plain and own is None:
+        cache.keep_products((cand.family, repr(hp)), g, raw)
+    keep = unexplained_fractions(g, p) >= 1e-3
+    if not keep.any():
+        return
+    if not keep.all():
+        C = C[:, keep]
+        g = grams_augmented(base, X, C, ch.target, ch.blocks)
+    out[key] = g
+    cols[key] = _Cols(cand, hp, levels, keep, raw)
 
 
 @dataclass(frozen=True)
@@ -202,7 +261,8 @@ class _Cols:
 
     def build(self, d: JointData, ch: Channel, cache: _ColumnCache | None = None) -> np.ndarray:
         C = cache.get(self.cand, d, ch, self.hp) if cache is not None else ch.prep(_columns(self.cand, d, self.hp))
-        C = level_interactions(C, self.cand, self.levels)
+        with shared_intermediates(cache.shared) if cache is not None else nullcontext():
+            C = level_interactions(C, self.cand, self.levels)
         return C if self.keep.all() else C[:, self.keep]
 
 

@@ -37,10 +37,11 @@ def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
         return out
     step = max(1, int(2e7 // max(p * k, 1)))     # samples per chunk of the (N, p, k) products
     s, e = bounds[:, 0], bounds[:, 1]
-    if not (np.all(e > s) and np.all(s[1:] == e[:-1])) or e[-1] - s[0] >= 64 * nt:
+    if _per_block(bounds):
+        AT = A.T
         for i, (a, b) in enumerate(bounds.tolist()):  # loop over blocks
             if b > a:
-                np.matmul(A[a:b].T, B[a:b], out=out[i])
+                np.dot(AT[:, a:b], B[a:b], out=out[i])
         return out
     i0 = 0
     while i0 < nt:   # loop over chunks of whole blocks
@@ -53,6 +54,32 @@ def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     return out
 
 
+def _per_block(bounds: np.ndarray) -> bool:
+    """Whether :func:`_outer_sums` takes one BLAS product per block: blocks of many samples
+    (64 on average), or blocks that do not tile one range."""
+    s, e = bounds[:, 0], bounds[:, 1]
+    return bool(not (np.all(e > s) and np.all(s[1:] == e[:-1])) or e[-1] - s[0] >= 64 * bounds.shape[0])
+
+
+def _augmented_sums(X: np.ndarray, C: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> tuple:
+    """``_outer_sums`` of ``(X, C)``, ``(C, C)`` and ``(C, r)`` (the same products, block by
+    block, in one pass over the blocks)."""
+    if bounds.shape[0] == 0 or X.shape[1] == 0 or not _per_block(bounds):
+        return (_outer_sums(X, C, bounds), _outer_sums(C, C, bounds),
+                _outer_sums(C, r[:, None], bounds)[:, :, 0])
+    nt, p, k = bounds.shape[0], X.shape[1], C.shape[1]
+    XC, CC, Cr = np.zeros((nt, p, k)), np.zeros((nt, k, k)), np.zeros((nt, k, 1))
+    XT, CT, R = X.T, C.T, r[:, None]
+    dot = np.dot    # the BLAS products of np.matmul (gemm, syrk, gemv), with less overhead
+    for i, (a, b) in enumerate(bounds.tolist()):   # loop over blocks
+        if b > a:
+            c, ct = C[a:b], CT[:, a:b]
+            dot(XT[:, a:b], c, out=XC[i])
+            dot(ct, c, out=CC[i])
+            dot(ct, R[a:b], out=Cr[i])
+    return XC, CC, Cr[:, :, 0]
+
+
 def grams(X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> Grams:
     """Per-block Gram matrices ``X^T X``, ``X^T r`` and ``r^T r`` (vectorised over samples)."""
     G = _outer_sums(X, X, bounds)
@@ -62,8 +89,10 @@ def grams(X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> Grams:
 
 
 def grams_augmented(base: Grams, X: np.ndarray, C: np.ndarray, r: np.ndarray,
-                    bounds: np.ndarray) -> Grams:
-    """Grams of ``[X | C]`` given the Grams of ``X`` alone (only the new blocks are computed)."""
+                    bounds: np.ndarray, own: tuple | None = None) -> Grams:
+    """Grams of ``[X | C]`` given the Grams of ``X`` alone (only the new blocks are computed).
+    ``own``: the blocks ``C^T C`` and ``C^T r`` of these columns, (n_blocks, k, k) and
+    (n_blocks, k), when an earlier call computed them (:func:`own_blocks`)."""
     if C.shape[1] == 0:
         return base
     nt, p, k = bounds.shape[0], X.shape[1], C.shape[1]
@@ -71,12 +100,21 @@ def grams_augmented(base: Grams, X: np.ndarray, C: np.ndarray, r: np.ndarray,
     b = np.zeros((nt, p + k))
     G[:, :p, :p] = base.G
     b[:, :p] = base.b
-    XC = _outer_sums(X, C, bounds)
+    if own is not None:
+        XC, (CC, Cr) = _outer_sums(X, C, bounds), own
+    else:
+        XC, CC, Cr = _augmented_sums(X, C, r, bounds)
     G[:, :p, p:] = XC
     G[:, p:, :p] = np.swapaxes(XC, 1, 2)
-    G[:, p:, p:] = _outer_sums(C, C, bounds)
-    b[:, p:] = _outer_sums(C, r[:, None], bounds)[:, :, 0]
+    G[:, p:, p:] = CC
+    b[:, p:] = Cr
     return Grams(G, b, base.yy, base.n)
+
+
+def own_blocks(g: Grams, k: int) -> tuple:
+    """The blocks of the last ``k`` columns of ``g`` with themselves and with the target (the
+    ``own`` of :func:`grams_augmented`)."""
+    return g.G[:, -k:, -k:].copy(), g.b[:, -k:].copy()
 
 
 def _solve(G: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -191,12 +229,7 @@ def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float
     if n < 2 or np.all(d == 0):
         return 1.0
     rng = np.random.default_rng(seed)
-
-    def tstat(x):
-        m = x.mean(axis=-1)
-        s = x.std(axis=-1, ddof=1)
-        return m / np.maximum(s, 1e-300) * np.sqrt(n)
-
+    tstat = _studentised_mean
     obs = tstat(d)
     if n > LARGE_N:
         # many blocks: the sign-flip distribution of the studentised mean is standard normal to
@@ -213,10 +246,26 @@ def sign_flip_pvalue(d: np.ndarray, n_perm: int = 20000, seed: int = 0) -> float
         m = min(SIGN_CHUNK, total - lo)
         if exact:
             signs = 1 - 2 * ((np.arange(lo, lo + m)[:, None] >> np.arange(n)) & 1)
-        else:
-            signs = rng.choice([-1.0, 1.0], size=(m, n))
+        else:   # rng.choice([-1.0, 1.0], size=(m, n)): the same draws
+            signs = _SIGNS[rng.integers(0, 2, size=(m, n), dtype=np.int64)]
         hits += int(np.sum(tstat(signs * d) >= obs - 1e-12))
     return float((1 + hits) / (1 + total))
+
+
+_SIGNS = np.array([-1.0, 1.0])
+
+
+def _studentised_mean(x: np.ndarray) -> np.ndarray:
+    """``sqrt(n) mean / std`` (``ddof=1``) along the last axis: the operations of ``x.mean`` and
+    ``x.std``, the mean taken once."""
+    n = x.shape[-1]
+    mean = np.add.reduce(x, axis=-1, keepdims=True)
+    np.true_divide(mean, n, out=mean)
+    dev = x - mean
+    np.multiply(dev, dev, out=dev)
+    var = np.add.reduce(dev, axis=-1)
+    var = np.true_divide(var, n - 1)
+    return mean[..., 0] / np.maximum(np.sqrt(var), 1e-300) * np.sqrt(n)
 
 
 def sign_flip_min_p(n: int, n_perm: int = 20000) -> float:
