@@ -340,13 +340,22 @@ def fit_axes(sweeps, method: str = "auto", noise_mm: float | None = None, frame_
     if method not in ESTIMATORS:
         raise InputError(f"unknown calibration method {method!r} (expected one of {', '.join(ESTIMATORS)})")
     est = ESTIMATORS[method](noise_mm=noise_mm, **options)
-    fits = []
-    for sw in sweeps:
+
+    def one(sw):
         f: AxisFit = est.fit(sw.positions[::frame_step], sw.labels)
         sub = SweepData(sw.joint, sw.time[::frame_step], sw.positions[::frame_step], sw.labels, sw.q_held,
                         sw.q_joint[::frame_step], sw.range_deg, sw.links, sw.markers_path, sw.log_path)
-        fits.append(f.with_joint(sw.joint, flip=rotation_sense(sub, f.point, f.direction) < 0))
-    return fits
+        return f.with_joint(sw.joint, flip=rotation_sense(sub, f.point, f.direction) < 0)
+
+    sweeps = list(sweeps)
+    if len(sweeps) < 2:
+        return [one(sw) for sw in sweeps]
+    # the sweeps' fits are independent: one thread each (their large array products release
+    # the interpreter lock), the same numbers as one after the other
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(len(sweeps)) as pool:
+        return list(pool.map(one, sweeps))
 
 
 #: largest relative difference between the rotation the markers show and the logged swept angle

@@ -699,7 +699,9 @@ class Study:
         ctx = _Context(camp, robot, out, state, tmp_dir, hasher, base_hash, man, old, stages,
                        errors, paths, od)
 
+        prewarm = self._prewarm_hashes(ctx)
         T_cb, calib_res = self._calib(ctx)
+        prewarm.join()
         _write_manifest(manifest_path, man, tmp_dir)
         angles_dir, mocap_summary, refs = self._mocap(ctx, T_cb)
         _write_manifest(manifest_path, man, tmp_dir)
@@ -743,6 +745,25 @@ class Study:
                      "rotation_std_deg": float(calib_res.rotation_std_deg)}
         return StudyResult(out, camp.name, len(camp.trials), stages, paths, verdicts, calib, errors,
                            verdict_lines=lines)
+
+    @staticmethod
+    def _prewarm_hashes(ctx):
+        """The trials' marker files and logs hashed by a thread while the calibration runs (the
+        digests the stages' input hashes need; :class:`_Hasher` memoises them): sha256 reads
+        release the interpreter lock, so this overlaps the calibration's work."""
+        import threading
+
+        def run():
+            for tr in ctx.camp.trials:  # loop over trials
+                for p in (tr.markers, tr.log):
+                    try:
+                        ctx.hasher.file(p)
+                    except OSError:     # the stage that reads it says so, with its path
+                        pass
+
+        th = threading.Thread(target=run, name="jointlab-hashes", daemon=True)
+        th.start()
+        return th
 
     # stage 1: calibration ----------------------------------------------------------------------
     def _calib(self, ctx):
@@ -920,7 +941,9 @@ class Study:
                 for j in joints_of[job.trial]:
                     left[j] -= 1
                     if left[j] == 0 and s.plots and not current:
-                        drawn[j] = self._draw_joint_fits(ctx, j, done, hashes, tmp, models)
+                        # the last joint's two figures: drawn by the (then idle) workers
+                        drawn[j] = self._draw_joint_fits(ctx, j, done, hashes, tmp, models,
+                                                         pool=not any(left.values()))
         failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
         for tid, msg in failed.items():
             ctx.errors[f"fits/{tid}"] = msg
@@ -937,7 +960,8 @@ class Study:
                 result.write(tmp, plots=False)
                 plots = None
                 if s.plots:
-                    order = [drawn[j] for j in sorted(drawn) if drawn[j] is not None]
+                    order = [d.result() if isinstance(d, Pending) else d for d in
+                             (drawn[j] for j in sorted(drawn)) if d is not None]
                     plots = Pending(lambda: [o[0] for o in order])
                     ctx.study_plots = Pending(lambda: [o[1] for o in order])
                 ctx.fits_commit = (tmp, plots, man)
@@ -964,17 +988,22 @@ class Study:
                 if rec is not None:
                     done[tid] = rec["result"]
 
-    def _draw_joint_fits(self, ctx, joint: int, done: dict, hashes: dict, tmp: Path, models: tuple):
+    def _draw_joint_fits(self, ctx, joint: int, done: dict, hashes: dict, tmp: Path, models: tuple,
+                         pool: bool = False):
         """The fits' and the study's PNGs of one joint whose items are all in: (names in
-        ``fits/plots/``, names in ``plots/``), or None when it has no fit."""
+        ``fits/plots/``, names in ``plots/``), or None when it has no fit; drawn here, or by the
+        executor (``pool``: a :class:`Pending` of that pair)."""
         trials = [tr for tr in ctx.camp.trials if tr.id in done and joint in tr.joints]
         self._plot_samples(ctx, done, hashes, trials)
         group = tuple(e for tr in trials if done[tr.id].get("ok") for e in done[tr.id]["entries"]
                       if e.task.joint == joint)
         if not group:
             return None
-        return (_run_plot_job(_PlotJob("fits", str(tmp / "plots"), (group, models))),
-                _run_plot_job(_PlotJob("study", str(ctx.tmp_dir / "plots-new"), (group, models))))
+        jobs = [_PlotJob("fits", str(tmp / "plots"), (group, models)),
+                _PlotJob("study", str(ctx.tmp_dir / "plots-new"), (group, models))]
+        if pool:
+            return self._submit(_run_plot_job, jobs, "plots")
+        return tuple(_run_plot_job(job) for job in jobs)
 
     def _fits_commit(self, ctx) -> None:
         """Install ``fits/`` once its plots are drawn, then record the stage in the manifest
