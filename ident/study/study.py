@@ -290,6 +290,25 @@ class _FitJob:
     keep_plot: bool = True      # return the plot samples (else only the record keeps them)
 
 
+def _chain(parts) -> Pending:
+    """One :class:`Pending` over batches submitted one after the other (``parts``: (pending,
+    number of items)): the results in the batches' order; ``each()`` yields each batch's items
+    as they finish, batch after batch."""
+
+    def each():
+        offset = 0
+        for p, n in parts:  # loop over the batches
+            with contextlib.closing(p.each()) as it:
+                for i, r in it:
+                    yield offset + i, r
+            offset += n
+
+    def wait():
+        return [r for p, _ in parts for r in p.result()]
+
+    return Pending(wait, each)
+
+
 def _run_fit_job(job: _FitJob) -> dict:
     """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign_fit.fit_trial_joint`).
     The record holds the whole result; the study gets the plot samples only when it draws or
@@ -711,6 +730,7 @@ class Study:
         # while the workers run the last fits, this process writes the multi-joint stage
         diag_run = self._diagnosis_start(ctx, angles_dir)
         fits_run = self._fits_start(ctx, angles_dir)
+        self._submit_items(diag_run, fits_run)
         rrd_path = None
         if s.rrd or rrd is not None or spawn:
             rrd_path = Path(rrd).resolve() if rrd is not None else (out / "study.rrd" if s.rrd else None)
@@ -910,7 +930,7 @@ class Study:
             jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h,
                                 keep_plot=tr.id in plotted))
         self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
-        pending = self._submit(_run_fit_job, jobs, "fits")
+        pending = None     # submitted with the diagnosis' items (_submit_items)
         return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending,
                     by_trial=by_trial)
 
@@ -1098,7 +1118,7 @@ class Study:
             plots_dir = str(ctx.tmp_dir / "diagnosis-new")
             jobs = [dataclasses.replace(job, plots_dir=plots_dir) for job in jobs]
         self._say(f"gap diagnosis: {len(jobs)} joint(s) to diagnose, {len(done)} reused")
-        pending = self._submit(_run_diag_job, jobs, "diagnosis")
+        pending = None     # submitted with the fits' items (_submit_items)
         if n_read == n_all:
             note = ""
         elif s.diagnosis_reps is None:
@@ -1111,6 +1131,26 @@ class Study:
                     f"{n_all} trials")
         return dict(dset=dset, jobs=jobs, done=done, hashes=hashes, pending=pending,
                     prep_s=time.perf_counter() - t0, note=note)
+
+    def _submit_items(self, diag_run: dict, fits_run: dict) -> None:
+        """Queue the diagnosis' and the fits' items, interleaved: each of the few long diagnosis
+        items followed by an equal share of the many short fits (in campaign order). A long item
+        never runs alone at the end, and the diagnosis items, the largest in memory, seldom run
+        on all workers at once (what a study's summed peak is made of)."""
+        djobs = diag_run.get("jobs") or []
+        fjobs = fits_run["jobs"]
+        n = max(len(djobs), 1)
+        share = -(-len(fjobs) // n)
+        dparts, fparts = [], []
+        for k in range(n):  # loop over the diagnosis items
+            if k < len(djobs):
+                dparts.append(self._submit(_run_diag_job, djobs[k:k + 1], "diagnosis"))
+            chunk = fjobs[k * share:(k + 1) * share] if k < n - 1 else fjobs[k * share:]
+            if chunk:
+                fparts.append((self._submit(_run_fit_job, chunk, "fits"), len(chunk)))
+        if "jobs" in diag_run:
+            diag_run["pending"] = _chain([(p, 1) for p in dparts])
+        fits_run["pending"] = _chain(fparts)
 
     @staticmethod
     def _diagnosis_current(ctx, hashes: dict) -> bool:
