@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ident.common import to_jsonable as _jsonable
+from viz.plots import new_subplots, save_png, tight_layout, young_garbage
 
 
 def _fmt(x, nd=3):
@@ -140,16 +141,12 @@ def markdown(report: dict, plots: dict) -> str:
 def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
     """The PNGs of each joint in ``out_dir`` (where the gap lies, candidate effects, residual
     against speed, residual spectrum): {key: file name}."""
-    from viz.plots import young_garbage  # optional dependency: matplotlib
-
     with young_garbage():
         return _draw_plots(report, series, out_dir)
 
 
 def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
     """The figures of :func:`make_plots`, drawn and saved."""
-    from viz.plots import new_subplots, save_png, tight_layout
-
     paths = {}
 
     def subplots(figsize):

@@ -75,7 +75,7 @@ from mocap.quality import marker_report
 from mocap.references import build_references
 from mocap.solve import solve_trial
 from viz import make_sink
-from viz.plots import save_png
+from viz.plots import new_subplots, save_png, tight_layout, young_garbage
 
 __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", "MANIFEST_NAME"]
 
@@ -1403,8 +1403,6 @@ def write_study_plots(fits, out_dir: Path) -> dict:
     repetition of every condition with its fitted curve, thesis Figs. 5-1/5-2) and
     ``spread_joint<j>.png`` (each parameter of the Coulomb + viscous and Stribeck models over
     the repetitions of every condition: dots, mean and +-1 std). Returns {name: file name}."""
-
-    from viz.plots import new_subplots, tight_layout, young_garbage
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 from ident.friction.plausibility import meaning_line
+from viz.plots import new_subplots, save_png, tight_layout, young_garbage
 
 __all__ = ["mean_cv", "group_records", "summarize", "excluded_fits", "rms_summary", "param_table", "rms_table",
            "write_table", "write_tables", "plot_friction_vs_speed", "PARAM_NAMES", "MODEL_TITLES"]
@@ -331,16 +332,12 @@ def plot_friction_vs_speed(path: str | Path, qd, f_measured, models: dict, title
     """Friction torque vs link speed (thesis Figs. 5-1, 5-2): the measured friction
     (eq. 2-4 target minus the fitted rigid part) as dots and each fitted model as a curve.
     ``models``: {label: object with ``torque(qd)``}. Saved as PNG with matplotlib (Agg)."""
-    from viz.plots import young_garbage  # optional dependency: matplotlib
-
     with young_garbage():
         return _friction_vs_speed_png(path, qd, f_measured, models, title)
 
 
 def _friction_vs_speed_png(path, qd, f_measured, models: dict, title: str) -> Path:
     """The figure of :func:`plot_friction_vs_speed`, drawn and saved."""
-    from viz.plots import new_subplots, save_png, tight_layout
-
     qd = np.asarray(qd, float)
     f = np.asarray(f_measured, float)
     fig = new_subplots(6.4, 4.4, dpi=110)
