@@ -100,7 +100,7 @@ def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100
 
 
 def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
-    """``fig.tight_layout(pad=pad)``, then no layout engine left on the figure: the subplot
+    """Matplotlib's tight layout once, then no layout engine left on the figure: the subplot
     parameters are set once, and :func:`save_png` draws without laying the figure out again.
 
     Examples
