@@ -83,7 +83,7 @@ def young_garbage():
 
 def new_subplots(width_in: float = 6.4, height_in: float = 4.0, dpi: float = 100.0, nrows: int = 1,
                  ncols: int = 1, n: int | None = None) -> Figure:
-    """A figure as :func:`new_figure` makes it, holding the subplots ``1 .. n`` of an
+    """A figure as :func:`new_figure` makes it, holding the subplots 1 to ``n`` of an
     ``nrows`` x ``ncols`` grid (``fig.add_subplot(nrows, ncols, i)``; ``n`` = all by default).
 
     Examples
