@@ -1659,6 +1659,18 @@ def _rrd_trials(campaign, which: str):
     return sorted(out, key=lambda t: order[t.id])
 
 
+def _recording_tmp(rrd_path, out, tmp_dir, tag: str = "") -> Path | None:
+    """The temporary file a recording is written to before its rename to ``rrd_path`` (its
+    folder made): in the study's ``tmp_dir`` when the recording lies inside ``out`` (same file
+    system), else beside ``rrd_path``; None without a file."""
+    if rrd_path is None:
+        return None
+    rrd_path = Path(rrd_path)
+    rrd_path.parent.mkdir(parents=True, exist_ok=True)
+    same_fs = tmp_dir is not None and Path(out).resolve() in rrd_path.resolve().parents
+    return (Path(tmp_dir) if same_fs else rrd_path.parent) / f".{rrd_path.name}.{os.getpid()}{tag}.tmp"
+
+
 def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, diag, report_md, out,
               which: str = "first", tmp_dir: Path | None = None, install=None) -> list[str]:
     """One recording of the study: the campaign (markers in the camera frame, the robot posed
@@ -1668,12 +1680,7 @@ def log_study(campaign, robot, rrd_path, spawn, calib_res, angles_dir, fits, dia
     the rename when given: the output folder's checked, registered install)."""
     sub = dataclasses.replace(campaign, trials=tuple(_rrd_trials(campaign, which)))
     ids = {t.id for t in sub.trials}
-    tmp = None
-    if rrd_path is not None:
-        rrd_path = Path(rrd_path)
-        rrd_path.parent.mkdir(parents=True, exist_ok=True)
-        same_fs = tmp_dir is not None and Path(out).resolve() in rrd_path.resolve().parents
-        tmp = (Path(tmp_dir) if same_fs else rrd_path.parent) / f".{rrd_path.name}.{os.getpid()}.tmp"
+    tmp = _recording_tmp(rrd_path, out, tmp_dir)
     try:
         logged = _log_study(sub, robot, tmp, spawn, calib_res, angles_dir, fits, diag, report_md, out, ids)
     except BaseException:
@@ -1767,12 +1774,7 @@ class _StudyRecording:
         sub = dataclasses.replace(campaign, trials=tuple(_rrd_trials(
             dataclasses.replace(campaign, trials=self.shown(campaign, bad)), which)))
         self.ids = {t.id for t in sub.trials}
-        if rrd_path is not None:
-            rrd_path = Path(rrd_path)
-            rrd_path.parent.mkdir(parents=True, exist_ok=True)
-            same_fs = tmp_dir is not None and Path(out).resolve() in rrd_path.resolve().parents
-            self.tmp = ((Path(tmp_dir) if same_fs else rrd_path.parent)
-                        / f".{rrd_path.name}.{os.getpid()}.early.tmp")
+        self.tmp = _recording_tmp(rrd_path, out, tmp_dir, ".early")
 
         def run():
             try:
