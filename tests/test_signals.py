@@ -157,3 +157,21 @@ def test_rss_by_harmonics_equals_least_squares_per_N():
         X = design_matrix(t, wf, n)
         r = q - X @ np.linalg.lstsq(X, q, rcond=None)[0]
         assert rss[n - 1] == pytest.approx(float(r @ r), rel=1e-6), n
+
+
+def test_rss_by_harmonics_near_nyquist_matches_least_squares():
+    """Harmonics at and beyond the Nyquist rate make the Gram matrix singular: the QR path
+    takes over and the RSS still equals a least-squares fit's."""
+    from ident.signals.fourier import design_matrix
+    from ident.signals.smoothing import _rss_by_harmonics, _rss_by_harmonics_qr
+
+    rng = np.random.default_rng(5)
+    t = np.arange(0, 2.0, 0.05)                     # 20 Hz sampling: Nyquist 10 Hz
+    q = np.sin(2 * np.pi * 0.7 * t) + rng.normal(0, 1e-2, t.size)
+    wf = 2 * np.pi * 1.0                            # harmonic 10 sits on Nyquist
+    rss = _rss_by_harmonics(t, q, wf, 12)
+    np.testing.assert_allclose(rss, _rss_by_harmonics_qr(t, q, wf, 12), rtol=1e-6)
+    for n in (1, 5, 9):
+        X = design_matrix(t, wf, n)
+        r = q - X @ np.linalg.lstsq(X, q, rcond=None)[0]
+        assert rss[n - 1] == pytest.approx(float(r @ r), rel=1e-6), n

@@ -13,7 +13,8 @@ How a fit is chosen (:class:`FourierSmoother`):
    its best number of harmonics; the winner is refined by a bounded 1-D search of the
    residual over +-half a frequency bin (``pi / D``).
 2. **Harmonics** ``N``: the Bayesian information criterion ``n log(RSS/n) + (2N+1) log n``
-   over ``N = 1..max_harmonics`` (all ``N`` from one QR factorisation).
+   over ``N = 1..max_harmonics`` (all ``N`` from one Cholesky factorisation of the
+   design's Gram matrix).
 3. **Rests**: samples before the first and after the last one moving faster than 1 % of the
    peak speed (the still holds around the excitation) are left out of the Fourier fit.
 4. **Non-periodic fallback**: if the Fourier residual RMS exceeds ``periodic_ratio`` times the
@@ -433,6 +434,68 @@ def _ordered_design_T(t, wf, n, extra=None):
 
 
 def _rss_by_harmonics(t, q, wf, n_max):
+    """RSS of the eq. 3-2 fit for N = 1..n_max harmonics.
+
+    The span of ``[1, sin(l wf t), cos(l wf t)]`` (l = 1..n_max) does not depend on the
+    columns' scale, so the unscaled columns are used: they are close to orthogonal over one or
+    more periods, and their Gram matrix is well conditioned. Its entries follow from the sums
+    ``S_k = sum_i exp(i k wf t_i)`` (k = 0..2 n_max) by the product-to-sum identities
+    (``sin a sin b = (cos(a-b) - cos(a+b)) / 2`` and its two siblings), the right-hand side
+    from ``sum_i q_i exp(i l wf t_i)``; one Cholesky factorisation ``G = L L^T`` and
+    ``z = L^-1 X^T q`` give every nested fit at once (``RSS_N = q^T q - sum_{k <= 2N+1} z_k^2``,
+    as the last column of R in a QR factorisation of ``[X, q]``). A Gram matrix that is not
+    numerically positive definite (a harmonic near the Nyquist rate) falls back to that QR
+    factorisation (:func:`_rss_by_harmonics_qr`).
+    """
+    x = np.asarray(t, float) - t[0]
+    q = np.asarray(q, float)
+    m, p = x.size, 2 * n_max + 1
+    if m <= p:
+        return _rss_by_harmonics_qr(t, q, wf, n_max)
+    e = np.exp(1j * wf * x)
+    E = np.empty((2 * n_max, m), complex)
+    E[0] = e
+    for k in range(1, 2 * n_max):  # powers of e (a few dozen), vectorised over the samples
+        np.multiply(E[k - 1], e, out=E[k])
+    S = np.empty(2 * n_max + 1, complex)
+    S[0] = m
+    E.sum(axis=1, out=S[1:])
+    bq = E[:n_max] @ q
+    a, b = _gram_index(n_max)
+    d, s = np.abs(a - b), a + b
+    re_d, re_s = S.real[d], S.real[s]
+    sc = 0.5 * (S.imag[s] + np.sign(a - b) * S.imag[d])      # sum sin(a x) cos(b x)
+    G = np.empty((p, p))
+    G[0, 0] = m
+    G[0, 1::2] = G[1::2, 0] = S.imag[1:n_max + 1]
+    G[0, 2::2] = G[2::2, 0] = S.real[1:n_max + 1]
+    G[1::2, 1::2] = 0.5 * (re_d - re_s)
+    G[2::2, 2::2] = 0.5 * (re_d + re_s)
+    G[1::2, 2::2] = sc
+    G[2::2, 1::2] = sc.T
+    rhs = np.empty(p)
+    rhs[0] = q.sum()
+    rhs[1::2] = bq.imag
+    rhs[2::2] = bq.real
+    L, info = lapack.dpotrf(G, lower=1, clean=0)
+    diag = np.diag(L) if info == 0 else None
+    if diag is None or not np.all(diag > 1e-6 * diag[0]):
+        return _rss_by_harmonics_qr(t, q, wf, n_max)
+    z, info = lapack.dtrtrs(L, rhs, lower=1)
+    if info != 0:
+        return _rss_by_harmonics_qr(t, q, wf, n_max)
+    cums = np.cumsum(z ** 2)
+    return np.maximum(float(q @ q) - cums[2 * np.arange(1, n_max + 1)], 1e-300)
+
+
+@functools.lru_cache(maxsize=64)
+def _gram_index(n):
+    """Harmonic numbers ``(a, b)`` of the sine/cosine blocks of the Gram matrix (n x n each)."""
+    a = np.arange(1, n + 1)
+    return a[:, None] + 0 * a[None, :], a[None, :] + 0 * a[:, None]
+
+
+def _rss_by_harmonics_qr(t, q, wf, n_max):
     """RSS of the eq. 3-2 fit for N = 1..n_max harmonics, from one QR factorisation of the
     design with ``q`` appended (its last column of R is ``Q^T q``: Q is never formed; LAPACK
     factorises the freshly built array in place)."""
