@@ -444,8 +444,9 @@ def _rss_by_harmonics(t, q, wf, n_max):
     from ``sum_i q_i exp(i l wf t_i)``; one Cholesky factorisation ``G = L L^T`` and
     ``z = L^-1 X^T q`` give every nested fit at once (``RSS_N = q^T q - sum_{k <= 2N+1} z_k^2``,
     as the last column of R in a QR factorisation of ``[X, q]``). A Gram matrix that is not
-    numerically positive definite (a harmonic near the Nyquist rate) falls back to that QR
-    factorisation (:func:`_rss_by_harmonics_qr`).
+    well conditioned (the Cholesky factor's diagonal spread over more than four decades,
+    ``cond(G) > 1e8``, where the RSS would lose more than 1e-8 of ``q^T q``: a harmonic near the
+    Nyquist rate) falls back to that QR factorisation (:func:`_rss_by_harmonics_qr`).
     """
     x = np.asarray(t, float) - t[0]
     q = np.asarray(q, float)
@@ -479,7 +480,7 @@ def _rss_by_harmonics(t, q, wf, n_max):
     rhs[2::2] = bq.real
     L, info = lapack.dpotrf(G, lower=1, clean=0)
     diag = np.diag(L) if info == 0 else None
-    if diag is None or not np.all(diag > 1e-6 * diag[0]):
+    if diag is None or not np.all(diag > 1e-4 * diag.max()):
         return _rss_by_harmonics_qr(t, q, wf, n_max)
     z, info = lapack.dtrtrs(L, rhs, lower=1)
     if info != 0:
