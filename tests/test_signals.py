@@ -175,3 +175,18 @@ def test_rss_by_harmonics_near_nyquist_matches_least_squares():
         X = design_matrix(t, wf, n)
         r = q - X @ np.linalg.lstsq(X, q, rcond=None)[0]
         assert rss[n - 1] == pytest.approx(float(r @ r), rel=1e-6), n
+
+
+def test_rss_by_harmonics_ignores_a_large_constant_offset():
+    """The constant is in the model: an angle far from zero (a motor angle after many turns) has
+    the RSS of the same motion about zero, not one lost to cancellation in q^T q."""
+    from ident.signals.fourier import design_matrix
+    from ident.signals.smoothing import _rss_by_harmonics
+
+    rng = np.random.default_rng(11)
+    t = np.arange(0, 20, 0.005)
+    q0 = 10 * np.sin(0.7 * t) + 3 * np.cos(1.4 * t + 0.2) + rng.normal(0, 1e-4, t.size)
+    X = design_matrix(t, 0.7, 3)
+    r = q0 - X @ np.linalg.lstsq(X, q0, rcond=None)[0]
+    for offset in (0.0, 1e2, 1e4):
+        assert _rss_by_harmonics(t, q0 + offset, 0.7, 6)[2] == pytest.approx(float(r @ r), rel=1e-4), offset

@@ -450,6 +450,7 @@ def _rss_by_harmonics(t, q, wf, n_max):
     """
     x = np.asarray(t, float) - t[0]
     q = np.asarray(q, float)
+    q = q - q.mean()          # the constant is in the model: the same RSS, less cancellation
     m, p = x.size, 2 * n_max + 1
     if m <= p:
         return _rss_by_harmonics_qr(t, q, wf, n_max)
