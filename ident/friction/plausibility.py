@@ -7,7 +7,10 @@ Each parameter of a fit gets at most one flag:
   below zero; a friction that pushes the motion somewhere inside the sampled speeds);
 * ``unidentifiable``: the data do not determine it (its term vanishes or merges with another
   one on the sampled speeds, its standard error exceeds its size, or its term is more than
-  :data:`CANCEL_RATIO` times the torque scale and so cancels another term);
+  :data:`CANCEL_RATIO` times the torque scale and so cancels another term). A parameter that
+  must not be negative but whose negative estimate lies within :data:`SIGN_SE` standard
+  errors of zero is this kind too, not ``impossible``: the data do not determine its sign
+  (the estimate is consistent with zero or a small positive value);
 * ``extrapolated``: it describes speeds outside the range the data cover (a Stribeck speed
   ``Vc`` above the fastest sampled speed, a hyperbolic Coulomb term or an arctan Stribeck
   transition that completes only beyond it).
@@ -32,6 +35,15 @@ from ident.friction.constants import KV_DEFAULT
 
 KINDS = ("impossible", "unidentifiable", "extrapolated")
 CANCEL_RATIO = 100.0     # a term this many times the torque scale cancels another one
+#: a negative estimate of a parameter that must not be negative is impossible only beyond this
+#: many standard errors below zero (about a two-sided 95 % interval); within it, undetermined
+SIGN_SE = 2.0
+
+#: per law, the parameters whose only physical bound is their sign (>= 0): their ``impossible``
+#: flag from that bound becomes ``unidentifiable`` within :data:`SIGN_SE` standard errors of 0
+SIGN_BOUNDED = {"cv": ("c", "v"), "stribeck": ("Fk", "Fv"),
+                "hyperbolic": ("g2", "g3", "g4", "g5", "g6"), "arctan": ("tau_s", "tau_v", "delta"),
+                "dm1": ("sigma0", "sigma1"), "dm2": ("sigma0", "beta", "gamma")}
 
 #: what each parameter is (printed beside the tables)
 MEANING = {
@@ -269,6 +281,14 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
              "arctan": ("tau_v", "tau_s")}.get(m)
     if names:
         _energy(model, lo, hi, out, names)
+    # after the energy check, which a sign flag suppresses: a friction that pushes the motion only
+    # through a parameter whose sign the data leave open is not shown to push it either
+    bounded = () if form == "stribeck_coulomb_in_Fs" else SIGN_BOUNDED.get(m, ())
+    for k in bounded:
+        if k in out and out[k].kind == "impossible" and p.get(k, 0.0) < 0:
+            flag = _sign_undetermined(k, p[k], (stderr or {}).get(k))
+            if flag is not None:
+                out[k] = flag
     for k, se in (stderr or {}).items():
         if k in p and se is not None and np.isfinite(se) and se > abs(p[k]) and k not in out:
             _put(out, k, "unidentifiable",
@@ -276,15 +296,27 @@ def assess(model_name: str, params: dict, *, qd=None, stderr: dict | None = None
     return out
 
 
+def _sign_undetermined(name: str, value: float, stderr) -> Flag | None:
+    """The ``unidentifiable`` flag of a negative estimate of a parameter that must not be
+    negative when it lies within :data:`SIGN_SE` standard errors of zero (None otherwise: no
+    standard error, or the estimate is significantly negative and so impossible)."""
+    if stderr is None or not np.isfinite(stderr) or stderr <= 0 or -value >= SIGN_SE * stderr:
+        return None
+    return Flag("unidentifiable", f"{name} = {value:.3g} < 0 lies within {SIGN_SE:g} standard errors "
+                f"({stderr:.3g}) of zero: these data do not determine its sign")
+
+
 def assess_armature(value, stderr=None) -> Flag | None:
-    """An actuator (armature) inertia: negative is impossible; a standard error above its size
-    leaves it undetermined; None (merged into the base parameters) is not flagged."""
+    """An actuator (armature) inertia: negative is impossible (undetermined within
+    :data:`SIGN_SE` standard errors of zero); a standard error above its size leaves it
+    undetermined; None (merged into the base parameters) is not flagged."""
     if value is None:
         return None
     if not np.isfinite(value):
         return Flag("unidentifiable", "armature is not a finite number")
     if value < 0:
-        return Flag("impossible", f"armature {value:.3g} kg m^2 < 0")
+        return (_sign_undetermined("armature", value, stderr)
+                or Flag("impossible", f"armature {value:.3g} kg m^2 < 0"))
     if stderr is not None and np.isfinite(stderr) and stderr > abs(value):
         return Flag("unidentifiable", f"standard error {stderr:.3g} exceeds the armature")
     return None

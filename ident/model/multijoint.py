@@ -80,7 +80,8 @@ class MultiJointFits:
                     out.setdefault(tid, {}).setdefault(j, {})[m] = {
                         "params": e["params"], "stderr": e.get("stderr", {}), "rms": e["rms"],
                         "heldout_rms": e["heldout_rms"], "offset": e["offset"],
-                        "armature": e["armature"], "model": m, "method": "multi-joint rigid-body",
+                        "armature": e["armature"], "stderr_armature": e.get("stderr_armature"),
+                        "model": m, "method": "multi-joint rigid-body",
                         "flags": e.get("flags", {}), "v_zero": e.get("v_zero"),
                         **({"low_speed_cut": _joint_cut(cut, int(j) - 1)} if cut else {}),
                         **({"implausible": e["implausible"]} if e.get("implausible") else {})}

@@ -596,11 +596,16 @@ class RigidBodyIdentifier:
             se_arm = None
             if cov is not None and f"Ia_{j + 1}" in idx:
                 se_arm = float(np.sqrt(max(cov[idx[f"Ia_{j + 1}"], idx[f"Ia_{j + 1}"]], 0.0)))
+            if e["armature"] is not None:
+                e["stderr_armature"] = se_arm
             fa = assess_armature(e["armature"], se_arm)
             e["flags"] = to_json(flags)
             if fa is not None:
                 e["flags"]["armature"] = fa.to_dict()
-            implaus = _implausible(mdl, rec.qd[M[:, j], j])
+            # the note repeats an impossible flag in words; a friction that pushes the motion only
+            # through a parameter whose sign the data leave open is flagged undetermined instead
+            implaus = (_implausible(mdl, rec.qd[M[:, j], j])
+                       if any(fl.kind == "impossible" for fl in flags.values()) else None)
             if implaus:
                 e["implausible"] = implaus
                 notes.append(f"joint {j + 1} {self.model}: {implaus}")
