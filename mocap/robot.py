@@ -15,7 +15,7 @@ import numpy as np
 
 from mocap.io.errors import InputError, read_text
 from mocap.kinematics import Chain
-from mocap.urdf import select_chain
+from mocap.urdf import continuous_as_revolute, select_chain, urdf_joints
 
 _POSITIVE_KEYS = ("gear_ratio", "max_velocity", "max_torque")
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
@@ -219,8 +219,10 @@ class Robot:
             jm = model.joints[i]
             ax = _joint_axis(jm)
             if ax is None or jm.nq != 1:
-                raise InputError(f"joint {model.names[i]!r} is {jm.shortname()}; only revolute joints "
-                                 "are supported", path=urdf, label=model.names[i])
+                raise InputError(f"joint {model.names[i]!r} is {jm.shortname()}; only revolute (and "
+                                 "continuous) joints are supported in the arm's chain: fix it with "
+                                 "[robot] fixed, or choose base_link/tip_link around it",
+                                 path=urdf, label=model.names[i])
             if model.parents[i] != i - 1:
                 raise InputError(f"joint {model.names[i]!r} does not continue a serial chain",
                                  path=urdf, label=model.names[i])
@@ -301,10 +303,23 @@ class Robot:
         if not urdf.is_file():
             raise InputError("URDF not found", path=urdf)
         sel = select_chain(urdf, base_link, tip_link, fixed, where=where)
+        continuous = [nm for nm, j in urdf_joints(urdf).items()
+                      if j["type"] == "continuous" and nm in sel.chain]
         try:
-            model = pin.buildModelFromUrdf(str(urdf))
+            if continuous:        # unbounded revolute joints of the arm: one coordinate each
+                xml, limits = continuous_as_revolute(urdf, continuous)
+                model = pin.buildModelFromXML(xml)
+            else:
+                model = pin.buildModelFromUrdf(str(urdf))
         except (RuntimeError, ValueError) as exc:
             raise InputError(f"pinocchio could not read the URDF: {exc}", path=urdf) from None
+        for nm in continuous:
+            jm = model.joints[model.getJointId(nm)]
+            eff, vel = limits[nm]
+            model.lowerPositionLimit[jm.idx_q] = -np.inf
+            model.upperPositionLimit[jm.idx_q] = np.inf
+            model.effortLimit[jm.idx_v] = np.inf if eff is None else eff
+            model.velocityLimit[jm.idx_v] = np.inf if vel is None else vel
         if sel.reduced:
             q0 = pin.neutral(model)
             ids = []

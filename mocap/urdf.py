@@ -101,6 +101,12 @@ class ChainSelection:
     reduced: bool
 
 
+def urdf_joints(urdf: str | Path) -> dict:
+    """{joint name: {type, parent, child, lower, upper}} of a URDF file's joints (document
+    order; ``lower``/``upper`` only for revolute and prismatic joints with a ``<limit>``)."""
+    return _urdf_joints(_parse(Path(urdf)).getroot())
+
+
 def _urdf_joints(root) -> dict:
     out = {}
     for j in root.findall("joint"):
@@ -238,6 +244,54 @@ def select_chain(urdf: str | Path, base_link: str | None = None, tip_link: str |
 
 
 # ---- perturbed copies ---------------------------------------------------------------------------
+def continuous_as_revolute(urdf: str | Path, names) -> tuple[str, dict]:
+    """The URDF's text with the ``continuous`` joints among ``names`` written as ``revolute``
+    ones, and their limits.
+
+    A continuous joint is a revolute joint without position limits (URDF specification [1]_);
+    pinocchio represents it by ``(cos q, sin q)`` (two configuration coordinates, one velocity),
+    a revolute joint by ``q``. Written as revolute, the joint has the same placement, axis,
+    inertias and dynamics, one coordinate like every other joint of the chain. The written
+    ``<limit>`` holds placeholder position limits (the caller sets them to +-inf); its effort and
+    velocity are the original element's, else absent (pinocchio: infinite).
+
+    Parameters
+    ----------
+    urdf : str or pathlib.Path
+        The URDF file.
+    names : iterable of str
+        The joints to convert where they are continuous (the arm's chain).
+
+    Returns
+    -------
+    xml : str
+        The URDF text (the file itself is not touched).
+    limits : dict
+        {joint name: (effort or None, velocity or None)} of each converted joint.
+
+    References
+    ----------
+    .. [1] ROS URDF XML specification, <joint> element (http://wiki.ros.org/urdf/XML/joint).
+    """
+    tree = _parse(Path(urdf))
+    wanted = set(names)
+    limits = {}
+    for j in tree.getroot().findall("joint"):
+        if j.get("type") != "continuous" or j.get("name") not in wanted:
+            continue
+        j.set("type", "revolute")
+        lim = j.find("limit")
+        if lim is None:
+            lim = ET.SubElement(j, "limit")
+        eff, vel = lim.get("effort"), lim.get("velocity")
+        limits[j.get("name")] = (None if eff is None else float(eff), None if vel is None else float(vel))
+        lim.set("lower", "-1")
+        lim.set("upper", "1")
+        lim.set("effort", eff if eff is not None else "0")
+        lim.set("velocity", vel if vel is not None else "0")
+    return ET.tostring(tree.getroot(), encoding="unicode"), limits
+
+
 def perturb_urdf(src: str | Path, dst: str | Path, seed: int, length_std: float = 0.005,
                  angle_std_deg: float = 0.5, mass_rel_std: float = 0.05,
                  overwrite: bool = False) -> Path:

@@ -85,6 +85,35 @@ def test_reduced_robot_gravity_torque_matches_hand_formula(tmp_path):
                                    rtol=1e-9, atol=1e-9)
 
 
+def test_continuous_joint_in_the_chain_is_an_unbounded_revolute_joint(tmp_path):
+    """A vendor URDF whose arm joint is ``continuous`` (URDF: revolute without limits) loads as
+    it is: one coordinate per joint, limits +-inf, the same gravity torque as the hand formula,
+    and the file itself untouched."""
+    urdf = _branchy_urdf(tmp_path / "b.urdf")
+    text = urdf.read_text(encoding="utf-8").replace(
+        '<joint name="j2" type="revolute">', '<joint name="j2" type="continuous">')
+    text = text.replace('<limit lower="-3" upper="3" effort="10" velocity="1"/></joint>'
+                        '\n<joint name="finger_joint"', '<limit effort="10" velocity="1"/></joint>'
+                        '\n<joint name="finger_joint"')
+    assert 'type="continuous"' in text and text.count('<limit effort="10" velocity="1"/>') == 1
+    urdf.write_text(text, encoding="utf-8")
+    robot = Robot.from_urdf(urdf, base_link="torso", tip_link="l2", fixed={"finger_joint": 0.7})
+    assert robot.n == 2 and robot.joint_names == ("j1", "j2")
+    assert robot.lower[1] == -np.inf and robot.upper[1] == np.inf and robot.lower[0] == -3.0
+    assert robot.max_torque[1] == 10.0 and robot.max_velocity[1] == 1.0
+    g = 9.81
+    for q1, q2 in ((0.0, 0.0), (0.4, -0.9), (-1.1, 7.3)):        # 7.3 rad: no limit to stop it
+        a1, a12, a123 = q1, q1 + q2, q1 + q2 + 0.7
+        x_l1 = 0.5 * np.cos(a1)
+        x_l2 = 1.0 * np.cos(a1) + 0.3 * np.cos(a12)
+        x_f = 1.0 * np.cos(a1) + 0.6 * np.cos(a12) + 0.1 * np.cos(a123)
+        tau2 = g * (1.0 * 0.3 * np.cos(a12) + 0.5 * (0.6 * np.cos(a12) + 0.1 * np.cos(a123)))
+        tau1 = g * (2.0 * x_l1 + 1.0 * x_l2 + 0.5 * x_f)
+        np.testing.assert_allclose(robot.gravity_torque(np.array([q1, q2])), [-tau1, -tau2],
+                                   rtol=1e-9, atol=1e-9)
+    assert urdf.read_text(encoding="utf-8") == text
+
+
 def test_chain_errors_name_the_manifest_key(tmp_path):
     urdf = _branchy_urdf(tmp_path / "b.urdf")
     with pytest.raises(InputError, match="leaf links.*tip_link"):
