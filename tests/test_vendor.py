@@ -55,6 +55,20 @@ def _branchy_urdf(path: Path, finger_limits=(0.5, 1.0)) -> Path:
     return path
 
 
+def _branchy_gravity(q1, q2, finger=0.7, g=9.81):
+    """The generalised gravity torque of the branchy arm's chain torso -> l2, by hand: a planar
+    arm about y (angles from +x towards -z); the finger (0.5 kg, its centre 0.1 m along the
+    finger, hinge 0.6 m along l2, fixed at ``finger``) moves with l2. Gravity (-z) on a mass at x
+    has the moment +m g x about +y; the torque that holds the arm (RNEA at rest) is minus that."""
+    a1, a12, a123 = q1, q1 + q2, q1 + q2 + finger
+    x_l1 = 0.5 * np.cos(a1)
+    x_l2 = 1.0 * np.cos(a1) + 0.3 * np.cos(a12)
+    x_f = 1.0 * np.cos(a1) + 0.6 * np.cos(a12) + 0.1 * np.cos(a123)
+    tau2 = g * (1.0 * 0.3 * np.cos(a12) + 0.5 * (0.6 * np.cos(a12) + 0.1 * np.cos(a123)))
+    tau1 = g * (2.0 * x_l1 + 1.0 * x_l2 + 0.5 * x_f)
+    return [-tau1, -tau2]
+
+
 def test_select_chain_fixes_every_other_joint_at_zero_or_the_nearer_limit(tmp_path):
     urdf = _branchy_urdf(tmp_path / "b.urdf")
     sel = select_chain(urdf, "torso", "l2")
@@ -69,19 +83,8 @@ def test_reduced_robot_gravity_torque_matches_hand_formula(tmp_path):
     urdf = _branchy_urdf(tmp_path / "b.urdf")
     robot = Robot.from_urdf(urdf, base_link="torso", tip_link="l2", fixed={"finger_joint": 0.7})
     assert robot.n == 2 and robot.joint_names == ("j1", "j2") and robot.tip_link == "l2"
-    g = 9.81
     for q1, q2 in ((0.0, 0.0), (0.4, -0.9), (-1.1, 0.3)):
-        # planar arm about y (angles measured from +x towards -z): the finger (0.5 kg, its centre
-        # 0.1 m along the finger, finger hinge 0.6 m along l2, finger angle 0.7) moves with l2
-        a1, a12, a123 = q1, q1 + q2, q1 + q2 + 0.7
-        x_l1 = 0.5 * np.cos(a1)
-        x_l2 = 1.0 * np.cos(a1) + 0.3 * np.cos(a12)
-        x_f = 1.0 * np.cos(a1) + 0.6 * np.cos(a12) + 0.1 * np.cos(a123)
-        tau2 = g * (1.0 * 0.3 * np.cos(a12) + 0.5 * (0.6 * np.cos(a12) + 0.1 * np.cos(a123)))
-        tau1 = g * (2.0 * x_l1 + 1.0 * x_l2 + 0.5 * x_f)
-        # gravity (-z) on a mass at x has the moment +m g x about +y; the generalised gravity
-        # torque (RNEA at rest) is the torque that holds the arm: minus that moment
-        np.testing.assert_allclose(robot.gravity_torque(np.array([q1, q2])), [-tau1, -tau2],
+        np.testing.assert_allclose(robot.gravity_torque(np.array([q1, q2])), _branchy_gravity(q1, q2),
                                    rtol=1e-9, atol=1e-9)
 
 
@@ -101,15 +104,8 @@ def test_continuous_joint_in_the_chain_is_an_unbounded_revolute_joint(tmp_path):
     assert robot.n == 2 and robot.joint_names == ("j1", "j2")
     assert robot.lower[1] == -np.inf and robot.upper[1] == np.inf and robot.lower[0] == -3.0
     assert robot.max_torque[1] == 10.0 and robot.max_velocity[1] == 1.0
-    g = 9.81
     for q1, q2 in ((0.0, 0.0), (0.4, -0.9), (-1.1, 7.3)):        # 7.3 rad: no limit to stop it
-        a1, a12, a123 = q1, q1 + q2, q1 + q2 + 0.7
-        x_l1 = 0.5 * np.cos(a1)
-        x_l2 = 1.0 * np.cos(a1) + 0.3 * np.cos(a12)
-        x_f = 1.0 * np.cos(a1) + 0.6 * np.cos(a12) + 0.1 * np.cos(a123)
-        tau2 = g * (1.0 * 0.3 * np.cos(a12) + 0.5 * (0.6 * np.cos(a12) + 0.1 * np.cos(a123)))
-        tau1 = g * (2.0 * x_l1 + 1.0 * x_l2 + 0.5 * x_f)
-        np.testing.assert_allclose(robot.gravity_torque(np.array([q1, q2])), [-tau1, -tau2],
+        np.testing.assert_allclose(robot.gravity_torque(np.array([q1, q2])), _branchy_gravity(q1, q2),
                                    rtol=1e-9, atol=1e-9)
     assert urdf.read_text(encoding="utf-8") == text
 
