@@ -449,7 +449,12 @@ class RigidBodyIdentifier:
         cn = np.sqrt(np.clip(np.diag(G), 0.0, None))
         cn = np.where(cn > 0, cn, 1.0)
         Gi = np.linalg.pinv(G / np.outer(cn, cn), rcond=1e-12, hermitian=True)
-        return lambda y: (Gi @ ((A2.T @ (y * w2)) / cn)) / cn
+
+        def solve(y):
+            return (Gi @ ((A2.T @ (y * w2)) / cn)) / cn
+
+        solve.scaled_inverse = (cn, Gi)        # for the covariance of the last solve (_cov)
+        return solve
 
     def _solve(self, rec, A, F, M, train, sigma=None, quick=False, init=None, linear=False) -> dict:
         T, n, p = A.shape
@@ -475,10 +480,15 @@ class RigidBodyIdentifier:
     @staticmethod
     def _cov(Aw, yw, b, scale):
         """Covariance of the WLS solution with the weighted residual variance."""
+        return RigidBodyIdentifier._cov_of(yw - Aw @ b, Aw.shape[0], scale)
+
+    @staticmethod
+    def _cov_of(rw, n_rows, scale):
+        """``s^2 (A_w^T A_w)^+`` from the weighted residuals ``rw`` of ``n_rows`` rows and the
+        column-scaled pseudo-inverse ``scale = (cn, Gi)``; ``s^2 = |rw|^2 / (n_rows - rank)``."""
         cn, Gi = scale
-        r = yw - Aw @ b
         rank = int(np.linalg.matrix_rank(Gi, hermitian=True))
-        s2 = float(r @ r) / max(Aw.shape[0] - rank, 1)
+        s2 = float(rw @ rw) / max(n_rows - rank, 1)
         return Gi * s2 / np.outer(cn, cn)
 
     def _alternate(self, rec, A, F, rows, w, quick, init=None) -> dict:
@@ -538,11 +548,16 @@ class RigidBodyIdentifier:
             if it >= 1 and np.all(moved <= 1e-4 * np.maximum(scale, 1e-12)):
                 break
         # final linear pass with the friction fixed
-        b = solve((rec.tau - fric).reshape(-1))
+        y = (rec.tau - fric).reshape(-1)
+        b = solve(y)
         failed = {j: why for j, why in failed.items() if ff[j - 1] is None}
         if failed:
             notes.append(_failure_note(self.model, failed))
-        return {"b": b, "bf": None, "ff": ff, "notes": notes}
+        out = {"b": b, "bf": None, "ff": ff, "notes": notes}
+        if not quick:   # the linear part's covariance, conditional on the fitted friction
+            out["cov_linear"] = self._cov_of((y - A2 @ b) * w, int(np.count_nonzero(w)),
+                                             solve.scaled_inverse)
+        return out
 
     # ---- result ----------------------------------------------------------------------------
     def _result(self, rec, sol, names, sigma, v0, held, M) -> RigidBodyFit:
@@ -594,8 +609,11 @@ class RigidBodyIdentifier:
                            stderr=e.get("stderr"), model=mdl,
                            tau_scale=float(np.max(np.abs(rec.tau[M[:, j], j]))))
             se_arm = None
-            if cov is not None and f"Ia_{j + 1}" in idx:
-                se_arm = float(np.sqrt(max(cov[idx[f"Ia_{j + 1}"], idx[f"Ia_{j + 1}"]], 0.0)))
+            # the linear laws: the joint covariance; the others: the linear part's, conditional
+            # on the fitted friction (_alternate)
+            cov_arm = cov if cov is not None else sol.get("cov_linear")
+            if cov_arm is not None and f"Ia_{j + 1}" in idx:
+                se_arm = float(np.sqrt(max(cov_arm[idx[f"Ia_{j + 1}"], idx[f"Ia_{j + 1}"]], 0.0)))
             if e["armature"] is not None:
                 e["stderr_armature"] = se_arm
             fa = assess_armature(e["armature"], se_arm)
