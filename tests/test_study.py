@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ident.cli.main import main
-from ident.study.executor import PoolExecutor, SerialExecutor
+from ident.study.executor import PoolExecutor, SerialExecutor, WorkerLost
 from ident.study.study import MANIFEST_NAME, STATE_DIR, Study, StudySettings
 from mocap.io.campaign import load_campaign
 
@@ -444,6 +444,37 @@ def test_pending_each_yields_every_item_once_then_the_results_in_order():
         ex.close()
     serial = SerialExecutor(progress=False).submit_map(abs, [-1, 2], "test")
     assert list(serial.each()) == [(0, 1), (1, 2)] and serial.result() == [1, 2]
+
+
+def _exit_worker(x):
+    """Kill the worker process that runs it (a worker lost to the OOM killer or a kill -9)."""
+    import os
+
+    os._exit(1)
+
+
+def test_a_pool_broken_before_a_batch_is_queued_is_the_one_line_worker_error():
+    """A worker that dies while this process is still queueing the next batch breaks the pool at
+    ``submit``: the same one-line WorkerLost as when it dies while results are awaited."""
+    import time
+
+    ex, ex2 = PoolExecutor(2, progress=False), PoolExecutor(2, progress=False)
+    try:
+        first = ex.submit_map(_exit_worker, [0], "first")
+        with pytest.raises(WorkerLost, match="first stage died"):
+            first.result()
+        ex2.submit_map(_exit_worker, [0], "first")
+        for _ in range(500):            # until the pool has noticed its dead worker
+            if ex2._pool._broken:
+                break
+            time.sleep(0.01)
+        assert ex2._pool._broken
+        with pytest.raises(WorkerLost, match="fits stage died"):
+            ex2.submit_map(abs, [-1, 2], "fits")
+        assert ex2._pool is None        # the workers were stopped
+    finally:
+        ex.close()
+        ex2._kill()
 
 
 def test_fits_json_files_are_written_one_trial_at_a_time_with_the_same_bytes(tiny, serial_run):

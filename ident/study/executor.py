@@ -24,6 +24,11 @@ class WorkerLost(RuntimeError):
     items finished before it are kept, a rerun resumes."""
 
 
+def _worker_lost(desc: str) -> WorkerLost:
+    return WorkerLost(f"a worker process of the {desc} stage died (killed or out of memory); "
+                      "the finished items are kept, rerun to resume")
+
+
 def _progress(it, total: int, desc: str, enabled: bool):
     if not enabled:
         return it
@@ -190,6 +195,9 @@ class PoolExecutor:
                 if self._pool is None:
                     self._pool = ProcessPoolExecutor(self.workers, initializer=_init_pool_worker)
                 futs = [self._pool.submit(_run_and_release, fn, x) for x in items]
+        except BrokenProcessPool:      # a worker died before this batch was queued
+            self._kill()
+            raise _worker_lost(desc) from None
         except BaseException:
             self._kill()
             raise
@@ -207,8 +215,7 @@ class PoolExecutor:
                 yield index[f], f.result()
         except BrokenProcessPool:
             self._kill()
-            raise WorkerLost(f"a worker process of the {desc} stage died (killed or out of memory); "
-                             "the finished items are kept, rerun to resume") from None
+            raise _worker_lost(desc) from None
         except BaseException:          # Ctrl-C, SIGTERM: stop the workers, no half results
             self._kill()
             raise
