@@ -453,7 +453,7 @@ class RigidBodyIdentifier:
         def solve(y):
             return (Gi @ ((A2.T @ (y * w2)) / cn)) / cn
 
-        solve.scaled_inverse = (cn, Gi)        # for the covariance of the last solve (_cov)
+        solve.gram = G                          # unscaled A2^T W^2 A2 (_joint_cov)
         return solve
 
     def _solve(self, rec, A, F, M, train, sigma=None, quick=False, init=None, linear=False) -> dict:
@@ -554,10 +554,49 @@ class RigidBodyIdentifier:
         if failed:
             notes.append(_failure_note(self.model, failed))
         out = {"b": b, "bf": None, "ff": ff, "notes": notes}
-        if not quick:   # the linear part's covariance, conditional on the fitted friction
-            out["cov_linear"] = self._cov_of((y - A2 @ b) * w, int(np.count_nonzero(w)),
-                                             solve.scaled_inverse)
+        if not quick:
+            out["cov_linear"] = self._joint_cov(rec, A, w, (y - A2 @ b) * w, solve.gram, ff)
         return out
+
+    @staticmethod
+    def _joint_cov(rec, A, w, rw, G_AA, ff):
+        """The linear parameters' block of the Gauss-Newton covariance of the whole fit (linear
+        rigid-body part and every joint's friction parameters together, the friction linearised
+        about its fit): ``s^2 (J^T W^2 J)^+`` with ``J = [A | dF/dtheta]``, ``dF/dtheta`` by central
+        differences of each joint's fitted law on that joint's rows, ``s^2 = |rw|^2 / (rows -
+        rank)``; pseudo-inverted on the column-scaled Gram matrix as :meth:`_wls_factor`."""
+        T, n, p = A.shape
+        w2 = (w * w).reshape(T, n)
+        blocks = []
+        for j, f in enumerate(ff):
+            if f is None:
+                continue
+            m = f.model
+            th = np.asarray(m.theta, float)
+            Bj = np.empty((T, th.size))
+            for k in range(th.size):
+                h = 1e-6 * max(abs(th[k]), 1e-3)
+                up, dn = th.copy(), th.copy()
+                up[k] += h
+                dn[k] -= h
+                Bj[:, k] = (type(m).from_theta(up, **m.settings).torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)
+                            - type(m).from_theta(dn, **m.settings).torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)) / (2 * h)
+            WB = Bj * w2[:, j, None]
+            blocks.append((A[:, j, :].T @ WB, Bj.T @ WB))
+        q = p + sum(bb.shape[0] for _, bb in blocks)
+        G = np.zeros((q, q))
+        G[:p, :p] = G_AA
+        k0 = p
+        for ab, bb in blocks:
+            k1 = k0 + bb.shape[0]
+            G[:p, k0:k1] = ab
+            G[k0:k1, :p] = ab.T
+            G[k0:k1, k0:k1] = bb
+            k0 = k1
+        cn = np.sqrt(np.clip(np.diag(G), 0.0, None))
+        cn = np.where(cn > 0, cn, 1.0)
+        Gi = np.linalg.pinv(G / np.outer(cn, cn), rcond=1e-12, hermitian=True)
+        return RigidBodyIdentifier._cov_of(rw, int(np.count_nonzero(w)), (cn, Gi))[:p, :p]
 
     # ---- result ----------------------------------------------------------------------------
     def _result(self, rec, sol, names, sigma, v0, held, M) -> RigidBodyFit:
@@ -609,8 +648,8 @@ class RigidBodyIdentifier:
                            stderr=e.get("stderr"), model=mdl,
                            tau_scale=float(np.max(np.abs(rec.tau[M[:, j], j]))))
             se_arm = None
-            # the linear laws: the joint covariance; the others: the linear part's, conditional
-            # on the fitted friction (_alternate)
+            # the linear laws: the solve's covariance; the others: the linear block of the
+            # Gauss-Newton covariance with the friction parameters (_joint_cov)
             cov_arm = cov if cov is not None else sol.get("cov_linear")
             if cov_arm is not None and f"Ia_{j + 1}" in idx:
                 se_arm = float(np.sqrt(max(cov_arm[idx[f"Ia_{j + 1}"], idx[f"Ia_{j + 1}"]], 0.0)))
