@@ -110,6 +110,23 @@ def test_continuous_joint_in_the_chain_is_an_unbounded_revolute_joint(tmp_path):
     assert urdf.read_text(encoding="utf-8") == text
 
 
+def test_info_names_the_continuous_joints_of_a_serial_urdf(tmp_path, capsys):
+    urdf = tmp_path / "two.urdf"
+    inertial = ('<inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" '
+                'ixz="0" iyz="0"/></inertial>')
+    urdf.write_text(
+        '<robot name="two"><link name="base"/>'
+        f'<link name="a">{inertial}</link><link name="b">{inertial}</link>'
+        '<joint name="j1" type="continuous"><parent link="base"/><child link="a"/>'
+        '<axis xyz="0 0 1"/><limit effort="5" velocity="2"/></joint>'
+        '<joint name="j2" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0.3 0 0"/>'
+        '<axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="5" velocity="2"/></joint></robot>',
+        encoding="utf-8")
+    assert main(["info", str(urdf)]) == 0
+    out = capsys.readouterr().out
+    assert "2 revolute joints (1 continuous: no position limits)" in out and "[-inf, +inf]" in out
+
+
 def test_chain_errors_name_the_manifest_key(tmp_path):
     urdf = _branchy_urdf(tmp_path / "b.urdf")
     with pytest.raises(InputError, match="leaf links.*tip_link"):

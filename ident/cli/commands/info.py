@@ -108,7 +108,10 @@ def _print_marker(d: dict) -> None:
 
 
 def _print_robot(r: dict, missing_meshes=()) -> None:
-    print(f"robot {r['urdf']}: {r['n_joints']} revolute joints, gravity {r['gravity']}")
+    unbounded = sum(1 for j in r["joints"] if j["lower"] == float("-inf") and j["upper"] == float("inf"))
+    print(f"robot {r['urdf']}: {r['n_joints']} revolute joints"
+          + (f" ({unbounded} continuous: no position limits)" if unbounded else "")
+          + f", gravity {r['gravity']}")
     ch = r.get("chain")
     if ch:
         nz = {k: v for k, v in ch["fixed"].items() if v != 0}
