@@ -477,6 +477,40 @@ def test_a_pool_broken_before_a_batch_is_queued_is_the_one_line_worker_error():
         ex2._kill()
 
 
+def _big_result(mb):
+    """A result of ``mb`` MiB, sent after 0.3 s: a worker killed during that send leaves half a
+    message in the result pipe."""
+    import time
+
+    time.sleep(0.3)
+    return b"x" * (mb << 20)
+
+
+def test_a_killed_pool_leaves_no_manager_thread_blocked_on_a_half_sent_result():
+    """Ctrl-C or a lost worker kills the pool; a worker terminated while it was sending a result
+    leaves the pool's manager thread (which the interpreter joins at exit) reading the rest of
+    that message forever, and the command would never exit. After ``_kill`` the thread has ended
+    whenever the kill lands (a sweep over the moments around the send)."""
+    import time
+
+    left = []
+    try:
+        for k in range(11):
+            ex = PoolExecutor(2, progress=False)
+            ex.submit_map(_big_result, [64, 64], "big")
+            mgr = ex._pool._executor_manager_thread
+            time.sleep(0.3 + 0.06 * k)
+            ex._kill()
+            mgr.join(3.0)
+            if mgr.is_alive():
+                left.append(mgr)
+        assert not left, f"{len(left)} of 11 kills left the manager thread blocked"
+    finally:
+        for mgr in left:                # let this test process exit even when the check fails
+            mgr.result_queue._writer.close()
+            mgr.join(5.0)
+
+
 def test_fits_json_files_are_written_one_trial_at_a_time_with_the_same_bytes(tiny, serial_run):
     """``fits.json`` and ``fits_diagnostics.json`` are streamed trial by trial: the bytes are
     those of ``json.dumps`` of the whole document (which the streamed writer never holds)."""

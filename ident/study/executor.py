@@ -65,6 +65,26 @@ class _sigint_blocked:
         return False
 
 
+def _release_manager(mgr) -> None:
+    """Let a killed pool's manager thread ``mgr`` end. A worker terminated while it was writing a
+    result leaves the thread that reads results blocked on the half-written message, and the
+    interpreter joins that thread at exit: the command would print its one line and never exit.
+    With every worker gone, closing this process's copy of the result pipe's write end turns that
+    read into an end-of-file, which the thread takes for a broken pool and ends."""
+    if mgr is None:
+        return
+    mgr.join(1.0)
+    if not mgr.is_alive():
+        return
+    writer = getattr(getattr(mgr, "result_queue", None), "_writer", None)
+    try:
+        if writer is not None:
+            writer.close()
+    except OSError:
+        pass
+    mgr.join(5.0)
+
+
 def release_free_memory() -> None:
     """Hand the C heap's free pages back to the system (glibc ``malloc_trim(0)``; nothing
     elsewhere). A worker's big temporary arrays of one item leave free heap pages behind that
@@ -226,6 +246,7 @@ class PoolExecutor:
         if pool is None:
             return
         procs = list((getattr(pool, "_processes", None) or {}).values())
+        manager = getattr(pool, "_executor_manager_thread", None)   # shutdown() drops it
         for p in procs:
             try:
                 p.terminate()
@@ -240,6 +261,7 @@ class PoolExecutor:
                 p.join(5)
             except (OSError, AssertionError, AttributeError):
                 pass
+        _release_manager(manager)
 
     def close(self):
         if self._pool is not None:
