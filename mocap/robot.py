@@ -15,7 +15,7 @@ import numpy as np
 
 from mocap.io.errors import InputError, read_text
 from mocap.kinematics import Chain
-from mocap.urdf import continuous_as_revolute, select_chain, urdf_joints
+from mocap.urdf import continuous_as_revolute, select_chain
 
 _POSITIVE_KEYS = ("gear_ratio", "max_velocity", "max_torque")
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
@@ -171,6 +171,12 @@ def _joint_axis(jm) -> np.ndarray:
     return None
 
 
+def _finite(x) -> float | None:
+    """``float(x)``, or None (JSON null) where it is infinite: no limit."""
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
 class Robot:
     """A serial chain of revolute joints with drives: the rigid-link model of the arm.
 
@@ -303,19 +309,13 @@ class Robot:
         if not urdf.is_file():
             raise InputError("URDF not found", path=urdf)
         sel = select_chain(urdf, base_link, tip_link, fixed, where=where)
-        continuous = [nm for nm, j in urdf_joints(urdf).items()
-                      if j["type"] == "continuous" and nm in sel.chain]
-        try:
-            if continuous:        # unbounded revolute joints of the arm: one coordinate each
-                xml, limits = continuous_as_revolute(urdf, continuous)
-                model = pin.buildModelFromXML(xml)
-            else:
-                model = pin.buildModelFromUrdf(str(urdf))
+        try:              # continuous joints of the arm: unbounded revolute, one coordinate each
+            xml, limits = continuous_as_revolute(urdf, sel.chain)
+            model = pin.buildModelFromXML(xml) if xml is not None else pin.buildModelFromUrdf(str(urdf))
         except (RuntimeError, ValueError) as exc:
             raise InputError(f"pinocchio could not read the URDF: {exc}", path=urdf) from None
-        for nm in continuous:
+        for nm, (eff, vel) in limits.items():
             jm = model.joints[model.getJointId(nm)]
-            eff, vel = limits[nm]
             model.lowerPositionLimit[jm.idx_q] = -np.inf
             model.upperPositionLimit[jm.idx_q] = np.inf
             model.effortLimit[jm.idx_v] = np.inf if eff is None else eff
@@ -400,9 +400,10 @@ class Robot:
         return {
             "urdf": None if self.urdf is None else str(self.urdf),
             "n_joints": self.n,
-            "joints": [
-                {"name": nm, "lower": float(lo), "upper": float(up), "max_velocity": d.max_velocity,
-                 "max_torque": d.max_torque, "link": self.link_of_joint(k)}
+            "joints": [   # null: no limit (a continuous joint, a URDF limit left out)
+                {"name": nm, "lower": _finite(lo), "upper": _finite(up),
+                 "max_velocity": _finite(d.max_velocity), "max_torque": _finite(d.max_torque),
+                 "link": self.link_of_joint(k)}
                 for k, (nm, lo, up, d) in enumerate(zip(self.joint_names, self.lower, self.upper,
                                                         self.drives))
             ],

@@ -101,12 +101,6 @@ class ChainSelection:
     reduced: bool
 
 
-def urdf_joints(urdf: str | Path) -> dict:
-    """{joint name: {type, parent, child, lower, upper}} of a URDF file's joints (document
-    order; ``lower``/``upper`` only for revolute and prismatic joints with a ``<limit>``)."""
-    return _urdf_joints(_parse(Path(urdf)).getroot())
-
-
 def _urdf_joints(root) -> dict:
     out = {}
     for j in root.findall("joint"):
@@ -243,10 +237,9 @@ def select_chain(urdf: str | Path, base_link: str | None = None, tip_link: str |
     return ChainSelection(base_link, tip_link, chain, locked, True)
 
 
-# ---- perturbed copies ---------------------------------------------------------------------------
-def continuous_as_revolute(urdf: str | Path, names) -> tuple[str, dict]:
+def continuous_as_revolute(urdf: str | Path, names) -> tuple[str | None, dict]:
     """The URDF's text with the ``continuous`` joints among ``names`` written as ``revolute``
-    ones, and their limits.
+    ones, and their limits (``(None, {})`` where none of ``names`` is continuous).
 
     A continuous joint is a revolute joint without position limits (URDF specification [1]_);
     pinocchio represents it by ``(cos q, sin q)`` (two configuration coordinates, one velocity),
@@ -264,8 +257,8 @@ def continuous_as_revolute(urdf: str | Path, names) -> tuple[str, dict]:
 
     Returns
     -------
-    xml : str
-        The URDF text (the file itself is not touched).
+    xml : str or None
+        The URDF text (the file itself is not touched); None where nothing was converted.
     limits : dict
         {joint name: (effort or None, velocity or None)} of each converted joint.
 
@@ -289,9 +282,12 @@ def continuous_as_revolute(urdf: str | Path, names) -> tuple[str, dict]:
         lim.set("upper", "1")
         lim.set("effort", eff if eff is not None else "0")
         lim.set("velocity", vel if vel is not None else "0")
+    if not limits:
+        return None, {}
     return ET.tostring(tree.getroot(), encoding="unicode"), limits
 
 
+# ---- perturbed copies ---------------------------------------------------------------------------
 def perturb_urdf(src: str | Path, dst: str | Path, seed: int, length_std: float = 0.005,
                  angle_std_deg: float = 0.5, mass_rel_std: float = 0.05,
                  overwrite: bool = False) -> Path:

@@ -125,6 +125,9 @@ def test_info_names_the_continuous_joints_of_a_serial_urdf(tmp_path, capsys):
     assert main(["info", str(urdf)]) == 0
     out = capsys.readouterr().out
     assert "2 revolute joints (1 continuous: no position limits)" in out and "[-inf, +inf]" in out
+    assert main(["info", str(urdf), "--json"]) == 0             # strict JSON: no limit is null
+    j1 = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(c))["joints"][0]
+    assert j1["lower"] is None and j1["upper"] is None and j1["max_torque"] == 5.0
 
 
 def test_chain_errors_name_the_manifest_key(tmp_path):

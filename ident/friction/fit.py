@@ -515,6 +515,14 @@ def _jacobian(model, qd, qdd, dt, X, Phi):
     return J
 
 
+def param_jacobian(model, qd, qdd=None, dt=None) -> np.ndarray:
+    """``d torque / d params`` of a fitted law at the samples, (T, len(param_names)) in
+    ``param_names`` order: the linear parameters' columns of its design, central differences for
+    the others (forward at a constraint), as the fits' covariances use it."""
+    Phi, _ = _design(model, qd, qdd, dt)
+    return _jacobian(model, qd, qdd, dt, np.zeros((np.shape(qd)[0], 0)), Phi)
+
+
 def _finish(model, qd, tau, X, extra_names, sw, qdd, dt, *, nfev, converged, at_bound,
             diagnostics, beta_extra, jac_override=None):
     pred_f = model.torque(qd, qdd, dt)

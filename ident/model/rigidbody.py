@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ident.friction import MODELS, laws
-from ident.friction.fit import fit_friction
+from ident.friction.fit import fit_friction, param_jacobian
 from ident.friction.plausibility import assess, assess_armature, to_json
 from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
@@ -446,9 +446,7 @@ class RigidBodyIdentifier:
         repeated solves with the same rows and weights and a changing target (the alternation)."""
         w2 = w * w
         G = A2.T @ (A2 * w2[:, None])
-        cn = np.sqrt(np.clip(np.diag(G), 0.0, None))
-        cn = np.where(cn > 0, cn, 1.0)
-        Gi = np.linalg.pinv(G / np.outer(cn, cn), rcond=1e-12, hermitian=True)
+        cn, Gi = _scaled_pinv(G)
 
         def solve(y):
             return (Gi @ ((A2.T @ (y * w2)) / cn)) / cn
@@ -563,7 +561,7 @@ class RigidBodyIdentifier:
         """The linear parameters' block of the Gauss-Newton covariance of the whole fit (linear
         rigid-body part and every joint's friction parameters together, the friction linearised
         about its fit): ``s^2 (J^T W^2 J)^+`` with ``J = [A | dF/dtheta]``, ``dF/dtheta`` by central
-        differences of each joint's fitted law on that joint's rows, ``s^2 = |rw|^2 / (rows -
+        differences of each joint's fitted law on that joint's rows (:func:`param_jacobian`), ``s^2 = |rw|^2 / (rows -
         rank)``; pseudo-inverted on the column-scaled Gram matrix as :meth:`_wls_factor`."""
         T, n, p = A.shape
         w2 = (w * w).reshape(T, n)
@@ -571,16 +569,7 @@ class RigidBodyIdentifier:
         for j, f in enumerate(ff):
             if f is None:
                 continue
-            m = f.model
-            th = np.asarray(m.theta, float)
-            Bj = np.empty((T, th.size))
-            for k in range(th.size):
-                h = 1e-6 * max(abs(th[k]), 1e-3)
-                up, dn = th.copy(), th.copy()
-                up[k] += h
-                dn[k] -= h
-                Bj[:, k] = (type(m).from_theta(up, **m.settings).torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)
-                            - type(m).from_theta(dn, **m.settings).torque(rec.qd[:, j], rec.qdd[:, j], rec.dt)) / (2 * h)
+            Bj = param_jacobian(f.model, rec.qd[:, j], rec.qdd[:, j], rec.dt)
             WB = Bj * w2[:, j, None]
             blocks.append((A[:, j, :].T @ WB, Bj.T @ WB))
         q = p + sum(bb.shape[0] for _, bb in blocks)
@@ -593,10 +582,7 @@ class RigidBodyIdentifier:
             G[k0:k1, :p] = ab.T
             G[k0:k1, k0:k1] = bb
             k0 = k1
-        cn = np.sqrt(np.clip(np.diag(G), 0.0, None))
-        cn = np.where(cn > 0, cn, 1.0)
-        Gi = np.linalg.pinv(G / np.outer(cn, cn), rcond=1e-12, hermitian=True)
-        return RigidBodyIdentifier._cov_of(rw, int(np.count_nonzero(w)), (cn, Gi))[:p, :p]
+        return RigidBodyIdentifier._cov_of(rw, int(np.count_nonzero(w)), _scaled_pinv(G))[:p, :p]
 
     # ---- result ----------------------------------------------------------------------------
     def _result(self, rec, sol, names, sigma, v0, held, M) -> RigidBodyFit:
@@ -731,6 +717,14 @@ def dynamic_data_note(models, kinds) -> str | None:
             + " in a campaign of their own and run `jointlab fit CAMPAIGN --models "
             "arctan,dm1,dm2` on it; on this record `jointlab fit CAMPAIGN --models "
             "cv,stribeck,hyperbolic,arctan` fits the static laws")
+
+
+def _scaled_pinv(G):
+    """``(cn, Gi)``: the column norms ``cn = sqrt(diag G)`` (1 where 0) and the pseudo-inverse of
+    the column-scaled Gram matrix ``G / (cn cn^T)`` (rank deficiency handled, rcond 1e-12)."""
+    cn = np.sqrt(np.clip(np.diag(G), 0.0, None))
+    cn = np.where(cn > 0, cn, 1.0)
+    return cn, np.linalg.pinv(G / np.outer(cn, cn), rcond=1e-12, hermitian=True)
 
 
 def _implausible(model, qd) -> str | None:

@@ -494,7 +494,7 @@ def _rss_by_harmonics(t, q, wf, n_max):
 def _gram_index(n):
     """Harmonic numbers ``(a, b)`` of the sine/cosine blocks of the Gram matrix (n x n each)."""
     a = np.arange(1, n + 1)
-    return a[:, None] + 0 * a[None, :], a[None, :] + 0 * a[:, None]
+    return np.meshgrid(a, a, indexing="ij")
 
 
 def _rss_by_harmonics_qr(t, q, wf, n_max):

@@ -107,8 +107,13 @@ def _print_marker(d: dict) -> None:
         print(f"  {lb:<{width}}  missing {100 * d['missing_fraction'][lb]:6.2f} %")
 
 
+def _num(x, spec: str, none: str) -> str:
+    """A limit of ``describe()`` for the console: ``none`` where it is null (no limit)."""
+    return none if x is None else format(x, spec)
+
+
 def _print_robot(r: dict, missing_meshes=()) -> None:
-    unbounded = sum(1 for j in r["joints"] if j["lower"] == float("-inf") and j["upper"] == float("inf"))
+    unbounded = sum(1 for j in r["joints"] if j["lower"] is None and j["upper"] is None)
     print(f"robot {r['urdf']}: {r['n_joints']} revolute joints"
           + (f" ({unbounded} continuous: no position limits)" if unbounded else "")
           + f", gravity {r['gravity']}")
@@ -122,8 +127,9 @@ def _print_robot(r: dict, missing_meshes=()) -> None:
     for k, j in enumerate(r["joints"], 1):
         sign = " (motor turns the other way: negative gear ratio)" \
             if r.get("direction") and r["direction"][k - 1] < 0 else ""
-        print(f"  joint {k} {j['name']:<12} [{j['lower']:+.3f}, {j['upper']:+.3f}] rad, "
-              f"max {j['max_velocity']:.3g} rad/s, {j['max_torque']:.3g} N m, link {j['link']}{sign}")
+        print(f"  joint {k} {j['name']:<12} [{_num(j['lower'], '+.3f', '-inf')}, "
+              f"{_num(j['upper'], '+.3f', '+inf')}] rad, max {_num(j['max_velocity'], '.3g', 'inf')} rad/s, "
+              f"{_num(j['max_torque'], '.3g', 'inf')} N m, link {j['link']}{sign}")
     if missing_meshes:
         print(f"  meshes: {len(missing_meshes)} mesh file(s) not found (first: {missing_meshes[0]}); "
               "optional: the viewer draws the URDF's primitive shapes or link frames")
