@@ -3,7 +3,8 @@ real TX40 record (fixtures/real/tx40, figaroh-examples) and the synthetic 7-join
 tests/test_multijoint.py (known truth).
 
 For each record: the cut chosen from the data (``--v-zero auto``: the velocity noise floor, the
-residual knee and the end of the friction's sign transition, ident.model.multijoint._auto_cut),
+residual knee and the end of the friction's sign transition, then the presliding cut after each
+velocity reversal, ident.model.multijoint._auto_cut; also without the presliding cut),
 then fixed fractions of each joint's 99th-percentile speed (0 .. 5 %); per joint the
 Coulomb estimate as a ratio to the reference (TX40: the published figaroh values of
 ../shared/data/real/README.md, for comparison, not for tuning; arm7: the simulated truth), and
@@ -19,8 +20,8 @@ signed residual of each speed band is within the band's own scatter, one pass an
 
 ``--foreign`` adds the foreign world's single-joint excitation records (independent simulator,
 true Coulomb level known; tri3 and ind6, no effect, Stribeck, presliding and nonlinear viscous
-friction, seeds 1-2): Coulomb / truth with the previous rule (noise floor and residual knee),
-the current one (with the friction's transition end) and fixed cuts.
+friction, seeds 1-2): Coulomb / truth with the noise floor and residual knee, the speed cut
+(with the friction's transition end), the whole rule (with the presliding cut) and fixed cuts.
 
     python benchmarks/lowspeed_cut.py            # TX40 and arm7 (about 1 min)
     python benchmarks/lowspeed_cut.py --quick    # TX40 only
@@ -53,7 +54,9 @@ def _coulomb(camp, v_zero):
     for j, e in fit.joints.items():
         c[int(j) - 1] = e["params"]["c"]
     cut = res.preprocessing[tid].get("low_speed_cut")
-    return c, (np.asarray(cut["v_zero"]) if cut else None)
+    if not cut:
+        return c, None, None
+    return c, np.asarray(cut["v_zero"]), np.array(cut["coulomb_without_presliding_cut"], float)
 
 
 def sweep(name, camp, ref):
@@ -63,8 +66,9 @@ def sweep(name, camp, ref):
     robot = camp.load_robot()
     rec = load_record(camp, multijoint_trials(camp)[0], robot)
     sp = np.percentile(np.abs(rec.qd), 99, axis=0)
-    c_auto, v_auto = _coulomb(camp, "auto")
-    rows = [("auto (" + ", ".join(f"{100 * x:.2g}" for x in v_auto / sp) + " %)", c_auto)]
+    c_auto, v_auto, c_speed = _coulomb(camp, "auto")
+    rows = [("auto (" + ", ".join(f"{100 * x:.2g}" for x in v_auto / sp) + " %)", c_auto),
+            ("auto speed cut, no presliding cut", c_speed)]
     for frac in (0.0, 0.0025, 0.005, 0.01, 0.02, 0.05):
         rows.append((f"{100 * frac:g} % of speed", _coulomb(camp, frac)[0]))
     n = ref.size
@@ -76,13 +80,17 @@ def sweep(name, camp, ref):
     print(f"{'spread over the cuts (max - min)':<34}"
           + "".join(f"  {x:.3f}" for x in np.nanmax(ratios, 0) - np.nanmin(ratios, 0)))
     print(f"{'auto: |ratio - 1|':<34}" + "".join(f"  {abs(x - 1):.3f}" for x in ratios[0]))
+    print(f"{'auto: joints 1-5 within 3 %':<34}  {int(np.sum(np.abs(ratios[0, :5] - 1) <= 0.03))} of "
+          f"{min(5, n)}")
 
 
-def _fit_at(rec, chain, base, v0):
-    """(Coulomb per joint, signed friction residual rows) of the cv fit with the cut ``v0``."""
+def _fit_at(rec, chain, base, v0, x0=None, x_floor=None):
+    """(Coulomb per joint, viscous per joint, signed friction residual rows) of the cv fit with
+    the speed cut ``v0`` (and the presliding cut ``x0``, reversals above ``x_floor``)."""
     from ident.model.rigidbody import _PREPARED, RigidBodyIdentifier
 
-    idt = RigidBodyIdentifier(chain, base, model="cv", folds=0, v_zero=v0)
+    idt = RigidBodyIdentifier(chain, base, model="cv", folds=0, v_zero=v0, x_zero=x0,
+                              x_floor=x_floor)
     A, names, F, M, _, sigma, idt._dropped = idt._prepared(rec)
     idt._names = names
     sol = idt._solve(rec, A, F, M, np.ones(rec.t.size, bool), sigma=sigma, quick=True)
@@ -146,6 +154,21 @@ def analyse(camp, ref):
                          if m.sum() >= 5 else "-")
         print(f"  j{j + 1}: " + "  ".join(f"{100 * lo:g}-{100 * hi:g}: {c}"
                                           for lo, hi, c in zip(bands[:-1], bands[1:], cells)))
+    from ident.model.rigidbody import reversal_displacement
+
+    disp = reversal_displacement(rec.q, qd, floor)
+    edges = (0.0, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, np.inf)
+    print("friction / (Coulomb + viscous line fitted above the noise floor) against the "
+          "displacement since the last velocity reversal (rad; rows above the noise floor)")
+    for j in range(min(n, 5)):
+        a = np.abs(qd[:, j])
+        line = c0[j] + v0[j] * a
+        cells = []
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            m = (a >= floor[j]) & (disp[:, j] >= lo) & (disp[:, j] < hi)
+            cells.append(f"{np.median(np.sign(qd[m, j]) * fr[m, j] / line[m]):.2f}"
+                         if m.sum() >= 5 else "-")
+        print(f"  j{j + 1}: " + "  ".join(f"<{hi:g}: {c}" for hi, c in zip(edges[1:], cells)))
     lags = np.arange(-10, 15, 4)
     print("friction / Coulomb at the moving reversals (time from the velocity zero crossing, ms; "
           "sign of the new direction)")
@@ -226,7 +249,8 @@ def foreign():
     F = _load_foreign()
     print(f"\nforeign world ({F.cache_dir()}): Coulomb / truth of the moving joint, "
           "single-joint excitation records without payload")
-    print(f"{'record':<46}{'floor+knee':>11}{'auto':>8}{'1 %':>8}{'5 %':>8}   auto cut, transition")
+    print(f"{'record':<46}{'floor+knee':>11}{'speed':>8}{'auto':>8}{'1 %':>8}{'5 %':>8}"
+          "   speed cut, transition, presliding end")
     err = {}
     for robot, effect, seed in FOREIGN:
         wa = F.WorldArgs(effect, seed, robot=robot, reps=1)
@@ -246,23 +270,26 @@ def foreign():
             cut = _auto_cut(camp, tr, rob, rec, chain, base, 0, {})
             before = np.maximum(cut["noise_floor"], cut["knee"])
             row = []
-            for v in (before, cut["v_zero"], 0.01 * sp, 0.05 * sp):
+            for v, x in ((before, None), (cut["v_zero"], None), (cut["v_zero"], cut["x_zero"]),
+                         (0.01 * sp, None), (0.05 * sp, None)):
                 try:
-                    c = _fit_at(rec, chain, base, v)[0][j - 1] / c_true
+                    c = _fit_at(rec, chain, base, v, x, cut["noise_floor"])[0][j - 1] / c_true
                 except ValueError:                      # no row above the cut
                     c = float("nan")
                 row.append(c)
             t = cut["transition"][j - 1] or {}
             tx = (f"end {100 * cut['transition_end'][j - 1] / sp[j - 1]:.2g} %" if t.get("end")
                   else f"none (ratio {t['width_ratio']:.2g})" if t.get("width_ratio") else "none")
+            xe = cut["x_zero"][j - 1]
             print(f"{robot}-j{j}-{effect}-s{seed} {tr.id:<24}" + "".join(f"{x:8.3f}" for x in row)
-                  + f"   {100 * cut['fraction_of_speed'][j - 1]:.2g} %, {tx}")
+                  + f"   {100 * cut['fraction_of_speed'][j - 1]:.2g} %, {tx}, "
+                  + (f"{xe:.2g} rad" if xe > 0 else "none"))
             err.setdefault(effect, []).append(row)
-    print("median and worst |ratio - 1| per effect (floor+knee, auto, 1 %, 5 %)")
+    print("median and worst |ratio - 1| per effect (floor+knee, speed, auto, 1 %, 5 %)")
     for effect, rows in err.items():
         e = np.abs(np.array(rows) - 1)
         print(f"  {effect:<18}" + "".join(f"  {np.nanmedian(e[:, k]):.3f}/{np.nanmax(e[:, k]):.3f}"
-                                          for k in range(4)))
+                                          for k in range(5)))
 
 
 def main(argv=None):

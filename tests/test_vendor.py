@@ -335,10 +335,9 @@ def test_tx40_vendor_study_exit_0_with_multijoint_fits(tx40_vendor, tmp_path, ca
     assert "`study.rrd`" in md and (tmp_path / "s" / "study.rrd").is_file()
     doc = json.loads((tmp_path / "s" / "rigidbody" / "fits.json").read_text())
     c = np.array([doc["trials"]["excitation"][str(j)]["cv"]["params"]["c"] for j in range(1, 7)])
-    # the data-chosen cut keeps joints 1-5 within 6 % of the published Coulomb levels
-    # (benchmarks/lowspeed_cut.py bounds the cut's effect: 0.94 .. 1.03 with it; docs/vendor.md
-    # says why joints 1-2 do not reach 3 %: friction under the Coulomb + viscous line at low speed)
-    assert np.all(np.abs(c[:5] / TX40_COULOMB[:5] - 1) < 0.06)
+    # the data-chosen cut (speed and presliding) keeps joints 1-5 within 4 % of the published
+    # Coulomb levels (measured 0.996-1.035, benchmarks/lowspeed_cut.py; docs/vendor.md on joint 4)
+    assert np.all(np.abs(c[:5] / TX40_COULOMB[:5] - 1) < 0.04), c / TX40_COULOMB
     assert "Coulomb from the noise floor to twice the cut" in md
     v0 = [doc["trials"]["excitation"][str(j)]["cv"]["v_zero"] for j in range(1, 7)]
     assert all(v is not None and v > 0 for v in v0)

@@ -19,7 +19,8 @@ from ident.gap.nominal import check_nominal
 from ident.model.regressor import ChainDynamics, base_parameters
 from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
                                    dynamic_data_note, friction_transition, low_speed_cut,
-                                   residual_knee, without_unlogged)
+                                   presliding_length, residual_knee, reversal_displacement,
+                                   without_unlogged)
 from mocap.io.errors import warn_input
 from mocap.io.robotlog import RobotLog
 
@@ -83,6 +84,7 @@ class MultiJointFits:
                         "armature": e["armature"], "stderr_armature": e.get("stderr_armature"),
                         "model": m, "method": "multi-joint rigid-body",
                         "flags": e.get("flags", {}), "v_zero": e.get("v_zero"),
+                        **({"x_zero": e["x_zero"]} if "x_zero" in e else {}),
                         **({"low_speed_cut": _joint_cut(cut, int(j) - 1)} if cut else {}),
                         **({"implausible": e["implausible"]} if e.get("implausible") else {})}
         return out
@@ -237,6 +239,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
         if v_zero == "auto":
             cut = _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings)
             kw["v_zero"] = cut["v_zero"]
+            kw["x_zero"], kw["x_floor"] = cut["x_zero"], cut["noise_floor"]
             pre[tr.id]["low_speed_cut"] = {k: (v.tolist() if hasattr(v, "tolist") else v)
                                            for k, v in cut.items()}
             pre[tr.id]["steps"] = list(pre[tr.id].get("steps", [])) + [_cut_text(cut)]
@@ -246,20 +249,21 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
         fits[tr.id] = {m: idt.fit(rec) for m, idt in idts.items()}
         if sink is not None and sink.enabled:
             log_record_fits(sink, tr.id, rec, {m: idt.predicted(rec) for m, idt in idts.items()},
-                            fits[tr.id])
+                            fits[tr.id], used=idts[models[0]]._mask(without_unlogged(rec))[0])
         _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
 
 
-def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict) -> None:
+def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict, used=None) -> None:
     """Log one record's multi-joint fits to a rerun sink, under ``fits/<trial>/joint<j>``:
     ``torque`` (the logged torque and each model's prediction over time), ``friction_vs_speed/
     data`` (the friction the record shows: the logged torque less the first model's rigid-body,
     offset and armature part, as (qd, f, 0) points on the rows the fit used) and
     ``friction_vs_speed/<model>`` (each model's friction law over the joint's speed range; a
     state-dependent law's value on the rows). ``predicted``: model ->
-    :meth:`ident.model.rigidbody.RigidBodyIdentifier.predicted`."""
+    :meth:`ident.model.rigidbody.RigidBodyIdentifier.predicted`; ``used``: the (T, n) rows the
+    first model's fit used (default: the rows above each joint's speed cut)."""
     first = next(iter(fits))
     for js, e in fits[first].joints.items():
         j = int(js) - 1
@@ -268,10 +272,10 @@ def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict) -> No
         sink.scalars(f"{base}/torque", rec.t, np.column_stack(
             [rec.tau[:, j]] + [predicted[m][0][:, j] for m in fits]), names=names)
         pred, fric = predicted[first]
-        used = np.abs(rec.qd[:, j]) >= e["v_zero"]
-        f_data = rec.tau[used, j] - (pred[used, j] - fric[used, j])
+        rows = np.abs(rec.qd[:, j]) >= e["v_zero"] if used is None else used[:, j]
+        f_data = rec.tau[rows, j] - (pred[rows, j] - fric[rows, j])
         sink.points(f"{base}/friction_vs_speed/data",
-                    np.column_stack([rec.qd[used, j], f_data, np.zeros(int(used.sum()))]))
+                    np.column_stack([rec.qd[rows, j], f_data, np.zeros(int(rows.sum()))]))
         top = float(np.max(np.abs(rec.qd[:, j])))
         v = np.linspace(-top, top, 401)
         order = np.argsort(rec.qd[:, j])
@@ -294,8 +298,11 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     residual knee of a Coulomb + viscous fit above that floor
     (:func:`ident.model.rigidbody.residual_knee`) and the end of the friction's sign transition
     where it has a stable width (:func:`ident.model.rigidbody.friction_transition`, at most half
-    the 99th-percentile speed); with the Coulomb levels over plausible cuts (noise floor, half,
-    once and twice the cut)."""
+    the 99th-percentile speed); then, per joint, the presliding cut: the rows closer to the last
+    velocity reversal than the end of the friction's rise with the displacement
+    (:func:`ident.model.rigidbody.presliding_length` on the rows above the speed cut, 0 where
+    there is none); with the Coulomb levels over plausible cuts (noise floor, half, once and
+    twice the cut, with the presliding cut) and at the cut without the presliding cut."""
 
     cut = low_speed_cut(campaign.read_log(tr, robot), rec, robot.drives)
     floor = cut["v_zero"]
@@ -314,16 +321,47 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     end = np.array([min(t["end"], 0.5 * sp[j]) if t and t["end"] is not None else 0.0
                     for j, t in enumerate(trans)])
     v0 = np.maximum(np.maximum(floor, knee), end)
+    # presliding: the rows faster than the speed cut whose friction still rises with the
+    # displacement since the last reversal
+    # (the friction the record shows under the fit at the speed cut: rows below it, such as a
+    # wide presliding transition, would bias the rigid-body part)
+    Mv = M & (np.abs(rec.qd) >= v0[None, :])
+    if Mv.any():
+        sol = idt._solve(rec, A, F, Mv, np.ones(rec.t.size, bool), sigma=sigma, quick=True)
+        fric = rec.tau - idt._predict(rec, A, F, sol) + np.einsum("tjp,p->tj", F, sol["bf"])
+    # a joint driven through a coupled motor (FORMAT.md coupling: the motor's friction follows
+    # the motor's reversals, not the joint's) is not cut
+    Ci = np.linalg.inv(rec.coupling) if getattr(rec, "coupled", False) else np.eye(rec.n)
+    shared = {j for k in idt._coupled(rec) for j in np.flatnonzero(np.abs(Ci[k]) > 1e-12)}
+    pres, Mx = [], M.copy()
+    for j in range(rec.n):                               # loop over joints (n <= ~7)
+        if j in shared:
+            pres.append({"length": None, "gain": None, "end": None, "coupled_motor": True})
+            continue
+        if not Mv[:, j].any():
+            pres.append(None)
+            continue
+        disp = reversal_displacement(rec.q[:, j:j + 1], rec.qd[:, j:j + 1], floor[j:j + 1])[:, 0]
+        pres.append(presliding_length(disp[Mv[:, j]], rec.qd[Mv[:, j], j], fric[Mv[:, j], j], v0[j]))
+        if pres[-1]["end"] is not None:
+            Mx[:, j] &= disp >= pres[-1]["end"]
+        del disp
+    x0 = np.array([p["end"] if p and p["end"] is not None else 0.0 for p in pres])
     # the cut's effect on Coulomb: the levels at the noise floor, half, once and twice the cut
+    # (with the presliding cut), and at the cut without the presliding cut
     cuts = np.stack([floor, np.maximum(floor, 0.5 * v0), v0, 2.0 * v0])
-    cc = coulomb_over_cuts(idt, rec, A, F, M, sigma, cuts)
+    cc = coulomb_over_cuts(idt, rec, A, F, Mx, sigma, cuts)
+    c_nox = (coulomb_over_cuts(idt, rec, A, F, M, sigma, v0[None, :])[0] if np.any(x0 > 0)
+             else cc[2])
     _PREPARED.clear()
     ok = np.isfinite(cc).all(axis=0) & (np.abs(cc[2]) > 0)       # joints with rows at every cut
     ref = np.where(ok, np.abs(cc[2]), 1.0)
     lo = np.where(ok, (np.where(ok, cc, 0.0).min(axis=0) - cc[2]) / ref, np.nan)
     hi = np.where(ok, (np.where(ok, cc, 0.0).max(axis=0) - cc[2]) / ref, np.nan)
     return {"v_zero": v0, "noise_floor": floor, "knee": knee, "transition": trans,
-            "transition_end": end, "sigma_q": cut["sigma_q"],
+            "transition_end": end, "presliding": pres, "x_zero": x0,
+            "coulomb_without_presliding_cut": _finite_or_none(c_nox),
+            "sigma_q": cut["sigma_q"],
             "sigma_v": cut["sigma_v"], "k": cut["k"],
             "fraction_of_speed": np.where(sp > 0, v0 / np.where(sp > 0, sp, 1.0), 0.0),
             "coulomb_over_cuts": {"cuts": ["noise floor", "0.5 x cut", "cut", "2 x cut"],
@@ -355,8 +393,9 @@ def _cut_text(cut: dict) -> str:
         "sign transition (3 widths of c tanh(|qd|/vs) + fv |qd| where the width is the same on "
         "half and on the whole speed range; rad/s: "
         + ", ".join(trans(j, t) for j, t in enumerate(cut["transition"])) + ")"
-        + (f"; joint(s) {', '.join(map(str, bent))}: the friction bends at every speed (no "
-           "finite transition), so their Coulomb level depends on the cut" if bent else "")
+        + (f"; joint(s) {', '.join(map(str, bent))}: against the speed alone the friction bends "
+           "at every speed (no finite transition)" if bent else "")
+        + _presliding_text(cut)
         + "; Coulomb from the noise floor to twice the cut, relative to the level at the cut: "
         + ", ".join(f"j{j + 1} {100 * lo:+.0f}/{100 * hi:+.0f} %"
                     for j, (lo, hi) in enumerate(cut["coulomb_range"])
@@ -364,14 +403,43 @@ def _cut_text(cut: dict) -> str:
         + " (docs/vendor.md)")
 
 
+def _presliding_text(cut: dict) -> str:
+    """The preprocessing clause of the presliding cut (:func:`_auto_cut`), empty without one."""
+    pres = cut.get("presliding") or []
+    x0 = cut.get("x_zero")
+    if x0 is None or not np.any(np.asarray(x0) > 0):
+        return ("; no joint's friction rises with the displacement after a reversal (presliding) "
+                "on the rows above the cut")
+    cells = []
+    for j, p in enumerate(pres):
+        if p is not None and p.get("coupled_motor"):
+            cells.append(f"j{j + 1} - (coupled motor)")
+        elif p is None or p["end"] is None:
+            cells.append(f"j{j + 1} -")
+        else:
+            c0, c1 = cut["coulomb_without_presliding_cut"][j], cut["coulomb_over_cuts"]["c"][2][j]
+            eff = f", Coulomb {100 * (c0 / c1 - 1):+.1f} % without it" if c0 and c1 else ""
+            cells.append(f"j{j + 1} {p['end']:.2g} rad (rise {p['length']:.2g} rad, "
+                         f"{100 * p['gain']:.0f} % of the residual{eff})")
+    return ("; and the rows closer to the joint's last velocity reversal than the end of the "
+            "friction's rise with the displacement since the reversal (presliding: "
+            "ln 200 lengths s0 of c (1 - exp(-s/s0)) + fv |qd| fitted above the cut, kept where "
+            "it explains at least 1 % of the residual): " + ", ".join(cells))
+
+
 def _joint_cut(cut: dict, j: int) -> dict:
     """Joint ``j``'s (0-based) part of the data-chosen low-speed cut, for fits.json (rad/s; the
     Coulomb range relative to the level at the cut; ``transition_end`` None where the friction
     bends at every speed or shows no transition within the sampled speeds)."""
     t = cut["transition"][j] or {}
+    p = (cut.get("presliding") or [None] * (j + 1))[j] or {}
     return {"v_zero": cut["v_zero"][j], "noise_floor": cut["noise_floor"][j],
             "knee": cut["knee"][j], "transition_end": t.get("end"),
             "transition_width_ratio": t.get("width_ratio"),
+            "x_zero": float(cut["x_zero"][j]) if "x_zero" in cut else 0.0,
+            "presliding_length": p.get("length"), "presliding_gain": p.get("gain"),
+            "coulomb_without_presliding_cut": (cut.get("coulomb_without_presliding_cut")
+                                               or [None] * (j + 1))[j],
             "coulomb_range": cut["coulomb_range"][j]}
 
 

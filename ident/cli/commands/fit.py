@@ -52,8 +52,10 @@ def register(sub):
     p.add_argument("--v-zero", default="auto", metavar="FRAC",
                    help="multi-joint records: the low-speed cut; 'auto' (default): per joint, the "
                         "largest of the velocity noise floor, the residual knee and the end of the "
-                        "friction's sign transition (docs/vendor.md); a number: rows slower than "
-                        "FRAC x the joint's 99th-percentile speed are left out of the friction fit")
+                        "friction's sign transition, and for static laws the rows still in the "
+                        "presliding rise after each velocity reversal (docs/vendor.md); a number: "
+                        "rows slower than FRAC x the joint's 99th-percentile speed are left out of "
+                        "the friction fit")
     p.add_argument("--export-c", type=Path, default=None, metavar="DIR",
                    help="write the fitted models as C99 (jl_friction.h/.c) into DIR")
     p.add_argument("--export-dt", type=float, default=None, metavar="S",
