@@ -141,34 +141,33 @@ def analyse(camp, ref):
                                                  for j in range(n)))
     c0, v0, r0 = _fit_at(rec, chain, base, floor)
     fr = r0 + c0[None, :] * np.sign(qd) + v0[None, :] * qd        # friction the record shows
-    bands = (0.001, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.1, 0.16, 0.4, 1.0)
-    print("friction / (Coulomb + viscous line fitted above the noise floor), per speed band "
-          "(% of the 99th-percentile speed; rows)")
-    for j in range(min(n, 5)):
-        a = np.abs(qd[:, j])
-        line = c0[j] + v0[j] * a
-        cells = []
-        for lo, hi in zip(bands[:-1], bands[1:]):
-            m = (a >= lo * sp[j]) & (a < hi * sp[j])
-            cells.append(f"{np.mean(np.sign(qd[m, j]) * fr[m, j] / line[m]):.2f} ({m.sum()})"
-                         if m.sum() >= 5 else "-")
-        print(f"  j{j + 1}: " + "  ".join(f"{100 * lo:g}-{100 * hi:g}: {c}"
-                                          for lo, hi, c in zip(bands[:-1], bands[1:], cells)))
     from ident.model.rigidbody import reversal_displacement
 
+    def ratio_rows(title, labels, masks, stat, counts):
+        """Per joint: friction / (the Coulomb + viscous line) over the rows of each mask."""
+        print(title)
+        for j in range(min(n, 5)):
+            a = np.abs(qd[:, j])
+            line = c0[j] + v0[j] * a
+            cells = []
+            for m in masks(j, a):
+                val = f"{stat(np.sign(qd[m, j]) * fr[m, j] / line[m]):.2f}" if m.sum() >= 5 else "-"
+                cells.append(f"{val} ({m.sum()})" if counts and val != "-" else val)
+            print(f"  j{j + 1}: " + "  ".join(f"{lb}: {c}" for lb, c in zip(labels, cells)))
+
+    bands = (0.001, 0.0025, 0.005, 0.01, 0.02, 0.04, 0.1, 0.16, 0.4, 1.0)
+    ratio_rows("friction / (Coulomb + viscous line fitted above the noise floor), per speed band "
+               "(% of the 99th-percentile speed; rows)",
+               [f"{100 * lo:g}-{100 * hi:g}" for lo, hi in zip(bands[:-1], bands[1:])],
+               lambda j, a: [(a >= lo * sp[j]) & (a < hi * sp[j])
+                             for lo, hi in zip(bands[:-1], bands[1:])], np.mean, True)
     disp = reversal_displacement(rec.q, qd, floor)
     edges = (0.0, 1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, np.inf)
-    print("friction / (Coulomb + viscous line fitted above the noise floor) against the "
-          "displacement since the last velocity reversal (rad; rows above the noise floor)")
-    for j in range(min(n, 5)):
-        a = np.abs(qd[:, j])
-        line = c0[j] + v0[j] * a
-        cells = []
-        for lo, hi in zip(edges[:-1], edges[1:]):
-            m = (a >= floor[j]) & (disp[:, j] >= lo) & (disp[:, j] < hi)
-            cells.append(f"{np.median(np.sign(qd[m, j]) * fr[m, j] / line[m]):.2f}"
-                         if m.sum() >= 5 else "-")
-        print(f"  j{j + 1}: " + "  ".join(f"<{hi:g}: {c}" for hi, c in zip(edges[1:], cells)))
+    ratio_rows("friction / (Coulomb + viscous line fitted above the noise floor) against the "
+               "displacement since the last velocity reversal (rad; median, rows above the noise "
+               "floor)", [f"<{hi:g}" for hi in edges[1:]],
+               lambda j, a: [(a >= floor[j]) & (disp[:, j] >= lo) & (disp[:, j] < hi)
+                             for lo, hi in zip(edges[:-1], edges[1:])], np.median, False)
     lags = np.arange(-10, 15, 4)
     print("friction / Coulomb at the moving reversals (time from the velocity zero crossing, ms; "
           "sign of the new direction)")
