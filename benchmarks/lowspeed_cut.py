@@ -21,7 +21,9 @@ signed residual of each speed band is within the band's own scatter, one pass an
 ``--foreign`` adds the foreign world's single-joint excitation records (independent simulator,
 true Coulomb level known; tri3 and ind6, no effect, Stribeck, presliding and nonlinear viscous
 friction, seeds 1-2): Coulomb / truth with the noise floor and residual knee, the speed cut
-(with the friction's transition end), the whole rule (with the presliding cut) and fixed cuts.
+(with the friction's transition end), the whole rule (with the presliding cut) and fixed cuts;
+then the one-link (thesis eq. 2-4) fits of the same campaigns' excitation trials, loads
+included, with and without their presliding cut.
 
     python benchmarks/lowspeed_cut.py            # TX40 and arm7 (about 1 min)
     python benchmarks/lowspeed_cut.py --quick    # TX40 only
@@ -141,7 +143,7 @@ def analyse(camp, ref):
                                                  for j in range(n)))
     c0, v0, r0 = _fit_at(rec, chain, base, floor)
     fr = r0 + c0[None, :] * np.sign(qd) + v0[None, :] * qd        # friction the record shows
-    from ident.model.rigidbody import reversal_displacement
+    from ident.friction.presliding import reversal_displacement
 
     def ratio_rows(title, labels, masks, stat, counts):
         """Per joint: friction / (the Coulomb + viscous line) over the rows of each mask."""
@@ -232,14 +234,26 @@ def _load_foreign():
     return mod
 
 
+def _foreign_campaigns(F):
+    """(robot, effect, seed, campaign folder, moving joint, its true Coulomb level) of each
+    :data:`FOREIGN` campaign (made or found in the cache)."""
+    import json
+
+    for robot, effect, seed in FOREIGN:
+        wa = F.WorldArgs(effect, seed, robot=robot, reps=1)
+        root, _ = F.ensure_campaign(wa)
+        truth = json.loads(root.with_name(root.name + ".truth.json").read_text())
+        j = wa.moving_joint
+        yield robot, effect, seed, root, j, truth["joints"][j - 1]["coulomb"]
+
+
 def foreign():
     """The cut on the foreign world's single-joint excitation records (no payload; the moving
     joint's true Coulomb level from the truth file; nonlinear_viscous: the Coulomb + viscous
     law does not hold at any speed, its Coulomb level is not defined by the truth). Rules: the
     noise floor and residual knee alone (``floor+knee``), the same with the friction's transition
-    end (``auto``), fixed 1 % and 5 % of the 99th-percentile speed."""
-    import json
-
+    end (``auto``), the whole rule with the presliding cut, fixed 1 % and 5 % of the
+    99th-percentile speed."""
     from mocap.io.campaign import load_campaign
     from ident.model.multijoint import _auto_cut
     from ident.model.record import load_record
@@ -251,12 +265,7 @@ def foreign():
     print(f"{'record':<46}{'floor+knee':>11}{'speed':>8}{'auto':>8}{'1 %':>8}{'5 %':>8}"
           "   speed cut, transition, presliding end")
     err = {}
-    for robot, effect, seed in FOREIGN:
-        wa = F.WorldArgs(effect, seed, robot=robot, reps=1)
-        root, _ = F.ensure_campaign(wa)
-        truth = json.loads(root.with_name(root.name + ".truth.json").read_text())
-        j = wa.moving_joint
-        c_true = truth["joints"][j - 1]["coulomb"]
+    for robot, effect, seed, root, j, c_true in _foreign_campaigns(F):
         camp = load_campaign(root)
         rob = camp.load_robot()
         chain = ChainDynamics.from_model(rob.model)
@@ -291,6 +300,40 @@ def foreign():
                                           for k in range(5)))
 
 
+def foreign_onelink():
+    """The presliding cut in the one-link (thesis, eq. 2-4) fits of the same foreign campaigns:
+    Coulomb / truth of every excitation trial of the moving joint (loads included), with the cut
+    and without it (the Coulomb + viscous level of the rest-cut fit, ``signals.presliding``)."""
+    from mocap.io.campaign import load_campaign
+    from ident.thesis.campaign_fit import fit_onelink_campaign
+
+    F = _load_foreign()
+    print("\none-link (thesis eq. 2-4) fits of the same campaigns, every excitation trial: "
+          "Coulomb / truth without and with the presliding cut (min-max; trials cut)")
+    err = {}
+    for robot, effect, seed, root, j, c_true in _foreign_campaigns(F):
+        res = fit_onelink_campaign(load_campaign(root), None, ("cv",))
+        now, before, cut = [], [], 0
+        for e in res.entries:
+            if e.task.kind != "excitation" or e.task.joint != j:
+                continue
+            c = float(e.fits["cv"].params["c"])
+            p = e.signals.get("presliding")
+            now.append(c / c_true)
+            before.append((p["coulomb_without_cut"] if p else c) / c_true)
+            cut += p is not None
+        now, before = np.array(now), np.array(before)
+        print(f"  {robot}-j{j}-{effect}-s{seed}: without {before.min():.3f}-{before.max():.3f}, "
+              f"with {now.min():.3f}-{now.max():.3f} ({cut} of {now.size} cut)")
+        err.setdefault(effect, []).append((np.abs(before - 1), np.abs(now - 1)))
+    print("median and worst |ratio - 1| per effect (without, with the presliding cut)")
+    for effect, rows in err.items():
+        b = np.concatenate([r[0] for r in rows])
+        w = np.concatenate([r[1] for r in rows])
+        print(f"  {effect:<18}  {np.median(b):.3f}/{b.max():.3f}  {np.median(w):.3f}/{w.max():.3f}"
+              f"  ({b.size} trials)")
+
+
 def main(argv=None):
     from mocap.io.campaign import load_campaign
 
@@ -310,6 +353,7 @@ def main(argv=None):
             sweep("arm7 (synthetic, simulated truth)", load_campaign(Path(d) / "c"), tm.C_TRUE)
     if a.foreign:
         foreign()
+        foreign_onelink()
 
 
 if __name__ == "__main__":

@@ -139,6 +139,16 @@ def test_cut_on_the_foreign_world(effect, seed, tmp_path_factory):
     assert np.min(before) < 0.96, before
     if (effect, seed) == ("presliding", 1):
         assert np.min(speed) < 0.96, speed
+    # the one-link (thesis) fits of the same campaign's excitation trials, loads included
+    # (measured 0.998-1.006 on presliding seed 1; 0.53-0.70 without the presliding cut)
+    from ident.cli import main
+
+    out = tmp_path_factory.mktemp("thesis") / "fit"
+    assert main(["fit", str(camp_dir), "--out", str(out), "--models", "cv"]) == 0
+    doc = json.loads((out / "fits.json").read_text())
+    c1 = [e["2"]["cv"]["params"]["c"] / c_true for tid, e in doc["trials"].items()
+          if "-exc-" in tid and "2" in e]
+    assert len(c1) == 6 and np.all(np.abs(np.array(c1) - 1) < 0.03), c1
 
 
 def _displacement_by_loop(q, qd, floor):
@@ -157,7 +167,7 @@ def _displacement_by_loop(q, qd, floor):
 
 
 def test_reversal_displacement_matches_a_sample_by_sample_count():
-    from ident.model.rigidbody import reversal_displacement
+    from ident.friction.presliding import reversal_displacement
 
     t = np.linspace(0.0, 12.0, 6001)
     qd = np.cos(1.3 * t) + 0.4 * np.cos(3.1 * t + 0.5)
@@ -173,7 +183,7 @@ def test_presliding_cut_covers_an_elastic_rise_and_nothing_else():
     are already cut: the cut ends past ``xb`` and within 4 ``xb``, and a Coulomb + viscous fit
     on the rows beyond it recovers the level that the rows of the rise bias low; the same record
     without the rise gets no cut."""
-    from ident.model.rigidbody import presliding_length
+    from ident.friction.presliding import presliding_length
 
     rng = np.random.default_rng(7)
     t = np.linspace(0.0, 60.0, 60001)

@@ -19,8 +19,8 @@ from ident.gap.nominal import check_nominal
 from ident.model.regressor import ChainDynamics, base_parameters
 from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
                                    dynamic_data_note, friction_transition, low_speed_cut,
-                                   presliding_length, residual_knee, reversal_displacement,
-                                   without_unlogged)
+                                   residual_knee, without_unlogged)
+from ident.friction.presliding import presliding_length, reversal_displacement
 from mocap.io.errors import warn_input
 from mocap.io.robotlog import RobotLog
 
@@ -300,7 +300,7 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
     where it has a stable width (:func:`ident.model.rigidbody.friction_transition`, at most half
     the 99th-percentile speed); then, per joint, the presliding cut: the rows closer to the last
     velocity reversal than the end of the friction's rise with the displacement
-    (:func:`ident.model.rigidbody.presliding_length` on the rows above the speed cut, 0 where
+    (:func:`ident.friction.presliding.presliding_length` on the rows above the speed cut, 0 where
     there is none); with the Coulomb levels over plausible cuts (noise floor, half, once and
     twice the cut, with the presliding cut) and at the cut without the presliding cut."""
 
@@ -342,7 +342,8 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
             pres.append(None)
             continue
         disp = reversal_displacement(rec.q[:, j:j + 1], rec.qd[:, j:j + 1], floor[j:j + 1])[:, 0]
-        pres.append(presliding_length(disp[Mv[:, j]], rec.qd[Mv[:, j], j], fric[Mv[:, j], j], v0[j]))
+        rows = Mv[:, j]
+        pres.append(presliding_length(disp[rows], rec.qd[rows, j], fric[rows, j], v0[j]))
         if pres[-1]["end"] is not None:
             Mx[:, j] &= disp >= pres[-1]["end"]
         del disp

@@ -42,6 +42,7 @@ from ident.friction import MODELS
 from ident.friction.base import CoulombViscous
 from ident.friction.constants import REST_FRAC
 from ident.friction.fit import FrictionFit, eiv_bias, fit_friction
+from ident.friction.presliding import presliding_length, reversal_displacement
 from ident.signals.blas import one_blas_thread
 
 
@@ -250,7 +251,13 @@ class OneLinkIdentifier:
     standstill the friction is static (it holds whatever the gravity and motor torques
     leave), which eq. 2-5 to 2-7 do not describe (``sign(0) = 0``), and a smoothed speed's
     sign there is noise; near reversals a real joint sticks for a moment, which a smooth
-    (Fourier) speed cannot resolve.
+    (Fourier) speed cannot resolve. With ``presliding`` (default) the samples still in the
+    friction's rise after a velocity reversal are left out too: the rise with the displacement
+    since the reversal is fitted to the friction a Coulomb + viscous fit shows
+    (:func:`ident.friction.presliding.presliding_length`) and, where it explains at least 1 %
+    of that fit's residual, the samples closer to the reversal than its end are dropped
+    (``presliding_``: the rise, its end and the Coulomb level without the cut, after
+    :meth:`fit`; None without one).
 
     The viscous coefficient is in the LINK-ONLY basis: the motor viscous ``B`` of drives.toml is
     removed in the target ``y = u - J qmdd - B qmd``, so ``v`` (``Fv``, ``g6``) is the viscous
@@ -269,6 +276,9 @@ class OneLinkIdentifier:
         bounded ``Vc`` to ``(0, 1]``).
     rest_frac : float, optional
         Speed fraction of the peak below which samples are left out.
+    presliding : bool, optional
+        Leave out the samples still in the presliding rise after each velocity reversal
+        (default True).
 
     References
     ----------
@@ -277,12 +287,14 @@ class OneLinkIdentifier:
     """
 
     def __init__(self, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8, seed: int = 0,
-                 bounds: dict | None = None, rest_frac: float = REST_FRAC):
+                 bounds: dict | None = None, rest_frac: float = REST_FRAC, presliding: bool = True):
         self.models = tuple(models)
         self.n_starts = int(n_starts)
         self.seed = int(seed)
         self.bounds = dict(bounds) if bounds else {}
         self.rest_frac = float(rest_frac)
+        self.presliding = bool(presliding)
+        self.presliding_ = None
 
     def fit_signals(self, sig, J: float, B: float) -> dict:
         """Fit every model to one joint's signals, the target built by eq. 2-4 [1]_.
@@ -339,9 +351,12 @@ class OneLinkIdentifier:
 
     def _fit(self, q, qd, qdd, y, errors=None) -> dict:
         q, qd, qdd, y = (np.asarray(a, float) for a in (q, qd, qdd, y))
-        if self.rest_frac > 0 and qd.size:
-            keep = np.abs(qd) >= self.rest_frac * np.max(np.abs(qd))
-            q, qd, qdd, y = q[keep], qd[keep], qdd[keep], y[keep]
+        v_cut = self.rest_frac * float(np.max(np.abs(qd))) if self.rest_frac > 0 and qd.size else 0.0
+        keep = np.abs(qd) >= v_cut if v_cut > 0 else np.ones(qd.size, bool)
+        self.presliding_ = None
+        if self.presliding and int(keep.sum()) >= 20:
+            keep = self._presliding_rows(q, qd, qdd, y, keep, v_cut)
+        q, qd, qdd, y = q[keep], qd[keep], qdd[keep], y[keep]
         cv = fit_cv_linear(q, qd, qdd, y)
         if errors and all(np.isfinite(float(errors.get(k, np.nan))) for k in ("q", "qd", "qdd")):
             cv = with_eiv(cv, q, qd, qdd, errors)
@@ -352,6 +367,18 @@ class OneLinkIdentifier:
                 continue
             out[name] = self._fit_nonlinear(name, q, qd, qdd, y, cv)
         return out
+
+    def _presliding_rows(self, q, qd, qdd, y, keep, v_cut):
+        """``keep`` less the samples still in the presliding rise after a velocity reversal (the
+        class docstring); sets ``presliding_``."""
+        cv0 = fit_cv_linear(q[keep], qd[keep], qdd[keep], y[keep])
+        f = y - onelink_regressor(q, qdd) @ np.array([cv0.extra[k] for k in RIGID_NAMES])
+        s = reversal_displacement(q[:, None], qd[:, None], np.array([v_cut]))[:, 0]
+        p = presliding_length(s[keep], qd[keep], f[keep], v_cut)
+        if p["end"] is None:
+            return keep
+        self.presliding_ = {**p, "coulomb_without_cut": float(cv0.model.params["c"])}
+        return keep & (s >= p["end"])
 
     def _fit_nonlinear(self, name, q, qd, qdd, y, cv) -> FrictionFit:
         cls = model_class(name)

@@ -20,11 +20,12 @@ standard deviation of an ordinary least-squares pass; rows where ``|qd_j|`` is b
 friction is anywhere within the breakaway level and no velocity estimate gives the sign of a
 reversal exactly; with ``x_zero``, static laws also leave out the rows closer than ``x_zero_j``
 to joint j's last velocity reversal, where the friction is still building up (presliding,
-:func:`presliding_length`). Friction models linear in their parameters (``cv``) are solved in the same
-linear system; the others alternate: the linear part with the friction fixed, then per joint
-:func:`ident.friction.fit.fit_friction` on the joint's remaining torque with offset and
-armature as extra columns, up to ``n_iter`` times (fewer once no joint's friction torque moves
-by 1e-4 of its torque level); their row weights come from the Coulomb + viscous pass.
+:func:`ident.friction.presliding.presliding_length`). Friction models linear in their
+parameters (``cv``) are solved in the same linear system; the others alternate: the linear
+part with the friction fixed, then per joint :func:`ident.friction.fit.fit_friction` on the
+joint's remaining torque with offset and armature as extra columns, up to ``n_iter`` times
+(fewer once no joint's friction torque moves by 1e-4 of its torque level); their row weights
+come from the Coulomb + viscous pass.
 Held-out RMS: contiguous segments of the record (``folds``), each predicted by a fit on the
 others (leave-one-segment-out).
 """
@@ -37,6 +38,7 @@ import numpy as np
 from ident.friction import MODELS, laws
 from ident.friction.fit import fit_friction, param_jacobian
 from ident.friction.plausibility import assess, assess_armature, to_json
+from ident.friction.presliding import _reversal_displacement_1d
 from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
 from ident.signals.blas import one_blas_thread
@@ -235,97 +237,6 @@ def friction_transition(qd, friction, v_floor) -> dict:
             "end": TRANSITION_WIDTHS * vs_full if stable else None}
 
 
-#: the friction after a reversal is within 0.5 % of its sliding level after this many lengths of
-#: an exponential rise with the displacement (1 - exp(-5.3) = 0.995, as TRANSITION_WIDTHS)
-PRESLIDING_LENGTHS = float(np.log(200.0))
-#: a presliding rise is kept when it explains at least this fraction of the residual sum of
-#: squares of the rows above the speed cut (below it the rows after a reversal fit the law)
-PRESLIDING_GAIN = 0.01
-
-
-def reversal_displacement(q, qd, v_floor) -> np.ndarray:
-    """``(T, n)`` distance each joint has moved since its last velocity reversal: ``|q_t - q_s|``
-    with ``s`` the first row of the current direction run, a run being the rows between two
-    changes of the sign of ``qd`` among the rows faster than ``v_floor`` (per joint, rad/s; the
-    rows below it, whose direction the velocity estimate does not give, belong to the run they
-    continue). The record's first run starts at its first row faster than ``v_floor``."""
-    q = np.asarray(q, float)
-    qd = np.asarray(qd, float)
-    fl = np.broadcast_to(np.asarray(v_floor, float), (q.shape[1],))
-    return np.column_stack([_reversal_displacement_1d(q[:, j], qd[:, j], fl[j])
-                            for j in range(q.shape[1])])
-
-
-def _reversal_displacement_1d(q, qd, v_floor) -> np.ndarray:
-    """One joint's :func:`reversal_displacement` (``(T,)``)."""
-    T = q.size
-    idx = np.arange(T)
-    d = np.where(np.abs(qd) >= v_floor, np.sign(qd), 0.0)
-    nz = np.flatnonzero(d)
-    if nz.size == 0:
-        return np.zeros(T)
-    last = np.maximum.accumulate(np.where(d != 0, idx, -1))
-    run = np.where(last >= 0, d[np.maximum(last, 0)], 0.0)          # direction carried forward
-    del last, d
-    start = np.zeros(T, bool)
-    start[nz[0]] = True
-    start[1:] |= (run[1:] != run[:-1]) & (run[:-1] != 0)
-    del run
-    first = np.maximum.accumulate(np.where(start, idx, 0))
-    return np.where(idx >= nz[0], np.abs(q - q[first]), 0.0)
-
-
-def presliding_length(disp, qd, friction, v_cut, n_grid: int = 121) -> dict:
-    """The displacement over which a joint's friction builds up after each velocity reversal,
-    from the friction the record shows on the rows faster than the speed cut ``v_cut``.
-
-    After a reversal the contact deforms elastically before it slides (presliding, Dahl 1968;
-    the bristles of LuGre, Canudas de Wit et al. 1995): the friction rises with the displacement
-    ``s`` since the reversal (:func:`reversal_displacement`), not with the speed. The rise is
-    described by ``y = c (1 - exp(-s / s0)) + fv |qd|`` (``y = sign(qd) f``; ``c`` and ``fv``
-    linear at each length ``s0`` of a log-spaced grid from 1e-6 to 0.2 times the 99th-percentile
-    displacement) and compared with the Coulomb + viscous line ``c + fv |qd|`` on the same rows.
-    The rise is kept when it lowers their residual sum of squares by at least
-    :data:`PRESLIDING_GAIN` and its length is inside the grid; the rows within
-    ``end = PRESLIDING_LENGTHS s0`` of a reversal (the friction within 0.5 % of its sliding
-    level) then do not follow a static law. Returns ``{"length", "gain", "end"}`` (rad; the
-    fraction of the residual sum of squares explained), ``length``/``end`` None when no rise is
-    kept. Long records: every k-th row (:data:`TRANSITION_ROWS`)."""
-    a = np.abs(np.asarray(qd, float))
-    y = np.sign(qd) * np.asarray(friction, float)
-    s = np.asarray(disp, float)
-    m = (a >= v_cut) & np.isfinite(y) & np.isfinite(s)
-    a, y, s = a[m], y[m], s[m]
-    step = max(1, a.size // TRANSITION_ROWS)
-    a, y, s = a[::step], y[::step], s[::step]
-    none = {"length": None, "gain": 0.0, "end": None}
-    if a.size < 20:
-        return none
-    top = float(np.percentile(s, 99))
-    if not top > 0:
-        return none
-    ones = np.ones_like(a)
-
-    def rss_of(t):
-        X = np.column_stack([t, a])
-        G = X.T @ X
-        if np.linalg.cond(G) > 1e12:
-            return np.inf
-        b = np.linalg.solve(G, X.T @ y)
-        return float(y @ y - b @ (X.T @ y))
-
-    rss0 = rss_of(ones)
-    if not (np.isfinite(rss0) and rss0 > 0):
-        return none
-    grid = np.geomspace(1e-6, 0.2, n_grid) * top
-    rss = np.array([rss_of(-np.expm1(-s / s0)) for s0 in grid])      # lengths of the grid
-    k = int(np.argmin(rss))
-    gain = float(1.0 - rss[k] / rss0)
-    if k in (0, n_grid - 1) or gain < PRESLIDING_GAIN:
-        return {"length": None, "gain": max(gain, 0.0), "end": None}
-    return {"length": float(grid[k]), "gain": gain, "end": PRESLIDING_LENGTHS * float(grid[k])}
-
-
 def coulomb_over_cuts(idt, rec, A, F, M, sigma, cuts) -> np.ndarray:
     """The Coulomb level of every joint (Coulomb + viscous, in the same weighted linear system as
     the fit) for each per-joint low-speed cut in ``cuts`` (k, n), rad/s: ``(k, n)``, NaN where a
@@ -383,9 +294,9 @@ class RigidBodyIdentifier:
         self.v_zero_frac = float(v_zero_frac)
         # per-joint low-speed cut in rad/s (e.g. :func:`low_speed_cut`); None: the fraction
         self.v_zero = None if v_zero is None else np.asarray(v_zero, float)
-        # per-joint presliding cut in rad (e.g. :func:`presliding_length`): rows closer than this
-        # to the joint's last velocity reversal (:func:`reversal_displacement`, runs of rows
-        # faster than x_floor rad/s, default the low-speed cut) are left out of static laws
+        # per-joint presliding cut in rad (ident.friction.presliding): rows closer than this to
+        # the joint's last velocity reversal (runs of rows faster than x_floor rad/s, default the
+        # low-speed cut) are left out of static laws
         self.x_zero = None if x_zero is None else np.asarray(x_zero, float)
         self.x_floor = None if x_floor is None else np.asarray(x_floor, float)
         self.armature = bool(armature)
@@ -440,7 +351,8 @@ class RigidBodyIdentifier:
         if self.x_zero is not None and not self.model_cls.dynamic:
             fl = v0 if self.x_floor is None else self.x_floor
             for j in np.flatnonzero(self.x_zero > 0):          # joints with a presliding cut
-                M[:, j] &= _reversal_displacement_1d(rec.q[:, j], rec.qd[:, j], fl[j]) >= self.x_zero[j]
+                s_j = _reversal_displacement_1d(rec.q[:, j], rec.qd[:, j], fl[j])
+                M[:, j] &= s_j >= self.x_zero[j]
         return M, v0
 
     # ---- fit -------------------------------------------------------------------------------

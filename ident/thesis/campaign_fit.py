@@ -145,6 +145,16 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
         pr = X @ np.array([f.rigid[k] for k in ("I", "mglx", "mgly")]) + f.friction().torque(sig.qd)
         plot[f"pred_{m}"] = pr[::step]
     sd = sig.to_dict()
+    pres = ident.presliding_
+    sd["presliding"] = pres
+    if pres is not None:
+        c_now = float(fits["cv"].params["c"]) if "cv" in fits else float("nan")
+        eff = (f"; Coulomb + viscous level {100 * (pres['coulomb_without_cut'] / c_now - 1):+.1f} % "
+               "without the cut" if np.isfinite(c_now) and c_now != 0 else "")
+        notes.append(f"presliding cut: samples within {pres['end']:.3g} rad of each velocity reversal "
+                     f"left out (the friction still rises with the distance moved since the reversal: "
+                     f"length {pres['length']:.2g} rad, {100 * pres['gain']:.0f} % of the Coulomb + "
+                     f"viscous residual{eff})")
 
     pflags = {m: to_json(assess(m, f.params, qd=sig.qd, stderr=f.stderr, model=f.friction(),
                                 form=f.form, tau_scale=float(np.max(np.abs(sig.tau)))))

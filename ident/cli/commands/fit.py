@@ -140,7 +140,8 @@ def _print_onelink(res, one_models, paths) -> None:
     from ident.friction.plausibility import meaning_line
 
     print(f"{len(res.entries)} trial-joint fits of {len(one_models)} models -> {paths['fits']}")
-    notes = sorted({n for e in res.entries for n in e.notes})
+    own = "presliding cut:"                 # per trial-joint figures, printed under its line
+    notes = sorted({n for e in res.entries for n in e.notes if not n.startswith(own)})
     for n in notes:
         print(f"note: {n}")
     if res.skipped:
@@ -153,6 +154,9 @@ def _print_onelink(res, one_models, paths) -> None:
         print(f"  {e.task.trial} joint {e.task.joint}: link {lf['method']} ({e.signals['link_fit_rms_deg']:.3f} deg "
               f"vs markers), motor {e.signals['motor_fit']['method']} "
               f"{e.signals['motor_fit']['bandwidth_hz']:.3g} Hz; {line}")
+        for n in e.notes:
+            if n.startswith(own):
+                print(f"    {n}")
         for m, fl in getattr(e, "param_flags", {}).items():
             groups: dict = {}
             for k, f in fl.items():       # one line per reason
