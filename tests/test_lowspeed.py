@@ -229,3 +229,41 @@ def test_tx40_presliding_cut_on_joints_1_2_not_on_the_coupled_wrist():
     assert np.all(np.abs(c[:2] / TX40_COULOMB[:2] - 1) < 0.03), c / TX40_COULOMB
     assert [fit.joints[str(j)]["x_zero"] for j in (1, 2)] == list(x0[:2])
     assert "j5 - (coupled motor)" in pre["steps"][-1]
+
+
+def test_tx40_friction_against_the_reversal_distance_is_logged():
+    """The rerun view of the presliding cut: on TX40 joint 1 the rows the cut leaves out (red)
+    lie below the cut's distance and show less friction than the rows the fit used (blue);
+    joints without a cut get no such view."""
+    if not (TX40 / "trials" / "excitation.csv").is_file():
+        pytest.skip("TX40 fixture absent")
+    from mocap.io.campaign import load_campaign
+    from ident.model.multijoint import fit_multijoint_campaign
+    from viz.sink import Sink
+
+    class Recorder(Sink):
+        enabled = True
+
+        def __init__(self):
+            self.calls = {}
+
+        def scalars(self, path, time, values, names=None, timeline="time"):
+            pass
+
+        def points(self, path, positions, colors=None, **kw):
+            self.calls[path] = (np.asarray(positions), colors)
+
+        def lines(self, path, strips, **kw):
+            self.calls[path] = [np.asarray(s) for s in strips]
+
+    sink = Recorder()
+    res = fit_multijoint_campaign(load_campaign(TX40), ("cv",), folds=0, sink=sink)
+    x0 = res.preprocessing["excitation"]["low_speed_cut"]["x_zero"]
+    P, colors = sink.calls["fits/excitation/joint1/friction_vs_reversal_distance/data"]
+    red = colors[:, 0] > colors[:, 2]
+    assert red.any() and (~red).any()
+    assert np.all(P[red, 0] < x0[0]) and np.all(P[~red, 0] >= x0[0])
+    assert np.median(P[red, 1]) < 0.8 * np.median(P[~red, 1])
+    cut, = sink.calls["fits/excitation/joint1/friction_vs_reversal_distance/cut"]
+    assert np.allclose(cut[:, 0], x0[0])
+    assert "fits/excitation/joint5/friction_vs_reversal_distance/data" not in sink.calls

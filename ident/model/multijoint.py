@@ -259,9 +259,12 @@ def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict, used=
     """Log one record's multi-joint fits to a rerun sink, under ``fits/<trial>/joint<j>``:
     ``torque`` (the logged torque and each model's prediction over time), ``friction_vs_speed/
     data`` (the friction the record shows: the logged torque less the first model's rigid-body,
-    offset and armature part, as (qd, f, 0) points on the rows the fit used) and
+    offset and armature part, as (qd, f, 0) points on the rows the fit used),
     ``friction_vs_speed/<model>`` (each model's friction law over the joint's speed range; a
-    state-dependent law's value on the rows). ``predicted``: model ->
+    state-dependent law's value on the rows) and, on a joint with a presliding cut,
+    ``friction_vs_reversal_distance`` (``data``: (s, sign(qd) f, 0) on the rows above the speed
+    cut against the distance moved since the last velocity reversal, blue where the fit used
+    them, red where the presliding cut left them out; ``cut``: a line at the cut). ``predicted``: model ->
     :meth:`ident.model.rigidbody.RigidBodyIdentifier.predicted`; ``used``: the (T, n) rows the
     first model's fit used (default: the rows above each joint's speed cut)."""
     first = next(iter(fits))
@@ -276,6 +279,8 @@ def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict, used=
         f_data = rec.tau[rows, j] - (pred[rows, j] - fric[rows, j])
         sink.points(f"{base}/friction_vs_speed/data",
                     np.column_stack([rec.qd[rows, j], f_data, np.zeros(int(rows.sum()))]))
+        if e.get("x_zero"):
+            _log_presliding(sink, base, rec, j, e, pred[:, j] - fric[:, j])
         top = float(np.max(np.abs(rec.qd[:, j])))
         v = np.linspace(-top, top, 401)
         order = np.argsort(rec.qd[:, j])
@@ -290,6 +295,21 @@ def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict, used=
                 curve = np.column_stack([rec.qd[order, j], predicted[m][1][order, j],
                                          np.zeros(rec.t.size)])
             sink.points(f"{base}/friction_vs_speed/{m}", curve)
+
+
+def _log_presliding(sink, base: str, rec, j: int, e: dict, other) -> None:
+    """Joint ``j``'s (0-based) friction against the distance since the last velocity reversal
+    (:func:`log_record_fits`); ``other``: the model's torque less its friction, (T,)."""
+    above = np.abs(rec.qd[:, j]) >= e["v_zero"]
+    s = reversal_displacement(rec.q[:, j:j + 1], rec.qd[:, j:j + 1], [e["x_floor"]])[above, 0]
+    y = np.sign(rec.qd[above, j]) * (rec.tau[above, j] - other[above])
+    kept = s >= e["x_zero"]
+    colors = np.where(kept[:, None], np.array([[60, 120, 220]]), np.array([[220, 80, 60]]))
+    sink.points(f"{base}/friction_vs_reversal_distance/data",
+                np.column_stack([s, y, np.zeros(s.size)]), colors=colors.astype(np.uint8))
+    top = float(np.max(np.abs(y))) if y.size else 1.0
+    sink.lines(f"{base}/friction_vs_reversal_distance/cut",
+               [np.array([[e["x_zero"], -top, 0.0], [e["x_zero"], top, 0.0]])])
 
 
 def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:

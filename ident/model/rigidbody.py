@@ -631,6 +631,7 @@ class RigidBodyIdentifier:
                  "n_used": int(M[:, j].sum()), "v_zero": float(v0[j])}
             if self.x_zero is not None and not self.model_cls.dynamic:
                 e["x_zero"] = float(self.x_zero[j])
+                e["x_floor"] = float(v0[j] if self.x_floor is None else self.x_floor[j])
             if self.model in LINEAR_MODELS:
                 fc, fv = float(sol["bf"][2 * j]), float(sol["bf"][2 * j + 1])
                 e["params"] = {"c": fc, "v": fv}
