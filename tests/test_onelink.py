@@ -138,3 +138,20 @@ def test_presliding_rise_is_cut_and_a_plain_law_is_untouched():
     a = ident.fit(q, qd, qdd, y_plain)["cv"]
     b = OneLinkIdentifier(models=("cv",), presliding=False).fit(q, qd, qdd, y_plain)["cv"]
     assert ident.presliding_ is None and a.params == b.params
+
+
+def test_presliding_summary_sentence():
+    """The study report's sentence on the presliding cut: counts, cut distances and the level
+    without the cut; None when no fit was cut."""
+    from types import SimpleNamespace
+
+    from ident.thesis.campaign_fit import FitsResult
+
+    cv = SimpleNamespace(params={"c": 4.0})
+    cut = SimpleNamespace(signals={"presliding": {"end": 0.02, "length": 0.004, "gain": 0.5,
+                                                  "coulomb_without_cut": 3.0}}, fits={"cv": cv})
+    plain = SimpleNamespace(signals={"presliding": None}, fits={"cv": cv})
+    text = FitsResult((cut, plain), ("cv",)).presliding_summary()
+    assert text.startswith("Presliding cut: 1 of 2 trial-joint fits") and "0.02-0.02 rad" in text
+    assert "-25.0 to -25.0 %" in text
+    assert FitsResult((plain,), ("cv",)).presliding_summary() is None

@@ -1614,6 +1614,9 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
         L += [f"{len(fits.entries)} trial-joint fits of {', '.join(fits.models)}; statistics over the "
               "repetitions of each (joint, load, speed range) condition (CV = population std / |mean|).",
               "", tables.read_text(encoding="utf-8"), ""]
+        pres = fits.presliding_summary()
+        if pres:
+            L += [pres, ""]
         for key, name in plots.items():
             L += [f"![{key}](plots/{name})", ""]
         L.append("Per-condition plots: `fits/plots/`; all parameters with standard errors: "

@@ -175,6 +175,24 @@ class FitsResult:
     def records(self) -> list[dict]:
         return [r for e in self.entries for r in e.records()]
 
+    def presliding_summary(self) -> str | None:
+        """One sentence on the presliding cut of :class:`ident.model.onelink.OneLinkIdentifier`
+        over the entries (how many fits left samples out, the cut distances, the Coulomb +
+        viscous level without the cut); None when no fit was cut."""
+        cut = [(e, e.signals.get("presliding")) for e in self.entries
+               if isinstance(e.signals, dict) and e.signals.get("presliding")]
+        if not cut:
+            return None
+        ends = [p["end"] for _, p in cut]
+        eff = [100 * (p["coulomb_without_cut"] / e.fits["cv"].params["c"] - 1) for e, p in cut
+               if "cv" in e.fits and e.fits["cv"].params["c"]]
+        return (f"Presliding cut: {len(cut)} of {len(self.entries)} trial-joint fits left out the "
+                f"samples within {min(ends):.2g}-{max(ends):.2g} rad of each velocity reversal, where "
+                "the friction still rises with the distance moved since the reversal"
+                + (f" (Coulomb + viscous level {min(eff):+.1f} to {max(eff):+.1f} % without the cut)"
+                   if eff else "")
+                + "; per fit: the notes in `fits/fits_diagnostics.json` (docs/equations.md).")
+
     @property
     def summary(self) -> list[dict]:
         return stats.summarize(self.records())
