@@ -256,8 +256,8 @@ class OneLinkIdentifier:
     since the reversal is fitted to the friction a Coulomb + viscous fit shows
     (:func:`ident.friction.presliding.presliding_length`) and, where it explains at least 1 %
     of that fit's residual, the samples closer to the reversal than its end are dropped
-    (``presliding_``: the rise, its end and the Coulomb level without the cut, after
-    :meth:`fit`; None without one).
+    (``presliding_``: the rise, its end, the Coulomb level without the cut and the fraction of
+    the samples above the rest cut kept, after :meth:`fit`; None without one).
 
     The viscous coefficient is in the LINK-ONLY basis: the motor viscous ``B`` of drives.toml is
     removed in the target ``y = u - J qmdd - B qmd``, so ``v`` (``Fv``, ``g6``) is the viscous
@@ -377,8 +377,10 @@ class OneLinkIdentifier:
         p = presliding_length(s[keep], qd[keep], f[keep], v_cut)
         if p["end"] is None:
             return keep
-        self.presliding_ = {**p, "coulomb_without_cut": float(cv0.model.params["c"])}
-        return keep & (s >= p["end"])
+        out = keep & (s >= p["end"])
+        self.presliding_ = {**p, "coulomb_without_cut": float(cv0.model.params["c"]),
+                            "kept": float(out.sum() / max(int(keep.sum()), 1))}
+        return out
 
     def _fit_nonlinear(self, name, q, qd, qdd, y, cv) -> FrictionFit:
         cls = model_class(name)

@@ -154,7 +154,7 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
         notes.append(f"presliding cut: samples within {pres['end']:.3g} rad of each velocity reversal "
                      f"left out (the friction still rises with the distance moved since the reversal: "
                      f"length {pres['length']:.2g} rad, {100 * pres['gain']:.0f} % of the Coulomb + "
-                     f"viscous residual{eff})")
+                     f"viscous residual; {100 * pres['kept']:.0f} % of the moving samples kept{eff})")
 
     pflags = {m: to_json(assess(m, f.params, qd=sig.qd, stderr=f.stderr, model=f.friction(),
                                 form=f.form, tau_scale=float(np.max(np.abs(sig.tau)))))
