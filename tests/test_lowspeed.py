@@ -13,6 +13,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from reversals import displacement_by_loop  # noqa: E402
 from test_multijoint import C_TRUE, TX40, _write_arm7_campaign  # noqa: E402
 
 pytest.importorskip("pinocchio")
@@ -151,21 +152,6 @@ def test_cut_on_the_foreign_world(effect, seed, tmp_path_factory):
     assert len(c1) == 6 and np.all(np.abs(np.array(c1) - 1) < 0.03), c1
 
 
-def _displacement_by_loop(q, qd, floor):
-    """Distance from the last turning point, sample by sample (the test's own bookkeeping):
-    the turning point is the angle where the direction (of the rows faster than ``floor``)
-    last changed."""
-    out = np.zeros_like(q)
-    ref, direction = None, 0.0
-    for t in range(q.size):
-        if abs(qd[t]) >= floor:
-            d = np.sign(qd[t])
-            if d != direction:
-                ref, direction = q[t], d
-        out[t] = 0.0 if ref is None else abs(q[t] - ref)
-    return out
-
-
 def test_reversal_displacement_matches_a_sample_by_sample_count():
     from ident.friction.presliding import reversal_displacement
 
@@ -173,7 +159,7 @@ def test_reversal_displacement_matches_a_sample_by_sample_count():
     qd = np.cos(1.3 * t) + 0.4 * np.cos(3.1 * t + 0.5)
     q = np.concatenate([[0.0], np.cumsum(0.5 * (qd[1:] + qd[:-1]) * np.diff(t))])
     d = reversal_displacement(q[:, None], qd[:, None], np.array([0.02]))[:, 0]
-    assert np.allclose(d, _displacement_by_loop(q, qd, 0.02), atol=1e-12)
+    assert np.allclose(d, displacement_by_loop(q, qd, 0.02), atol=1e-12)
     assert d.max() > 1.0                       # runs of more than a radian between reversals
 
 
@@ -189,7 +175,7 @@ def test_presliding_cut_covers_an_elastic_rise_and_nothing_else():
     t = np.linspace(0.0, 60.0, 60001)
     qd = 1.5 * np.sin(2 * np.pi * 0.21 * t) + 0.6 * np.sin(2 * np.pi * 0.73 * t + 1.0)
     q = np.concatenate([[0.0], np.cumsum(0.5 * (qd[1:] + qd[:-1]) * np.diff(t))])
-    s = _displacement_by_loop(q, qd, 1e-3)
+    s = displacement_by_loop(q, qd, 1e-3)
     c, fv, xb = 4.0, 2.0, 0.02
     noise = rng.normal(0.0, 0.05, t.size)
     f = np.sign(qd) * c * np.minimum(s / xb, 1.0) + fv * qd + noise

@@ -13,6 +13,8 @@ from ident.model.onelink import (OneLinkIdentifier, fit_cv_linear, name_degenera
                            onelink_target)
 from ident.model.linkstate import prepare_joint_signals
 
+from reversals import displacement_by_loop
+
 TRUE = {"I": 0.4, "mglx": 3.0, "mgly": 1.0}
 J, B = 0.35, 0.9
 SERIES = FourierSeries(np.array([1.0, -0.6, 0.4, 0.2, -0.1]), np.array([0.4, 0.2, -0.6, 0.1, 0.04]),
@@ -105,15 +107,8 @@ def test_name_degenerate(model, params, stderr, expected):
 
 def _elastic_rise(q, qd, c, xb):
     """A friction that rises linearly with the distance moved since the last reversal and
-    saturates at ``c`` after ``xb`` (elastic-plastic; the test's own sample-by-sample count)."""
-    f = np.zeros_like(q)
-    ref, direction = q[0], np.sign(qd[0])
-    for t in range(q.size):
-        d = np.sign(qd[t])
-        if d != 0 and d != direction:
-            ref, direction = q[t], d
-        f[t] = direction * c * min(abs(q[t] - ref) / xb, 1.0)
-    return f
+    saturates at ``c`` after ``xb`` (elastic-plastic; the tests' own sample-by-sample count)."""
+    return np.sign(qd) * c * np.minimum(displacement_by_loop(q, qd, 0.0) / xb, 1.0)
 
 
 def test_presliding_rise_is_cut_and_a_plain_law_is_untouched():

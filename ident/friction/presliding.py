@@ -22,33 +22,28 @@ PRESLIDING_GAIN = 0.01
 
 
 def reversal_displacement(q, qd, v_floor) -> np.ndarray:
-    """``(T, n)`` distance each joint has moved since its last velocity reversal: ``|q_t - q_s|``
-    with ``s`` the first row of the current direction run, a run being the rows between two
-    changes of the sign of ``qd`` among the rows faster than ``v_floor`` (per joint, rad/s; the
-    rows below it, whose direction the velocity estimate does not give, belong to the run they
-    continue). The record's first run starts at its first row faster than ``v_floor``."""
+    """Distance each joint has moved since its last velocity reversal, ``(T,)`` for one joint's
+    ``(T,)`` signals or ``(T, n)`` for ``(T, n)`` ones: ``|q_t - q_s|`` with ``s`` the first row
+    of the current direction run, a run being the rows between two changes of the sign of ``qd``
+    among the rows faster than ``v_floor`` (per joint, rad/s; the rows below it, whose direction
+    the velocity estimate does not give, belong to the run they continue). The record's first
+    run starts at its first row faster than ``v_floor``; the rows before it get 0."""
     q = np.asarray(q, float)
     qd = np.asarray(qd, float)
-    fl = np.broadcast_to(np.asarray(v_floor, float), (q.shape[1],))
-    return np.column_stack([_reversal_displacement_1d(q[:, j], qd[:, j], fl[j])
-                            for j in range(q.shape[1])])
-
-
-def _reversal_displacement_1d(q, qd, v_floor) -> np.ndarray:
-    """One joint's :func:`reversal_displacement` (``(T,)``)."""
-    T = q.size
-    idx = np.arange(T)
-    d = np.where(np.abs(qd) >= v_floor, np.sign(qd), 0.0)
+    if q.ndim == 2:
+        fl = np.broadcast_to(np.asarray(v_floor, float), (q.shape[1],))
+        return np.column_stack([reversal_displacement(q[:, j], qd[:, j], fl[j])
+                                for j in range(q.shape[1])])
+    idx = np.arange(q.size)
+    d = np.where(np.abs(qd) >= float(v_floor), np.sign(qd), 0.0)
     nz = np.flatnonzero(d)
     if nz.size == 0:
-        return np.zeros(T)
+        return np.zeros(q.size)
     last = np.maximum.accumulate(np.where(d != 0, idx, -1))
     run = np.where(last >= 0, d[np.maximum(last, 0)], 0.0)          # direction carried forward
-    del last, d
-    start = np.zeros(T, bool)
+    start = np.zeros(q.size, bool)
     start[nz[0]] = True
     start[1:] |= (run[1:] != run[:-1]) & (run[:-1] != 0)
-    del run
     first = np.maximum.accumulate(np.where(start, idx, 0))
     return np.where(idx >= nz[0], np.abs(q - q[first]), 0.0)
 

@@ -249,7 +249,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
         fits[tr.id] = {m: idt.fit(rec) for m, idt in idts.items()}
         if sink is not None and sink.enabled:
             log_record_fits(sink, tr.id, rec, {m: idt.predicted(rec) for m, idt in idts.items()},
-                            fits[tr.id], used=idts[models[0]]._mask(without_unlogged(rec))[0])
+                            fits[tr.id], used=idts[models[0]]._mask(rec)[0])
         _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
     return MultiJointFits(fits, pre, secs)
@@ -301,7 +301,7 @@ def _log_presliding(sink, base: str, rec, j: int, e: dict, other) -> None:
     """Joint ``j``'s (0-based) friction against the distance since the last velocity reversal
     (:func:`log_record_fits`); ``other``: the model's torque less its friction, (T,)."""
     above = np.abs(rec.qd[:, j]) >= e["v_zero"]
-    s = reversal_displacement(rec.q[:, j:j + 1], rec.qd[:, j:j + 1], [e["x_floor"]])[above, 0]
+    s = reversal_displacement(rec.q[:, j], rec.qd[:, j], e["x_floor"])[above]
     y = np.sign(rec.qd[above, j]) * (rec.tau[above, j] - other[above])
     kept = s >= e["x_zero"]
     colors = np.where(kept[:, None], np.array([[60, 120, 220]]), np.array([[220, 80, 60]]))
@@ -351,7 +351,7 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
         fric = rec.tau - idt._predict(rec, A, F, sol) + np.einsum("tjp,p->tj", F, sol["bf"])
     # a joint driven through a coupled motor (FORMAT.md coupling: the motor's friction follows
     # the motor's reversals, not the joint's) is not cut
-    Ci = np.linalg.inv(rec.coupling) if getattr(rec, "coupled", False) else np.eye(rec.n)
+    Ci = np.linalg.inv(rec.coupling)
     shared = {j for k in idt._coupled(rec) for j in np.flatnonzero(np.abs(Ci[k]) > 1e-12)}
     pres, Mx = [], M.copy()
     for j in range(rec.n):                               # loop over joints (n <= ~7)
@@ -361,12 +361,11 @@ def _auto_cut(campaign, tr, robot, rec, chain, base, seed, settings) -> dict:
         if not Mv[:, j].any():
             pres.append(None)
             continue
-        disp = reversal_displacement(rec.q[:, j:j + 1], rec.qd[:, j:j + 1], floor[j:j + 1])[:, 0]
+        disp = reversal_displacement(rec.q[:, j], rec.qd[:, j], floor[j])
         rows = Mv[:, j]
         pres.append(presliding_length(disp[rows], rec.qd[rows, j], fric[rows, j], v0[j]))
         if pres[-1]["end"] is not None:
             Mx[:, j] &= disp >= pres[-1]["end"]
-        del disp
     x0 = np.array([p["end"] if p and p["end"] is not None else 0.0 for p in pres])
     # the cut's effect on Coulomb: the levels at the noise floor, half, once and twice the cut
     # (with the presliding cut), and at the cut without the presliding cut

@@ -354,10 +354,12 @@ class OneLinkIdentifier:
         v_cut = self.rest_frac * float(np.max(np.abs(qd))) if self.rest_frac > 0 and qd.size else 0.0
         keep = np.abs(qd) >= v_cut if v_cut > 0 else np.ones(qd.size, bool)
         self.presliding_ = None
+        cv = None                           # the Coulomb + viscous fit on the rows kept
         if self.presliding and int(keep.sum()) >= 20:
-            keep = self._presliding_rows(q, qd, qdd, y, keep, v_cut)
+            keep, cv = self._presliding_rows(q, qd, qdd, y, keep, v_cut)
         q, qd, qdd, y = q[keep], qd[keep], qdd[keep], y[keep]
-        cv = fit_cv_linear(q, qd, qdd, y)
+        if cv is None:
+            cv = fit_cv_linear(q, qd, qdd, y)
         if errors and all(np.isfinite(float(errors.get(k, np.nan))) for k in ("q", "qd", "qdd")):
             cv = with_eiv(cv, q, qd, qdd, errors)
         out = {}
@@ -369,18 +371,19 @@ class OneLinkIdentifier:
         return out
 
     def _presliding_rows(self, q, qd, qdd, y, keep, v_cut):
-        """``keep`` less the samples still in the presliding rise after a velocity reversal (the
-        class docstring); sets ``presliding_``."""
+        """``(keep less the samples still in the presliding rise after a velocity reversal, the
+        Coulomb + viscous fit on those rows or None where the cut removed some)`` (the class
+        docstring); sets ``presliding_``."""
         cv0 = fit_cv_linear(q[keep], qd[keep], qdd[keep], y[keep])
         f = y - onelink_regressor(q, qdd) @ np.array([cv0.extra[k] for k in RIGID_NAMES])
-        s = reversal_displacement(q[:, None], qd[:, None], np.array([v_cut]))[:, 0]
+        s = reversal_displacement(q, qd, v_cut)
         p = presliding_length(s[keep], qd[keep], f[keep], v_cut)
         if p["end"] is None:
-            return keep
+            return keep, cv0
         out = keep & (s >= p["end"])
         self.presliding_ = {**p, "coulomb_without_cut": float(cv0.model.params["c"]),
                             "kept": float(out.sum() / max(int(keep.sum()), 1))}
-        return out
+        return out, None
 
     def _fit_nonlinear(self, name, q, qd, qdd, y, cv) -> FrictionFit:
         cls = model_class(name)

@@ -38,7 +38,7 @@ import numpy as np
 from ident.friction import MODELS, laws
 from ident.friction.fit import fit_friction, param_jacobian
 from ident.friction.plausibility import assess, assess_armature, to_json
-from ident.friction.presliding import _reversal_displacement_1d
+from ident.friction.presliding import reversal_displacement
 from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
 from ident.signals.blas import one_blas_thread
@@ -351,8 +351,7 @@ class RigidBodyIdentifier:
         if self.x_zero is not None and not self.model_cls.dynamic:
             fl = v0 if self.x_floor is None else self.x_floor
             for j in np.flatnonzero(self.x_zero > 0):          # joints with a presliding cut
-                s_j = _reversal_displacement_1d(rec.q[:, j], rec.qd[:, j], fl[j])
-                M[:, j] &= s_j >= self.x_zero[j]
+                M[:, j] &= reversal_displacement(rec.q[:, j], rec.qd[:, j], fl[j]) >= self.x_zero[j]
         return M, v0
 
     # ---- fit -------------------------------------------------------------------------------
