@@ -48,6 +48,30 @@ def reversal_displacement(q, qd, v_floor) -> np.ndarray:
     return np.where(idx >= nz[0], np.abs(q - q[first]), 0.0)
 
 
+def shape_line_fits(a, y, shapes) -> tuple[np.ndarray, np.ndarray]:
+    """For each shape column ``t`` of ``shapes`` (an iterable of arrays like ``a``): the residual
+    sum of squares and ``c`` of the least-squares fit ``y ~ c t + fv a`` (2 x 2 normal
+    equations), ``(rss, c)`` arrays; inf and NaN where ``t`` and ``a`` are collinear (or the
+    sums are not finite). The grid
+    searches of :func:`presliding_length` and of the friction's sign transition
+    (:func:`ident.model.rigidbody.friction_transition`) run on it."""
+    saa, say, syy = float(a @ a), float(a @ y), float(y @ y)
+    rss, cs = [], []
+    for t in shapes:                                  # shapes of a grid, the rows vectorised
+        stt, sta, sty = float(t @ t), float(t @ a), float(t @ y)
+        det = stt * saa - sta * sta
+        if not det > 1e-12 * stt * saa:
+            rss.append(np.inf)
+            cs.append(np.nan)
+            continue
+        c = (sty * saa - sta * say) / det
+        fv = (stt * say - sta * sty) / det
+        rss.append(syy - c * sty - fv * say)
+        cs.append(c)
+    rss = np.array(rss, float)
+    return np.where(np.isnan(rss), np.inf, rss), np.array(cs, float)
+
+
 def presliding_length(disp, qd, friction, v_cut, n_grid: int = 121) -> dict:
     """The displacement over which a joint's friction builds up after each velocity reversal,
     from the friction the record shows on the rows faster than the speed cut ``v_cut``.
@@ -77,23 +101,11 @@ def presliding_length(disp, qd, friction, v_cut, n_grid: int = 121) -> dict:
     top = float(np.percentile(s, 99))
     if not top > 0:
         return none
-    saa, say, syy = float(a @ a), float(a @ y), float(y @ y)
-
-    def rss_of(t):
-        """RSS of y ~ c t + fv a (2 x 2 normal equations); inf when t and a are collinear."""
-        stt, sta, sty = float(t @ t), float(t @ a), float(t @ y)
-        det = stt * saa - sta * sta
-        if not det > 1e-12 * stt * saa:
-            return np.inf
-        c = (sty * saa - sta * say) / det
-        fv = (stt * say - sta * sty) / det
-        return syy - c * sty - fv * say
-
-    rss0 = rss_of(np.ones_like(a))
+    rss0 = shape_line_fits(a, y, [np.ones_like(a)])[0][0]
     if not (np.isfinite(rss0) and rss0 > 0):
         return none
     grid = np.geomspace(1e-6, 0.2, n_grid) * top
-    rss = np.array([rss_of(-np.expm1(-s / s0)) for s0 in grid])      # lengths of the grid
+    rss, _ = shape_line_fits(a, y, (-np.expm1(-s / s0) for s0 in grid))
     k = int(np.argmin(rss))
     gain = float(1.0 - rss[k] / rss0)
     if k in (0, n_grid - 1) or gain < PRESLIDING_GAIN:

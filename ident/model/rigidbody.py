@@ -38,7 +38,7 @@ import numpy as np
 from ident.friction import MODELS, laws
 from ident.friction.fit import fit_friction, param_jacobian
 from ident.friction.plausibility import assess, assess_armature, to_json
-from ident.friction.presliding import reversal_displacement
+from ident.friction.presliding import reversal_displacement, shape_line_fits
 from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
 from ident.signals.blas import one_blas_thread
@@ -190,22 +190,11 @@ def _tanh_width(a, y, lo, hi, n_grid: int = 121):
     if a.size < 20 or not hi > 0:
         return float("nan"), float("nan")
     grid = np.geomspace(1e-4, 1.0, n_grid) * hi
-    saa, say, syy = float(a @ a), float(a @ y), float(y @ y)
-    best = (np.inf, 0, np.nan)
-    for k, vs in enumerate(grid):                  # widths of the grid, the rows vectorised
-        t = laws.smooth_sign(a, vs)
-        stt, sta, sty = float(t @ t), float(t @ a), float(t @ y)
-        det = stt * saa - sta * sta
-        if det <= 1e-12 * stt * saa:
-            continue
-        c = (sty * saa - sta * say) / det
-        fv = (stt * say - sta * sty) / det
-        rss = syy - c * sty - fv * say
-        if rss < best[0]:
-            best = (rss, k, c)
-    if best[1] in (0, n_grid - 1):
+    rss, cs = shape_line_fits(a, y, (laws.smooth_sign(a, vs) for vs in grid))
+    k = int(np.argmin(rss))
+    if k in (0, n_grid - 1):
         return float("nan"), float("nan")
-    return float(grid[best[1]]), float(best[2])
+    return float(grid[k]), float(cs[k])
 
 
 def friction_transition(qd, friction, v_floor) -> dict:
