@@ -111,7 +111,7 @@ def report(scenario, rows, goals):
             ratio = np.sqrt(np.mean(a[:, col] ** 2) / np.mean(b[:, col] ** 2))
             boot = np.sqrt(np.mean(a[idx, col] ** 2, axis=1) / np.mean(b[idx, col] ** 2, axis=1))
             lo, hi = np.percentile(boot, [2.5, 97.5])
-            print(f"  cluster / cluster trust (URDF model error off), {what} rms: {ratio:.3f} "
+            print(f"  cluster / cluster trust (--trust-urdf: URDF model error off), {what} rms: {ratio:.3f} "
                   f"(95 % bootstrap over seeds {lo:.3f}-{hi:.3f})")
     if goals:
         o, crb_o, r, omax, rmax = stats["cluster"]

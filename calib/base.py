@@ -111,6 +111,7 @@ class BasePlacement:
     model_error_mm: float = 0.0   # model-error shift per URDF axis line and direction (model_error_terms)
     model_error_deg: float = 0.0  # model-error tilt per URDF axis line and direction
     budget: dict = None           # origin / rotation std of the noise part and the model-error part
+    urdf_trusted: bool = False    # the estimated model error left out (model_error=False, --trust-urdf)
 
     @staticmethod
     def _stds(C):
@@ -155,6 +156,7 @@ class BasePlacement:
             "model_error_mm": self.model_error_mm,
             "model_error_deg": self.model_error_deg,
             "budget": self.budget,
+            "urdf_trusted": self.urdf_trusted,
             "warnings": list(self.warnings),
             "iterations": self.iterations,
             "converged": self.converged,
@@ -512,14 +514,19 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
     inflation = 1.0
     if tau_s > 0 or tau_t > 0:     # RMS growth of the standard deviations over the noise-only solve
         inflation = float(np.sqrt(np.trace(cov) / max(np.trace(sum(parts[:len(axes)])), 1e-300)))
+    trusted = use == "cov" and not model_error
     warnings = []
     if dof > 0 and p_value < misfit_p:
         j1, j2 = axes[0].joint, axes[1].joint
+        what = (f"the URDF's J{j1}-J{j2} geometry is trusted (--trust-urdf): the base absorbs the "
+                "discrepancy and the reported uncertainty leaves it out; calibrate without --trust-urdf"
+                if trusted else
+                f"a model error of {1e3 * tau_s:.3f} mm and {np.degrees(tau_t):.4f} deg per axis line is "
+                f"included (standard deviations x{inflation:.2f})")
         warnings.append(
             f"the measured axes do not fit the URDF: chi2 = {chi2:.1f} on {dof} degrees of freedom "
             f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
-            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; a model error of {1e3 * tau_s:.3f} mm "
-            f"and {np.degrees(tau_t):.4f} deg per axis line is included (standard deviations x{inflation:.2f})")
+            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; {what}")
     reg = region95(parts, nus) if with_region else None
     if not sol.success:
         warnings.append(f"the base solve did not converge ({sol.message})")
@@ -530,4 +537,4 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
                          chi2=chi2, iterations=int(sol.nfev), converged=bool(sol.success),
                          cond=cond, dof=dof, p_value=p_value, inflation=inflation, warnings=tuple(warnings),
                          region95=reg, model_error_mm=1e3 * tau_s,
-                         model_error_deg=float(np.degrees(tau_t)), budget=budget)
+                         model_error_deg=float(np.degrees(tau_t)), budget=budget, urdf_trusted=trusted)

@@ -690,7 +690,9 @@ def summary_markdown(result: CalibResult, warnings: bool = True) -> str:
               f"marker noise {noise}; base solve {chi}, "
               f"{'converged' if b.converged else 'NOT converged'} in {b.iterations} evaluations"
               + (f"; URDF model error {b.model_error_mm:.3f} mm and {b.model_error_deg:.4f} deg per axis line "
-                 f"(docs/calibration.md), std x{b.inflation:.2f}" if b.model_error_mm > 0 else ""), ""]
+                 f"(docs/calibration.md), std x{b.inflation:.2f}" if b.model_error_mm > 0 else "")
+              + ("; the URDF's J1-J2 geometry trusted (--trust-urdf): no model error estimated"
+                 if b.urdf_trusted else ""), ""]
     reg = b.region95 or {}
     if reg:
         dof = {k: reg.get(f"{k}_dof") for k in ("origin", "rotation", "pose")}

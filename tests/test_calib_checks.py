@@ -163,3 +163,35 @@ def test_the_estimated_model_error_is_its_own_budget_line(bench, tmp_path):
     total = on.origin_std_mm ** 2
     parts = on.budget["noise"]["origin_std_mm"] ** 2 + on.budget["model_error"]["origin_std_mm"] ** 2
     assert parts == pytest.approx(total, rel=1e-6)
+
+
+def test_trust_urdf_drops_the_estimated_model_error_and_warns_when_the_data_reject_it(bench, tmp_path, capsys):
+    """``jointlab calib --trust-urdf``: with the URDF exact no model error is estimated (the budget
+    has no such line, calib.json and the summary say the URDF is trusted) and the reported
+    uncertainty is smaller than the default's; with a 1 mm J1-J2 offset missing from the URDF the
+    run still exits 0 but one warning on stderr names the misfit and --trust-urdf, and the base
+    carries the offset (its error is many times its reported std)."""
+    from ident.cli.main import main
+
+    bench.make_campaign(tmp_path / "ok", seed=2, n_poses=6, n_reflectors=3, mismatch=False)
+    assert main(["calib", str(tmp_path / "ok"), "--out", str(tmp_path / "a")]) == 0
+    assert main(["calib", str(tmp_path / "ok"), "--out", str(tmp_path / "b"), "--trust-urdf"]) == 0
+    out = capsys.readouterr().out
+    assert "trusted (--trust-urdf)" in out
+    a = json.loads((tmp_path / "a" / "calib.json").read_text())["base_solve"]
+    b = json.loads((tmp_path / "b" / "calib.json").read_text())["base_solve"]
+    assert a["urdf_trusted"] is False and b["urdf_trusted"] is True
+    assert a["model_error_mm"] > 0 and b["model_error_mm"] == 0.0
+    assert b["budget"]["model_error"]["origin_std_mm"] == 0.0
+    assert b["origin_std_mm"] < a["origin_std_mm"]
+
+    truth = bench.make_campaign(tmp_path / "off", seed=5, n_poses=6, n_reflectors=3, mismatch=True,
+                                offset_mm=(1.0, 1.0))
+    assert main(["calib", str(tmp_path / "off"), "--out", str(tmp_path / "c"), "--trust-urdf"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    misfit = [w for w in err if "do not fit the URDF" in w]
+    assert len(misfit) == 1 and "--trust-urdf" in misfit[0], err
+    doc = json.loads((tmp_path / "c" / "calib.json").read_text())
+    T = np.array(doc["T_camera_base"])
+    dp_mm = 1e3 * np.linalg.norm(T[:3, 3] - truth["T"][:3, 3])
+    assert dp_mm > 5 * doc["base_solve"]["origin_std_mm"], (dp_mm, doc["base_solve"]["origin_std_mm"])

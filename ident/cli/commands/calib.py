@@ -25,6 +25,12 @@ def register(sub):
                         "shift per direction across it): a floor on the model error estimated from the "
                         "measured J1-J2 discrepancy (default 0: the estimated one only; see "
                         "docs/calibration.md)")
+    p.add_argument("--trust-urdf", action="store_true",
+                   help="trust the URDF's J1-J2 axis offset and angle as exact (a kinematically "
+                        "calibrated robot): no model error is estimated from the measured J1-J2 "
+                        "discrepancy, so the base is more precise when the URDF is right and biased, "
+                        "with an uncertainty that leaves the bias out, when it is not (a chi2 misfit "
+                        "then warns); --urdf-tol-mm still applies (docs/calibration.md)")
     p.add_argument("--min-sweep-deg", type=float, default=15.0, metavar="DEG",
                    help="refuse sweeps shorter than this (default 15)")
     p.add_argument("--cross-check", action="store_true",
@@ -47,7 +53,7 @@ def run(args) -> int:
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
             result = workflow.calibrate(camp, method=args.method, sink=sink, noise_mm=args.noise_mm,
                                         min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check,
-                                        urdf_tol_mm=args.urdf_tol_mm)
+                                        urdf_tol_mm=args.urdf_tol_mm, trust_urdf=args.trust_urdf)
         stage = od.stage()
         path = od.final(result.write(stage))
         od.commit(stage)
