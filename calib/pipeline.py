@@ -684,6 +684,9 @@ def summary_markdown(result: CalibResult, warnings: bool = True) -> str:
               f"| rotation (deg) | {b.rotation_std_deg:.5f} | {b.crb_rotation_deg:.5f} |"]
     if b.budget:
         for name, what in (("noise", "of which marker noise"), ("model_error", "of which URDF model error")):
+            if name == "model_error" and b.urdf_trusted and b.model_error_mm == 0:
+                lines.append(f"| {what} (mm / deg) | not estimated (--trust-urdf) | |")
+                continue
             lines.append(f"| {what} (mm / deg) | {b.budget[name]['origin_std_mm']:.4f} / "
                          f"{b.budget[name]['rotation_std_deg']:.5f} | |")
     lines += ["",

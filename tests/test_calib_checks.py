@@ -177,7 +177,7 @@ def test_trust_urdf_drops_the_estimated_model_error_and_warns_when_the_data_reje
     assert main(["calib", str(tmp_path / "ok"), "--out", str(tmp_path / "a")]) == 0
     assert main(["calib", str(tmp_path / "ok"), "--out", str(tmp_path / "b"), "--trust-urdf"]) == 0
     out = capsys.readouterr().out
-    assert "trusted (--trust-urdf)" in out
+    assert "trusted (--trust-urdf)" in out and "| not estimated (--trust-urdf) |" in out
     a = json.loads((tmp_path / "a" / "calib.json").read_text())["base_solve"]
     b = json.loads((tmp_path / "b" / "calib.json").read_text())["base_solve"]
     assert a["urdf_trusted"] is False and b["urdf_trusted"] is True
