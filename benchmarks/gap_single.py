@@ -93,7 +93,8 @@ def run_one(job) -> dict:
     jr = rep["joints"][str(wa.moving_joint)]
     res.update(verdict=jr["verdict"], status=jr.get("verdict_status"), text=jr.get("verdict_text"),
                alternatives=[a["effect"] for a in jr.get("alternatives", [])],
-               detectable=jr.get("detectable_over_floor"))
+               detectable=jr.get("detectable_over_floor"),
+               extrapolated=(jr.get("channels", {}).get("torque") or {}).get("heldout_extrapolated_share"))
     ref = F.truth_reference(camp, wa.moving_joint, trial_ids=[tid], rigid_free=True)
     noise = ref.noise_rms ** 2
     res["size_torque"] = (ref.rms_nominal ** 2 - ref.rms_true ** 2) / noise if noise > 0 else float("nan")
@@ -144,6 +145,13 @@ def summarize(rows: list, min_size: float) -> dict:
           f"insufficient data among showable: {tot['insuf']}")
     print(f"effect-free records: {len(ctrl)}, false attributions {len(fa)} ({out['false_attribution_share']:.3f}: "
           f"{', '.join(sorted(r['verdict'] for r in fa)) or '-'}); statuses {dict(st)}")
+    ex = [r["extrapolated"] for r in rows if r.get("extrapolated") is not None]
+    if ex:
+        # held-out torque samples that their fold's training rows cannot predict (leverage > 1):
+        # above 5 % the verdict is `insufficient data` (the record does not repeat its motion)
+        print(f"held-out extrapolation (share of samples with leverage > 1): max {max(ex):.3f} over "
+              f"{len(ex)} records; records above 5 %: {sum(x > 0.05 for x in ex)}")
+        out["extrapolated_max"] = max(ex)
     if errors:
         print(f"errors: {len(errors)} (first: {errors[0]['name']} {errors[0]['trial']}: {errors[0]['error']})")
     ds = sorted(r["diagnose_s"] for r in rows if "diagnose_s" in r)

@@ -6,7 +6,7 @@ import pytest
 
 from gap_synth import EFFECTS, make_world
 from ident.gap import DiagnosisSettings, build_joint_data, diagnose_joint
-from ident.gap.engine import holm, sign_flip_pvalue
+from ident.gap.engine import grams, heldout_leverage, holm, sign_flip_pvalue
 
 SETTINGS = DiagnosisSettings(n_perm=4000, n_boot=100)
 #: FORMAT.md's regime names of ``localisation``
@@ -112,6 +112,30 @@ def test_sign_flip_pvalue_and_holm():
     assert 0.02 < np.mean(np.array(null_p) < 0.05) < 0.1  # calibrated under H0
     adj = holm({"a": 0.01, "b": 0.02, "c": 0.5})
     assert adj == pytest.approx({"a": 0.03, "b": 0.04, "c": 0.5})
+
+
+def test_heldout_leverage_flags_a_direction_seen_only_in_the_held_out_block():
+    """Leverage of each held-out sample under its fold's training rows: a sign column that is
+    +1 only in one block is undetermined when that block is held out (leverage far above 1,
+    every row of it); a design whose blocks each span the same directions keeps every held-out
+    leverage below 1, and for a held-out block that duplicates a training block the leverage is
+    the in-sample one, x^T (X^T X)^-1 x computed directly."""
+    rng = np.random.default_rng(4)
+    n, nb = 60, 4
+    bounds = np.array([[k * n, (k + 1) * n] for k in range(nb)])
+    v = np.concatenate([-1.0 - rng.random(n), -1.0 - rng.random(n), 1.0 + rng.random(n), -1.0 - rng.random(n)])
+    X = np.column_stack([np.sign(v), v, np.ones_like(v)])
+    fold = np.arange(nb)
+    h = heldout_leverage(grams(X, v, bounds), X, bounds, fold)
+    assert h.shape == (nb * n,)
+    assert np.all(h[2 * n:3 * n] > 1e3) and np.all(h[:2 * n] < 1) and np.all(h[3 * n:] < 1)
+    blk = rng.normal(size=(n, 3))
+    Xd = np.vstack([blk, blk, blk])
+    bd = bounds[:3]
+    hd = heldout_leverage(grams(Xd, Xd[:, 0], bd), Xd, bd, np.arange(3))
+    Xt = np.vstack([blk, blk])
+    direct = np.einsum("ij,jk,ik->i", blk, np.linalg.inv(Xt.T @ Xt), blk)
+    assert hd[:n] == pytest.approx(direct, rel=1e-9) and np.all(hd < 1)
 
 
 @pytest.mark.parametrize("effect", ["none", "position_ripple", "stribeck"])

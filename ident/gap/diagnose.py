@@ -36,9 +36,10 @@ from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmissi
                                _transmission_channel, nominal_heldout_rms, undeclared_payload_columns)
 from ident.gap.data import JointData
 from ident.gap.nominal import nominal_model
-from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, holm, own_blocks,
-                              loss_differential_test, loss_test_min_p, repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds, unexplained_fractions,
-                              white_noise_floor)
+from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, heldout_leverage,
+                              holm, loss_differential_test, loss_test_min_p, own_blocks,
+                              repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds,
+                              unexplained_fractions, white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
 from ident.signals.smoothing import one_blas_thread
 
@@ -346,6 +347,7 @@ class _ChannelRun:
     n_tested: int = 0             # identifiable candidates (Holm's multiplier at the first step)
     design: _TestDesign | None = None
     last_d: dict | None = None    # effect -> per-unit held-out loss differential at the last step
+    extrapolated: float = 0.0     # share of held-out samples with leverage > 1 (nominal columns)
 
     def powerless(self, alpha: float) -> bool:
         """True when even the most extreme outcome cannot pass Holm's first threshold."""
@@ -550,6 +552,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     X = ch.prep(ch.X0)
     base = grams(X, ch.target, ch.blocks)
     base_cv, _ = _cv(ch, X, fold, base=base, guard=design.guard)
+    extrapolated = (float(np.mean(heldout_leverage(base, X, ch.blocks, fold, design.guard) > 1.0))
+                    if X.shape[1] else 0.0)
     nominal_sse = base_cv.sse.copy()
     # residual of the nominal fit on all data -> white-noise floor
     resid_all = ch.target - X @ base_cv.theta_all if X.shape[1] else ch.target
@@ -641,7 +645,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         by_effect.pop(best.effect)
     n_tested = sum(1 for r in (tested_first or {}).values() if r.test.identifiable)
     return _ChannelRun(nominal_sse, base_cv, n_per_trial, noise, mse_nom, tested_first or {}, steps,
-                       current_sse, n_blocks, p_min, n_tested, design, step_d)
+                       current_sse, n_blocks, p_min, n_tested, design, step_d, extrapolated)
 
 
 def _stability(res: _ChannelRun, settings: DiagnosisSettings) -> dict:
@@ -720,7 +724,7 @@ def _channel_result(ch: Channel, res: _ChannelRun, settings: DiagnosisSettings) 
         ch.name, ch.unit, float(np.sqrt(res.mse_nominal)), bootstrap_ci(res.nominal_sse, n, seed=settings.seed),
         _rms(res.final_sse, n), bootstrap_ci(res.final_sse, n, seed=settings.seed),
         float(np.sqrt(res.noise_floor_mse)), tuple(s for s, _ in res.steps), n_blocks=res.n_blocks,
-        p_min_attainable=res.p_min)
+        p_min_attainable=res.p_min, extrapolated=res.extrapolated)
 
 
 def _selection_order(chres: dict) -> list:
@@ -842,7 +846,15 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
                     {cd.family for cd in cands if cd.channel == c} or {""})
         power[c] = max(r.detectable(settings.alpha), floor)
     spectrum = residual_spectrum(resid, tch.trial, dt, tres.noise_floor_mse)
-    status, insufficient, next_exp = _status(verdict, runs, power, settings, d, spectrum, localisation)
+    # held-out torque folds that extrapolate the nominal: the torque test cannot judge any effect
+    # (a transmission-channel finding has its own folds and nominal, and stands)
+    named = verdict
+    extrapolated = tres.extrapolated if (tres.extrapolated > EXTRAPOLATED_SHARE and not (
+        "transmission" in chres and chres["transmission"].selected)) else 0.0
+    if extrapolated:
+        verdict = "none"
+    status, insufficient, next_exp = _status(verdict, runs, power, settings, d, spectrum, localisation,
+                                             named, extrapolated)
     alternatives = _alternatives(verdict, runs, d)
     if alternatives and not next_exp:
         next_exp = {"why": f"{verdict} and {', '.join(a['effect'] for a in alternatives)} explain the same term",
@@ -862,7 +874,7 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         status=status, detectable=power, alternatives=alternatives, next_experiment=next_exp,
         spectrum_bands=tuple(spectrum["bands"]) if spectrum else (),
         tests={c: r.design.text for c, r in runs.items() if r.design is not None},
-        series=series)
+        extrapolated=extrapolated, series=series)
 
 
 #: the held-out gap above the white-noise floor, in units of the floor's variance, from which a
@@ -870,6 +882,11 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
 #: foreign campaigns leave 0.35-0.6 (command jitter through quantisation, the feedback column's
 #: residue); a gap of a full noise variance is beyond what an adequate nominal leaves.
 UNEXPLAINED_EXCESS = 1.0
+#: the share of held-out torque samples with a leverage above 1 under their fold's training rows
+#: (:func:`ident.gap.engine.heldout_leverage`) above which the verdict is ``insufficient_data``:
+#: the held-out folds extrapolate the nominal model, so the held-out test judges nothing
+#: (the shares measured on excitation records and point-to-point logs: docs/gap-diagnosis.md)
+EXTRAPOLATED_SHARE = 0.05
 #: effect -> the experiment that separates it from its confounders (the registry's)
 #: the size (noise-variance units) below which a channel is called powerful enough: an effect
 #: removing less than this is what the acceptance calls too small for any method to see
@@ -919,13 +936,27 @@ def _folds_text(d: JointData, runs: dict) -> str:
 
 
 def _status(verdict: str, runs: dict, power: dict, settings: DiagnosisSettings, d: JointData,
-            spectrum: dict, localisation) -> tuple:
+            spectrum: dict, localisation, named: str = "none", extrapolated: float = 0.0) -> tuple:
     """(status, text, next experiment) of the verdict: ``effect``; ``none`` (the gap is at the
     noise floor, and the data could have shown an effect of the stated size); ``unexplained``
     (a gap above the floor that no effect of the vocabulary explains: where it lies by regime and
-    frequency band); ``insufficient_data`` (the data could not have shown an effect of
-    :data:`POWER_TARGET` noise variances: what to record next)."""
+    frequency band); ``insufficient_data`` (the held-out folds extrapolate the nominal model, see
+    :data:`EXTRAPOLATED_SHARE`, or the data could not have shown an effect of
+    :data:`POWER_TARGET` noise variances: what to record next). ``extrapolated``: the share of
+    held-out torque samples that extrapolate, when it decides the verdict (0 otherwise);
+    ``named``: the effect the selection named before that set the verdict to ``none``."""
     tr = runs["torque"]
+    if extrapolated:
+        sel = (f"; the selection named {named} on these folds, which it cannot test" if named != "none" else "")
+        text = (f"the record does not repeat its motion: {extrapolated:.0%} of the held-out torque samples "
+                "lie where the rest of the record does not determine the nominal model (leverage above 1, e.g. "
+                "a direction of motion seen in one motion cycle only), so their held-out gap says nothing about "
+                f"unmodelled effects{sel}; record the motion at least twice, or an excitation that reverses "
+                "many times")
+        return "insufficient_data", text, {
+            "kind": "excitation", "why": "the held-out motion cycles extrapolate the nominal model",
+            "proposal": "repeat the trajectory (two or more cycles in each direction), or record an excitation",
+            "command": _design_command(d)}
     if verdict != "none":
         return "effect", "", {}
     det = power.get("torque", float("inf"))

@@ -191,6 +191,34 @@ def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_blocks: np.ndarray |
     return CVResult(sse, chosen, th, hp, tr, thetas)
 
 
+def heldout_leverage(gr: Grams, X: np.ndarray, bounds: np.ndarray, fold: np.ndarray,
+                     guard: dict | None = None) -> np.ndarray:
+    """The leverage of every held-out sample under its fold's training design: ``h_i = x_i^T
+    (X_tr^T X_tr)^+ x_i`` with ``X_tr`` the rows the fold trains on (the blocks of the other
+    folds less the ``guard``, as in :func:`cross_validate`). A training row's leverage is at
+    most 1; a held-out row with ``h > 1`` is predicted less well than one measurement could
+    tell it, i.e. extrapolated (Montgomery, Peck & Vining, *Introduction to Linear Regression
+    Analysis*, sec. 3.8, hidden extrapolation): the training rows do not determine the model
+    in a direction that row needs (a direction of motion seen only in the held-out cycle).
+    Directions the training design does not span at all (eigenvalues below 1e-12 of the
+    largest) give a huge leverage. Returns (len of the held-out samples,) in the order of the
+    folds, then of their blocks."""
+    out = []
+    for f in np.unique(fold):
+        test = fold == f
+        train = ~test
+        if guard is not None and f in guard:
+            train &= ~guard[f]
+        rows = np.concatenate([np.arange(s, e) for s, e in bounds[test]] or [np.zeros(0, int)])
+        if not train.any():
+            out.append(np.full(rows.size, np.inf))
+            continue
+        w, V = np.linalg.eigh(gr.G[train].sum(axis=0))
+        w = np.maximum(w, 1e-12 * max(float(w.max()), 1e-300))
+        out.append(np.sum((X[rows] @ V) ** 2 / w, axis=1))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 def unexplained_fractions(gr: Grams, p: int) -> np.ndarray:
     """Per column after the first ``p``: the share of its norm outside the span of the first
     ``p`` columns (0..1), from the pooled Gram matrix (Schur complement)."""

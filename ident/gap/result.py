@@ -15,11 +15,13 @@ def _fin(x):
     return float(x) if x is not None and x == x and abs(x) != float("inf") else None
 
 
-def verdict_line(verdict: str, status: str, size: dict, detectable: dict, alternatives=(), channels=None) -> str:
+def verdict_line(verdict: str, status: str, size: dict, detectable: dict, alternatives=(), channels=None,
+                 extrapolated: float = 0.0) -> str:
     """One line: ``stribeck: removes 2.1 noise variances (held-out RMS -14 %)``; ``none: the gap is
     at the noise floor (this record could have shown an effect of 0.12 noise variances)``;
-    ``unexplained: ...``; ``insufficient data: ...``. Alternatives that explain the same term
-    are named with it."""
+    ``unexplained: ...``; ``insufficient data: ...`` (``extrapolated``: the share of held-out
+    samples the rest of the record cannot predict, when that is the reason). Alternatives that
+    explain the same term are named with it."""
     det = detectable.get("torque") if detectable else None
     dtxt = (f"{det:.2g} noise variances" if det is not None and det == det and det != float("inf")
             else "no effect at all")
@@ -34,6 +36,9 @@ def verdict_line(verdict: str, status: str, size: dict, detectable: dict, altern
         return s
     if status == "unexplained":
         return f"unexplained: a gap above the noise floor that no vocabulary effect explains (could have shown {dtxt})"
+    if status == "insufficient_data" and extrapolated > 0:
+        return (f"insufficient data: the record does not repeat its motion ({extrapolated:.0%} of the held-out "
+                "samples extrapolate the nominal model)")
     if status == "insufficient_data":
         return f"insufficient data: this record could have shown only an effect of {dtxt}"
     return f"none: the gap is at the noise floor (this record could have shown an effect of {dtxt})"
@@ -121,6 +126,7 @@ class ChannelResult:
     noise_floor_method: str = "white (second differences)"
     n_blocks: int = 0
     p_min_attainable: float | None = None
+    extrapolated: float = 0.0     # held-out samples with leverage > 1 (engine.heldout_leverage)
 
     @property
     def remaining_gap_over_noise(self) -> float:
@@ -136,6 +142,7 @@ class ChannelResult:
              "selected": [s.to_dict() for s in self.selected], "n_blocks": int(self.n_blocks),
              "p_min_attainable": _f(self.p_min_attainable)}
         if self.name == "torque":
+            d["heldout_extrapolated_share"] = float(self.extrapolated)
             r = self.noise_floor_rms_repetitions
             d["noise_floor_rms_repetitions"] = _f(r)
             if r is not None and r > 0:
@@ -190,6 +197,10 @@ class DiagnosisResult:
         ``({"band_hz", "excess_share", "excess_over_floor"}, ...)`` of the held-out residual.
     tests : dict
         Channel -> how its units were tested.
+    extrapolated : float
+        When the verdict is ``insufficient_data`` because the held-out folds extrapolate the
+        nominal model: the share of held-out torque samples with a leverage above 1 under their
+        fold's training rows (:func:`ident.gap.engine.heldout_leverage`); 0 otherwise.
     series : dict
         Time series for the plots (not in the JSON).
 
@@ -217,6 +228,7 @@ class DiagnosisResult:
     next_experiment: dict = field(default_factory=dict)
     spectrum_bands: tuple = ()      # ({"band_hz", "excess_share", "excess_over_floor"}, ...)
     tests: dict = field(default_factory=dict)          # channel -> how its units were tested
+    extrapolated: float = 0.0       # share of held-out torque samples with leverage > 1 (when it decides)
     series: dict = field(default_factory=dict, repr=False, compare=False)   # plots, not in JSON
 
     @property
@@ -228,7 +240,7 @@ class DiagnosisResult:
         """The verdict in one line, the same wherever it is shown (console, study report,
         diagnosis.md, diagnosis.json's ``verdict_text``)."""
         return verdict_line(self.verdict, self.verdict_status, self.effect_size(), self.detectable,
-                            self.alternatives, self.channels)
+                            self.alternatives, self.channels, self.extrapolated)
 
     def effect_size(self) -> dict:
         """The verdict's size: held-out variance removed over the noise floor, its held-out
@@ -272,6 +284,8 @@ class DiagnosisResult:
             d["tests"] = dict(self.tests)
         if self.verdict_status == "insufficient_data":
             d["insufficient_data"] = self.insufficient
+            if self.extrapolated > 0:
+                d["heldout_extrapolated_share"] = float(self.extrapolated)
         elif self.verdict_status == "unexplained":
             d["unexplained"] = self.insufficient
         if self.notes:
