@@ -83,6 +83,10 @@ class BasePlacement:
     budget : dict or None, optional
         Origin and rotation standard deviations of the noise part and of the model-error
         part.
+    urdf_trusted : bool, optional
+        True when the model error estimated from the J1-J2 discrepancy was left out (the URDF's
+        J1-J2 geometry trusted: ``place_base(model_error=False)``, ``jointlab calib
+        --trust-urdf``); default False.
 
     References
     ----------
