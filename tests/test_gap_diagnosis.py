@@ -7,6 +7,7 @@ import pytest
 from gap_synth import EFFECTS, make_world
 from ident.gap import DiagnosisSettings, build_joint_data, diagnose_joint
 from ident.gap.engine import grams, heldout_leverage, holm, sign_flip_pvalue
+from mocap.io.robotlog import RobotLog
 
 SETTINGS = DiagnosisSettings(n_perm=4000, n_boot=100)
 #: FORMAT.md's regime names of ``localisation``
@@ -112,6 +113,28 @@ def test_sign_flip_pvalue_and_holm():
     assert 0.02 < np.mean(np.array(null_p) < 0.05) < 0.1  # calibrated under H0
     adj = holm({"a": 0.01, "b": 0.02, "c": 0.5})
     assert adj == pytest.approx({"a": 0.03, "b": 0.04, "c": 0.5})
+
+
+@pytest.mark.parametrize("seconds", [1.2, 10.0])
+def test_a_record_that_does_not_repeat_its_motion_is_insufficient_data(tmp_path, seconds):
+    """One effect-free record of the closed-form world: over 1.2 s each direction of motion is
+    one motion cycle, so holding a cycle out leaves the nominal undetermined for it (most
+    held-out samples extrapolate): ``insufficient data``, naming the non-repeated motion. The
+    full 10 s record repeats its motion: no held-out sample extrapolates and the verdict is an
+    ordinary one."""
+    rb, trials, logs, angles, _ = make_world(tmp_path, loads=(0.0,), vmaxs=(1.0,), reps=1, seed=3)
+    lg = logs[0]
+    m = lg.time < lg.time[0] + seconds
+    d = build_joint_data(2, trials, [RobotLog(lg.time[m], lg.qm[m], lg.tau[m])], rb)
+    r = diagnose_joint(d).to_dict()
+    share = r["channels"]["torque"]["heldout_extrapolated_share"]
+    if seconds < 2:
+        assert r["verdict"] == "none" and r["verdict_status"] == "insufficient_data"
+        assert share > 0.5 and r["heldout_extrapolated_share"] == share
+        assert "does not repeat its motion" in r["verdict_text"]
+    else:
+        assert share == 0.0 and "heldout_extrapolated_share" not in r
+        assert "does not repeat" not in r["verdict_text"]
 
 
 def test_heldout_leverage_flags_a_direction_seen_only_in_the_held_out_block():
