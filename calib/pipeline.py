@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -553,6 +553,70 @@ def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None
     return CalibResult(base.T_camera_base, tuple(fits), base, method, noise_mm, tuple(sweeps))
 
 
+def compensate_deflection(sweeps, robot, markers: dict, T_camera_base: np.ndarray) -> tuple:
+    """The sweeps with each marker moved to where it would be if the joints a sweep does not
+    move kept their motor-side (logged) angles, undoing their static deflection under gravity.
+
+    A joint of declared stiffness ``K`` (drives.toml) gives under the torque it carries,
+    ``q_link - q_motor = -tau(q) / K`` (thesis eq. 2-1; :meth:`mocap.robot.Robot.held_deflection`,
+    first order, at the logged angles). Sweeping joint 2 changes the gravity torque on the joints
+    beyond it, so a marker on a distal link leaves the circle about the swept axis by the
+    changing deflection, and the logged angles do not show it. With the marker's position ``r``
+    on its link from a first placement ``T_camera_base`` (median over the frames), the shift of
+    frame ``i`` is ``T_link(q_r,i) r - T_link(q_l,i) r`` (base frame, turned into the camera
+    frame), with ``q_l`` the deflected angles and ``q_r`` the logged ones except the swept
+    joint's (its own deflection only moves the marker along its circle).
+
+    Parameters
+    ----------
+    sweeps : sequence of SweepData
+        Prepared sweeps (with ``q_frames``).
+    robot : mocap.robot.Robot
+        The robot (URDF inertia for the torques, drives.toml stiffness).
+    markers : dict
+        The campaign's link -> marker labels.
+    T_camera_base : numpy.ndarray
+        (4, 4) first placement of the base.
+
+    Returns
+    -------
+    tuple
+        (sweeps with compensated positions, largest shift in mm).
+    """
+    Tinv = np.linalg.inv(T_camera_base)
+    R = T_camera_base[:3, :3]
+    out, largest = [], 0.0
+    for sw in sweeps:   # loop over the sweeps (two), vectorised over frames
+        if sw.q_frames is None:
+            out.append(sw)
+            continue
+        ok = np.all(np.isfinite(sw.q_frames), axis=1)
+        qm = sw.q_frames[ok]
+        ql = qm + robot.held_deflection(qm)
+        qr = qm.copy()
+        qr[:, sw.joint - 1] = ql[:, sw.joint - 1]
+        pos = sw.positions.copy()
+        xb = sw.positions[ok] @ Tinv[:3, :3].T + Tinv[:3, 3]                 # (T, M, 3) base frame
+        for lk in sw.links:
+            idx = [k for k, lb in enumerate(sw.labels) if lb in set(markers.get(lk, ()))]
+            if not idx:
+                continue
+            Tl, Tr = robot.chain.frame_transform(lk, ql), robot.chain.frame_transform(lk, qr)
+            loc = np.einsum("tji,tmj->tmi", Tl[:, :3, :3], xb[:, idx] - Tl[:, None, :3, 3])
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message="All-NaN slice", category=RuntimeWarning)
+                r = np.nanmedian(loc, axis=0)                                    # (K, 3) on the link
+            shift = (np.einsum("tij,kj->tki", Tr[:, :3, :3] - Tl[:, :3, :3], r)
+                     + (Tr[:, None, :3, 3] - Tl[:, None, :3, 3]))                # (T, K, 3) base
+            block = pos[ok]
+            block[:, idx] += shift @ R.T
+            pos[ok] = block
+            if np.isfinite(shift).any():
+                largest = max(largest, float(1e3 * np.nanmax(np.linalg.norm(shift, axis=2))))
+        out.append(replace(sw, positions=pos))
+    return tuple(out), largest
+
+
 def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
     """The hand-eye / robot-world peer (:class:`calib.handeye.HandEyeEstimator`) on the same
     sweeps: the most distal link with at least 3 markers seen in every sweep, all encoder angles."""
@@ -571,7 +635,8 @@ def handeye_cross_check(sweeps, chain, markers: dict, link: str | None = None):
 
 def calibrate(campaign, robot=None, method: str = "auto", sink=None,
               noise_mm: float | None = None, min_sweep_deg: float = 15.0, joints=(1, 2),
-              cross_check: bool = False, urdf_tol_mm: float = 0.0, **options) -> CalibResult:
+              cross_check: bool = False, urdf_tol_mm: float = 0.0, deflection: bool = False,
+              **options) -> CalibResult:
     """Calibrate ``T_camera_base`` for a loaded campaign (:func:`mocap.io.campaign.load_campaign`).
 
     Reads every ``[[calib]]`` entry of ``joints`` [2]_, checks that each sweep moves its joint
@@ -605,6 +670,10 @@ def calibrate(campaign, robot=None, method: str = "auto", sink=None,
         difference under ``extra["handeye"]``; default False.
     urdf_tol_mm : float, optional
         Standard uncertainty of the URDF's axis placement (mm); default 0.
+    deflection : bool, optional
+        Undo the joints' static deflection under gravity at the stiffness declared in
+        drives.toml (:func:`compensate_deflection`: a first placement, the markers moved, a
+        second placement); default False.
     **options
         Passed to :func:`calibrate_sweeps` (``frame_step``, ``checks``, ``urdf_model_error``,
         estimator settings).
@@ -630,8 +699,17 @@ def calibrate(campaign, robot=None, method: str = "auto", sink=None,
     if robot is None:
         robot = campaign.load_robot()
     sweeps = load_sweeps(campaign, robot, min_sweep_deg, joints)
+    if deflection and not np.any(robot.stiffness > 0):
+        raise InputError("--deflection needs the joints' stiffness in drives.toml (stiffness = K, N m/rad): "
+                         "none is declared", path=campaign.root / "campaign.toml")
     result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm,
                               urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
+    if deflection:
+        sweeps, shift_mm = compensate_deflection(sweeps, robot, campaign.markers, result.T_camera_base)
+        result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm,
+                                  urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
+        result = replace(result, extra={**dict(result.extra),
+                                        "deflection": {"compensated": True, "largest_shift_mm": shift_mm}})
     if cross_check:
 
         he = handeye_cross_check(sweeps, robot.chain, campaign.markers)
@@ -695,7 +773,10 @@ def summary_markdown(result: CalibResult, warnings: bool = True) -> str:
               + (f"; URDF model error {b.model_error_mm:.3f} mm and {b.model_error_deg:.4f} deg per axis line "
                  f"(docs/calibration.md), std x{b.inflation:.2f}" if b.model_error_mm > 0 else "")
               + ("; the URDF's J1-J2 geometry trusted (--trust-urdf): no model error estimated"
-                 if b.urdf_trusted else ""), ""]
+                 if b.urdf_trusted else "")
+              + (f"; the joints' static deflection under gravity undone at the declared stiffness "
+                 f"(--deflection): markers moved by up to {result.extra['deflection']['largest_shift_mm']:.3f} mm"
+                 if result.extra.get("deflection") else ""), ""]
     reg = b.region95 or {}
     if reg:
         dof = {k: reg.get(f"{k}_dof") for k in ("origin", "rotation", "pose")}

@@ -707,7 +707,7 @@ class CalibrationResult:
 
 def calibrate(campaign, *, robot=None, method: str = "auto", noise_mm: float | None = None,
               min_sweep_deg: float = 15.0, cross_check: bool = False, urdf_tol_mm: float = 0.0,
-              trust_urdf: bool = False, sink=None) -> CalibrationResult:
+              trust_urdf: bool = False, deflection: bool = False, sink=None) -> CalibrationResult:
     """Place the robot base in the camera frame from the campaign's ``[[calib]]`` sweeps.
 
     The joint 1 sweep then the joint 2 sweep give two axes (:func:`calib.pipeline.calibrate`).
@@ -729,6 +729,9 @@ def calibrate(campaign, *, robot=None, method: str = "auto", noise_mm: float | N
     trust_urdf : bool
         Trust the URDF's J1-J2 geometry: no model error estimated from the measured J1-J2
         discrepancy (``urdf_model_error=False`` of :func:`calib.pipeline.calibrate_sweeps`).
+    deflection : bool
+        Undo the joints' static deflection under gravity at the declared stiffness
+        (:func:`calib.pipeline.compensate_deflection`).
     sink : viz.Sink, optional
 
     Returns
@@ -742,7 +745,8 @@ def calibrate(campaign, *, robot=None, method: str = "auto", noise_mm: float | N
     robot = robot if robot is not None else campaign.load_robot()
     return CalibrationResult(_calibrate(campaign, robot, method=method, sink=sink, noise_mm=noise_mm,
                                         min_sweep_deg=min_sweep_deg, cross_check=cross_check,
-                                        urdf_tol_mm=urdf_tol_mm, urdf_model_error=not trust_urdf))
+                                        urdf_tol_mm=urdf_tol_mm, urdf_model_error=not trust_urdf,
+                                        deflection=deflection))
 
 
 # ============================================================================================

@@ -31,6 +31,11 @@ def register(sub):
                         "discrepancy, so the base is more precise when the URDF is right and biased, "
                         "with an uncertainty that leaves the bias out, when it is not (a chi2 misfit "
                         "then warns); --urdf-tol-mm still applies (docs/calibration.md)")
+    p.add_argument("--deflection", action="store_true",
+                   help="undo the joints' static deflection under gravity at the stiffness declared in "
+                        "drives.toml before placing the base (markers on links beyond the swept joint "
+                        "of an arm that gives under gravity; a first placement, the markers moved, a "
+                        "second placement; docs/calibration.md)")
     p.add_argument("--min-sweep-deg", type=float, default=15.0, metavar="DEG",
                    help="refuse sweeps shorter than this (default 15)")
     p.add_argument("--cross-check", action="store_true",
@@ -53,7 +58,8 @@ def run(args) -> int:
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
             result = workflow.calibrate(camp, method=args.method, sink=sink, noise_mm=args.noise_mm,
                                         min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check,
-                                        urdf_tol_mm=args.urdf_tol_mm, trust_urdf=args.trust_urdf)
+                                        urdf_tol_mm=args.urdf_tol_mm, trust_urdf=args.trust_urdf,
+                                        deflection=args.deflection)
         stage = od.stage()
         path = od.final(result.write(stage))
         od.commit(stage)
