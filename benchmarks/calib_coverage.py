@@ -42,8 +42,8 @@ The truth is the real robot's base frame (where the URDF's J1-J2 geometry is off
 the URDF's axis lines cannot know which of the two is wrong: the reported region must cover
 that too).
 
-    python benchmarks/calib_coverage.py            # 200 runs per cell (28 cells, ~10 min on one free core)
-    python benchmarks/calib_coverage.py --quick    # 40 runs per cell, about 75 s
+    python benchmarks/calib_coverage.py            # 200 runs per cell (30 cells, ~11 min on one free core)
+    python benchmarks/calib_coverage.py --quick    # 40 runs per cell, about 90 s
     python benchmarks/calib_coverage.py --runs 300 --cells 6x1-exact,3x3-mismatch
 """
 from __future__ import annotations
