@@ -245,7 +245,7 @@ def run_one(cell: str, seed: int, tmp: Path) -> dict:
     shape, kind = cell.split("-")
     n, m = (int(x) for x in shape.split("x"))
     root = tmp / f"{cell}-{seed}"
-    truth = make_campaign(root, seed, n, m, kind not in ("exact", "trusted", "deflect", "deflecttol", "deflectcomp"),
+    truth = make_campaign(root, seed, n, m, kind in ("mismatch", "declared", "trustmis"),
                           los_ratio=LOS_RATIO, deflect=kind.startswith("deflect"))
     opts = ({"urdf_tol_mm": URDF_TOL_MM} if kind in ("declared", "deflecttol") else
             {"urdf_model_error": False} if kind in ("trusted", "trustmis") else

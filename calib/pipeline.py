@@ -419,6 +419,12 @@ def check_urdf_scale(sweeps, fits, chain, urdf_path=None) -> None:
                                  path=urdf_path if urdf_path is not None else sw.markers_path)
 
 
+def _on_link(x_base: np.ndarray, T_link: np.ndarray) -> np.ndarray:
+    """Points ``(T, M, 3)`` of the base frame in their link's frame at each frame's pose
+    ``T_link`` ``(T, 4, 4)``: ``R^T (x - p)``."""
+    return np.einsum("tji,tmj->tmi", T_link[:, :3, :3], x_base - T_link[:, None, :3, 3])
+
+
 def marker_offset_m(sweeps, chain, T_camera_base, flip=()) -> float:
     """Median distance of the markers from their link's origin (link frame, averaged over the
     poses) when the base is ``T_camera_base`` and the logged angles of the joints in ``flip``
@@ -436,8 +442,7 @@ def marker_offset_m(sweeps, chain, T_camera_base, flip=()) -> float:
             continue
         xb = sw.positions[ok] @ Tinv[:3, :3].T + Tinv[:3, 3]                # (T, M, 3) base frame
         for lk in sw.links:
-            Tl = chain.frame_transform(lk, q[ok])                            # (T, 4, 4)
-            s = np.einsum("tji,tmj->tmi", Tl[:, :3, :3], xb - Tl[:, None, :3, 3])
+            s = _on_link(xb, chain.frame_transform(lk, q[ok]))
             seen = np.all(np.isfinite(s), axis=2)                            # (T, M)
             for k in np.flatnonzero(seen.any(axis=0)):  # loop over markers (few)
                 out.append(float(np.linalg.norm(np.median(s[seen[:, k], k], axis=0))))
@@ -598,11 +603,12 @@ def compensate_deflection(sweeps, robot, markers: dict, T_camera_base: np.ndarra
         pos = sw.positions.copy()
         xb = sw.positions[ok] @ Tinv[:3, :3].T + Tinv[:3, 3]                 # (T, M, 3) base frame
         for lk in sw.links:
-            idx = [k for k, lb in enumerate(sw.labels) if lb in set(markers.get(lk, ()))]
+            on_link = set(markers.get(lk, ()))
+            idx = [k for k, lb in enumerate(sw.labels) if lb in on_link]
             if not idx:
                 continue
             Tl, Tr = robot.chain.frame_transform(lk, ql), robot.chain.frame_transform(lk, qr)
-            loc = np.einsum("tji,tmj->tmi", Tl[:, :3, :3], xb[:, idx] - Tl[:, None, :3, 3])
+            loc = _on_link(xb[:, idx], Tl)
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", message="All-NaN slice", category=RuntimeWarning)
                 r = np.nanmedian(loc, axis=0)                                    # (K, 3) on the link

@@ -167,6 +167,17 @@ def _best_fit(grams_by_hp: dict, mask: np.ndarray):
     return best
 
 
+def _fold_masks(fold: np.ndarray, guard: dict | None = None, fit_mask: np.ndarray | None = None):
+    """Per fold ``f``: ``(f, test, train)`` block masks, the training blocks being those of the
+    other folds (within ``fit_mask``) less the fold's ``guard`` (hv-block)."""
+    for f in np.unique(fold):
+        test = fold == f
+        train = ~test if fit_mask is None else ~test & fit_mask
+        if guard is not None and f in guard:
+            train &= ~guard[f]
+        yield f, test, train
+
+
 def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_blocks: np.ndarray | None = None,
                    guard: dict | None = None) -> CVResult:
     """Leave-one-fold-out: in each fold choose the shape parameter by training SSE, then
@@ -178,11 +189,7 @@ def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_blocks: np.ndarray |
     fit_mask = np.ones(nt, bool) if fit_blocks is None else fit_blocks
     sse = np.zeros(nt)
     chosen, thetas = {}, {}
-    for f in np.unique(fold):
-        test = fold == f
-        train = ~test & fit_mask
-        if guard is not None and f in guard:
-            train &= ~guard[f]
+    for f, test, train in _fold_masks(fold, guard, fit_mask):
         _, hp, th = _best_fit(grams_by_hp, train)
         chosen[f] = hp
         thetas[f] = th
@@ -203,13 +210,11 @@ def heldout_leverage(gr: Grams, X: np.ndarray, bounds: np.ndarray, fold: np.ndar
     Directions the training design does not span at all (eigenvalues below 1e-12 of the
     largest) give a huge leverage. Returns (len of the held-out samples,) in the order of the
     folds, then of their blocks."""
+    rows_all = np.concatenate([np.arange(s, e) for s, e in bounds] or [np.zeros(0, int)])
+    block_of = np.repeat(np.arange(bounds.shape[0]), bounds[:, 1] - bounds[:, 0])
     out = []
-    for f in np.unique(fold):
-        test = fold == f
-        train = ~test
-        if guard is not None and f in guard:
-            train &= ~guard[f]
-        rows = np.concatenate([np.arange(s, e) for s, e in bounds[test]] or [np.zeros(0, int)])
+    for _, test, train in _fold_masks(fold, guard):
+        rows = rows_all[test[block_of]]
         if not train.any():
             out.append(np.full(rows.size, np.inf))
             continue
