@@ -172,6 +172,11 @@ def test_rerun_skips_and_a_changed_input_reruns_only_its_trial(tiny, serial_run,
     # other settings -> the fits rerun
     res = Study(dataclass_replace(FAST, n_starts=3), None, progress=False).run(camp2, out)
     assert res.stages["fits"]["computed"] == 4 and res.stages["mocap"]["computed"] == 0
+    # a calibration option (jointlab study --trust-urdf) -> the calibration reruns, and says so
+    assert json.loads((out / "calib.json").read_text())["base_solve"]["urdf_trusted"] is False
+    res = Study(dataclass_replace(FAST, n_starts=3, calib_trust_urdf=True), None, progress=False).run(camp2, out)
+    assert res.stages["calib"]["computed"] == 1
+    assert json.loads((out / "calib.json").read_text())["base_solve"]["urdf_trusted"] is True
 
 
 def dataclass_replace(obj, **kw):
@@ -257,6 +262,20 @@ def test_cli_refuses_output_inside_campaign(tiny, capsys):
     assert not (camp / "results").exists()
 
 
+def test_cli_study_deflection_without_declared_stiffness_is_refused_before_any_work(tiny, tmp_path, capsys):
+    camp, _, _ = tiny
+    camp2 = tmp_path / "camp"
+    shutil.copytree(camp, camp2)
+    drives = camp2 / "robot" / "drives.toml"
+    drives.write_text("".join(ln for ln in drives.read_text().splitlines(keepends=True)
+                              if not ln.strip().startswith("stiffness")))
+    rc = main(["study", str(camp2), "--out", str(tmp_path / "o"), "--workers", "1", "--deflection", "--quiet"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "drives.toml" in err and "--deflection" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
 def test_demo_without_fixture_says_how_to_regenerate(tmp_path, monkeypatch, capsys):
     import ident.cli.commands.demo as demo
 
@@ -276,6 +295,8 @@ def test_settings_are_validated():
         StudySettings(rrd_trials="some").validate()
     with pytest.raises(InputError, match="diagnosis_reps"):
         StudySettings(diagnosis_reps=-1).validate()
+    with pytest.raises(InputError, match="urdf-tol-mm"):
+        StudySettings(calib_urdf_tol_mm=-0.1).validate()
 
 
 def test_diagnosis_reps_diagnoses_the_first_repetitions_and_fits_every_trial(tiny, tmp_path):

@@ -87,6 +87,11 @@ CACHE_VERSION = 2     # bump when a record's content changes meaning
 # ---------------------------------------------------------------------------------------------
 # settings and result
 # ---------------------------------------------------------------------------------------------
+#: the calibration options of a plain ``jointlab calib`` (left out of the stage's hash, so that the
+#: studies written before the options existed are reused)
+_CALIB_DEFAULTS = {"urdf_tol_mm": 0.0, "urdf_model_error": True, "deflection": False}
+
+
 @dataclass(frozen=True)
 class StudySettings:
     """What a study computes. Everything here that changes a result is part of the input hashes.
@@ -96,6 +101,9 @@ class StudySettings:
     ``mocap``/``diagnose``: run those stages; ``plots``: PNG plots; ``rrd``: write the study
     recording; ``rrd_trials``: ``"first"`` logs the first repetition of every (joints, load,
     speed) condition to the recording (keeps it small), ``"all"`` every trial;
+    ``calib_urdf_tol_mm``, ``calib_trust_urdf``, ``calib_deflection``: the calibration's declared URDF
+    tolerance, trusted J1-J2 geometry and gravity-deflection compensation (``jointlab calib
+    --urdf-tol-mm``, ``--trust-urdf``, ``--deflection``; :func:`calib.pipeline.calibrate`);
     ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
     every condition (0: all; None, the default: the most repetitions whose samples stay within
     :data:`DIAGNOSIS_SAMPLES` per joint, at least one). It holds a joint's samples (a few hundred
@@ -114,6 +122,9 @@ class StudySettings:
     rrd: bool = True
     rrd_trials: str = "first"
     diagnosis_reps: int | None = None
+    calib_urdf_tol_mm: float = 0.0
+    calib_trust_urdf: bool = False
+    calib_deflection: bool = False
 
     def validate(self) -> "StudySettings":
         if not self.models:
@@ -131,6 +142,8 @@ class StudySettings:
             raise InputError(f"rrd_trials must be 'first' or 'all', got {self.rrd_trials!r}")
         if self.n_starts < 1:
             raise InputError("n_starts must be >= 1")
+        if not (np.isfinite(self.calib_urdf_tol_mm) and 0.0 <= self.calib_urdf_tol_mm <= 1e3):
+            raise InputError(f"--urdf-tol-mm must be in 0..1000 mm, got {self.calib_urdf_tol_mm}")
         if self.diagnosis_reps is not None and self.diagnosis_reps < 0:
             raise InputError(f"diagnosis_reps must be >= 0 (0: all), got {self.diagnosis_reps}")
         return self
@@ -794,7 +807,10 @@ class Study:
                                                   "the static poses")
             return None, None
         files = [ctx.hasher.file(p) for c in camp.calib for p in (c.markers, c.log)]
-        h = ctx.hasher.combine("calib", ctx.base_hash, files, s.calib_method)
+        opts = dict(urdf_tol_mm=float(s.calib_urdf_tol_mm), urdf_model_error=not s.calib_trust_urdf,
+                    deflection=bool(s.calib_deflection))
+        h = ctx.hasher.combine("calib", ctx.base_hash, files, s.calib_method,
+                               *([json.dumps(opts, sort_keys=True)] if opts != _CALIB_DEFAULTS else []))
         path = ctx.out / "calib.json"
         record = "records/calib.json"
         rec = self._record(ctx, record, h)
@@ -807,7 +823,7 @@ class Study:
 
             try:
                 with one_blas_thread():
-                    res = calibrate(camp, ctx.robot, method=s.calib_method)
+                    res = calibrate(camp, ctx.robot, method=s.calib_method, **opts)
             except (InputError, ValueError, np.linalg.LinAlgError) as exc:
                 ctx.errors["calib"] = _error_text(exc)
                 ctx.stages["calib"] = _stage_row(failed=1, seconds=time.perf_counter() - t0,

@@ -36,6 +36,14 @@ def add_study_options(p) -> None:
                    help="the gap diagnosis reads the first R repetitions of every condition (0: all; "
                         "default: the most repetitions within 200000 samples per joint, which keeps "
                         "the study's memory flat in its number of trials)")
+    p.add_argument("--urdf-tol-mm", type=float, default=0.0, metavar="MM",
+                   help="calibration: declared standard uncertainty of the URDF's joint-axis placement "
+                        "(as jointlab calib --urdf-tol-mm)")
+    p.add_argument("--trust-urdf", action="store_true",
+                   help="calibration: trust the URDF's J1-J2 geometry as exact (as jointlab calib --trust-urdf)")
+    p.add_argument("--deflection", action="store_true",
+                   help="calibration: undo the joints' static deflection under gravity at the declared "
+                        "stiffness (as jointlab calib --deflection)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -59,7 +67,8 @@ def settings_from_args(args):
     return StudySettings(models=models, n_starts=args.starts, seed=args.seed, sync=args.sync,
                          mocap=not args.no_mocap, diagnose=not args.no_diagnosis, plots=not args.no_plots,
                          rrd=not args.no_rrd, rrd_trials=args.rrd_trials,
-                         diagnosis_reps=args.diagnosis_reps).validate()
+                         diagnosis_reps=args.diagnosis_reps, calib_urdf_tol_mm=args.urdf_tol_mm,
+                         calib_trust_urdf=args.trust_urdf, calib_deflection=args.deflection).validate()
 
 
 def run_from_args(args, campaign_path: Path) -> int:
@@ -74,6 +83,9 @@ def run_from_args(args, campaign_path: Path) -> int:
     from mocap.io.plausibility import check_campaign_inputs
 
     check_campaign_inputs(camp, markers=settings.mocap)      # parseable-but-wrong inputs, first
+    if settings.calib_deflection and camp.calib and not any(camp.load_robot().stiffness > 0):
+        raise InputError("--deflection needs the joints' stiffness in drives.toml (stiffness = K, N m/rad): "
+                         "none is declared", path=camp.drives or camp.root / "campaign.toml")
     out = check_study_out(args.out, [camp.root])
     if args.rrd is not None:
         check_out_dir(Path(args.rrd).resolve().parent, [camp.root])
