@@ -58,3 +58,18 @@ def test_refuses_output_inside_the_campaign(tmp_path, capsys):
                  "--quiet"]) == 0
     assert main(["diagnose", str(camp), "--out", str(camp / "out")]) == 2
     assert "inside the input folder" in capsys.readouterr().err
+
+
+def test_report_heading_says_unexplained_or_insufficient_data_not_a_bare_none():
+    """A joint whose verdict is ``none`` because the gap stays unexplained (or the record cannot
+    tell) is headed so in diagnosis.md; a plain ``none`` stays ``none``."""
+    from ident.gap.report import markdown
+
+    joints = {"1": {"verdict": "none", "verdict_status": "unexplained", "note": "x"},
+              "2": {"verdict": "none", "verdict_status": "insufficient_data", "note": "x"},
+              "3": {"verdict": "none", "verdict_status": "none", "note": "x"},
+              "4": {"verdict": "stribeck", "verdict_status": "effect", "note": "x"}}
+    md = markdown({"campaign": "c", "joints": joints, "link_angles": True}, {})
+    assert "## Joint 1: verdict **none (unexplained)**" in md
+    assert "## Joint 2: verdict **none (insufficient data)**" in md
+    assert "## Joint 3: verdict **none**\n" in md and "## Joint 4: verdict **stribeck**\n" in md

@@ -60,7 +60,10 @@ def markdown(report: dict, plots: dict) -> str:
     if not report.get("link_angles"):
         L += ["> No link angles were available: only the torque channel was diagnosed.", ""]
     for j, rep in report["joints"].items():
-        L += [f"## Joint {j}: verdict **{rep['verdict']}**", ""]
+        shown = rep["verdict"]
+        if shown == "none" and rep.get("verdict_status") not in (None, "none", "effect"):
+            shown = f"none ({str(rep['verdict_status']).replace('_', ' ')})"   # unexplained, insufficient data
+        L += [f"## Joint {j}: verdict **{shown}**", ""]
         if "note" in rep:
             L += [rep["note"], ""]
             continue
