@@ -230,6 +230,35 @@ def test_effect_registry_is_consistent():
         assert (name == "none") == (not sp.families)
     assert {c.channel for c in candidate_effects(100.0)} == {"torque", "transmission"}
     assert {c.name for c in candidate_effects(100.0)} == set(EFFECTS) - {"none"}
+    from ident.gap.candidates import confounders
+    for name in REGISTRY:               # confusion is symmetric: each pair is checked whoever leads
+        for other in confounders(name)[0]:
+            assert name in confounders(other)[0], (name, other)
+    assert "asymmetry" in confounders("position_ripple")[0]
+
+
+def test_asymmetry_level_is_the_filtered_magnitude_of_the_coulomb_direction():
+    """The even part of the Coulomb direction passes through the derivative filter like the
+    direction itself: 1 at speed and a dip no wider than the direction's own transition at a
+    reversal (the magnitude of the filtered direction would dip over the whole filter window)."""
+    from ident.gap.data import JointData, savgol_derivatives
+    from ident.gap.candidates import ssign
+
+    t = np.arange(0.0, 4.0, 1e-3)
+    qd = 0.5 * np.sin(2 * np.pi * 0.5 * t)
+    sg = savgol_derivatives(t, ssign(qd), window_s=0.04)[0]
+    sa = savgol_derivatives(t, np.abs(ssign(qd)), window_s=0.04)[0]
+    def data(sgn_filtered):
+        d = JointData.__new__(JointData)
+        for k, v in (("qd", qd), ("sgn_filtered", sgn_filtered), ("sabs_filtered", sa)):
+            object.__setattr__(d, k, v)
+        return d
+
+    d = data(sg)
+    near = np.abs(qd) < 0.02                           # within ~13 ms of a reversal
+    assert np.allclose(d.sabs[np.abs(qd) > 0.05], 1.0, atol=0.05)
+    assert np.mean(d.sabs[near]) > np.mean(np.abs(sg[near])) + 0.15
+    assert np.allclose(data(None).sabs, np.abs(ssign(qd)))   # the direction as sampled: so is its magnitude
 
 
 def test_nominal_model_choice_changes_what_counts_as_gap(tmp_path):

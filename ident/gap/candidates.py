@@ -407,7 +407,7 @@ def _scale(d, hp):
 # --- asymmetry, nonlinear viscous ------------------------------------------------------------
 def _asym(d, hp):
     pos = d.qd > 0
-    return np.column_stack([np.abs(_sg(d)), d.qd * pos])
+    return np.column_stack([d.sabs if hasattr(d, "sabs") else np.abs(_sg(d)), d.qd * pos])
 
 
 def _nlv(d, hp):
@@ -679,9 +679,15 @@ def candidate_effects(gear_ratio: float | None = None, q_range: float | None = N
 
 
 def confounders(name: str) -> tuple[list, str]:
-    """(effects confused with ``name``, the experiment that separates them), from the registry."""
+    """(effects confused with ``name``, the experiment that separates them), from the registry.
+
+    Confusion is symmetric: an effect that names ``name`` among its confounders is one of
+    ``name``'s too (after ``name``'s own, in registry order)."""
     sp = REGISTRY.get(name)
-    return (list(sp.confounders), sp.separating_experiment) if sp else ([], "")
+    if sp is None:
+        return [], ""
+    back = [n for n, o in REGISTRY.items() if name in o.confounders and n not in sp.confounders and n != name]
+    return list(sp.confounders) + back, sp.separating_experiment
 
 
 #: name -> (confounders, separating experiment), read from the registry

@@ -124,6 +124,8 @@ class JointData:
         Savitzky-Golay window of the motor-angle derivatives (s).
     sgn_filtered : numpy.ndarray or None
         (N,) Coulomb direction through the derivative filter; None: the plain smoothed sign.
+    sabs_filtered : numpy.ndarray or None
+        (N,) ``|ssign(qd)|`` through the derivative filter (used with ``sgn_filtered``).
     q_hf : numpy.ndarray or None
         (N,) encoder reading minus its smoothed value (what feedback sees beyond it).
     friction_side : str
@@ -166,6 +168,7 @@ class JointData:
     fold: np.ndarray                # per-trial held-out fold
     deriv_window_s: float = 0.0     # Savitzky-Golay window of the motor-angle derivatives
     sgn_filtered: np.ndarray | None = None  # (N,) Coulomb direction through the derivative filter
+    sabs_filtered: np.ndarray | None = None  # (N,) its magnitude |ssign(qd)| through the same filter
     q_hf: np.ndarray | None = None  # (N,) encoder reading minus its smoothed value (what feedback sees beyond it)
     friction_side: str = "rigid"   # "rigid" (no stiffness declared), "motor" or "link": where the
     #                                 nominal's friction acts on the declared flexible joint
@@ -180,6 +183,16 @@ class JointData:
         if self.sgn_filtered is not None:
             return self.sgn_filtered
         return ssign(self.qd)
+
+    @cached_property
+    def sabs(self) -> np.ndarray:
+        """Magnitude of the Coulomb direction, the even counterpart of :attr:`sgn`: ``|ssign(qd)|``
+        passed through the derivative filter where :attr:`sgn` is (the filter of the magnitude,
+        not the magnitude of the filtered direction: 1 at speed, a dip of the smoothed sign's
+        width at a reversal), else the plain ``|ssign(qd)|``."""
+        if self.sgn_filtered is not None and self.sabs_filtered is not None:
+            return self.sabs_filtered
+        return np.abs(ssign(self.qd))
 
     @property
     def n_trials(self) -> int:
@@ -388,7 +401,7 @@ def torque_subset(d: JointData, mask: np.ndarray) -> JointData:
     return replace(d, trial=d.trial[mask], t=d.t[mask], t_rel=d.t_rel[mask], q=d.q[mask], qd=d.qd[mask],
                    qdd=d.qdd[mask], y=d.y[mask], tau_urdf=d.tau_urdf[mask], tau_grav=d.tau_grav[mask],
                    urdf_regs=d.urdf_regs[mask], load=d.load[mask], sgn_filtered=sub(d.sgn_filtered),
-                   q_hf=sub(d.q_hf))
+                   sabs_filtered=sub(d.sabs_filtered), q_hf=sub(d.q_hf))
 
 
 def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
@@ -415,7 +428,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
     # (about 3 sigma of that error) have no reliable friction direction and are left out
     vz = 3.0 * v_zero if (k_declared > 0 and friction_side == "link") else v_zero
     offsets = campaign_clock(logs)
-    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "q_hf", "y", "tau_urdf", "tau_grav", "regs", "load",
+    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "sabs", "q_hf", "y", "tau_urdf", "tau_grav", "regs", "load",
                             "trial_m", "dq_m", "qd_m", "y_m", "t_m", "tau_m", "tau_mf")}
     cache = {}
     for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
@@ -455,6 +468,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         # Coulomb direction goes through the same filter, so J S[qm''] + c S[sgn] = S[u] ~ u
         # (measured on the foreign world: the nominal's error at |qd| < 0.1 rad/s halves)
         sgn_f = savgol_derivatives(t, ssign(qd), window_s=window_s)[0]
+        sabs_f = savgol_derivatives(t, np.abs(ssign(qd)), window_s=window_s)[0]
         s, c = np.sin(ql), np.cos(ql)
         keep = ~standstill(t, qd) & (np.abs(qd) >= vz)
         # the torque channel's information lies below the derivative filter's band (~10 Hz):
@@ -471,6 +485,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         cols["qd"].append((qd)[keep])
         cols["qdd"].append((qdd)[keep])
         cols["sgn"].append(sgn_f[keep])
+        cols["sabs"].append(sabs_f[keep])
         cols["q_hf"].append((qm - q_enc)[keep])
         cols["y"].append((y)[keep])
         tau_rb = I_u * qldd + a_u * s + b_u * c      # link's rigid-body torque, on the link state
@@ -519,6 +534,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
                      trial_m=cat["trial_m"].astype(int), e=cat["e"], qd_m=cat["qd_m"], y_m=cat["y_m"],
                      t_m=cat["t_m"], tau_m=cat["tau_m"], rep=reps, group=group, fold=fold,
                      deriv_window_s=float(deriv_window_s), sgn_filtered=cat["sgn"],
+                     sabs_filtered=cat["sabs"],
                      q_hf=cat["q_hf"], friction_side=friction_side if k_declared > 0 else "rigid",
                      stiffness=k_declared,
                      tau_m_friction=cat["tau_mf"] if (k_declared > 0 and friction_side == "link") else None)

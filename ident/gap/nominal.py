@@ -234,7 +234,7 @@ NOMINAL_MODELS = {
     "cv_asym": _builtin("coulomb_viscous_asymmetric",
                         "Coulomb + viscous with a direction-dependent Coulomb level",
                         lambda d: np.column_stack([laws.coulomb_viscous_columns(d.qd, sign=lambda _: d.sgn),
-                                                   d.qd > 0]), ("c", "v", "c_pos")),
+                                                   0.5 * (d.sabs + d.sgn)]), ("c", "v", "c_pos")),
 }
 NOMINAL_MODELS["cv"].summary["spec"] = "cv"
 NOMINAL_MODELS["cv_asym"].summary["spec"] = "cv_asym"
