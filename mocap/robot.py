@@ -226,8 +226,8 @@ class Robot:
             ax = _joint_axis(jm)
             if ax is None or jm.nq != 1:
                 raise InputError(f"joint {model.names[i]!r} is {jm.shortname()}; only revolute (and "
-                                 "continuous) joints are supported in the arm's chain: fix it with "
-                                 "[robot] fixed, or choose base_link/tip_link around it",
+                                 "continuous) joints are supported in the arm's chain: choose [robot] "
+                                 "base_link/tip_link around it and give its value in [robot] fixed",
                                  path=urdf, label=model.names[i])
             if model.parents[i] != i - 1:
                 raise InputError(f"joint {model.names[i]!r} does not continue a serial chain",

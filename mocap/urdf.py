@@ -207,6 +207,13 @@ def select_chain(urdf: str | Path, base_link: str | None = None, tip_link: str |
     if not chain:
         raise InputError(f"no moving joint between {base_link!r} and {tip_link!r} in {urdf.name}",
                          path=where, label="tip_link")
+    odd = [nm for nm in chain if joints[nm]["type"] not in ("revolute", "continuous")]
+    if odd:
+        after = joints[odd[-1]]["child"]
+        raise InputError(f"joint {odd[-1]!r} ({joints[odd[-1]]['type']}) lies in the arm chain {base_link} -> "
+                         f"{tip_link}, which may hold revolute joints only: start the chain after it "
+                         f"([robot] base_link = {after!r}) and give its value in [robot] fixed",
+                         path=where, label="base_link")
     for key in fixed:
         if key not in joints:
             raise InputError(f"[robot] fixed names joint {key!r}, which is not a joint of "

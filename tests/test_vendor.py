@@ -144,6 +144,9 @@ def test_chain_errors_name_the_manifest_key(tmp_path):
         select_chain(urdf, "torso", "l2", fixed={"torso_joint": 20.0})
     with pytest.raises(InputError, match="not below"):
         select_chain(urdf, "l2", "torso")
+    # a prismatic torso inside the chosen chain: start the chain after it, and say how
+    with pytest.raises(InputError, match=r"'torso_joint' \(prismatic\) lies in the arm chain.*base_link = 'torso'"):
+        select_chain(urdf, "base", "l2", fixed={"wheel_joint": 0.0})
 
 
 def test_signed_gear_ratio_is_direction_only(tmp_path):
