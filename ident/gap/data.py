@@ -428,8 +428,8 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
     # (about 3 sigma of that error) have no reliable friction direction and are left out
     vz = 3.0 * v_zero if (k_declared > 0 and friction_side == "link") else v_zero
     offsets = campaign_clock(logs)
-    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "sabs", "q_hf", "y", "tau_urdf", "tau_grav", "regs", "load",
-                            "trial_m", "dq_m", "qd_m", "y_m", "t_m", "tau_m", "tau_mf")}
+    cols = {k: [] for k in ("trial", "t", "t_rel", "q", "qd", "qdd", "sgn", "sabs", "q_hf", "y", "tau_urdf",
+                            "tau_grav", "regs", "load", "trial_m", "dq_m", "qd_m", "y_m", "t_m", "tau_m", "tau_mf")}
     cache = {}
     for i, (tr, lg, off) in enumerate(zip(trials, logs, offsets)):
         t = lg.time
