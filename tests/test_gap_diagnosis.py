@@ -137,6 +137,27 @@ def test_a_record_that_does_not_repeat_its_motion_is_insufficient_data(tmp_path,
         assert "does not repeat" not in r["verdict_text"]
 
 
+@pytest.mark.parametrize("effect", ["compliance", "stribeck"])
+def test_a_transmission_finding_stands_when_the_torque_folds_extrapolate(tmp_path, monkeypatch, effect):
+    """The extrapolation rule judges the torque test only: with every held-out sample made to
+    extrapolate (leverage forced above 1), a compliance that the link-motor deflection shows is
+    still named (its channel has its own folds and nominal), while a friction effect, which only
+    the torque shows, becomes ``insufficient data``."""
+    import ident.gap.diagnose as dg
+
+    rb, trials, logs, angles, _ = make_world(tmp_path, effect, 1.0, 1)
+    d = build_joint_data(2, trials, logs, rb, angles)
+    monkeypatch.setattr(dg, "heldout_leverage", lambda gr, X, *a, **k: np.full(X.shape[0], 2.0))
+    r = diagnose_joint(d, SETTINGS).to_dict()
+    assert r["channels"]["torque"]["heldout_extrapolated_share"] == 1.0
+    if effect == "compliance":
+        assert r["verdict"] == "compliance" and r["verdict_status"] == "effect"
+        assert "heldout_extrapolated_share" not in r
+    else:
+        assert r["verdict"] == "none" and r["verdict_status"] == "insufficient_data"
+        assert "does not repeat its motion" in r["verdict_text"]
+
+
 def test_heldout_leverage_flags_a_direction_seen_only_in_the_held_out_block():
     """Leverage of each held-out sample under its fold's training rows: a sign column that is
     +1 only in one block is undetermined when that block is held out (leverage far above 1,
