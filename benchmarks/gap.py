@@ -71,7 +71,7 @@ PAIRS = (("stribeck", "position_ripple"), ("load_dependent", "asymmetry"), ("the
 def foreign_jobs(a) -> list[tuple[str, object]]:
     """(group, WorldArgs) for the foreign world."""
     W, jobs = F.WorldArgs, []
-    base = dict(reps=a.reps)
+    base = dict(reps=a.reps, kinds=a.kinds)
     for robot in a.robots:
         for s in range(a.seeds):
             for m in a.magnitudes:
@@ -345,6 +345,8 @@ def main(argv=None):
                     help="effects (magnitude 1, one seed) also run under each condition (default: --effects; '' for none)")
     ap.add_argument("--pairs", type=int, default=len(PAIRS), help=f"two-effect pairs per robot (at most {len(PAIRS)})")
     ap.add_argument("--reps", type=int, default=4, help="foreign world: repetitions per load and speed")
+    ap.add_argument("--kinds", default="excitation",
+                    help="foreign world: trial kinds, a comma list of excitation, constant_velocity, reversals")
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=None, help="campaign cache (default $JOINTLAB_CORPUS or ~/.cache/jointlab/foreign)")
     ap.add_argument("--only-cached", action="store_true", help="skip foreign campaigns that are not cached yet")
