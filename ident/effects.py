@@ -146,7 +146,9 @@ _SPECS = (
     EffectSpec(
         "asymmetry", "torque", "Coulomb and/or viscous friction different in the two directions",
         "c+- = c (1 +- a/2), v+- = v (1 +- a/2)", {"a": 0.25},
-        ("position_ripple",), "constant-velocity sweeps in both directions over the same range",
+        ("position_ripple",), "constant-velocity sweeps in both directions over the joint's full range (a "
+        "Coulomb-only asymmetry is a constant offset while moving, which only a wide range tells from a "
+        "ripple and the gravity terms)",
         ("asymmetry",), _asymmetry),
     EffectSpec(
         "nonlinear_viscous", "torque", "viscous friction not proportional to speed",
