@@ -558,6 +558,15 @@ def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None
     return CalibResult(base.T_camera_base, tuple(fits), base, method, noise_mm, tuple(sweeps))
 
 
+def check_deflection_stiffness(campaign, robot=None) -> None:
+    """``--deflection`` needs a declared joint stiffness (drives.toml ``stiffness``): raise
+    :class:`mocap.io.errors.InputError` naming the drives file (or campaign.toml) when none is."""
+    robot = robot if robot is not None else campaign.load_robot()
+    if not np.any(robot.stiffness > 0):
+        raise InputError("--deflection needs the joints' stiffness in drives.toml (stiffness = K, N m/rad): "
+                         "none is declared", path=campaign.drives or campaign.root / "campaign.toml")
+
+
 def compensate_deflection(sweeps, robot, markers: dict, T_camera_base: np.ndarray) -> tuple:
     """The sweeps with each marker moved to where it would be if the joints a sweep does not
     move kept their motor-side (logged) angles, undoing their static deflection under gravity.
@@ -705,9 +714,8 @@ def calibrate(campaign, robot=None, method: str = "auto", sink=None,
     if robot is None:
         robot = campaign.load_robot()
     sweeps = load_sweeps(campaign, robot, min_sweep_deg, joints)
-    if deflection and not np.any(robot.stiffness > 0):
-        raise InputError("--deflection needs the joints' stiffness in drives.toml (stiffness = K, N m/rad): "
-                         "none is declared", path=campaign.root / "campaign.toml")
+    if deflection:
+        check_deflection_stiffness(campaign, robot)
     result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm,
                               urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
     if deflection:

@@ -45,6 +45,11 @@ def _sg(d) -> np.ndarray:
     return d.sgn if hasattr(d, "sgn") else ssign(d.qd)
 
 
+def _sabs(d) -> np.ndarray:
+    """``|ssign(d.qd)|`` through the same filter as :func:`_sg` (``JointData.sabs``)."""
+    return d.sabs if hasattr(d, "sabs") else np.abs(ssign(d.qd))
+
+
 class SharedIntermediates:
     """Intermediates of candidate columns that do not depend on the shape parameter, or that
     several shapes and families share (a sort by time, the bristle's displacement steps, the
@@ -407,7 +412,7 @@ def _scale(d, hp):
 # --- asymmetry, nonlinear viscous ------------------------------------------------------------
 def _asym(d, hp):
     pos = d.qd > 0
-    return np.column_stack([d.sabs if hasattr(d, "sabs") else np.abs(_sg(d)), d.qd * pos])
+    return np.column_stack([_sabs(d), d.qd * pos])
 
 
 def _nlv(d, hp):

@@ -87,11 +87,6 @@ CACHE_VERSION = 2     # bump when a record's content changes meaning
 # ---------------------------------------------------------------------------------------------
 # settings and result
 # ---------------------------------------------------------------------------------------------
-#: the calibration options of a plain ``jointlab calib`` (left out of the stage's hash, so that the
-#: studies written before the options existed are reused)
-_CALIB_DEFAULTS = {"urdf_tol_mm": 0.0, "urdf_model_error": True, "deflection": False}
-
-
 @dataclass(frozen=True)
 class StudySettings:
     """What a study computes. Everything here that changes a result is part of the input hashes.
@@ -125,6 +120,11 @@ class StudySettings:
     calib_urdf_tol_mm: float = 0.0
     calib_trust_urdf: bool = False
     calib_deflection: bool = False
+
+    def calib_options(self) -> dict:
+        """The keyword options of :func:`calib.pipeline.calibrate` these settings ask for."""
+        return dict(urdf_tol_mm=float(self.calib_urdf_tol_mm), urdf_model_error=not self.calib_trust_urdf,
+                    deflection=bool(self.calib_deflection))
 
     def validate(self) -> "StudySettings":
         if not self.models:
@@ -807,10 +807,10 @@ class Study:
                                                   "the static poses")
             return None, None
         files = [ctx.hasher.file(p) for c in camp.calib for p in (c.markers, c.log)]
-        opts = dict(urdf_tol_mm=float(s.calib_urdf_tol_mm), urdf_model_error=not s.calib_trust_urdf,
-                    deflection=bool(s.calib_deflection))
+        opts = s.calib_options()
+        # the default options stay out of the hash: studies written before they existed are reused
         h = ctx.hasher.combine("calib", ctx.base_hash, files, s.calib_method,
-                               *([json.dumps(opts, sort_keys=True)] if opts != _CALIB_DEFAULTS else []))
+                               *([json.dumps(opts, sort_keys=True)] if opts != StudySettings().calib_options() else []))
         path = ctx.out / "calib.json"
         record = "records/calib.json"
         rec = self._record(ctx, record, h)

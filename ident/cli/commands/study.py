@@ -83,9 +83,10 @@ def run_from_args(args, campaign_path: Path) -> int:
     from mocap.io.plausibility import check_campaign_inputs
 
     check_campaign_inputs(camp, markers=settings.mocap)      # parseable-but-wrong inputs, first
-    if settings.calib_deflection and camp.calib and not any(camp.load_robot().stiffness > 0):
-        raise InputError("--deflection needs the joints' stiffness in drives.toml (stiffness = K, N m/rad): "
-                         "none is declared", path=camp.drives or camp.root / "campaign.toml")
+    if settings.calib_deflection and camp.calib:
+        from calib.pipeline import check_deflection_stiffness
+
+        check_deflection_stiffness(camp)
     out = check_study_out(args.out, [camp.root])
     if args.rrd is not None:
         check_out_dir(Path(args.rrd).resolve().parent, [camp.root])
