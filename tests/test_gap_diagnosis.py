@@ -374,3 +374,61 @@ def test_hardening_spring_deflection_and_its_physical_sign():
     assert not phys(hp, np.array([0.0, 1.0 / k1]), flexible)         # stiffer than declared at 0
     assert phys(("rigid", "linear"), np.array([-1.0 / k1]), rigid)
     assert not phys(("rigid", "linear"), np.array([1.0 / k1]), rigid)
+
+
+def _row(effect, C, explained, grid=(None,), hp=None, sse=None):
+    """A significant first-step row whose chosen shape's columns are ``C`` and held-out squared
+    errors per test unit ``sse`` (for _discriminate)."""
+    from types import SimpleNamespace
+
+    from ident.gap.diagnose import _Row
+    from ident.gap.result import EffectTest
+
+    cand = type("Cand", (), {"grid": grid})()     # hashed by identity, as the registry's candidates
+    return _Row(effect, EffectTest(effect, "torque", True, significant=True, explained_share=explained),
+                SimpleNamespace(hp_all=(cand, hp), sse=sse), {(cand, hp): SimpleNamespace(build=lambda d, ch, cache: C)})
+
+
+def test_two_candidates_that_explain_the_same_term_lead_with_the_simpler_one():
+    """A constant torque offset while moving, over a short stretch of angle: a low-order ripple
+    (sin, cos of 3q and 6q, one order searched) reproduces it as well as the two-column
+    direction-dependent level does. Neither keeps a third of its reduction given the other, so the
+    one with fewer fitted parameters leads when it fits the held-out units no worse within their
+    scatter (a paired difference under 1.645 standard errors); not when it is clearly worse held
+    out, and not against a ripple the offset cannot make (a full period of a fast order)."""
+    from types import SimpleNamespace
+
+    from ident.gap.diagnose import _discriminate
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    q = np.linspace(-0.25, 0.25, n)                         # 0.5 rad: a quarter period of 3q
+    qd = np.sign(np.sin(np.linspace(0, 12 * np.pi, n))) * rng.uniform(0.2, 1.0, n)
+    X = np.column_stack([np.sign(qd), qd, np.sin(q), np.cos(q)])          # a nominal
+    offset = np.ones(n)
+    asym = np.column_stack([offset, qd * (qd > 0)])                        # 2 columns, no shape search
+    ripple = np.column_stack([np.sin(3 * q), np.cos(3 * q), np.sin(6 * q), np.cos(6 * q)])  # 4 + its order
+    y = X @ np.array([2.0, 1.0, 0.5, 0.3]) + 0.8 * offset + 0.05 * rng.normal(size=n)
+    ch, d = SimpleNamespace(target=y), SimpleNamespace()
+    grid = tuple(float(k) for k in range(2, 49))
+    units = rng.uniform(1.0, 2.0, 100)                                    # held-out SSE per unit
+    tied = units + rng.normal(0.0, 0.05, 100) + 0.002                     # 0.4 standard errors worse
+    worse = units + rng.normal(0.0, 0.05, 100) + 0.02                     # 4 standard errors worse
+    rip, asy = _row("position_ripple", ripple, 0.91, grid, 3.0, units), _row("asymmetry", asym, 0.90, sse=tied)
+    rows = {"position_ripple": rip, "asymmetry": asy}
+    assert _discriminate([rip, asy], rows, ch, X, d).effect == "asymmetry"
+    ua, ub = (rip.test.evidence["unique_share_given_asymmetry"], asy.test.evidence["unique_share_given_position_ripple"])
+    assert ua < 1 / 3 and ub < 1 / 3, (ua, ub)
+    # clearly worse held out: the better fit leads
+    rip, asy = _row("position_ripple", ripple, 0.91, grid, 3.0, units), _row("asymmetry", asym, 0.90, sse=worse)
+    assert _discriminate([rip, asy], {"position_ripple": rip, "asymmetry": asy}, ch, X, d).effect == "position_ripple"
+    # the simpler one leading already stays
+    rip, asy = _row("position_ripple", ripple, 0.89, grid, 3.0, tied), _row("asymmetry", asym, 0.90, sse=units)
+    assert _discriminate([rip, asy], {"position_ripple": rip, "asymmetry": asy}, ch, X, d).effect == "asymmetry"
+    # a ripple over several of its periods (order 60: 4.8 periods), which no offset makes: it leads
+    fast = np.column_stack([np.sin(60 * q), np.cos(60 * q), np.sin(120 * q), np.cos(120 * q)])
+    y2 = X @ np.array([2.0, 1.0, 0.5, 0.3]) + 0.8 * fast[:, 0] + 0.05 * rng.normal(size=n)
+    rip, asy = _row("position_ripple", fast, 0.95, grid, 60.0, units), _row("asymmetry", asym, 0.10, sse=tied)
+    out = _discriminate([rip, asy], {"position_ripple": rip, "asymmetry": asy}, SimpleNamespace(target=y2), X, d)
+    assert out.effect == "position_ripple"
+    assert rip.test.evidence["unique_share_given_asymmetry"] > 0.9

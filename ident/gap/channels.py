@@ -11,7 +11,7 @@ reversal to the next but one, never across trials); the diagnosis may cut them f
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -107,6 +107,24 @@ def undeclared_payload_columns(d: JointData) -> np.ndarray:
     return np.column_stack(cols) if cols else np.zeros((d.trial.shape[0], 0))
 
 
+def payload_corrected(d: JointData, theta: np.ndarray) -> JointData:
+    """``d`` with the transmitted torque of the trials whose payload COM is unknown corrected by
+    the torque channel's fit of :func:`undeclared_payload_columns` (amplitudes ``theta``, the
+    channel's last columns): the spring carries the payload's true rigid-body torque, ``tau_m +
+    [qdd, sin q, cos q] theta`` at the marker times, and the declared stiffness's deflection in
+    the transmission target ``e = q_link - q_motor + tau_m / K`` moves with it. The torque
+    channel pins that correction (its noise over ``K`` is far below the markers'); left free in
+    the transmission channel, the same three columns would also take up a softer spring's
+    deflection on those trials. ``d`` itself when nothing is undeclared or nothing is measured
+    at the markers."""
+    extra = undeclared_payload_columns(d)
+    if not extra.shape[1] or not d.e.size:
+        return d
+    dtau = at_markers(d, extra @ np.asarray(theta, float)[-extra.shape[1]:])
+    e = d.e + dtau / d.stiffness if d.stiffness > 0 else d.e
+    return replace(d, tau_m=d.tau_m + dtau, e=e)
+
+
 def _undeclared_payloads(d: JointData) -> list:
     """Trial indices of each payload mass carried with ``payload_com = "unknown"``."""
     loads = {}
@@ -144,19 +162,12 @@ def _transmission_channel(d: JointData) -> Channel:
     solved from markers carries a small scale error against the encoder (gear ratio,
     kinematic calibration), a deflection proportional to the angle that no transmission effect
     makes (measured on the foreign world: -0.45 % of the angle, 1.1 of the channel's 1.7 mrad
-    RMS on an ind6 campaign); and the payload corrections of :func:`undeclared_payload_columns`."""
+    RMS on an ind6 campaign). A payload whose centre of mass is not declared enters through the
+    transmitted torque, corrected by the torque channel (:func:`payload_corrected`)."""
     nt = d.n_trials
     b = trial_bounds(d.trial_m, nt)
     blocks, bt = _motion_blocks(d.trial_m, d.qd_m, nt)
-    qm = at_markers(d, d.q)
-    X0 = [qm[:, None]]
-    # a payload whose COM is not declared: its torque, and so the declared stiffness's deflection,
-    # is uncertain by [qdd, sin q, cos q] on its trials (as in the torque channel)
-    loads = _undeclared_payloads(d)
-    if loads:
-        regs = np.column_stack([at_markers(d, d.qdd), np.sin(qm), np.cos(qm)])
-        X0 += [regs * np.isin(d.trial_m, idx)[:, None] for idx in loads]
-    X0 = np.column_stack(X0)
+    X0 = at_markers(d, d.q)[:, None]
     ch = Channel("transmission", "rad", d.e, X0, d.trial_m, b, True, blocks, bt)
     ch.target = ch.prep(d.e[:, None])[:, 0]
     if d.stiffness > 0:

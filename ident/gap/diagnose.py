@@ -33,7 +33,8 @@ import numpy as np
 from ident.gap.candidates import (REVERSAL_SHAPED, Candidate, SharedIntermediates, candidate_effects,
                                   confounders, level_interactions, selected_levels, shared_intermediates)
 from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmission,
-                               _transmission_channel, nominal_heldout_rms, undeclared_payload_columns)
+                               _transmission_channel, nominal_heldout_rms, payload_corrected,
+                               undeclared_payload_columns)
 from ident.gap.data import JointData
 from ident.gap.nominal import nominal_model
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, heldout_leverage,
@@ -402,7 +403,13 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointDat
     keeps a jump at torque reversals that a compliance slope cannot make; load-dependent friction
     keeps a velocity-signed term that a torque gain cannot make; ...). The evidence is recorded on
     both rows; when the leader's signature is explained by a significant confounder while the
-    confounder's is not explained by the leader, the confounder is chosen."""
+    confounder's is not explained by the leader, the confounder is chosen. When each explains the
+    same term as the other (each keeps less than a third of its reduction given the other, the
+    rule that also names it as the alternative) and the simpler one fits the held-out data no
+    worse within the test's resolution (:func:`_heldout_tie`), the one with fewer fitted
+    parameters (its free columns, plus its shape parameters when a grid was searched) is chosen:
+    the data cannot tell them apart, and the simpler explanation is the one to report first
+    (parsimony)."""
     best = max(sig, key=lambda r: r.test.explained_share)
     y = ch.target
     s0 = _sse(X, y) if X.shape[1] else float(y @ y)
@@ -429,7 +436,33 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointDat
                                                    f"unique_share_given_{best.effect}": float(ub)})
         if other.test.significant and ua < 0.2 and ub > 0.5 and choice is best:
             choice = other
+        elif (other.test.significant and ua < SAME_TERM and ub < SAME_TERM and choice is best
+              and _n_params(other, Cb) < _n_params(best, Ca) and _heldout_tie(best, other)):
+            choice = other
     return choice
+
+
+#: each of two candidates keeps less than this share of its reduction given the other: they
+#: explain the same term (named as each other's alternative; the simpler one leads)
+SAME_TERM = 1 / 3
+
+
+def _heldout_tie(a: "_Row", b: "_Row", z: float = 1.645) -> bool:
+    """Whether ``b`` fits the held-out data no worse than ``a`` within the resolution of the
+    test units: the mean paired difference of their held-out squared errors per unit is below
+    ``z`` standard errors of that mean (one-sided 5 %)."""
+    dl = np.asarray(b.cv.sse, float) - np.asarray(a.cv.sse, float)
+    if dl.size < 2:
+        return False
+    return bool(dl.mean() <= z * dl.std(ddof=1) / np.sqrt(dl.size))
+
+
+def _n_params(r: "_Row", C: np.ndarray) -> int:
+    """Fitted parameters of a candidate's chosen shape: its free columns ``C`` plus its shape
+    parameters when its family's grid offered more than one shape."""
+    cand, hp = r.cv.hp_all
+    n_shape = (len(hp) if isinstance(hp, tuple) else 1) if len(cand.grid) > 1 else 0
+    return int(C.shape[1]) + n_shape
 
 
 def correlation_samples(r: np.ndarray, trial: np.ndarray, max_lag: int = 2000, level: float = 0.1) -> int:
@@ -808,13 +841,15 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
     nominal = nominal_model(settings.nominal)
     q_range = float(np.ptp(np.percentile(d.q, [0.5, 99.5]))) if d.q.size else None
     cands = [c for c in candidate_effects(gear_ratio, q_range) if families is None or c.family in families]
-    channels = [_torque_channel(d, nominal)]
-    if d.has_transmission:
-        channels.append(_transmission_channel(d))
+    channels = [_torque_channel(d, nominal)] + ([None] if d.has_transmission else [])
     effects, chres = [], {}
     runs = {}
-    for ch in channels:
-        res = _channel_stepwise(d, ch, cands, settings)
+    for k, ch in enumerate(channels):
+        dc = d
+        if ch is None:   # the transmission channel, with the payload torque the torque channel fitted
+            dc = payload_corrected(d, runs["torque"].nominal_cv.theta_all)
+            ch = channels[k] = _transmission_channel(dc)
+        res = _channel_stepwise(dc, ch, cands, settings)
         runs[ch.name] = res
         stab = _stability(res, settings)
         chres[ch.name] = _channel_result(ch, res, settings)
@@ -1009,7 +1044,7 @@ def _alternatives(verdict: str, runs: dict, d: JointData) -> tuple:
             other = k[len("unique_share_given_"):]
             o = r.first.get(other)
             ub = o.test.evidence.get(f"unique_share_given_{verdict}") if o is not None else None
-            if o is not None and o.test.significant and x < 1 / 3 and ub is not None and ub < 1 / 3:
+            if o is not None and o.test.significant and x < SAME_TERM and ub is not None and ub < SAME_TERM:
                 out.append({"effect": other, "why": f"explains the same term (unique shares {x:.2f} / {ub:.2f})",
                             "separate_by": confounders(verdict)[1]})
         # a gear efficiency (FORMAT.md's torque_scale) is friction proportional to the torque the
