@@ -71,7 +71,7 @@ PAIRS = (("stribeck", "position_ripple"), ("load_dependent", "asymmetry"), ("the
 def foreign_jobs(a) -> list[tuple[str, object]]:
     """(group, WorldArgs) for the foreign world."""
     W, jobs = F.WorldArgs, []
-    base = dict(reps=a.reps, kinds=a.kinds)
+    base = dict(reps=a.reps, kinds=a.kinds, joint=a.joint)
     for robot in a.robots:
         for s in range(a.seeds):
             for m in a.magnitudes:
@@ -344,6 +344,8 @@ def main(argv=None):
     ap.add_argument("--cond-effects", default=None,
                     help="effects (magnitude 1, one seed) also run under each condition (default: --effects; '' for none)")
     ap.add_argument("--pairs", type=int, default=len(PAIRS), help=f"two-effect pairs per robot (at most {len(PAIRS)})")
+    ap.add_argument("--joint", type=int, default=None,
+                    help="foreign world: the moving joint (1-based; default ind6 3, tri3 2)")
     ap.add_argument("--reps", type=int, default=4, help="foreign world: repetitions per load and speed")
     ap.add_argument("--kinds", default="excitation",
                     help="foreign world: trial kinds, a comma list of excitation, constant_velocity, reversals")
