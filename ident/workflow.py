@@ -578,10 +578,10 @@ class CampaignDiagnosis:
     series: dict
 
     def summary(self) -> dict:
-        """Joint -> verdict, its status and line, held-out RMS of the nominal model."""
+        """Joint -> verdict, its status and line, held-out RMS of the nominal model, notes."""
         return {j: {"verdict": r["verdict"], "verdict_status": r.get("verdict_status"),
                     "verdict_text": r.get("verdict_text", r["verdict"]),
-                    "heldout_rms_nominal": r.get("heldout_rms_nominal")}
+                    "heldout_rms_nominal": r.get("heldout_rms_nominal"), "notes": list(r.get("notes", []))}
                 for j, r in self.report["joints"].items()}
 
     def write(self, folder, sink=None) -> dict:

@@ -47,21 +47,25 @@ def test_unknown_payload_com_is_not_read_as_a_torque_scale(tmp_path):
     assert not row["significant"]
 
 
-def test_wrong_default_payload_com_is_named_as_the_alternative(tmp_path):
+def test_wrong_default_payload_com_is_a_note_not_an_effect(tmp_path):
     """The same payload with ``payload_com`` absent: FORMAT.md declares it at the flange origin, a
-    wrong declaration. The rigid-body error it leaves is a gain on the payload's torque: the verdict
-    names the payload COM as the alternative that explains the same term; declared right, nothing."""
+    wrong declaration. The rigid-body error it leaves on the loaded trials is what a COM away from
+    the origin adds ([qdd, sin q, cos q] there), which fits it better held out than a torque gain:
+    the data contradict the declaration, the COM joins the nominal as a nuisance term with a note
+    that says so, and no effect is read into it; declared right, no note and nothing."""
     rb, trials, logs, angles, _ = make_world(tmp_path, "none", seed=3, payload_com=(0.05, -0.04, 0.05),
                                              declare_com=False)
     rep = diagnose_joint(build_joint_data(2, trials, logs, rb, angles), SETTINGS).to_dict()
-    assert rep["verdict"] == "torque_scale", rep["verdict_text"]
-    assert "payload_com" in [a["effect"] for a in rep["alternatives"]], rep["verdict_text"]
-    assert "payload_com" in rep["verdict_text"]
+    assert rep["verdict"] == "none", rep["verdict_text"]
+    assert rep["channels"]["torque"]["nuisance"] == ["payload_com"]
+    assert any(n.startswith("payload_com: the loaded trials' torque contradicts") for n in rep["notes"])
+    assert rep["channels"]["torque"]["heldout_rms_final"] < 0.95 * rep["channels"]["torque"]["heldout_rms_nominal"]
     (tmp_path / "declared").mkdir()
     rb, trials, logs, angles, _ = make_world(tmp_path / "declared", "none", seed=3,
                                              payload_com=(0.05, -0.04, 0.05), declare_com=True)
     rep = diagnose_joint(build_joint_data(2, trials, logs, rb, angles), SETTINGS).to_dict()
     assert rep["verdict"] == "none" and rep["verdict_status"] == "none", rep["verdict_text"]
+    assert not rep.get("notes") and "nuisance" not in rep["channels"]["torque"]
 
 
 @pytest.mark.parametrize("effect", ["stribeck", "position_ripple", "compliance", "time_offset"])

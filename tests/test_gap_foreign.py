@@ -192,6 +192,23 @@ def test_a_softer_spring_is_seen_when_the_payload_com_is_unknown(foreign_cache, 
         assert jr["verdict"] == verdict, (effect, jr["verdict"], jr.get("selected"))
 
 
+def test_an_offset_payload_com_left_undeclared_is_a_note_and_the_effect_is_named(foreign_cache, tmp_path):
+    """tri3 seed 41 with payload_com omitted although the payload's COM is offset (the world's
+    `--payload-com-known no`; FORMAT.md reads the omission as the flange origin, a wrong
+    declaration): the loaded trials' torque contradicts it, the COM joins the nominal as a
+    nuisance term with a note, and a thermal drift behind it is named (before: torque_scale
+    first, the drift second); the effect-free twin reads none with the same note."""
+    for effect in ("thermal_drift", "none"):
+        wa = F.WorldArgs(effect, 41, 1.0, "tri3", reps=2, payload_com_known=False)
+        camp, _ = F.ensure_campaign(wa, foreign_cache, nice=0)
+        out = tmp_path / effect
+        assert main(["diagnose", str(camp), "--out", str(out)]) == 0
+        jr = json.loads((out / "diagnosis.json").read_text())["joints"]["2"]
+        assert jr["verdict"] == effect, (effect, jr["verdict"], jr.get("selected"))
+        assert jr["channels"]["torque"]["nuisance"] == ["payload_com"]
+        assert "payload_com" in (out / "diagnosis.md").read_text().split("## Joint 2")[1].split("Note:")[1][:40]
+
+
 def _single_record(camp: Path, trial_id: str, dest: Path) -> Path:
     """``camp`` with only ``trial_id`` in its manifest, the other files linked."""
     text = (camp / "campaign.toml").read_text()

@@ -107,7 +107,17 @@ def undeclared_payload_columns(d: JointData) -> np.ndarray:
     return np.column_stack(cols) if cols else np.zeros((d.trial.shape[0], 0))
 
 
-def payload_corrected(d: JointData, theta: np.ndarray) -> JointData:
+def absent_payload_columns(d: JointData) -> np.ndarray:
+    """``[qdd, sin q, cos q]`` on the trials of each payload mass whose ``payload_com`` is absent
+    (FORMAT.md: declared at the flange origin), as :func:`undeclared_payload_columns` does for
+    ``"unknown"``: what a centre of mass away from the declared one adds to the moving joint's
+    torque. The gap diagnosis tests the declaration with them (a nuisance term, not an effect).
+    (N, 3 per such payload); none when every loaded trial declares its COM."""
+    cols = [d.urdf_regs[:, :3] * np.isin(d.trial, idx)[:, None] for idx in _undeclared_payloads(d, None)]
+    return np.column_stack(cols) if cols else np.zeros((d.trial.shape[0], 0))
+
+
+def payload_corrected(d: JointData, theta: np.ndarray, extra: np.ndarray | None = None) -> JointData:
     """``d`` with the transmitted torque of the trials whose payload COM is unknown corrected by
     the torque channel's fit of :func:`undeclared_payload_columns` (amplitudes ``theta``, the
     channel's last columns): the spring carries the payload's true rigid-body torque, ``tau_m +
@@ -115,9 +125,10 @@ def payload_corrected(d: JointData, theta: np.ndarray) -> JointData:
     the transmission target ``e = q_link - q_motor + tau_m / K`` moves with it. The torque
     channel pins that correction (its noise over ``K`` is far below the markers'); left free in
     the transmission channel, the same three columns would also take up a softer spring's
-    deflection on those trials. ``d`` itself when nothing is undeclared or nothing is measured
+    deflection on those trials. ``extra``: the payload columns ``theta`` ends with (default
+    :func:`undeclared_payload_columns`). ``d`` itself when there are none or nothing is measured
     at the markers."""
-    extra = undeclared_payload_columns(d)
+    extra = undeclared_payload_columns(d) if extra is None else extra
     if not extra.shape[1] or not d.e.size:
         return d
     dtau = at_markers(d, extra @ np.asarray(theta, float)[-extra.shape[1]:])
@@ -125,11 +136,12 @@ def payload_corrected(d: JointData, theta: np.ndarray) -> JointData:
     return replace(d, tau_m=d.tau_m + dtau, e=e)
 
 
-def _undeclared_payloads(d: JointData) -> list:
-    """Trial indices of each payload mass carried with ``payload_com = "unknown"``."""
+def _undeclared_payloads(d: JointData, which="unknown") -> list:
+    """Trial indices of each payload mass carried with ``payload_com = "unknown"`` (``which``;
+    None: absent)."""
     loads = {}
     for i, tr in enumerate(d.trials):
-        if tr.load_kg > 0 and (getattr(tr, "extra", None) or {}).get("payload_com") == "unknown":
+        if tr.load_kg > 0 and (getattr(tr, "extra", None) or {}).get("payload_com") == which:
             loads.setdefault(round(float(tr.load_kg), 9), []).append(i)
     return list(loads.values())
 

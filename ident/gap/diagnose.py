@@ -33,8 +33,8 @@ import numpy as np
 from ident.gap.candidates import (REVERSAL_SHAPED, Candidate, SharedIntermediates, candidate_effects,
                                   confounders, level_interactions, selected_levels, shared_intermediates)
 from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmission,
-                               _transmission_channel, nominal_heldout_rms, payload_corrected,
-                               undeclared_payload_columns)
+                               _transmission_channel, absent_payload_columns, nominal_heldout_rms,
+                               payload_corrected, undeclared_payload_columns)
 from ident.gap.data import JointData
 from ident.gap.nominal import nominal_model
 from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, grams_augmented, heldout_leverage,
@@ -349,6 +349,7 @@ class _ChannelRun:
     design: _TestDesign | None = None
     last_d: dict | None = None    # effect -> per-unit held-out loss differential at the last step
     extrapolated: float = 0.0     # share of held-out samples with leverage > 1 (nominal columns)
+    payload: tuple | None = None  # (columns, amplitudes, EffectTest, gain-like effects of the same term)
 
     def powerless(self, alpha: float) -> bool:
         """True when even the most extreme outcome cannot pass Holm's first threshold."""
@@ -419,7 +420,11 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointDat
 
     choice = best
     Ca = None
-    conf, _ = confounders(best.effect)
+    conf = list(confounders(best.effect)[0])
+    if best.effect == PAYLOAD_COM:          # a COM error is a gain on the payload's torque
+        conf = list(GAIN_LIKE)
+    elif best.effect in GAIN_LIKE and PAYLOAD_COM in rows:
+        conf.append(PAYLOAD_COM)
     for name in conf:
         other = rows.get(name)
         if other is None or not other.test.identifiable or other.cv is None:
@@ -440,6 +445,27 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointDat
               and _n_params(other, Cb) < _n_params(best, Ca) and _heldout_tie(best, other)):
             choice = other
     return choice
+
+
+#: the nuisance term of a payload whose centre of mass is absent from its trials (FORMAT.md: at the
+#: flange origin): tested beside the effects, it joins the nominal when the data contradict the
+#: declaration, and is reported as a note, never as a verdict
+PAYLOAD_COM = "payload_com"
+#: the effects a payload COM error resembles (a gain on the payload's torque): each is the other's
+#: confounder in the selection, and an undeclared COM is named as their alternative
+GAIN_LIKE = ("torque_scale", "load_dependent")
+
+
+def _payload_candidate(d: JointData) -> Candidate | None:
+    """The payload-declaration test (:data:`PAYLOAD_COM`): ``[qdd, sin q, cos q]`` on the trials
+    of each payload mass without ``payload_com`` (:func:`ident.gap.channels.absent_payload_columns`),
+    which span what a centre of mass away from the flange origin adds to the joint's torque.
+    None when every loaded trial declares its COM (or calls it unknown)."""
+    if not absent_payload_columns(d).shape[1]:
+        return None
+    return Candidate(PAYLOAD_COM, "torque", (None,), lambda dd, hp: absent_payload_columns(dd),
+                     lambda hp: "payload centre of mass away from the flange origin (payload_com absent): "
+                                "[qdd, sin q, cos q] on the loaded trials", PAYLOAD_COM)
 
 
 #: each of two candidates keeps less than this share of its reduction given the other: they
@@ -603,7 +629,10 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     step_d = {}      # effect -> loss differentials of the latest step (power given the model reached)
     decl_ms = float(np.mean(ch.declared ** 2)) if ch.declared is not None and ch.declared.size else 0.0
     levels = (None, None)   # fitted Coulomb / viscous levels of the effects selected so far (torque)
-    for step in range(settings.max_effects):
+    payload = None
+    for step in range(settings.max_effects + (PAYLOAD_COM in by_effect)):
+        if len(steps) >= settings.max_effects:
+            break
         rows, pvals = {}, {}
         step_d = {}
         for name, group in by_effect.items():
@@ -660,10 +689,15 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
             break
         best = _discriminate(sig, rows, ch, X, d, cache)
         t = best.test
-        steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
-                                    t.explained_share, t.shape, t.family,
-                                    t.evidence["removed_variance_over_floor"]), best.cv.sse))
         C, keep = best.cols[best.cv.hp_all].build(d, ch, cache), best.cols[best.cv.hp_all].keep
+        if best.effect == PAYLOAD_COM:   # a wrong declaration, not an effect: it joins the nominal
+            same = tuple(n for n in GAIN_LIKE if n in rows and rows[n].test.significant
+                         and rows[n].test.evidence.get(f"unique_share_given_{PAYLOAD_COM}", 1.0) < SAME_TERM)
+            payload = (C, _amplitudes(best.cv.theta_all, X.shape[1], keep), t, same)
+        else:
+            steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
+                                        t.explained_share, t.shape, t.family,
+                                        t.evidence["removed_variance_over_floor"]), best.cv.sse))
         cand, hp = best.cv.hp_all
         if cand.coulomb or cand.viscous:   # torque-channel families only
             # the selected effect's fitted levels join those later candidates are composed with
@@ -678,7 +712,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         by_effect.pop(best.effect)
     n_tested = sum(1 for r in (tested_first or {}).values() if r.test.identifiable)
     return _ChannelRun(nominal_sse, base_cv, n_per_trial, noise, mse_nom, tested_first or {}, steps,
-                       current_sse, n_blocks, p_min, n_tested, design, step_d, extrapolated)
+                       current_sse, n_blocks, p_min, n_tested, design, step_d, extrapolated, payload)
 
 
 def _stability(res: _ChannelRun, settings: DiagnosisSettings) -> dict:
@@ -757,7 +791,8 @@ def _channel_result(ch: Channel, res: _ChannelRun, settings: DiagnosisSettings) 
         ch.name, ch.unit, float(np.sqrt(res.mse_nominal)), bootstrap_ci(res.nominal_sse, n, seed=settings.seed),
         _rms(res.final_sse, n), bootstrap_ci(res.final_sse, n, seed=settings.seed),
         float(np.sqrt(res.noise_floor_mse)), tuple(s for s, _ in res.steps), n_blocks=res.n_blocks,
-        p_min_attainable=res.p_min, extrapolated=res.extrapolated)
+        p_min_attainable=res.p_min, extrapolated=res.extrapolated,
+        nuisance=(PAYLOAD_COM,) if res.payload is not None else ())
 
 
 def _selection_order(chres: dict) -> list:
@@ -841,19 +876,36 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
     nominal = nominal_model(settings.nominal)
     q_range = float(np.ptp(np.percentile(d.q, [0.5, 99.5]))) if d.q.size else None
     cands = [c for c in candidate_effects(gear_ratio, q_range) if families is None or c.family in families]
+    pc = _payload_candidate(d)
+    cands += [pc] if pc is not None else []
     channels = [_torque_channel(d, nominal)] + ([None] if d.has_transmission else [])
     effects, chres = [], {}
-    runs = {}
+    runs, notes = {}, []
     for k, ch in enumerate(channels):
         dc = d
         if ch is None:   # the transmission channel, with the payload torque the torque channel fitted
-            dc = payload_corrected(d, runs["torque"].nominal_cv.theta_all)
+            tr = runs["torque"]
+            dc = payload_corrected(d, tr.nominal_cv.theta_all)
+            if tr.payload is not None:
+                dc = payload_corrected(dc, tr.payload[1], tr.payload[0])
             ch = channels[k] = _transmission_channel(dc)
         res = _channel_stepwise(dc, ch, cands, settings)
         runs[ch.name] = res
         stab = _stability(res, settings)
         chres[ch.name] = _channel_result(ch, res, settings)
+        if res.payload is not None:
+            t = res.payload[2]
+            same = res.payload[3]
+            notes.append(f"payload_com: the loaded trials' torque contradicts the payload centre of mass at the "
+                         f"flange origin that their missing payload_com declares (FORMAT.md): a COM away from it "
+                         f"removes {t.evidence['removed_variance_over_floor']:.3g} noise variances (p {t.p_adjusted:.2g}); "
+                         f"the diagnosis treats it as unknown (free [qdd, sin q, cos q] on those trials)"
+                         + (f"; {' and '.join(same)} also explain{'s' if len(same) == 1 else ''} this term (a "
+                            f"gain on the payload's torque): with the COM declared they separate" if same else "")
+                         + "; declare the measured payload_com")
         for name, row in res.first.items():
+            if name == PAYLOAD_COM:
+                continue
             conf, exp = confounders(name)
             effects.append(replace(row.test, confounded_with=tuple(conf), separating_experiment=exp,
                                    bootstrap_top_share=stab.get(name, 0.0)))
@@ -909,7 +961,7 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         status=status, detectable=power, alternatives=alternatives, next_experiment=next_exp,
         spectrum_bands=tuple(spectrum["bands"]) if spectrum else (),
         tests={c: r.design.text for c, r in runs.items() if r.design is not None},
-        extrapolated=extrapolated, series=series)
+        extrapolated=extrapolated, series=series, notes=tuple(notes))
 
 
 #: the held-out gap above the white-noise floor, in units of the floor's variance, from which a
@@ -1042,6 +1094,8 @@ def _alternatives(verdict: str, runs: dict, d: JointData) -> tuple:
             if not k.startswith("unique_share_given_"):
                 continue
             other = k[len("unique_share_given_"):]
+            if other == PAYLOAD_COM:   # named below, with its own way to separate
+                continue
             o = r.first.get(other)
             ub = o.test.evidence.get(f"unique_share_given_{verdict}") if o is not None else None
             if o is not None and o.test.significant and x < SAME_TERM and ub is not None and ub < SAME_TERM:
@@ -1056,7 +1110,7 @@ def _alternatives(verdict: str, runs: dict, d: JointData) -> tuple:
                         "separate_by": confounders("load_dependent")[1]})
     loaded = [tr for tr in d.trials if getattr(tr, "load_kg", 0) > 0]
     com = [(getattr(tr, "extra", None) or {}).get("payload_com") for tr in loaded]
-    if verdict in ("torque_scale", "load_dependent") and loaded and any(c is None or c == "unknown" for c in com):
+    if verdict in GAIN_LIKE and loaded and any(c is None or c == "unknown" for c in com):
         out.append({"effect": "payload_com", "why": "a payload centre of mass away from its declared place "
                     "changes the payload's torque like a gain on it" + (
                         " (payload_com not declared: FORMAT.md puts it at the flange origin)"

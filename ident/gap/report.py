@@ -73,6 +73,8 @@ def markdown(report: dict, plots: dict) -> str:
             L += [f"- alternative **{a['effect']}**: {a['why']}; to separate: {a['separate_by']}."]
         if rep.get("alternatives"):
             L.append("")
+        for note in rep.get("notes", []):
+            L += [f"Note: {note}.", ""]
         if rep.get("unexplained"):
             L += [f"What stays unexplained: {rep['unexplained']}.", ""]
         nx = rep.get("next_experiment")
@@ -91,7 +93,8 @@ def markdown(report: dict, plots: dict) -> str:
         for name, ch in rep["channels"].items():
             lo, hi = ch["heldout_rms_nominal_ci95"]
             lo2, hi2 = ch["heldout_rms_final_ci95"]
-            sel = ", ".join(s["effect"] for s in ch["selected"]) or "nothing"
+            sel = ", ".join([s["effect"] for s in ch["selected"]]
+                            + [f"{n} (a nuisance term: see the note)" for n in ch.get("nuisance", [])]) or "nothing"
             L.append(f"- **{name}** channel ({ch['unit']}): held-out RMS {ch['heldout_rms_nominal']:.4g} "
                      f"[{lo:.4g}, {hi:.4g}] -> {ch['heldout_rms_final']:.4g} [{lo2:.4g}, {hi2:.4g}] "
                      f"after adding {sel}; white-noise floor {ch['noise_floor_rms']:.3g} "

@@ -127,6 +127,7 @@ class ChannelResult:
     n_blocks: int = 0
     p_min_attainable: float | None = None
     extrapolated: float = 0.0     # held-out samples with leverage > 1 (engine.heldout_leverage)
+    nuisance: tuple = ()          # terms that joined the nominal, not effects (the payload COM)
 
     @property
     def remaining_gap_over_noise(self) -> float:
@@ -141,6 +142,8 @@ class ChannelResult:
              "remaining_gap_over_noise": self.remaining_gap_over_noise,
              "selected": [s.to_dict() for s in self.selected], "n_blocks": int(self.n_blocks),
              "p_min_attainable": _f(self.p_min_attainable)}
+        if self.nuisance:
+            d["nuisance"] = list(self.nuisance)
         if self.name == "torque":
             d["heldout_extrapolated_share"] = float(self.extrapolated)
             r = self.noise_floor_rms_repetitions

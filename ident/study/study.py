@@ -1653,6 +1653,9 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
                      f"{best['effect'] if best else '-'} | {_f(best['reduction']) if best else '-'} | "
                      f"{(top['regime'] + ' ' + _f(top['share'], 2)) if top else '-'} |")
         L.append("")
+        for j, rep in diagnosis["joints"].items():
+            for n in rep.get("notes", []):
+                L += [f"Note on joint {j}: {n}.", ""]
         for j in diagnosis["joints"]:
             for kind in ("localisation", "effects"):
                 p = out / "diagnosis" / f"joint{j}_{kind}.png"

@@ -5,10 +5,12 @@ records per joint over their motion cycles, as :func:`ident.workflow.plan` decid
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 from ident.cli.main import add_common
 from ident.outputs import OutputDir
+from mocap.io.errors import InputWarning
 
 
 def register(sub):
@@ -71,5 +73,7 @@ def run(args) -> int:
     else:
         for j, s in summary.items():
             print(f"joint {j}: {s['verdict_text']}")
+            for note in s["notes"]:
+                warnings.warn(InputWarning(f"joint {j}: {note}"))
         print(f"wrote {paths['json']} and {paths['md']}")
     return 0
