@@ -73,3 +73,21 @@ def test_report_heading_says_unexplained_or_insufficient_data_not_a_bare_none():
     assert "## Joint 1: verdict **none (unexplained)**" in md
     assert "## Joint 2: verdict **none (insufficient data)**" in md
     assert "## Joint 3: verdict **none**\n" in md and "## Joint 4: verdict **stribeck**\n" in md
+
+
+def test_diagnosis_notes_reach_the_study_report(tmp_path):
+    """A diagnosis note (a payload declaration the data contradict) is printed in the study
+    report beside the verdict table, as in diagnosis.md."""
+    from types import SimpleNamespace
+
+    from ident.study.study import report_markdown
+
+    trial = SimpleNamespace(joints=(2,), load_kg=1.0, vmax_frac=1.0, repetition=1)
+    camp = SimpleNamespace(name="c", trials=[trial])
+    note = "payload_com: the loaded trials' torque contradicts the payload centre of mass at the flange origin"
+    diag = {"joints": {"2": {"verdict": "none", "verdict_text": "none: the gap is at the noise floor",
+                             "notes": [note], "effects": [], "localisation": []}}}
+    md = report_markdown(camp, {}, None, None, None, diag, {}, tmp_path)
+    assert f"Note on joint 2: {note}." in md
+    diag["joints"]["2"]["notes"] = []
+    assert "Note on joint" not in report_markdown(camp, {}, None, None, None, diag, {}, tmp_path)

@@ -192,7 +192,7 @@ def test_a_softer_spring_is_seen_when_the_payload_com_is_unknown(foreign_cache, 
         assert jr["verdict"] == verdict, (effect, jr["verdict"], jr.get("selected"))
 
 
-def test_an_offset_payload_com_left_undeclared_is_a_note_and_the_effect_is_named(foreign_cache, tmp_path):
+def test_an_offset_payload_com_left_undeclared_is_a_note_and_the_effect_is_named(foreign_cache, tmp_path, capsys):
     """tri3 seed 41 with payload_com omitted although the payload's COM is offset (the world's
     `--payload-com-known no`; FORMAT.md reads the omission as the flange origin, a wrong
     declaration): the loaded trials' torque contradicts it, the COM joins the nominal as a
@@ -207,6 +207,8 @@ def test_an_offset_payload_com_left_undeclared_is_a_note_and_the_effect_is_named
         assert jr["verdict"] == effect, (effect, jr["verdict"], jr.get("selected"))
         assert jr["channels"]["torque"]["nuisance"] == ["payload_com"]
         assert "payload_com" in (out / "diagnosis.md").read_text().split("## Joint 2")[1].split("Note:")[1][:40]
+        err = capsys.readouterr().err
+        assert err.count("jointlab: warning: joint 2: payload_com: the loaded trials' torque contradicts") == 1, err
 
 
 def _single_record(camp: Path, trial_id: str, dest: Path) -> Path:
