@@ -27,6 +27,7 @@ from __future__ import annotations
 import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -333,6 +334,15 @@ class _Row:
     cols: dict | None = None
 
 
+class _Nuisance(NamedTuple):
+    """A contradicted payload declaration that joined a channel's nominal (:data:`PAYLOAD_COM`)."""
+
+    columns: np.ndarray      # its columns on the channel's samples
+    amplitudes: np.ndarray   # their fitted amplitudes
+    test: EffectTest         # its test at the step it joined
+    same_term: tuple         # gain-like effects that explained the same term at that step
+
+
 @dataclass
 class _ChannelRun:
     nominal_sse: np.ndarray
@@ -349,7 +359,7 @@ class _ChannelRun:
     design: _TestDesign | None = None
     last_d: dict | None = None    # effect -> per-unit held-out loss differential at the last step
     extrapolated: float = 0.0     # share of held-out samples with leverage > 1 (nominal columns)
-    payload: tuple | None = None  # (columns, amplitudes, EffectTest, gain-like effects of the same term)
+    payload: _Nuisance | None = None   # a contradicted payload declaration (joined the nominal)
 
     def powerless(self, alpha: float) -> bool:
         """True when even the most extreme outcome cannot pass Holm's first threshold."""
@@ -404,7 +414,9 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointDat
     keeps a jump at torque reversals that a compliance slope cannot make; load-dependent friction
     keeps a velocity-signed term that a torque gain cannot make; ...). The evidence is recorded on
     both rows; when the leader's signature is explained by a significant confounder while the
-    confounder's is not explained by the leader, the confounder is chosen. When each explains the
+    confounder's is not explained by the leader, the confounder is chosen. A payload declaration
+    (:data:`PAYLOAD_COM`) and the gain-like effects (:data:`GAIN_LIKE`) are each other's
+    confounders. When each explains the
     same term as the other (each keeps less than a third of its reduction given the other, the
     rule that also names it as the alternative) and the simpler one fits the held-out data no
     worse within the test's resolution (:func:`_heldout_tie`), the one with fewer fitted
@@ -693,7 +705,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         if best.effect == PAYLOAD_COM:   # a wrong declaration, not an effect: it joins the nominal
             same = tuple(n for n in GAIN_LIKE if n in rows and rows[n].test.significant
                          and rows[n].test.evidence.get(f"unique_share_given_{PAYLOAD_COM}", 1.0) < SAME_TERM)
-            payload = (C, _amplitudes(best.cv.theta_all, X.shape[1], keep), t, same)
+            payload = _Nuisance(C, _amplitudes(best.cv.theta_all, X.shape[1], keep), t, same)
         else:
             steps.append((SelectionStep(t.effect, ch.name, t.heldout_rms, t.reduction, t.p_adjusted,
                                         t.explained_share, t.shape, t.family,
@@ -887,15 +899,14 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
             tr = runs["torque"]
             dc = payload_corrected(d, tr.nominal_cv.theta_all)
             if tr.payload is not None:
-                dc = payload_corrected(dc, tr.payload[1], tr.payload[0])
+                dc = payload_corrected(dc, tr.payload.amplitudes, tr.payload.columns)
             ch = channels[k] = _transmission_channel(dc)
         res = _channel_stepwise(dc, ch, cands, settings)
         runs[ch.name] = res
         stab = _stability(res, settings)
         chres[ch.name] = _channel_result(ch, res, settings)
         if res.payload is not None:
-            t = res.payload[2]
-            same = res.payload[3]
+            t, same = res.payload.test, res.payload.same_term
             notes.append(f"payload_com: the loaded trials' torque contradicts the payload centre of mass at the "
                          f"flange origin that their missing payload_com declares (FORMAT.md): a COM away from it "
                          f"removes {t.evidence['removed_variance_over_floor']:.3g} noise variances (p {t.p_adjusted:.2g}); "
