@@ -911,6 +911,8 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
                          f"flange origin that their missing payload_com declares (FORMAT.md): a COM away from it "
                          f"removes {t.evidence['removed_variance_over_floor']:.3g} noise variances (p {t.p_adjusted:.2g}); "
                          f"the diagnosis treats it as unknown (free [qdd, sin q, cos q] on those trials)"
+                         + ("" if any(getattr(tr, "load_kg", 0) == 0 for tr in d.trials) else
+                            "; with no unloaded trial to compare, a rigid-body error of the arm's URDF reads the same")
                          + (f"; {' and '.join(same)} also explain{'s' if len(same) == 1 else ''} this term (a "
                             f"gain on the payload's torque): with the COM declared they separate" if same else "")
                          + "; declare the measured payload_com")
