@@ -211,6 +211,19 @@ def test_an_offset_payload_com_left_undeclared_is_a_note_and_the_effect_is_named
         assert err.count("jointlab: warning: joint 2: payload_com: the loaded trials' torque contradicts") == 1, err
 
 
+def test_coloured_noise_that_repetitions_show_is_not_an_unexplained_gap(foreign_cache, tmp_path):
+    """tri3 seed 81, effect-free, coloured torque noise and a URDF 10 % off: the held-out gap is
+    1.6x the white-noise floor (above one noise variance: `unexplained` before), but exactly the
+    floor measured from repetitions of the same trajectories. The gap is noise: status `none`."""
+    wa = F.WorldArgs("none", 81, 1.0, "tri3", reps=2, noise="coloured", urdf_error=10.0)
+    camp, _ = F.ensure_campaign(wa, foreign_cache, nice=0)
+    assert main(["diagnose", str(camp), "--out", str(tmp_path / "out")]) == 0
+    jr = json.loads((tmp_path / "out" / "diagnosis.json").read_text())["joints"]["2"]
+    tq = jr["channels"]["torque"]
+    assert tq["remaining_gap_over_noise"] > 1.45 and tq["remaining_gap_over_repetition_noise"] < 1.05, tq
+    assert jr["verdict"] == "none" and jr["verdict_status"] == "none", jr.get("verdict_text")
+
+
 def _single_record(camp: Path, trial_id: str, dest: Path) -> Path:
     """``camp`` with only ``trial_id`` in its manifest, the other files linked."""
     text = (camp / "campaign.toml").read_text()

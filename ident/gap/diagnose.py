@@ -954,7 +954,7 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
     if extrapolated:
         verdict = "none"
     status, insufficient, next_exp = _status(verdict, runs, power, settings, d, spectrum, localisation,
-                                             named, extrapolated)
+                                             named, extrapolated, rep_var)
     alternatives = _alternatives(verdict, runs, d)
     if alternatives and not next_exp:
         next_exp = {"why": f"{verdict} and {', '.join(a['effect'] for a in alternatives)} explain the same term",
@@ -1036,7 +1036,8 @@ def _folds_text(d: JointData, runs: dict) -> str:
 
 
 def _status(verdict: str, runs: dict, power: dict, settings: DiagnosisSettings, d: JointData,
-            spectrum: dict, localisation, named: str = "none", extrapolated: float = 0.0) -> tuple:
+            spectrum: dict, localisation, named: str = "none", extrapolated: float = 0.0,
+            rep_var: float = float("nan")) -> tuple:
     """(status, text, next experiment) of the verdict: ``effect``; ``none`` (the gap is at the
     noise floor, and the data could have shown an effect of the stated size); ``unexplained``
     (a gap above the floor that no effect of the vocabulary explains: where it lies by regime and
@@ -1044,7 +1045,11 @@ def _status(verdict: str, runs: dict, power: dict, settings: DiagnosisSettings, 
     :data:`EXTRAPOLATED_SHARE`, or the data could not have shown an effect of
     :data:`POWER_TARGET` noise variances: what to record next). ``extrapolated``: the share of
     held-out torque samples that extrapolate, when it decides the verdict (0 otherwise);
-    ``named``: the effect the selection named before that set the verdict to ``none``."""
+    ``named``: the effect the selection named before that set the verdict to ``none``;
+    ``rep_var``: the torque noise variance from repetitions of the same trajectory
+    (:func:`ident.gap.engine.repetition_noise_floor`, NaN without repetitions): a gap is
+    unexplained only above both floors (coloured noise leaves a gap over the white one that the
+    repetitions show to be noise)."""
     tr = runs["torque"]
     if extrapolated:
         sel = (f"; the selection named {named} on these folds, which it cannot test" if named != "none" else "")
@@ -1060,13 +1065,19 @@ def _status(verdict: str, runs: dict, power: dict, settings: DiagnosisSettings, 
     if verdict != "none":
         return "effect", "", {}
     det = power.get("torque", float("inf"))
-    excess = (tr.mse_nominal / tr.noise_floor_mse - 1.0) if tr.noise_floor_mse > 0 else float("inf")
+    # the gap the model leaves: the nominal's, or with a contradicted payload declaration the
+    # nominal's with the payload COM joined (it is not an effect, and not unexplained)
+    mse = (float(np.sum(tr.final_sse) / max(float(np.sum(tr.n)), 1.0)) if tr.payload is not None
+           else tr.mse_nominal)
+    excess = (mse / tr.noise_floor_mse - 1.0) if tr.noise_floor_mse > 0 else float("inf")
+    excess_rep = (mse / rep_var - 1.0) if np.isfinite(rep_var) and rep_var > 0 else float("inf")
     seconds = float(np.sum(tr.n)) * (float(np.median(np.diff(d.t_rel[:1000]))) if d.t_rel.size > 2 else 0.0)
-    if excess > UNEXPLAINED_EXCESS and np.isfinite(excess):
+    if excess > UNEXPLAINED_EXCESS and np.isfinite(excess) and excess_rep > UNEXPLAINED_EXCESS:
         where = ", ".join(f"{r['regime']} {r['share']:.0%}" for r in localisation[:3])
         bands = ", ".join(f"{b['band_hz'][0]:g}-{b['band_hz'][1]:.3g} Hz {b['excess_share']:.0%}"
                           for b in (spectrum.get("bands") or []))
-        text = (f"a held-out torque gap {excess:.2g} noise variances above the white-noise floor that no "
+        rep = (f" and {excess_rep:.2g} above the floor from repetitions" if np.isfinite(excess_rep) else "")
+        text = (f"a held-out torque gap {excess:.2g} noise variances above the white-noise floor{rep} that no "
                 f"effect of the vocabulary explains (by regime: {where or '-'}; by frequency: {bands or '-'})")
         return "unexplained", text, {
             "why": "the nominal model misses something outside the effect vocabulary, or the noise is not white",
