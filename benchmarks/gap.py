@@ -79,20 +79,20 @@ def foreign_jobs(a) -> list[tuple[str, object]]:
         jobs += [("control", W("none", 11 + s, 1.0, robot, **base)) for s in range(a.controls)]
         if "urdf" in a.conditions:
             jobs += [("urdf10", W("none", 31 + s, 1.0, robot, urdf_error=10.0, **base)) for s in range(a.cond_seeds)]
-            jobs += [("urdf10", W(e, 31, 1.0, robot, urdf_error=10.0, **base)) for e in a.cond_effects]
+            jobs += [("urdf10", W(e, 31 + a.cond_seed_offset, 1.0, robot, urdf_error=10.0, **base)) for e in a.cond_effects]
         if "payload" in a.conditions:
             jobs += [("payload", W("none", 41 + s, 1.0, robot, payload_com_known=False, **base))
                      for s in range(a.cond_seeds)]
-            jobs += [("payload", W(e, 41, 1.0, robot, payload_com_known=False, **base)) for e in a.cond_effects]
+            jobs += [("payload", W(e, 41 + a.cond_seed_offset, 1.0, robot, payload_com_known=False, **base)) for e in a.cond_effects]
         if "unknown" in a.conditions:
             jobs += [("unknown", W("none", 71 + s, 1.0, robot, payload_com_known="unknown", **base))
                      for s in range(a.cond_seeds)]
-            jobs += [("unknown", W(e, 71, 1.0, robot, payload_com_known="unknown", **base)) for e in a.cond_effects]
+            jobs += [("unknown", W(e, 71 + a.cond_seed_offset, 1.0, robot, payload_com_known="unknown", **base)) for e in a.cond_effects]
         if "declared" in a.conditions:   # the cond-effects with the COM declared, same seed as "unknown"
-            jobs += [("declared", W(e, 71, 1.0, robot, **base)) for e in a.cond_effects]
+            jobs += [("declared", W(e, 71 + a.cond_seed_offset, 1.0, robot, **base)) for e in a.cond_effects]
         if "coloured" in a.conditions:
             jobs += [("coloured", W("none", 51 + s, 1.0, robot, noise="coloured", **base)) for s in range(a.cond_seeds)]
-            jobs += [("coloured", W(e, 51, 1.0, robot, noise="coloured", **base)) for e in a.cond_effects]
+            jobs += [("coloured", W(e, 51 + a.cond_seed_offset, 1.0, robot, noise="coloured", **base)) for e in a.cond_effects]
         if "two" in a.conditions:
             jobs += [("two", W(p, 61 + k, 1.0, robot, second_effect=q, **base)) for k, (p, q) in enumerate(PAIRS[:a.pairs])]
     return jobs
@@ -344,6 +344,9 @@ def main(argv=None):
     ap.add_argument("--cond-effects", default=None,
                     help="effects (magnitude 1, one seed) also run under each condition (default: --effects; '' for none)")
     ap.add_argument("--pairs", type=int, default=len(PAIRS), help=f"two-effect pairs per robot (at most {len(PAIRS)})")
+    ap.add_argument("--cond-seed-offset", type=int, default=0,
+                    help="added to the seed of the cond-effects' campaigns (31 URDF, 41 payload, 51 coloured, "
+                         "71 unknown and declared): other effect forms under the same conditions")
     ap.add_argument("--joint", type=int, default=None,
                     help="foreign world: the moving joint (1-based; default ind6 3, tri3 2)")
     ap.add_argument("--reps", type=int, default=4, help="foreign world: repetitions per load and speed")
