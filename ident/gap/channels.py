@@ -95,25 +95,17 @@ def _motion_blocks(trial: np.ndarray, qd: np.ndarray, n_trials: int) -> tuple[np
     return np.column_stack([starts, ends]), bt
 
 
-def undeclared_payload_columns(d: JointData) -> np.ndarray:
+def undeclared_payload_columns(d: JointData, which="unknown") -> np.ndarray:
     """Rigid-body corrections of each payload whose centre of mass the lab does not know
-    (``payload_com = "unknown"``, FORMAT.md; an absent key declares it at the flange origin): the
-    payload's first moments enter the moving joint's gravity torque as ``A sin q + B cos q`` and
-    its inertia about the axis linearly in the COM offset, so ``[qdd, sin q, cos q]`` on that
-    payload's trials spans a COM error exactly. A torque gain is then not identifiable from the
-    payload's torque (these columns free it): the report names the gain and the COM as the same
-    term. (N, 3 per such payload); none when every loaded trial declares its COM."""
-    cols = [d.urdf_regs[:, :3] * np.isin(d.trial, idx)[:, None] for idx in _undeclared_payloads(d)]
-    return np.column_stack(cols) if cols else np.zeros((d.trial.shape[0], 0))
-
-
-def absent_payload_columns(d: JointData) -> np.ndarray:
-    """``[qdd, sin q, cos q]`` on the trials of each payload mass whose ``payload_com`` is absent
-    (FORMAT.md: declared at the flange origin), as :func:`undeclared_payload_columns` does for
-    ``"unknown"``: what a centre of mass away from the declared one adds to the moving joint's
-    torque. The gap diagnosis tests the declaration with them (a nuisance term, not an effect).
-    (N, 3 per such payload); none when every loaded trial declares its COM."""
-    cols = [d.urdf_regs[:, :3] * np.isin(d.trial, idx)[:, None] for idx in _undeclared_payloads(d, None)]
+    (``payload_com = "unknown"``, FORMAT.md; ``which=None``: the trials where the key is absent,
+    which declares it at the flange origin, a declaration the gap diagnosis tests with these
+    columns as a nuisance term): the payload's first moments enter the moving joint's gravity
+    torque as ``A sin q + B cos q`` and its inertia about the axis linearly in the COM offset, so
+    ``[qdd, sin q, cos q]`` on that payload's trials spans a COM error exactly. A torque gain is
+    then not identifiable from the payload's torque (these columns free it): the report names the
+    gain and the COM as the same term. (N, 3 per such payload); none when there is no such
+    payload."""
+    cols = [d.urdf_regs[:, :3] * np.isin(d.trial, idx)[:, None] for idx in _undeclared_payloads(d, which)]
     return np.column_stack(cols) if cols else np.zeros((d.trial.shape[0], 0))
 
 

@@ -34,7 +34,7 @@ import numpy as np
 from ident.gap.candidates import (REVERSAL_SHAPED, Candidate, SharedIntermediates, candidate_effects,
                                   confounders, level_interactions, selected_levels, shared_intermediates)
 from ident.gap.channels import (Channel, _cv, _rms, _torque_channel, _Transmission,
-                               _transmission_channel, absent_payload_columns, nominal_heldout_rms,
+                               _transmission_channel, _undeclared_payloads, nominal_heldout_rms,
                                payload_corrected, undeclared_payload_columns)
 from ident.gap.data import JointData
 from ident.gap.nominal import nominal_model
@@ -470,12 +470,13 @@ GAIN_LIKE = ("torque_scale", "load_dependent")
 
 def _payload_candidate(d: JointData) -> Candidate | None:
     """The payload-declaration test (:data:`PAYLOAD_COM`): ``[qdd, sin q, cos q]`` on the trials
-    of each payload mass without ``payload_com`` (:func:`ident.gap.channels.absent_payload_columns`),
-    which span what a centre of mass away from the flange origin adds to the joint's torque.
-    None when every loaded trial declares its COM (or calls it unknown)."""
-    if not absent_payload_columns(d).shape[1]:
+    of each payload mass without ``payload_com``
+    (:func:`ident.gap.channels.undeclared_payload_columns` with ``which=None``), which span what
+    a centre of mass away from the flange origin adds to the joint's torque. None when every
+    loaded trial declares its COM (or calls it unknown)."""
+    if not _undeclared_payloads(d, None):
         return None
-    return Candidate(PAYLOAD_COM, "torque", (None,), lambda dd, hp: absent_payload_columns(dd),
+    return Candidate(PAYLOAD_COM, "torque", (None,), lambda dd, hp: undeclared_payload_columns(dd, None),
                      lambda hp: "payload centre of mass away from the flange origin (payload_com absent): "
                                 "[qdd, sin q, cos q] on the loaded trials", PAYLOAD_COM)
 
