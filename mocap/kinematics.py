@@ -311,6 +311,92 @@ class Chain:
             object.__setattr__(self, "_blocks", blocks)       # a cache, not a field
         return blocks
 
+    def joint_frames_soa(self, angles: np.ndarray, first: int = 0,
+                         F_prev: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        r"""Joint frames ``first .. first + k - 1`` with the frame index last (structure of arrays).
+
+        The forward kinematics of :meth:`joint_frames` (the class docstring's product, thesis
+        eq. 3-3 [1]_) laid out for work over many frames at once: every per-frame quantity is a
+        contiguous row over the ``T`` frames, so the chain step
+        ``[R_i | o_i] = [R_{i-1} | o_{i-1}] [C_i(q_i) | p_i]`` is one small GEMM per joint and a
+        few contiguous elementwise operations (no transposes, no batched 3 x 3 products), with
+        ``C_i(q) = Pr_i + sin q Pr_i K_i + (1 - cos q) Pr_i K_i^2`` (Rodrigues). The joint axis in
+        the base frame comes with it: ``R_i a_i = R_{i-1} Pr_i a_i`` (``K_i a_i = 0``).
+
+        Parameters
+        ----------
+        angles : numpy.ndarray
+            (k, T) angles of joints ``first .. first + k - 1`` (rad).
+        first : int, optional
+            The first joint computed.
+        F_prev : numpy.ndarray, optional
+            (3, 4, T) ``[R | o]`` of joint ``first - 1`` in the base frame (the part of the chain
+            before ``first``, computed once by the caller when those joints are held); None: the
+            base frame itself (only with ``first == 0``).
+
+        Returns
+        -------
+        F : numpy.ndarray
+            (k, 3, 4, T) ``[R_i | o_i]`` of each joint in the base frame.
+        W : numpy.ndarray
+            (k, 3, T) each joint's unit axis in the base frame.
+
+        Raises
+        ------
+        ValueError
+            If ``first > 0`` without ``F_prev`` or the joints run past the chain.
+
+        References
+        ----------
+        .. [1] PA10 thesis (seeds 002), eq. 3-3.
+        """
+        ang = np.asarray(angles, float)
+        k, T = ang.shape
+        if first < 0 or first + k > self.n:
+            raise ValueError(f"joints {first}..{first + k - 1} are not in the chain's 0..{self.n - 1}")
+        if F_prev is None and first > 0:
+            raise ValueError("F_prev (the frame of joint first - 1) is needed when first > 0")
+        blocks = self._soa_blocks()
+        F = np.empty((k, 3, 4, T))
+        W = np.empty((k, 3, T))
+        tmp = np.empty((3, 3, T))
+        prev = F_prev
+        sin, cos = np.sin(ang), np.cos(ang)
+        for r in range(k):  # joints (n <= ~7), frames vectorised
+            Ct = blocks[first + r]                      # (11, 3)
+            s = sin[r]
+            c = cos[r]
+            if prev is None:
+                B = Ct.T[:, :, None]                    # (3, 11, 1): the base frame is identity
+                F[r, :, 3] = B[:, 9]
+            else:
+                B = np.matmul(Ct, prev[:, :3])          # (3, 11, T) = R_{i-1} [C blocks | p | Pr a]
+                np.add(prev[:, 3], B[:, 9], out=F[r, :, 3])
+            W[r] = B[:, 10]
+            R = F[r, :, :3]
+            np.multiply(B[:, 3:6], s, out=R)
+            R += B[:, 0:3]
+            np.multiply(B[:, 6:9], c, out=tmp)
+            R += tmp
+            prev = F[r]
+        return F, W
+
+    def _soa_blocks(self) -> list:
+        """Per joint the transposed ``[Pr + Pr K^2, Pr K, -Pr K^2, p, Pr a]`` (11, 3) of
+        :meth:`joint_frames_soa` (``R_i = R_{i-1} (B_0 + sin q B_1 + cos q B_2)``); once per chain."""
+        blocks = self.__dict__.get("_blocks_soa")
+        if blocks is None:
+            blocks = []
+            for i in range(self.n):
+                P = self.T_parent_joint[i]
+                K = skew(self.axes[i])
+                Pr = P[:3, :3]
+                PK2 = Pr @ K @ K
+                blocks.append(np.ascontiguousarray(np.hstack(
+                    [Pr + PK2, Pr @ K, -PK2, P[:3, 3:4], (Pr @ self.axes[i])[:, None]]).T))
+            object.__setattr__(self, "_blocks_soa", blocks)   # a cache, not a field
+        return blocks
+
     def joint_transforms(self, q: np.ndarray) -> np.ndarray:
         """``T_base_joint`` for every joint: (T, n, 4, 4) from q (T, n) (or (n,) -> (n, 4, 4))."""
         single = np.asarray(q).ndim == 1

@@ -12,7 +12,9 @@ are solved together with numpy:
 * one moving joint: the weighted least-squares problem has a closed form (a 1-D Wahba problem:
   ``q = atan2(S, C)``), iterated a few times only to re-weight against outliers;
 * several joints: Levenberg-Marquardt with analytic Jacobians (``d p / d q_i = w_i x (p - o_i)``),
-  vectorised over frames, frames leave the loop as they converge.
+  vectorised over frames (the frame index last in memory), frames leave the loop as they
+  converge; a frame whose next step, estimated with the previous iteration's Cholesky factor, is
+  below ``tol`` takes it and stops without another ``J^T J`` (docs/performance.md).
 
 Robustness: a plain least-squares pass from the motor angle; the marker noise is estimated from
 the median residual; frames with a marker beyond ``reject_sigma`` times that level are solved again
@@ -273,7 +275,7 @@ class MarkerSolver:
         if q_guess.shape != (T, self.chain.n):
             raise ValueError(f"q_guess must be ({T}, {self.chain.n}), got {q_guess.shape}")
         used = self.marker_joint >= self.joints[0]  # the others do not depend on the solved joints
-        vis = np.all(np.isfinite(Y), axis=2) & used[None, :]
+        vis = np.isfinite(Y[..., 0]) & np.isfinite(Y[..., 1]) & np.isfinite(Y[..., 2]) & used[None, :]
         flags = np.zeros(T, np.int64)
         no_guess = ~np.all(np.isfinite(q_guess), axis=1)
         flags[no_guess] |= FLAG_NO_GUESS
@@ -291,7 +293,7 @@ class MarkerSolver:
         # stage 1: plain least squares on every visible marker, from the motor angle (eq. 3-5)
         qs, iters = model.solve(qs, Y, vis, loss="linear", scale=1.0, max_iter=self.max_iter)
         P = model.model_markers(qs)
-        res = np.where(vis, np.linalg.norm(P - Y, axis=2), np.nan)
+        res = np.where(vis, _norm3(P - Y), np.nan)
         sigma = self._noise_level(res)
         thr = max(self.reject_floor_m, self.reject_sigma * sigma)
         inl = vis & (res < thr)
@@ -303,12 +305,12 @@ class MarkerSolver:
             q_start = q0[:, self.joints].copy()
             qr, it2 = model.solve(q_start, Y, vis, loss="cauchy", scale=self.robust_scale_m,
                                   max_iter=max(self.irls_iter, 1), frames=sus)
-            res_r = np.linalg.norm(model.predict(qr[idx], idx) - Y[idx], axis=2)
+            res_r = _norm3(model.predict(qr[idx], idx) - Y[idx])
             inl[idx] = vis[idx] & (res_r < thr)
             qp, it3 = model.solve(qr, Y, inl, loss="linear", scale=1.0, max_iter=self.max_iter,
                                   frames=sus)
             qs[idx] = qp[idx]
-            P[idx] = model.model_markers(qs)[idx]
+            P[idx] = model.model_markers(qs, idx)
             iters += it2 + it3
         swaps = []
         if self.detect_swaps:
@@ -317,10 +319,10 @@ class MarkerSolver:
                 qs_t, _ = model.solve(qs, Y, inl, loss="linear", scale=1.0, max_iter=self.max_iter,
                                       frames=touched)
                 qs[touched] = qs_t[touched]
-                P[touched] = model.model_markers(qs)[touched]
+                P[touched] = model.model_markers(qs, np.flatnonzero(touched))
                 flags[touched] |= FLAG_SWAP_REPAIRED
         r = P - Y
-        res = np.where(vis, np.linalg.norm(r, axis=2), np.nan)
+        res = np.where(vis, _norm3(r), np.nan)
         n_in = inl.sum(axis=1)
         rms = np.sqrt((np.where(inl, res, 0.0) ** 2).sum(axis=1) / np.maximum(n_in, 1))
         flags[(vis & ~inl).any(axis=1)] |= FLAG_OUTLIERS_REJECTED
@@ -332,10 +334,13 @@ class MarkerSolver:
         H = model.final_normal_matrix(qs, inl)
         ok_h = np.all(np.isfinite(H), axis=(1, 2)) & (n_in > 0)
         H = np.where(ok_h[:, None, None], H, np.eye(S))
-        try:
-            Hinv = np.linalg.inv(H)
-        except np.linalg.LinAlgError:
-            Hinv = np.linalg.pinv(H)
+        Hinv = _spd_inverse(H)
+        npd = ~np.all(np.isfinite(Hinv), axis=(1, 2))
+        if npd.any():  # not positive definite (a joint without markers...): LU, else pseudo-inverse
+            try:
+                Hinv[npd] = np.linalg.inv(H[npd])
+            except np.linalg.LinAlgError:
+                Hinv[npd] = np.linalg.pinv(H[npd])
         # cond(H) <= |H|_F |H^-1|_F and lambda_min(H) >= 1 / |H^-1|_F: cheap, conservative tests
         nf = np.linalg.norm(H, axis=(1, 2))
         nfi = np.linalg.norm(Hinv, axis=(1, 2))
@@ -395,16 +400,29 @@ class MarkerSolver:
         return Y, inl, swaps, touched
 
 
+def _frames(idx: np.ndarray):
+    """Sorted frame indices as a slice where they are a contiguous run (a view, no copy)."""
+    if idx.size and idx[-1] - idx[0] + 1 == idx.size:
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
+def _norm3(d: np.ndarray) -> np.ndarray:
+    """Euclidean norms over the last axis of length 3 (what ``np.linalg.norm(d, axis=-1)``
+    computes, several times faster on (T, M, 3) arrays)."""
+    return np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])
+
+
 def _weights(r2: np.ndarray, mask: np.ndarray, loss: str, scale: float) -> np.ndarray:
     if loss == "cauchy":
         return mask / (1.0 + r2 / scale ** 2)
     return mask.astype(float)
 
 
-def _cost(r2: np.ndarray, mask: np.ndarray, loss: str, scale: float) -> np.ndarray:
+def _cost(r2: np.ndarray, mask: np.ndarray, loss: str, scale: float, axis: int = 1) -> np.ndarray:
     if loss == "cauchy":
-        return (np.where(mask, np.log1p(r2 / scale ** 2), 0.0) * scale ** 2).sum(axis=1)
-    return np.where(mask, r2, 0.0).sum(axis=1)
+        return (np.where(mask, np.log1p(r2 / scale ** 2), 0.0) * scale ** 2).sum(axis=axis)
+    return np.where(mask, r2, 0.0).sum(axis=axis)
 
 
 class _SingleJoint:
@@ -461,8 +479,11 @@ class _SingleJoint:
         p = c * xp + s * ax + (x @ self.a)[..., None] * self.a
         return np.einsum("tij,tmj->tmi", Rj, p) + oj[:, None, :]
 
-    def model_markers(self, qs):
-        return self.predict(qs)
+    def model_markers(self, qs, idx=None):
+        """Model markers (T, M, 3) at ``qs`` (T, 1), or (K, M, 3) at the frames ``idx``."""
+        if idx is None:
+            return self.predict(qs)
+        return self.predict(np.asarray(qs).reshape(-1)[idx], idx)
 
     def final_normal_matrix(self, qs, mask):
         return self.normal_matrix(qs, mask)
@@ -492,132 +513,264 @@ class _SingleJoint:
         return (mask * xp2).sum(axis=1)[:, None, None]
 
 
+def _cholesky_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``x`` with ``L L^T x = b`` for K factored systems, frames last: ``L`` (S, S, K) from
+    :func:`_cholesky` (lower triangle), ``b`` (S, K) or (S, R, K)."""
+    S = L.shape[0]
+    y = np.array(b, float)
+
+    def below(j):  # column j of L under the diagonal, shaped to broadcast against y[j + 1:]
+        c = L[j + 1:, j]
+        return c[:, None] if y.ndim == 3 else c
+
+    for j in range(S):  # forward substitution, L y = b
+        y[j] /= L[j, j]
+        if j + 1 < S:
+            y[j + 1:] -= below(j) * y[j]
+    for j in reversed(range(S)):  # back substitution, L^T x = y
+        if j + 1 < S:
+            y[j] -= (below(j) * y[j + 1:]).sum(axis=0)
+        y[j] /= L[j, j]
+    return y
+
+
+def _cholesky(A: np.ndarray) -> np.ndarray:
+    """In-place Cholesky factor ``L`` (lower triangle; the upper one is left as is) of K
+    symmetric positive-definite S x S matrices, frames last (A (S, S, K); only the lower triangle
+    is read). Vectorised over frames: at S <= 7 LAPACK's per-matrix call costs more than the
+    arithmetic. A matrix that is not positive definite gets NaN (its step is then rejected)."""
+    S = A.shape[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(S):  # right-looking, one column at a time
+            np.sqrt(A[j, j], out=A[j, j])
+            if j + 1 < S:
+                c = A[j + 1:, j]
+                c /= A[j, j]
+                A[j + 1:, j + 1:] -= c[:, None] * c[None, :]
+    return A
+
+
+def _spd_inverse(H: np.ndarray) -> np.ndarray:
+    """Inverses of symmetric positive-definite matrices (T, S, S) -> (T, S, S) by a Cholesky
+    factorisation vectorised over the matrices (NaN where one is not positive definite)."""
+    S = H.shape[1]
+    L = _cholesky(np.moveaxis(H, 0, 2).copy())
+    eye = np.broadcast_to(np.eye(S)[:, :, None], (S, S, H.shape[0]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.moveaxis(_cholesky_solve(L, eye), 2, 0)
+
+
+def _symmetrise_lower(H: np.ndarray) -> np.ndarray:
+    """Copy the lower triangle of (S, S, K) matrices onto the upper one, in place."""
+    iu, ju = np.triu_indices(H.shape[0], 1)
+    H[iu, ju] = H[ju, iu]
+    return H
+
+
 class _Chain:
-    """Several solved joints: Levenberg-Marquardt, analytic Jacobian, vectorised over frames."""
+    """Several solved joints: Levenberg-Marquardt, analytic Jacobian, vectorised over frames.
+
+    Internally the frame index is the last axis (structure of arrays: markers (3, M, K),
+    twists (6, S, K), normal matrices (S, S, K)), so that every per-frame operation is a
+    contiguous elementwise operation or one GEMM; the frame of the joint before the first solved
+    one (held joints only) is computed once (:meth:`mocap.kinematics.Chain.joint_frames_soa`);
+    the 6 x 6 systems are solved by a Cholesky factorisation vectorised over frames."""
 
     def __init__(self, solver: MarkerSolver, q0: np.ndarray):
         self.s = solver
         self.q0 = q0
         mj = solver.marker_joint
-        # markers grouped by the joint that carries them (one matmul per group)
-        self.groups = [(jj, np.flatnonzero(mj == jj), solver.p_joint[mj == jj].T.copy())
-                       for jj in np.unique(mj[mj >= solver.joints[0]])]
-        T, M, S = q0.shape[0], solver.p_joint.shape[0], len(solver.joints)
-        self.P_last = np.zeros((T, M, 3))
-        self.H_last = np.zeros((T, S, S))
+        J = solver.joints
+        T, M, S = q0.shape[0], solver.p_joint.shape[0], len(J)
+        used = mj >= J[0]
+        self.first = J[0]
+        self.last = int(max(J[-1], mj[used].max() if used.any() else J[-1]))
+        self.solved_rows = np.array(J) - self.first
+        self.held = [(j - self.first, j) for j in range(self.first, self.last + 1) if j not in J]
+        self.q0T = np.ascontiguousarray(q0.T) if self.held else None
+        self.F_pre = None
+        if self.first > 0:  # the held part of the chain before the first solved joint, once
+            R, o = solver.chain.joint_frames(q0)
+            self.F_pre = np.empty((3, 4, T))
+            self.F_pre[:, :3] = np.moveaxis(R[:, self.first - 1], 0, 2)
+            self.F_pre[:, 3] = o[:, self.first - 1].T
+        # markers grouped by the joint that carries them (one GEMM per group, [p, 1] @ [R | o])
+        self.groups = []
+        for jj in np.unique(mj[used]):  # loop over marked links
+            sel = np.flatnonzero(mj == jj)
+            if sel.size and np.all(np.diff(sel) == 1):
+                sel = slice(int(sel[0]), int(sel[-1]) + 1)
+            ph = np.hstack([solver.p_joint[mj == jj], np.ones((int(np.sum(mj == jj)), 1))])
+            self.groups.append((int(jj) - self.first, sel, ph))
+        self.unused = np.flatnonzero(~used)
+        # the sums over the markers that each solved joint moves: where every link's markers are
+        # a contiguous run (the usual layout) a row sum per link and a running sum from the
+        # distal link (several times faster than the GEMM with the (S, M) mask at S = 6)
+        self.runs = None
+        if self.groups and all(isinstance(sel, slice) for _, sel, _ in self.groups):
+            jjs = [row + self.first for row, _, _ in self.groups]
+            self.runs = [(sel.start, sel.stop) for _, sel, _ in self.groups]
+            self.run_of_joint = [next((g for g, jj in enumerate(jjs) if jj >= j), None) for j in J]
+        self.P_last = np.zeros((3, M, T))
+        self.H_last = np.zeros((S, S, T))
         self.has_last = np.zeros(T, bool)
         # solved joint k moves marker m iff k <= the joint carrying m
-        self.mmask = (np.array(solver.joints)[None, :] <= mj[:, None]).astype(float)  # (M, S)
-        self.converged = np.ones(q0.shape[0], bool)
+        self.mmaskT = np.ascontiguousarray((np.array(J)[None, :] <= mj[:, None]).T.astype(float))
+        self.converged = np.ones(T, bool)
+        self._Y = None
+        self._Yc = None
 
-    def _full(self, qs, idx):
-        q = self.q0[idx]
-        q[:, self.s.joints] = qs
-        return q
+    def _components(self, Y):
+        """``Y`` (T, M, 3) as (3, M, T), converted once per array."""
+        if self._Y is not Y:
+            self._Y = Y
+            self._Yc = np.ascontiguousarray(np.transpose(Y, (2, 1, 0)))
+        return self._Yc
 
-    def _eval(self, qs, idx, jac: bool):
-        """Model markers P (T, M, 3) and the joint twists X (T, 6, S): for a marker distal to
-        solved joint k, dP/dq_k = w_k x P + o_k x w_k = [-[P]x | I] X[:, :, k] (Plucker form)."""
-        R, o = self.s.chain.joint_frames(self._full(qs, idx))
-        T = R.shape[0]
+    def _eval(self, qT, idx, jac: bool):
+        """Model markers P (3, M, K) and the joint twists X (6, S, K) at the solved angles
+        ``qT`` (S, K) of frames ``idx``: for a marker distal to solved joint k,
+        dP/dq_k = w_k x P + o_k x w_k = [-[P]x | I] X[:, k] (Plucker form)."""
+        K = qT.shape[1]
+        if self.held:
+            ang = np.empty((self.last - self.first + 1, K))
+            ang[self.solved_rows] = qT
+            for row, j in self.held:  # loop over held joints inside the solved range
+                ang[row] = self.q0T[j, _frames(idx)]
+        else:
+            ang = qT
+        F_prev = None if self.F_pre is None else self.F_pre[:, :, _frames(idx)]
+        F, W = self.s.chain.joint_frames_soa(ang, self.first, F_prev)
         M = self.s.p_joint.shape[0]
-        P = np.zeros((T, M, 3))
-        for jj, sel, pT in self.groups:  # loop over marked links
-            Rp = (np.ascontiguousarray(R[:, jj]).reshape(-1, 3) @ pT).reshape(T, 3, -1)
-            P[:, sel] = np.swapaxes(Rp, 1, 2) + o[:, jj][:, None, :]
+        P = np.empty((3, M, K))
+        if self.unused.size:
+            P[:, self.unused] = 0.0
+        for row, sel, ph in self.groups:  # loop over marked links
+            if isinstance(sel, slice):
+                np.matmul(ph, F[row], out=P[:, sel])
+            else:
+                P[:, sel] = np.matmul(ph, F[row])
         if not jac:
             return P, None
         S = len(self.s.joints)
-        J = list(self.s.joints)
-        X = np.empty((T, 6, S))
-        w = np.einsum("tsij,sj->tis", R[:, J], self.s.chain.axes[J])   # (T, 3, S) axes in base
-        X[:, :3] = w
-        oJ = np.swapaxes(o[:, J], 1, 2)                                # (T, 3, S) origins
-        X[:, 3] = oJ[:, 1] * w[:, 2] - oJ[:, 2] * w[:, 1]              # v = o x w
-        X[:, 4] = oJ[:, 2] * w[:, 0] - oJ[:, 0] * w[:, 2]
-        X[:, 5] = oJ[:, 0] * w[:, 1] - oJ[:, 1] * w[:, 0]
+        X = np.empty((6, S, K))
+        rows = self.solved_rows
+        X[:3] = np.swapaxes(W[rows], 0, 1)                 # w_k, the axes in the base frame
+        o = F[rows, :, 3]                                  # (S, 3, K) origins
+        wx, wy, wz = X[0], X[1], X[2]
+        np.subtract(o[:, 1] * wz, o[:, 2] * wy, out=X[3])  # v = o x w
+        np.subtract(o[:, 2] * wx, o[:, 0] * wz, out=X[4])
+        np.subtract(o[:, 0] * wy, o[:, 1] * wx, out=X[5])
         return P, X
 
-    def _normal(self, P, X, r, w):
-        """H = J^T W J and g = J^T W r, with J_mk = w_k x P_m + v_k = A_m X_k: the Plucker twist
-        X_k = (w_k, v_k = o_k x w_k) of solved joint k applied to marker m through
-        A_m = [-[P_m]x | I] (zero if k does not move m). Marker m enters H_kl when both k and l
-        move it, so H_kl = X_k^T C_max(k,l) X_l and g_k = X_k^T f_k with the sums over the
-        markers that joint i moves (those on joint i and beyond):
+    def _normal(self, P, X, r, w, hess: bool = True):
+        """H = J^T W J (S, S, K) and g = J^T W r (S, K), with J_mk = w_k x P_m + v_k = A_m X_k:
+        the Plucker twist X_k = (w_k, v_k = o_k x w_k) of solved joint k applied to marker m
+        through A_m = [-[P_m]x | I] (zero if k does not move m). Marker m enters H_kl when both
+        k and l move it, so H_kl = X_k^T C_max(k,l) X_l and g_k = X_k^T f_k with the sums over
+        the markers that joint i moves (those on joint i and beyond):
         ``C_i = sum w_m A_m^T A_m = [[tr(S2) I - S2, [s1]x], [-[s1]x, s0 I]]`` (``s0 = sum w``,
         ``s1 = sum w P``, ``S2 = sum w P P^T``) and ``f_i = sum w_m A_m^T r_m = sum w (P x r, r)``:
-        a 6 x 6 matrix and a wrench per joint instead of a (3M x S) Jacobian per frame."""
-        T, M, S = P.shape[0], P.shape[1], X.shape[2]
-        Pc = np.moveaxis(P, 2, 0).copy()                   # (3, T, M): contiguous components
-        rc = np.moveaxis(r, 2, 0).copy()
-        Px, Py, Pz = Pc
-        rx, ry, rz = rc
-        feat = np.empty((16, T, M))
-        feat[0] = w
-        wPx, wPy, wPz = np.multiply(w, Pc, out=feat[1:4])
-        np.multiply(wPx, Px, out=feat[4])
-        np.multiply(wPx, Py, out=feat[5])
-        np.multiply(wPx, Pz, out=feat[6])
-        np.multiply(wPy, Py, out=feat[7])
-        np.multiply(wPy, Pz, out=feat[8])
-        np.multiply(wPz, Pz, out=feat[9])
-        feat[10] = wPy * rz - wPz * ry                     # w P x r
-        feat[11] = wPz * rx - wPx * rz
-        feat[12] = wPx * ry - wPy * rx
-        np.multiply(w, rc, out=feat[13:16])
-        # sums over the markers each solved joint moves: one matrix product with the mask
-        suffix = (feat.reshape(16 * T, M) @ self.mmask).reshape(16, T, S)
-        s0 = suffix[0]
-        sx, sy, sz = suffix[1], suffix[2], suffix[3]
-        xx, xy, xz, yy, yz, zz = suffix[4:10]
-        ax, ay, az, bx, by, bz = np.moveaxis(X, 1, 0).copy()     # (T, S) each: w_k, v_k
+        a 6 x 6 matrix and a wrench per joint instead of a (3M x S) Jacobian per frame (the sums
+        over markers: per link, then running over the links). ``hess=False``: g only (H is
+        None)."""
+        M, K = w.shape
+        S = X.shape[1]
+        nf = 16 if hess else 6
+        feat = np.empty((M, nf, K))
+        Px, Py, Pz = P
+        rx, ry, rz = r
+        o = 10 if hess else 0           # features 0-9: H, the last 6: g
+        wPx = np.multiply(w, Px, out=feat[:, 1] if hess else None)
+        wPy = np.multiply(w, Py, out=feat[:, 2] if hess else None)
+        wPz = np.multiply(w, Pz, out=feat[:, 3] if hess else None)
+        if hess:
+            feat[:, 0] = w
+            np.multiply(wPx, Px, out=feat[:, 4])
+            np.multiply(wPx, Py, out=feat[:, 5])
+            np.multiply(wPx, Pz, out=feat[:, 6])
+            np.multiply(wPy, Py, out=feat[:, 7])
+            np.multiply(wPy, Pz, out=feat[:, 8])
+            np.multiply(wPz, Pz, out=feat[:, 9])
+        np.subtract(wPy * rz, wPz * ry, out=feat[:, o])      # w P x r
+        np.subtract(wPz * rx, wPx * rz, out=feat[:, o + 1])
+        np.subtract(wPx * ry, wPy * rx, out=feat[:, o + 2])
+        np.multiply(w, rx, out=feat[:, o + 3])
+        np.multiply(w, ry, out=feat[:, o + 4])
+        np.multiply(w, rz, out=feat[:, o + 5])
+        # sums over the markers each solved joint moves: per link, then from the distal link
+        # back (or one matrix product with the mask)
+        if self.runs is None:
+            suffix = (self.mmaskT @ feat.reshape(M, nf * K)).reshape(S, nf, K)
+        else:
+            acc, run = [None] * len(self.runs), None
+            for gi in reversed(range(len(self.runs))):  # loop over marked links
+                a, b = self.runs[gi]
+                part = np.add.reduce(feat[a:b], axis=0)
+                run = part if run is None else np.add(run, part, out=part)
+                acc[gi] = run
+            suffix = np.empty((S, nf, K))
+            for k, gi in enumerate(self.run_of_joint):  # loop over solved joints
+                suffix[k] = 0.0 if gi is None else acc[gi]
+        g = X[0] * suffix[:, o]
+        for a in range(1, 6):  # g_k = X_k^T f_k
+            g += X[a] * suffix[:, o + a]
+        if not hess:
+            return None, g
+        s0 = suffix[:, 0]
+        sx, sy, sz = suffix[:, 1], suffix[:, 2], suffix[:, 3]
+        xx, xy, xz, yy, yz, zz = (suffix[:, i] for i in range(4, 10))
+        ax, ay, az, bx, by, bz = X                         # (S, K) each: w_k, v_k
         tr = xx + yy + zz
         # Z_i = C_i X_i: top (tr S2 - S2) w + s1 x v, bottom -s1 x w + s0 v
-        Z = np.empty((6, T, S))
+        Z = np.empty((6, S, K))
         Z[0] = (tr - xx) * ax - xy * ay - xz * az + (sy * bz - sz * by)
         Z[1] = -xy * ax + (tr - yy) * ay - yz * az + (sz * bx - sx * bz)
         Z[2] = -xz * ax - yz * ay + (tr - zz) * az + (sx * by - sy * bx)
         Z[3] = -(sy * az - sz * ay) + s0 * bx
         Z[4] = -(sz * ax - sx * az) + s0 * by
         Z[5] = -(sx * ay - sy * ax) + s0 * bz
-        Hu = np.swapaxes(X, 1, 2) @ np.moveaxis(Z, 0, 1)   # Hu[k, l] = X_k^T C_l X_l
-        upper = np.arange(S)[:, None] <= np.arange(S)[None, :]
-        H = np.where(upper, Hu, np.swapaxes(Hu, 1, 2))      # H_kl = H_lk = X_k^T C_l X_l, k <= l
-        g = np.einsum("tak,atk->tk", X, suffix[10:16])
-        return H, g
+        # H_kl = X_l^T C_k X_k = Z_k^T X_l for k >= l: the lower triangle is H's (the upper one
+        # is not, see _symmetrise_lower; the Cholesky factorisation reads the lower one only)
+        return np.einsum("akt,alt->klt", Z, X), g
 
     def predict(self, qs, idx=None, chunk: int = 2048):
-        """Model markers for ``qs`` (K, S) at frames ``idx`` (default all)."""
+        """Model markers (K, M, 3) for ``qs`` (K, S) at frames ``idx`` (default all)."""
         idx = np.arange(qs.shape[0]) if idx is None else np.asarray(idx)
         out = np.empty((idx.size, self.s.p_joint.shape[0], 3))
         for b in np.array_split(np.arange(idx.size), max(1, -(-idx.size // chunk))):
-            out[b] = self._eval(qs[b], idx[b], False)[0]
+            out[b] = np.transpose(self._eval(qs[b].T, idx[b], False)[0], (2, 1, 0))
         return out
 
-    def model_markers(self, qs):
-        """Model markers stored at each frame's last Jacobian evaluation (within ``tol`` of the
-        solution: < 1 um), computed afresh where a frame was never iterated."""
-        P = self.P_last.copy()
-        fresh = ~self.has_last
+    def model_markers(self, qs, idx=None):
+        """Model markers (T, M, 3) stored at each frame's last evaluation (within ``tol`` of the
+        solution: < 1 um), computed afresh where a frame was never iterated; (K, M, 3) at the
+        sorted frames ``idx`` only, when given."""
+        at = slice(None) if idx is None else np.asarray(idx)
+        P = np.transpose(self.P_last[:, :, at], (2, 1, 0)).copy()
+        fresh = ~self.has_last[at]
         if fresh.any():
-            P[fresh] = self.predict(qs[fresh], np.flatnonzero(fresh))
+            f = np.flatnonzero(fresh) if idx is None else at[fresh]
+            P[fresh] = self.predict(qs[f], f)
         return P
 
     def final_normal_matrix(self, qs, mask):
-        """J^T J at the solution: the last LM iteration's (same inliers), else computed."""
-        H = self.H_last.copy()
+        """J^T J (T, S, S) at the solution: the last LM iteration's (same inliers), else computed."""
+        H = np.moveaxis(_symmetrise_lower(self.H_last.copy()), 2, 0).copy()
         fresh = ~self.has_last
         if fresh.any():
-            H[fresh] = self.normal_matrix(qs[fresh], mask[fresh])
+            H[fresh] = self.normal_matrix(qs[fresh], mask[fresh], idx=np.flatnonzero(fresh))
         return H
 
     def normal_matrix(self, qs, mask, chunk: int = 2048, idx=None):
+        """J^T J (T, S, S) at ``qs`` (T, S) with the markers of ``mask`` (T, M)."""
         S = qs.shape[1]
         idx = np.arange(qs.shape[0]) if idx is None else np.asarray(idx)
         out = np.empty((qs.shape[0], S, S))
         for b in np.array_split(np.arange(qs.shape[0]), max(1, -(-qs.shape[0] // chunk))):
-            P, X = self._eval(qs[b], idx[b], True)
-            out[b] = self._normal(P, X, np.zeros_like(P), mask[b].astype(float))[0]
+            P, X = self._eval(qs[b].T, idx[b], True)
+            w = np.ascontiguousarray(mask[b].T, float)
+            out[b] = np.moveaxis(_symmetrise_lower(self._normal(P, X, np.zeros_like(P), w)[0]), 2, 0)
         return out
 
     def solve(self, qs, Y, mask, loss, scale, max_iter, frames=None, chunk: int = 2048):
@@ -629,71 +782,113 @@ class _Chain:
         act = act[mask[act].any(axis=1)]
         conv = np.ones(T, bool)
         its = 0
+        Yc = self._components(Y)
+        maskT = np.ascontiguousarray(mask.T)
         for block in np.array_split(act, max(1, -(-act.size // chunk))):
-            its = max(its, self._solve_block(qs, Y, mask, loss, scale, max_iter, block, conv))
+            its = max(its, self._solve_block(qs, Yc, maskT, loss, scale, max_iter, block, conv))
         if frames is None:
             self.converged = conv
         else:
             self.converged[frames] = conv[frames]
         return qs, its
 
-    def _solve_block(self, qs, Y, mask, loss, scale, max_iter, act, conv) -> int:
+    def _solve_block(self, qs, Yc, maskT, loss, scale, max_iter, act, conv) -> int:
+        """Levenberg-Marquardt on the frames ``act``; writes ``qs`` and ``conv``. A frame stops
+        when its step is below ``tol``. After an accepted step below ``sqrt(tol)`` the next step
+        is first estimated with the new gradient and the factor of the normal matrix just used
+        (that matrix moves by O(|step|) relative, so an estimate below ``tol`` differs from the
+        exact step by < tol^1.5 rad, far below the noise); the normal matrix is recomputed only
+        for the frames whose estimate is not small."""
         S = qs.shape[1]
+        lin = loss == "linear"
+        tol = self.s.tol
+        q = np.ascontiguousarray(qs[act].T)               # (S, K)
+        y = Yc[:, :, _frames(act)]                         # (3, M, K)
+        m = maskT[:, _frames(act)]                         # (M, K)
+        w = m.astype(float) if lin else None
         lam = np.full(act.size, 1e-6)
-        P, J = self._eval(qs[act], act, True)
-        r = P - Y[act]
-        r2 = (r ** 2).sum(axis=2)
-        cost = _cost(r2, mask[act], loss, scale)
+        P, X = self._eval(q, act, True)
+        r = P - y
+        r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
+        cost = _cost(r2, m, loss, scale, axis=0)
         conv[act] = False
         it = 0
-        eye = np.eye(S)
+        H = None
+
+        def leave(sel):
+            """Frames ``sel`` (bool over the block) have converged: write them out."""
+            every = bool(sel.all())     # the usual case: the whole rest of the block at once
+            at = _frames(act) if every else act[sel]
+            conv[at] = True
+            qs[at] = (q if every else q[:, sel]).T
+            if lin:
+                self.P_last[:, :, at] = P if every else P[:, :, sel]
+                self.H_last[:, :, at] = H if every else H[:, :, sel]
+                self.has_last[at] = True
+
         while act.size and it < max_iter:
             it += 1
-            m = mask[act]
-            H, g = self._normal(P, J, r, _weights(r2, m, loss, scale))
-            if loss == "linear":
-                self.P_last[act] = P
-                self.H_last[act] = H
-                self.has_last[act] = True
-            d = np.diagonal(H, axis1=1, axis2=2)
-            A = H + (lam[:, None] * (d + 1e-12))[:, :, None] * eye
-            step = -np.linalg.solve(A, g[..., None])[..., 0]
+            H, g = self._normal(P, X, r, w if lin else _weights(r2, m, loss, scale))
+            L = H.copy()
+            Ld = L.reshape(S * S, -1)[::S + 1]                 # the diagonal, a view
+            Ld += lam * (Ld + 1e-12)                           # A = H + lam (diag(H) + 1e-12)
+            _cholesky(L)
+            step = -_cholesky_solve(L, g)
             # a step below tol (1e-6 rad: 1000x under the marker noise) is taken without
             # checking it: the frame has converged
-            small = np.abs(step).max(axis=1) < self.s.tol
+            small = np.abs(step).max(axis=0) < tol
             if small.any():
-                qs[act[small]] += step[small]
-                conv[act[small]] = True
+                q[:, small] += step[:, small]
+                leave(small)
                 keep = ~small
-                act, P, J, r, r2, cost, lam, step = (act[keep], P[keep], J[keep], r[keep], r2[keep],
-                                                     cost[keep], lam[keep], step[keep])
-                m = m[keep]
+                act, q, y, m, P, X, r, r2, cost, lam, step, H, L = (
+                    act[keep], q[:, keep], y[..., keep], m[:, keep], P[..., keep], X[..., keep],
+                    r[..., keep], r2[:, keep], cost[keep], lam[keep], step[:, keep], H[..., keep],
+                    L[..., keep])
+                w = w[:, keep] if lin else None
                 if not act.size:
                     break
-            qn = qs[act] + step
-            Pn, Jn = self._eval(qn, act, True)
-            rn = Pn - Y[act]
-            r2n = (rn ** 2).sum(axis=2)
-            cn = _cost(r2n, m, loss, scale)
+            qn = q + step
+            Pn, Xn = self._eval(qn, act, True)
+            rn = Pn - y
+            r2n = rn[0] * rn[0] + rn[1] * rn[1] + rn[2] * rn[2]
+            cn = _cost(r2n, m, loss, scale, axis=0)
             acc = cn <= cost
             flat = (cost - cn) <= 1e-12 * cost + 1e-30
             lam = np.where(acc, np.maximum(lam * 0.1, 1e-12), lam * 10.0)
             if acc.all():                   # the usual case: take the new state whole
-                qs[act] = qn
-                P, J, r, r2, cost = Pn, Jn, rn, r2n, cn
-                if loss == "linear":
-                    self.P_last[act] = Pn
+                q, P, X, r, r2, cost = qn, Pn, Xn, rn, r2n, cn
             else:
-                qs[act[acc]] = qn[acc]
-                P[acc], J[acc], r[acc], r2[acc], cost[acc] = Pn[acc], Jn[acc], rn[acc], r2n[acc], cn[acc]
-                if loss == "linear":
-                    self.P_last[act[acc]] = Pn[acc]
+                q[:, acc] = qn[:, acc]
+                P[..., acc], X[..., acc], r[..., acc] = Pn[..., acc], Xn[..., acc], rn[..., acc]
+                r2[:, acc], cost[acc] = r2n[:, acc], cn[acc]
             done = (acc & flat) | (lam > 1e8)
+            if lin:
+                # the next step at the new state with this iteration's factor, after a step below
+                # sqrt(tol) (the next one is then ~|step|^2 or ~1e-3 |step|, the Gauss-Newton
+                # rate at this noise level): where it is below tol it is taken and the frame
+                # stops without a new J^T J
+                chk = np.flatnonzero(acc & ~done & (np.abs(step).max(axis=0) < np.sqrt(tol)))
+                if chk.size:
+                    _, gq = self._normal(P[..., chk], X[..., chk], r[..., chk], w[:, chk],
+                                         hess=False)
+                    sq = -_cholesky_solve(L[..., chk], gq)
+                    ok = np.abs(sq).max(axis=0) < tol
+                    q[:, chk[ok]] += sq[:, ok]
+                    done[chk[ok]] = True
             if done.any():
-                conv[act[done]] = True
+                leave(done)
                 keep = ~done
-                act, P, J, r, r2, cost, lam = (act[keep], P[keep], J[keep], r[keep], r2[keep],
-                                               cost[keep], lam[keep])
+                act, q, y, m, P, X, r, r2, cost, lam, H = (
+                    act[keep], q[:, keep], y[..., keep], m[:, keep], P[..., keep], X[..., keep],
+                    r[..., keep], r2[:, keep], cost[keep], lam[keep], H[..., keep])
+                w = w[:, keep] if lin else None
+        if act.size:  # max_iter reached: the state so far, not converged
+            qs[act] = q.T
+            if lin and H is not None:
+                self.P_last[:, :, act] = P
+                self.H_last[:, :, act] = H
+                self.has_last[act] = True
         return it
 
 

@@ -77,6 +77,29 @@ def test_pa10_batched_fk_equals_single_frames(pa10):
         np.testing.assert_allclose(batch[k], pa10.chain.joint_transforms(Q[k]), atol=1e-15)
 
 
+def test_frames_last_fk_equals_joint_frames(pa10, pa10_dir, tmp_path):
+    """Chain.joint_frames_soa (frames last, the solver's layout) is the same forward kinematics:
+    from the base and continued from a held prefix, with the joint axes, on the PA10 and on a
+    perturbed copy (axes off the joint frames' z)."""
+    perturbed = Robot.from_urdf(perturb_urdf(pa10_dir / "pa10.urdf", tmp_path / "p.urdf", seed=5),
+                                pa10_dir / "drives.toml")
+    for robot in (pa10, perturbed):
+        ch = robot.chain
+        Q = random_q(robot, 25, seed=11)
+        R, o = ch.joint_frames(Q)
+        w = np.einsum("tnij,nj->tni", R, ch.axes)
+        F, W = ch.joint_frames_soa(Q.T)
+        assert F.shape == (6, 3, 4, 25) and W.shape == (6, 3, 25)
+        np.testing.assert_allclose(np.moveaxis(F[:, :, :3], 3, 0), R, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(np.moveaxis(F[:, :, 3], 2, 0), o, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(np.moveaxis(W, 2, 0), w, rtol=0, atol=1e-14)
+        F2, W2 = ch.joint_frames_soa(Q[:, 2:5].T, first=2, F_prev=F[1])
+        np.testing.assert_allclose(F2, F[2:5], rtol=0, atol=1e-14)
+        np.testing.assert_allclose(W2, W[2:5], rtol=0, atol=1e-14)
+    with pytest.raises(ValueError):
+        pa10.chain.joint_frames_soa(Q[:, 2:5].T, first=2)  # the frame before joint 3 is needed
+
+
 def test_pa10_zero_pose_is_straight_up(pa10):
     """Documented zero pose: the arm stands along +z, all frames parallel to the base frame."""
     q0 = np.zeros(6)

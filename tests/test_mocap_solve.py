@@ -236,33 +236,86 @@ def test_refinement_recovers_joint_placement_offsets(robot):
     assert "joint_offsets" in rr.to_dict()
 
 
-@pytest.mark.parametrize("joints", [(0, 1, 2, 3, 4, 5), (1, 3, 4)])
-def test_normal_equations_match_a_finite_difference_jacobian(robot, joints):
-    """The chain solve's J^T W J and J^T W r (per-joint marker sums) against the Jacobian of the
-    model markers by central differences, with random weights, residuals and a marker left out."""
-    from mocap.solve import _Chain
+@pytest.mark.parametrize("joints,shuffle", [((0, 1, 2, 3, 4, 5), False), ((1, 3, 4), False),
+                                            ((1, 3, 4), True)])
+def test_normal_equations_match_a_finite_difference_jacobian(robot, joints, shuffle):
+    """The chain solve's J^T W J and J^T W r (per-joint marker sums, frames last) against the
+    Jacobian of the model markers by central differences, with random weights, residuals and a
+    marker left out; (1, 3, 4) also has a held prefix, a held joint inside and one beyond; the
+    shuffled markers (no contiguous run per link) take the sums' other path."""
+    from mocap.solve import _Chain, _symmetrise_lower
 
     counts = {"link2": 3, "link3": 3, "link4": 3, "link5": 3, "link6": 4}
     q, p_base, mj, pj, q_guess, _ = _problem(robot, joints, counts, T=40)
+    if shuffle:
+        perm = np.random.default_rng(2).permutation(mj.size)
+        mj, pj = mj[perm], pj[perm]
     solver = MarkerSolver(robot.chain, joints, mj, pj)
     ch = _Chain(solver, q_guess)
+    assert (ch.runs is None) == shuffle
     idx = np.arange(q.shape[0])
     qs = q_guess[:, list(solver.joints)]
-    P, X = ch._eval(qs, idx, True)
+    P, X = ch._eval(qs.T, idx, True)                      # (3, M, T), (6, S, T)
+    np.testing.assert_allclose(np.transpose(P, (2, 1, 0)), ch.predict(qs), rtol=0, atol=1e-15)
     rng = np.random.default_rng(5)
     r = rng.normal(size=P.shape)
-    w = rng.uniform(0.0, 2.0, P.shape[:2])
-    w[:, 4] = 0.0
+    w = rng.uniform(0.0, 2.0, P.shape[1:])
+    w[4] = 0.0
     H, g = ch._normal(P, X, r, w)
+    H = np.moveaxis(_symmetrise_lower(H), 2, 0)
+    g = g.T
+    assert np.array_equal(ch._normal(P, X, r, w, hess=False)[1].T, g)
     S, eps = len(solver.joints), 1e-6
-    J = np.empty(P.shape + (S,))
+    J = np.empty((q.shape[0],) + P.shape[1::-1] + (S,))   # (T, M, 3, S)
     for k in range(S):
         d = np.zeros(S)
         d[k] = eps
-        J[..., k] = (ch._eval(qs + d, idx, False)[0] - ch._eval(qs - d, idx, False)[0]) / (2 * eps)
+        J[..., k] = (ch.predict(qs + d) - ch.predict(qs - d)) / (2 * eps)
     Jf = J.reshape(q.shape[0], -1, S)
-    W = np.repeat(w, 3, axis=1)
+    W = np.repeat(w.T, 3, axis=1)
+    rt = np.transpose(r, (2, 1, 0)).reshape(q.shape[0], -1)
     H_ref = np.einsum("tmk,tm,tml->tkl", Jf, W, Jf)
-    g_ref = np.einsum("tmk,tm,tm->tk", Jf, W, r.reshape(q.shape[0], -1))
+    g_ref = np.einsum("tmk,tm,tm->tk", Jf, W, rt)
     np.testing.assert_allclose(H, H_ref, rtol=1e-6, atol=1e-8 * np.abs(H_ref).max())
     np.testing.assert_allclose(g, g_ref, rtol=1e-6, atol=1e-8 * np.abs(g_ref).max())
+
+
+def test_batched_cholesky_solves_and_inverts():
+    """The Cholesky factorisation vectorised over frames (frames last) against numpy's LAPACK
+    solve and inverse on random symmetric positive-definite 1..6 x 6 systems; a matrix that is
+    not positive definite gives NaN (its step is rejected), not a wrong number."""
+    from mocap.solve import _cholesky, _cholesky_solve, _spd_inverse
+
+    rng = np.random.default_rng(3)
+    for S in range(1, 7):
+        A = rng.normal(size=(50, S, S))
+        H = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(S)
+        b = rng.normal(size=(50, S))
+        L = _cholesky(np.moveaxis(H, 0, 2).copy())
+        x = _cholesky_solve(L, b.T).T
+        np.testing.assert_allclose(x, np.linalg.solve(H, b[..., None])[..., 0], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(_spd_inverse(H), np.linalg.inv(H), rtol=1e-9, atol=1e-9)
+    H[0] = -np.eye(S)
+    assert not np.isfinite(_spd_inverse(H)[0]).any() and np.isfinite(_spd_inverse(H)[1:]).all()
+
+
+def test_stops_at_the_noise_level_after_two_full_iterations(robot):
+    """Issue 47: from a motor angle 3 mrad off, two Levenberg-Marquardt iterations with a new
+    J^T J reach the minimiser; the third step (below tol) is taken with the second iteration's
+    factor instead of a third J^T J. The angles equal a solve iterated to 1e-13 rad (tol) to
+    1e-8 rad, 1e5 times below the noise."""
+    from mocap.solve import _Chain
+
+    joints = (0, 1, 2, 3, 4, 5)
+    counts = {"link2": 3, "link3": 3, "link4": 3, "link5": 3, "link6": 4}
+    q, p_base, mj, pj, q_guess, _ = _problem(robot, joints, counts, T=600)
+    vis = np.ones(p_base.shape[:2], bool)
+    qs0 = q_guess[:, list(joints)]
+    fast = _Chain(MarkerSolver(robot.chain, joints, mj, pj), q_guess)
+    qs, its = fast.solve(qs0, p_base, vis, loss="linear", scale=1.0, max_iter=30)
+    assert its == 2 and fast.converged.all()
+    tight = _Chain(MarkerSolver(robot.chain, joints, mj, pj, tol=1e-13), q_guess)
+    qt, its_t = tight.solve(qs0, p_base, vis, loss="linear", scale=1.0, max_iter=30)
+    assert its_t >= 3
+    assert np.abs(qs - qt).max() < 1e-8
+    assert np.abs(qs - qs0).max() > 1e-3  # it did move
