@@ -204,6 +204,31 @@ def parse_models(text: str) -> tuple:
     return models
 
 
+THESIS_MODELS = ("cv", "stribeck", "hyperbolic")
+
+
+def default_models(campaign) -> tuple[tuple, str | None]:
+    """The friction models ``jointlab fit`` runs without ``--models``, chosen from the
+    campaign's shape, and the one line that says why when it is not the thesis set.
+
+    A campaign whose trials move several joints at once and that has no markers (a controller
+    log of a whole arm) gets ``cv`` only: Coulomb + viscous is linear in its parameters and
+    identifiable from such logs, while the thesis's Stribeck and hyperbolic laws (eq. 2-5, 2-6
+    of [1]_) give impossible values on them (a negative Stribeck ``Fs`` of thousands of N m on
+    a UR10e log); they stay available with ``--models``. Otherwise the thesis set
+    :data:`THESIS_MODELS`.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4 to 2-6.
+    """
+    if multijoint_trials(campaign) and not campaign.has_markers:
+        return ("cv",), ("a multi-joint campaign without markers: fitting cv only (Stribeck and "
+                         "hyperbolic laws are not identifiable from whole-arm logs; ask for them "
+                         "with --models)")
+    return THESIS_MODELS, None
+
+
 def plan(campaign, models=None, *, export_c: bool = False) -> Plan:
     """Decide which paths apply to ``campaign`` (and, given ``models``, which model goes where).
 

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.errors import InputError, read_text
+from mocap.io.ranges import check_range
 from mocap.kinematics import Chain
 from mocap.urdf import continuous_as_revolute, select_chain
 
-_POSITIVE_KEYS = ("gear_ratio", "max_velocity", "max_torque")
 _DRIVE_KEYS = ("gear_ratio", "motor_inertia", "motor_viscous", "max_velocity", "max_torque",
                "encoder_resolution")
 
@@ -129,16 +129,11 @@ def read_drives(path: str | Path) -> tuple[Drive, ...]:
                 if key == "gear_ratio" and v < 0:     # only the direction (FORMAT.md)
                     vals["direction"] = -1
                     v = -v
-                if math.isnan(v) or v < 0 or (key in _POSITIVE_KEYS and v == 0):
-                    sign = "> 0" if key in _POSITIVE_KEYS else ">= 0"
-                    raise InputError(f"joint {tab['name']!r}: {key} must be {sign}, got {v!r}",
-                                     path=path, label=key)
-                vals[key] = float(v)
-        stiff = tab.get("stiffness")
-        if stiff is not None and (isinstance(stiff, bool) or not isinstance(stiff, (int, float))
-                                  or not math.isfinite(stiff) or stiff <= 0):
-            raise InputError(f"joint {tab['name']!r}: stiffness must be a number > 0 (N m/rad), "
-                             f"got {stiff!r}", path=path, label="stiffness")
+                # mocap.io.ranges.RANGES: finite, > 0 for a ratio, a limit or a step
+                vals[key] = check_range("drive", key, v, path=path, where=f"joint {tab['name']!r}")
+        if tab.get("stiffness") is not None:
+            check_range("drive", "stiffness", tab["stiffness"], path=path,
+                        where=f"joint {tab['name']!r}")
         extra = {kk: vv for kk, vv in tab.items() if kk not in _DRIVE_KEYS and kk != "name"}
         drives.append(Drive(name=str(tab["name"]), extra=extra, **vals))
     return tuple(drives)
@@ -154,6 +149,8 @@ def write_drives(path: str | Path, drives, overwrite: bool = False) -> Path:
         out.append(f'name = "{d.name}"')
         for k in _DRIVE_KEYS:
             v = d.signed_gear_ratio if k == "gear_ratio" else getattr(d, k)
+            if not math.isfinite(v) or (k == "encoder_resolution" and v == 0):
+                continue                      # no limit / unknown: the key is left out
             out.append(f"{k} = {float(v)!r}")
         out.append("")
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -32,11 +32,16 @@ _MOVING = ("revolute", "continuous", "prismatic")
 
 
 # ---- small helpers ------------------------------------------------------------------------------
-def _parse(urdf: Path) -> ET.ElementTree:
+def _parse(urdf: Path, *, keep_comments: bool = False) -> ET.ElementTree:
+    """The URDF's element tree; comments and processing instructions are left out of it
+    (vendor files carry them anywhere, even inside ``<geometry>``), except with
+    ``keep_comments`` (a copy written back, :func:`perturb_urdf`, keeps the vendor's notes;
+    its walk looks elements up by tag only)."""
     urdf = Path(urdf)
     if not urdf.is_file():
         raise InputError("URDF not found", path=urdf)
-    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
+    parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=keep_comments,
+                                                insert_pis=keep_comments))
     try:
         tree = ET.parse(urdf, parser=parser)
     except ET.ParseError as exc:
@@ -44,6 +49,11 @@ def _parse(urdf: Path) -> ET.ElementTree:
     if tree.getroot().tag != "robot":
         raise InputError(f"root element is <{tree.getroot().tag}>, expected <robot>", path=urdf)
     return tree
+
+
+def _elements(parent):
+    """The element children of ``parent``, without comments and processing instructions."""
+    return (c for c in parent if isinstance(c.tag, str))
 
 
 def _floats(elem, attr: str, n: int, default: float, urdf: Path, what: str) -> np.ndarray:
@@ -318,7 +328,7 @@ def perturb_urdf(src: str | Path, dst: str | Path, seed: int, length_std: float 
                     ("mass_rel_std", mass_rel_std)):
         if not np.isfinite(v) or v < 0:
             raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
-    tree = _parse(src)
+    tree = _parse(src, keep_comments=True)
     if dst.resolve() == src.resolve():
         raise ValueError(f"refusing to overwrite the input URDF {src}")
     if dst.exists() and not overwrite:
@@ -465,7 +475,7 @@ def urdf_visuals(urdf: str | Path, *, kind: str = "visual", missing: str = "rais
             what = f"link {name!r} {kind}"
             T = _origin_transform(vis, urdf, what)
             geom = vis.find("geometry")
-            shape = None if geom is None else next(iter(geom), None)
+            shape = None if geom is None else next(_elements(geom), None)
             if shape is None:
                 raise InputError(f"{what} has no geometry", path=urdf, label=name)
             scale = np.ones(3)

@@ -346,3 +346,229 @@ def meaning_line(model_name: str) -> str:
     if not d:
         return ""
     return f"{model_name}: " + "; ".join(f"{k} = {v}" for k, v in d.items())
+
+
+# ---- input checks: an implausible fit names the input mistakes that would explain it (issue 45)
+#: the input mistakes a failed check points to, in the order the warning names them
+MISTAKES = {
+    "sign": "the sign of tau_{j} (a flipped column or torque constant)",
+    "scale": "the units or scale of tau_{j} (mN m, a gear ratio or torque constant applied twice or not at all)",
+    "columns": "the column order of the log (tau_{j} holding another joint's torque)",
+    "drives": "the order of the drives.toml tables (another joint's motor_inertia/motor_viscous subtracted)",
+    "clock": "a clock offset between the torque and the angles (time_offset, a shifted column)",
+    "urdf": "the URDF's link masses or the trial's load_kg/payload_com",
+}
+#: the fitted gravity torque may differ from the URDF's by this factor before its scale is
+#: doubted (URDF masses are rarely 50 % off; a unit slip is x1000, a doubled ratio x2)
+GRAVITY_FACTOR = 1.5
+#: a torque/motion lag below this many seconds is a sensor lag, above it a clock offset
+CLOCK_LAG_S = 0.02
+#: a fit moves "beyond its standard errors" when dropping a block moves it by this many
+#: standard errors of the difference
+BLOCK_Z = 5.0
+#: ... and by more than this fraction of its value (an unmodelled friction effect, e.g. a
+#: Stribeck hump, moves a Coulomb + viscous fit by up to ~12 % when a block goes, measured on
+#: foreign-world constant-velocity trials, far beyond its iid standard errors)
+BLOCK_REL = 0.25
+
+
+@dataclass(frozen=True)
+class InputCheck:
+    """One failed input check of a fit: ``check`` its name, ``value`` the measured figure,
+    ``says`` one sentence, ``suspects`` the keys of :data:`MISTAKES` that would explain it."""
+
+    check: str
+    value: float
+    says: str
+    suspects: tuple
+
+    def to_dict(self) -> dict:
+        return {"check": self.check, "value": float(self.value), "says": self.says,
+                "suspects": list(self.suspects)}
+
+
+def _lsq(X, y):
+    """Least squares ``y ~ X theta``: theta, standard errors (residual variance), RSS and the
+    covariance."""
+    theta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    r = y - X @ theta
+    rss = float(r @ r)
+    dof = max(y.size - X.shape[1], 1)
+    try:
+        cov = np.linalg.inv(X.T @ X) * rss / dof
+        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        cov = np.full((X.shape[1], X.shape[1]), np.nan)
+        se = np.full(X.shape[1], np.nan)
+    return theta, se, rss, cov
+
+
+def _cv_columns(q, qd, qdd):
+    """Eq. 2-4 with Coulomb + viscous friction, linear in ``(I, mglx, mgly, c, v)``:
+    ``[qdd, -sin q, cos q, sign qd, qd]``."""
+    return np.column_stack([qdd, -np.sin(q), np.cos(q), np.sign(qd), qd])
+
+
+def input_checks(time, q, qd, qdd, tau, *, params: dict, rigid: dict, stderr: dict,
+                 flags: dict | None = None, urdf_dyn=None, max_torque: float = float("inf"),
+                 moving_frac: float = 0.05) -> list:
+    """The physical-plausibility checks of one one-link fit (thesis eq. 2-4) against its
+    inputs; each failed check names the input mistakes that would explain it (:data:`MISTAKES`).
+
+    * ``impossible``: a Coulomb level or viscous coefficient flagged impossible by
+      :func:`assess` (significantly negative);
+    * ``negative_inertia``: the fitted inertia ``I`` more than 3 standard errors below 0;
+    * ``coulomb_beyond_drive``: the Coulomb level above the drive's ``max_torque``;
+    * ``gravity_ratio``: the gravity torque of the Coulomb + viscous regression of eq. 2-4
+      (``[qdd, -sin q, cos q, sign qd, qd]`` on the moving samples) projected on the URDF's
+      ``a sin q + b cos q`` (``urdf_dyn = (I, a, b)``,
+      :meth:`mocap.robot.Robot.single_joint_dynamics`) over the sampled angles: a ratio below 0
+      (3 standard errors) or beyond :data:`GRAVITY_FACTOR` either way (3 standard errors from
+      1), where the ratio's standard error is below 0.25 x max(1, |ratio|) (the data see the
+      URDF's gravity).
+      Where the ratio agrees, sign, scale and column order are not suspected by the other
+      checks;
+    * ``clock_lag``: the lag of the torque against the motion (the Coulomb + viscous regression
+      of eq. 2-4 refitted with the torque shifted by whole samples, +-0.6 s) whose residual is
+      at least 20 % below the unshifted one, beyond :data:`CLOCK_LAG_S`;
+    * ``block_stability``: dropping one of four consecutive blocks of the moving samples moves
+      that regression's friction torque ``c + v s`` at the median moving speed ``s`` by more
+      than :data:`BLOCK_Z` standard errors of the difference and :data:`BLOCK_REL` of its value.
+
+    Parameters
+    ----------
+    time, q, qd, qdd, tau : array_like
+        The fit's samples (s, rad, rad/s, rad/s^2, N m).
+    params, rigid, stderr : dict
+        The ``cv`` fit's friction parameters (``c``, ``v``), rigid parameters (``I``, ``mglx``,
+        ``mgly``) and their standard errors.
+    flags : dict, optional
+        :func:`assess`'s flags of that fit.
+    urdf_dyn : tuple, optional
+        ``(I, a, b)`` of the URDF (with the trial's payload) at the trial's posture.
+    max_torque : float
+        The drive's torque limit (N m).
+
+    Returns
+    -------
+    list of InputCheck
+        The failed checks (empty: plausible).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 2-4.
+    """
+    out = []
+    flags = flags or {}
+    t = np.asarray(time, float)
+    q, qd, qdd, tau = (np.asarray(x, float) for x in (q, qd, qdd, tau))
+    for k, name in (("c", "Coulomb level"), ("v", "viscous coefficient")):
+        f = flags.get(k)
+        if f is not None and getattr(f, "kind", None) == "impossible":
+            out.append(InputCheck("impossible", params[k], f"{name} {k} = {params[k]:.3g} < 0",
+                                  ("sign", "scale", "drives", "columns", "clock")))
+    I, se_I = rigid.get("I"), stderr.get("I")
+    if I is not None and se_I is not None and np.isfinite(se_I) and I < -3.0 * se_I:
+        out.append(InputCheck("negative_inertia", I, f"fitted inertia I = {I:.3g} kg m^2 < 0",
+                              ("drives", "sign", "scale")))
+    c = params.get("c")
+    if c is not None and np.isfinite(max_torque) and c > max_torque:
+        out.append(InputCheck("coulomb_beyond_drive", c / max_torque,
+                              f"Coulomb level {c:.3g} N m above the drive's max_torque {max_torque:g} N m",
+                              ("scale", "columns")))
+    peak = float(np.max(np.abs(qd))) if qd.size else 0.0
+    mov = np.abs(qd) > moving_frac * peak
+    if peak <= 0 or mov.sum() < 40 or t.size < 40:
+        return out
+    X = _cv_columns(q, qd, qdd)
+    idx = np.flatnonzero(mov)
+    th, se, _, cov = _lsq(X[idx], tau[idx])
+    gravity_ok = False
+    if urdf_dyn is not None:
+        # the fitted gravity torque against the URDF's over the sampled angles: its projection
+        # k = <G_fit, G_urdf> / <G_urdf, G_urdf>, linear in (mglx, mgly): its standard error
+        # from the regression's covariance
+        _, a, b = urdf_dyn
+        Gu = a * np.sin(q[idx]) + b * np.cos(q[idx])
+        uu = float(Gu @ Gu)
+        if uu > 0:
+            w = np.array([-np.sin(q[idx]) @ Gu, np.cos(q[idx]) @ Gu]) / uu
+            k = float(w @ th[1:3])
+            se_k = float(np.sqrt(max(w @ cov[1:3, 1:3] @ w, 0.0)))
+            if np.isfinite(se_k) and se_k < 0.25 * max(1.0, abs(k)):   # the data see the gravity
+                if k < 0 and -k > 3.0 * se_k:
+                    out.append(InputCheck("gravity_ratio", k, f"fitted gravity torque {k:.2g} x the "
+                                          "URDF's (opposite sign)", ("sign", "urdf")))
+                elif (k > GRAVITY_FACTOR or k < 1.0 / GRAVITY_FACTOR) and abs(k - 1.0) > 3.0 * se_k:
+                    out.append(InputCheck("gravity_ratio", k, f"fitted gravity torque {k:.3g} x the URDF's",
+                                          ("scale", "urdf")))
+                else:
+                    gravity_ok = True
+    if gravity_ok:      # the torque's sign and scale agree with the URDF: not those mistakes
+        out = [InputCheck(c.check, c.value, c.says, tuple(x for x in c.suspects
+                                                           if x not in ("sign", "scale", "columns"))
+                          or c.suspects) for c in out]
+    dt = float(np.median(np.diff(t)))
+    # torque against motion: shift the torque by s samples (tau[k + s] against X[k])
+    n = t.size
+    smax = int(min(round(0.6 / dt), n // 4)) if dt > 0 else 0
+    step = max(1, int(round(0.005 / dt))) if dt > 0 else 1
+    best_s, best_rss, rss0 = 0, np.inf, np.nan
+    for s in range(-smax, smax + 1, step):  # loop over lags (a few hundred small regressions)
+        k0, k1 = max(0, -s), min(n, n - s)
+        m = mov[k0:k1]
+        if m.sum() < 40:
+            continue
+        _, _, rss, _ = _lsq(X[k0:k1][m], tau[k0 + s:k1 + s][m])
+        rss /= m.sum()
+        if s == 0:
+            rss0 = rss
+        if rss < best_rss:
+            best_s, best_rss = s, rss
+    lag = best_s * dt
+    if np.isfinite(rss0) and abs(lag) > CLOCK_LAG_S and best_rss < 0.8 * rss0:
+        out.append(InputCheck("clock_lag", lag, f"the torque fits the motion best {lag:+.3g} s later "
+                              f"(residual {best_rss / rss0:.2g} of the unshifted one)", ("clock",)))
+    # the regression with each quarter of the moving samples left out: the friction torque
+    # c + v s at the median moving speed s (c and v alone trade off where the speeds cluster)
+    s_med = float(np.median(np.abs(qd[idx])))
+    g = np.array([0.0, 0.0, 0.0, 1.0, s_med])
+    f_full, var_full = float(g @ th), float(g @ cov @ g)
+    worst, what = 0.0, ""
+    for blk in np.array_split(idx, 4):  # loop over 4 blocks
+        keep = np.setdiff1d(idx, blk, assume_unique=True)
+        th_d, _, _, cov_d = _lsq(X[keep], tau[keep])
+        f_d = float(g @ th_d)
+        sd = np.sqrt(max(float(g @ cov_d @ g) - var_full, 0.25 * var_full))
+        z = abs(f_d - f_full) / sd if sd > 0 else 0.0
+        if abs(f_d - f_full) <= BLOCK_REL * abs(f_full):
+            continue            # an unmodelled effect moves it a little, beyond iid errors
+        if z > worst:
+            worst, what = z, (f"dropping the samples {t[blk[0]] - t[0]:.2f}-{t[blk[-1]] - t[0]:.2f} s of "
+                              f"the trial moves the friction at {s_med:.2g} rad/s from {f_full:.3g} to "
+                              f"{f_d:.3g} N m ({z:.0f} standard errors)")
+    if worst > BLOCK_Z:
+        out.append(InputCheck("block_stability", worst, what, ("clock", "columns")))
+    return out
+
+
+def input_warning(entries) -> str | None:
+    """ONE warning over the failed input checks of a set of fits: which fits, what each
+    check says, and the input mistakes that would explain them, most often suspected first.
+
+    ``entries``: ``(label, joint, [InputCheck, ...])`` per fit; None when every check passed."""
+    bad = [(lab, j, cs) for lab, j, cs in entries if cs]
+    if not bad:
+        return None
+    count: dict = {}            # each failed check votes 1, shared among the mistakes it suspects
+    joints = sorted({j for _, j, _ in bad})
+    for _, _, cs in bad:
+        for c in cs:
+            for s in c.suspects:
+                count[s] = count.get(s, 0.0) + 1.0 / len(c.suspects)
+    order = sorted(count, key=lambda s: (-count[s], list(MISTAKES).index(s)))
+    jj = "/".join(map(str, joints))
+    shown = "; ".join(f"{lab}: " + ", ".join(c.says for c in cs) for lab, _, cs in bad[:3])
+    more = f"; and {len(bad) - 3} more" if len(bad) > 3 else ""
+    return (f"{len(bad)} fit(s) physically implausible ({shown}{more}); check "
+            + ", ".join(MISTAKES[s].replace("{j}", jj) for s in order))

@@ -20,6 +20,7 @@ then :class:`FitsResult` builds ``fits.json`` (FORMAT.md), the thesis tables
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +34,8 @@ from ident.thesis import tables as stats
 from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
 from ident.model.linkstate import prepare_joint_signals
 from ident.signals.smoothing import FourierSmoother, SavGolSmoother, one_blas_thread
-from ident.friction.plausibility import assess, to_json
+from ident.friction.plausibility import assess, input_checks, input_warning, to_json
+from mocap.io.payload import payload_com, payload_com_unknown
 from mocap.io.robotlog import read_robot_log
 from mocap.robot import Robot
 
@@ -66,6 +68,8 @@ class FitTask:
     coupling: tuple | None = None   # [robot] coupling (q_urdf = coupling @ q_log)
     K: float = float("nan")         # declared stiffness (drives.toml), N m/rad; NaN: not declared
     link_method: str = "encoder+deflection"
+    urdf_dyn: tuple | None = None   # (I, a, b) of the URDF + payload at the trial's posture
+    max_torque: float = float("inf")  # the drive's torque limit (drives.toml), N m
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,6 +84,7 @@ class TrialJointFit:
     notes: tuple = ()
     plot: dict = field(default_factory=dict, repr=False)   # time, qd, y, f_measured, pred_<model>
     param_flags: dict = field(default_factory=dict)  # model -> {param: {"flag", "reason"}}
+    input_checks: tuple = ()        # plausibility.InputCheck of the cv fit against its inputs
 
     def records(self) -> list[dict]:
         t = self.task
@@ -89,6 +94,7 @@ class TrialJointFit:
                  "max_abs_tau": self.max_abs_tau, "peak_speed": self.peak_speed,
                  "degenerate": f.form, "flags": list(f.flags),
                  "param_flags": self.param_flags.get(m, {}),
+                 "input_checks": [c.says for c in self.input_checks] if m == "cv" else [],
                  "eiv_exceeds_se": bool(f.eiv["exceeds_se"]) if f.eiv else None}
                 for m, f in self.fits.items()]
 
@@ -96,6 +102,32 @@ class TrialJointFit:
 def _jnum(x):
     x = float(x)
     return x if np.isfinite(x) else None
+
+
+def _bridge_missing(time, qm, tau):
+    """``tau`` with its empty cells (FORMAT.md: a missing sample) between logged samples
+    bridged linearly, and the mask of those cells. The signals of the fit are computed on the
+    log's whole grid, so that one missing cell leaves the smoothing windows and the
+    derivative bandwidths as they are (an irregular grid would re-shape the whole fit); the
+    bridged samples are then dropped (:func:`_drop_samples`): they never enter eq. 2-4."""
+    tau = np.asarray(tau, float)
+    fin = np.isfinite(tau)
+    missing = ~fin & np.isfinite(qm)
+    if not missing.any() or fin.sum() < 2:
+        return tau, np.zeros(tau.shape, bool)
+    inside = missing & (time > time[fin][0]) & (time < time[fin][-1])
+    out = tau.copy()
+    out[inside] = np.interp(time[inside], time[fin], tau[fin])
+    return out, inside
+
+
+def _drop_samples(sig, times):
+    """``sig`` (a :class:`~ident.signals.smoothing.JointSignals`) without the samples at
+    ``times`` (the bridged empty cells)."""
+    keep = ~np.isin(sig.time, times)
+    arrays = {f.name: getattr(sig, f.name)[keep] for f in dataclasses.fields(sig)
+              if isinstance(getattr(sig, f.name), np.ndarray) and getattr(sig, f.name).shape == sig.time.shape}
+    return dataclasses.replace(sig, **arrays)
 
 
 def fit_trial_joint(task: FitTask) -> TrialJointFit:
@@ -128,9 +160,14 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
     if not np.isfinite(qm).any() or not np.isfinite(tau).any():
         raise InputError(f"trial {task.trial!r}: the log has no qm_{task.joint}/tau_{task.joint} data",
                          path=task.log, label=f"qm_{task.joint}")
+    tau, missing = _bridge_missing(log.time, qm, tau)
     sig = prepare_joint_signals(task.joint, log.time, qm, tau, t_ang, q_link,
                                 time_offset=task.time_offset, smoother=smoother,
                                 link_method=task.link_method, drive=(task.J, task.B, task.K))
+    if missing.any():
+        sig = _drop_samples(sig, log.time[missing])
+        notes.append(f"{int(missing.sum())} empty tau_{task.joint} cell(s): those samples are left out of "
+                     "the fit (the torque bridged linearly across them only to smooth the deflection)")
     ident = OneLinkIdentifier(task.models, n_starts=task.n_starts, seed=task.seed)
     y = onelink_target(sig.tau, sig.qmd, sig.qmdd, task.J, task.B)
     fits = ident.fit(sig.q, sig.qd, sig.qdd, y, errors=sig.errors)
@@ -156,11 +193,19 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
                      f"length {pres['length']:.2g} rad, {100 * pres['gain']:.0f} % of the Coulomb + "
                      f"viscous residual; {100 * pres['kept']:.0f} % of the moving samples kept{eff})")
 
-    pflags = {m: to_json(assess(m, f.params, qd=sig.qd, stderr=f.stderr, model=f.friction(),
-                                form=f.form, tau_scale=float(np.max(np.abs(sig.tau)))))
-              for m, f in fits.items()}
+    raw = {m: assess(m, f.params, qd=sig.qd, stderr=f.stderr, model=f.friction(),
+                     form=f.form, tau_scale=float(np.max(np.abs(sig.tau))))
+           for m, f in fits.items()}
+    pflags = {m: to_json(fl) for m, fl in raw.items()}
+    checks = ()
+    if "cv" in fits:     # the physical-plausibility layer over the inputs (issue 45)
+        cv = fits["cv"]
+        checks = tuple(input_checks(sig.time, sig.q, sig.qd, sig.qdd, sig.tau, params=cv.params,
+                                    rigid=cv.rigid, stderr=cv.stderr, flags=raw["cv"],
+                                    urdf_dyn=task.urdf_dyn, max_torque=task.max_torque))
+        notes.extend(f"input check: {c.says}" for c in checks)
     return TrialJointFit(task, fits, sd, float(np.max(np.abs(sig.tau))), float(np.max(np.abs(sig.qd))),
-                         tuple(notes), plot, pflags)
+                         tuple(notes), plot, pflags, checks)
 
 
 @dataclass(frozen=True, eq=False)
@@ -213,6 +258,8 @@ class FitsResult:
                         tj[m] = {"params": {k: _jnum(v) for k, v in f.params.items()},
                                  "stderr": {k: _jnum(f.stderr.get(k, np.nan)) for k in f.params},
                                  "rms": _jnum(f.rms), "flags": e.param_flags.get(m, {})}
+                        if m == "cv" and e.input_checks:   # ident.friction.plausibility.input_checks
+                            tj[m]["input_checks"] = _clean_json([c.to_dict() for c in e.input_checks])
                 yield tid, doc
 
         summ = [{k: r[k] for k in ("joint", "load_kg", "vmax_frac", "model", "param", "mean", "cv_percent")}
@@ -327,6 +374,25 @@ def _clean_json(x):
     return x
 
 
+def _urdf_dynamics(trial, robot, j0: int):
+    """``(I, a, b)`` of the one-link model of joint ``j0`` (0-based) from the URDF with the
+    trial's payload, the other joints at their median logged angles
+    (:meth:`mocap.robot.Robot.single_joint_dynamics`); None where it cannot be evaluated."""
+    if trial.load_kg > 0 and payload_com_unknown(trial):
+        return None                    # the payload's gravity torque is not known
+    try:
+        log = read_robot_log(trial.log, n_joints=robot.n)
+        qm = log.qm if log.qm.shape[1] == robot.n else None
+        if qm is None:
+            return None
+        rest = np.nanmedian(np.where(np.isfinite(qm), qm, np.nan), axis=0)
+        rest = np.where(np.isfinite(rest), rest, 0.0)
+        rb = robot.with_payload(trial.load_kg, payload_com(trial)) if trial.load_kg > 0 else robot
+        return tuple(float(x) for x in rb.single_joint_dynamics(j0, rest))
+    except (InputError, ValueError, RuntimeError):   # no URDF evidence: the check is skipped
+        return None
+
+
 def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbolic"), n_starts: int = 8,
                    seed: int = 0, sync: str = "clock", robot=None) -> tuple[list[FitTask], list[str]]:
     """The (trial, joint) tasks of a campaign and the ids of skipped (coast-down) trials."""
@@ -359,7 +425,9 @@ def campaign_tasks(campaign, angles_dir=None, models=("cv", "stribeck", "hyperbo
                                  float(d.motor_viscous), robot.n, tr.load_kg, tr.vmax_frac,
                                  tr.repetition, tr.kind, tuple(models), n_starts,
                                  int(seed) + 1000 * k + int(j), off, coupling=campaign.coupling,
-                                 K=float(d.extra.get("stiffness", float("nan")))))
+                                 K=float(d.extra.get("stiffness", float("nan"))),
+                                 urdf_dyn=_urdf_dynamics(tr, robot, j - 1),
+                                 max_torque=float(d.max_torque)))
     return tasks, skipped
 
 
@@ -375,6 +443,10 @@ def fit_onelink_campaign(campaign, angles_dir=None, models=("cv", "stribeck", "h
     mapper = executor.map if executor is not None else map
     entries = tuple(mapper(fit_trial_joint, tasks))
     res = FitsResult(entries, tuple(models), campaign.name, tuple(skipped))
+    why = input_warning([(f"trial {e.task.trial!r} joint {e.task.joint}", e.task.joint, e.input_checks)
+                         for e in entries])
+    if why:                 # ONE warning naming the input mistakes that would explain them
+        warn_input(why, path=campaign.manifest)
     if sink is not None:
         log_fits(res, sink)
     return res

@@ -254,6 +254,11 @@ def _footnotes(records, joint: int, models) -> str:
         lines += [f"- {tr} ({m}) {', '.join(ks)}: {kind} ({why})"
                   for (tr, m, kind, why), ks in pf.items()]
 
+    chk = [r for r in records if int(r["joint"]) == joint and r["model"] in models and r.get("input_checks")]
+    if chk:     # ident.friction.plausibility.input_checks (issue 45): shown, not excluded
+        lines.append(f"Input checks failed ({len(chk)} fit(s); the warning of `jointlab fit` names the "
+                     "input mistakes that would explain them):")
+        lines += [f"- {r.get('trial')} ({r['model']}): {'; '.join(r['input_checks'])}" for r in chk]
     lines += [meaning_line(m) + "." for m in models if meaning_line(m)]
     if eiv:
         lines.append(f"Errors in variables: in {len(eiv)} fit(s) the link-state noise biases a parameter "

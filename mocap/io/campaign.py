@@ -13,6 +13,7 @@ from pathlib import Path
 from mocap.io.errors import InputError, quiet_stderr, read_text
 from mocap.io.ids import TRIAL_ID, check_trial_id  # noqa: F401  (re-exported)
 from mocap.io.markers import read_markers
+from mocap.io.ranges import check_range
 from mocap.io.plausibility import (check_drives_count, check_drives_order, check_log,
                                    check_marker_shapes, check_marker_time, check_marker_timing)
 from mocap.io.robotlog import read_robot_log
@@ -132,6 +133,8 @@ class Campaign:
         ``[robot]`` ends of the arm's chain.
     fixed : dict
         ``[robot] fixed``: joint name -> value of the joints off the chain.
+    mjcf : pathlib.Path or None
+        ``[robot] mjcf``: the user's MuJoCo model of the arm (None: none declared).
 
     References
     ----------
@@ -153,6 +156,7 @@ class Campaign:
     base_link: str | None = None   # [robot] base_link, tip_link, fixed: which chain is the arm
     tip_link: str | None = None
     fixed: dict = field(default_factory=dict)
+    mjcf: Path | None = None       # [robot] mjcf: the user's MuJoCo model of the arm (FORMAT.md)
 
     @property
     def has_markers(self) -> bool:
@@ -411,19 +415,14 @@ def _num(v, key: str, where: str, path: Path) -> float:
 
 
 def _check_trial_values(tab: dict, where: str, path: Path) -> None:
-    """Physical plausibility of a trial's numbers (FORMAT.md keys, SI)."""
-    load = _num(tab.get("load_kg", 0.0), "load_kg", where, path)
-    if load < 0:
-        raise InputError(f"{where}: load_kg must be >= 0 kg, got {load!r}", path=path, label="load_kg")
-    vf = _num(tab.get("vmax_frac", 1.0), "vmax_frac", where, path)
-    if not 0 < vf <= 1.5:
-        raise InputError(f"{where}: vmax_frac is a fraction of the joint's max speed (0 < f <= 1.5), "
-                         f"got {vf!r}", path=path, label="vmax_frac")
+    """Physical plausibility of a trial's numbers (FORMAT.md keys, SI; the ranges of
+    :data:`mocap.io.ranges.RANGES`)."""
+    for key, default in (("load_kg", 0.0), ("vmax_frac", 1.0), ("repetition", 1)):
+        check_range("trial", key, tab.get(key, default), path=path, where=where)
     if "time_offset" in tab:
-        off = _num(tab["time_offset"], "time_offset", where, path)
-        if abs(off) > 1e6:
-            raise InputError(f"{where}: time_offset {off!r} s is implausible", path=path,
-                             label="time_offset")
+        check_range("trial", "time_offset", tab["time_offset"], path=path, where=where)
+    for j in tab.get("joints", []) if isinstance(tab.get("joints"), list) else []:
+        check_range("trial", "joints", j, path=path, where=where)
     if "payload_com" in tab and tab["payload_com"] != "unknown":
         com = tab["payload_com"]
         if not (isinstance(com, list) and len(com) == 3):
@@ -511,6 +510,7 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
     urdf = chk(_req(rob, "urdf", "[robot]", manifest), "urdf", "[robot]")
     # [robot] drives is optional: without it every joint takes the URDF's limits
     drives = chk(rob["drives"], "drives", "[robot]") if "drives" in rob else None
+    mjcf = chk(rob["mjcf"], "mjcf", "[robot]") if "mjcf" in rob else None
     base_link, tip_link = rob.get("base_link"), rob.get("tip_link")
     for key, v in (("base_link", base_link), ("tip_link", tip_link)):
         if v is not None and not (isinstance(v, str) and v.strip()):
@@ -522,7 +522,10 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
     grav = rob.get("gravity", [0.0, 0.0, -9.81])
     if not (isinstance(grav, list) and len(grav) == 3):
         raise InputError("[robot] gravity must be a list of 3 numbers", path=manifest, label="gravity")
-    grav = tuple(_num(g, "gravity", "[robot]", manifest) for g in grav)
+    grav = tuple(check_range("robot", "gravity", g, path=manifest, where="[robot]") for g in grav)
+    for nm, v in fixed.items():
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            check_range("robot", "fixed", v, path=manifest, where=f"[robot] fixed {nm}")
     coupling = _coupling(rob.get("coupling"), manifest)
 
     markers = {}
@@ -602,7 +605,8 @@ def load_campaign(path: str | Path, check_files: bool = True) -> Campaign:
     return Campaign(root=root, name=str(doc.get("name", root.name)), urdf=urdf, drives=drives,
                     gravity=grav, markers=markers, static=tuple(static), calib=tuple(calib),
                     trials=tuple(trials), extra={k: v for k, v in doc.items() if k not in top_known},
-                    coupling=coupling, base_link=base_link, tip_link=tip_link, fixed=dict(fixed))
+                    coupling=coupling, base_link=base_link, tip_link=tip_link, fixed=dict(fixed),
+                    mjcf=mjcf)
 
 
 def _joint_list(v, key: str, where: str, manifest: Path) -> tuple:

@@ -34,9 +34,10 @@ def register(sub):
     p.add_argument("campaign", type=Path, help="campaign folder or campaign.toml")
     p.add_argument("--angles", type=Path, default=None,
                    help="folder of angles/<trial id>.csv link angles (default: motor angles stand in)")
-    p.add_argument("--models", default="cv,stribeck,hyperbolic",
+    p.add_argument("--models", default=None,
                    help="comma-separated friction models: cv, stribeck, hyperbolic (one-link, per "
-                        "trial) and arctan, dm1, dm2 (Indri & Trapani, per joint)")
+                        "trial) and arctan, dm1, dm2 (Indri & Trapani, per joint); default "
+                        "cv,stribeck,hyperbolic, or cv alone for a multi-joint campaign without markers")
     p.add_argument("--starts", type=int, default=8, help="multi-start count of the nonlinear fits")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--sync", choices=("clock", "estimate"), default="clock",
@@ -71,10 +72,14 @@ def run(args) -> int:
     from ident import workflow
 
     args.workers = cap_workers(args.workers)
-    models = workflow.parse_models(args.models)
+    models = workflow.parse_models(args.models) if args.models is not None else None
     if args.export_dt is not None and not args.export_dt > 0:
         raise InputError("--export-dt must be a positive number of seconds")
     camp = load_campaign(args.campaign, check_files=False)  # marker files are not needed here
+    if models is None:        # the default follows the campaign's shape (workflow.default_models)
+        models, why = workflow.default_models(camp)
+        if why:
+            print(f"fit: {why}")
     plan = workflow.prepare_fit(camp, models, angles=args.angles, export_c=args.export_c is not None)
     settings = workflow.FitSettings(n_starts=args.starts, seed=args.seed, sync=args.sync,
                                     derivatives=args.derivatives, window=args.window,
