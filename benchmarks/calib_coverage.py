@@ -1,6 +1,18 @@
-"""Coverage of the calibration's reported uncertainty on laser-tracker geometries (issue 28).
+"""Coverage of the calibration's reported uncertainty on laser-tracker geometries (issues 28, 46).
 
-Monte Carlo over stop-and-go sweeps of joints 1 and 2 of the bundled PA10, as a laser tracker
+Default cells (issue 46), ``wide{1,3}-{exact,offset}``: every run draws its geometry as widely as
+users set it up (:func:`make_wide_campaign`): the bundled PA10 (J1 and J2 axes intersecting) or an
+industrial arm of the FANUC R-2000iC class (312 mm J1-J2 offset, J3 logged relative to J2 and
+declared as ``[robot] coupling`` in half of its runs); the tracker 3-5 m from the base at any
+heading, levelled within 1 deg; per swept joint 4-8 stop-and-go poses over 40-120 deg, centred
+anywhere in the joint's range, evenly spaced or at random angles; the other joints at random
+angles within their limits (so the reflector's radius about each axis ranges from millimetres to
+metres); 1 or 3 reflectors 30-330 mm from the flange centre in any direction; 0.02-0.05 mm noise
+per coordinate, white or a tracker's line-of-sight noise 0.3-1x the transverse noise; the URDF
+exact (``exact``) or the real J1-J2 offset 0-1 mm off the URDF's (``offset``). Goal: 90-98 % in
+every cell (origin, rotation, pose).
+
+The PA10 cells of issue 28 (``--cells pa10``, or any of them by name): Monte Carlo over stop-and-go sweeps of joints 1 and 2 of the bundled PA10, as a laser tracker
 measures them: each run draws the poses per joint (cell), 1 or 3 reflectors on the flange
 (cell), a swept angle of 40-120 deg per joint, a 3-D RMS noise of 0.02-0.05 mm that is NOT white
 (line-of-sight noise half the transverse noise, as a tracker's distance meter beats its angle
@@ -42,8 +54,9 @@ The truth is the real robot's base frame (where the URDF's J1-J2 geometry is off
 the URDF's axis lines cannot know which of the two is wrong: the reported region must cover
 that too).
 
-    python benchmarks/calib_coverage.py            # 200 runs per cell (30 cells, ~11 min on one free core)
-    python benchmarks/calib_coverage.py --quick    # 40 runs per cell, about 90 s
+    python benchmarks/calib_coverage.py                 # the 4 wide cells, 200 runs each (~8 min on one core)
+    python benchmarks/calib_coverage.py --quick         # 40 runs per cell, about 1.5 min
+    python benchmarks/calib_coverage.py --cells pa10    # the 30 PA10 cells of issue 28 (~11 min)
     python benchmarks/calib_coverage.py --runs 300 --cells 6x1-exact,3x3-mismatch
 """
 from __future__ import annotations
@@ -74,6 +87,10 @@ CHI2_95 = {3: 7.814727903251178, 6: 12.591587243743977}
 URDF_TOL_MM = 1.0 / np.sqrt(3.0) / 2.0
 #: line-of-sight noise over transverse noise of the simulated tracker
 LOS_RATIO = 0.5
+#: the wide cells (issue 46): 1 or 3 reflectors, the URDF exact or its J1-J2 offset 0-1 mm off,
+#: every other draw of :func:`make_wide_campaign` per run (4-8 poses per sweep)
+WIDE_CELLS = ["wide1-exact", "wide1-offset", "wide3-exact", "wide3-offset"]
+#: the bundled PA10's cells of issue 28 (``--cells pa10``)
 CELLS = [f"{n}x{m}-{w}" for w in ("exact", "mismatch") for m in (1, 3) for n in (4, 6, 8)] + \
         ["3x3-exact", "3x3-mismatch", "6x1-declared", "6x3-declared", "3x3-declared"] + \
         [f"{c}-trusted" for c in ("4x1", "8x1", "4x3", "8x3", "3x3")] + ["4x1-trustmis", "8x3-trustmis"] + \
@@ -205,6 +222,133 @@ def make_campaign(root: Path, seed: int, n_poses: int, n_reflectors: int, mismat
 
 
 # ---------------------------------------------------------------------------------------
+# the wide generator (issue 46): geometry drawn as widely as users set it up
+# ---------------------------------------------------------------------------------------
+#: an industrial arm of the FANUC R-2000iC class (J1-J2 offset 312 mm, upper arm 1075 mm, elbow
+#: offset 225 mm, forearm 1280 mm, flange 215 mm): xyz of each joint's origin in its parent,
+#: axis, limits (rad)
+IND_JOINTS = [((0.0, 0.0, 0.450), (0, 0, 1), (-3.2, 3.2)),
+              ((0.312, 0.0, 0.220), (0, 1, 0), (-1.05, 1.33)),
+              ((0.0, 0.0, 1.075), (0, -1, 0), (-1.4, 2.6)),
+              ((0.0, 0.0, 0.225), (-1, 0, 0), (-3.5, 3.5)),
+              ((1.280, 0.0, 0.0), (0, -1, 0), (-2.2, 2.2)),
+              ((0.215, 0.0, 0.0), (-1, 0, 0), (-3.5, 3.5))]
+
+
+def industrial_urdf() -> str:
+    """URDF text of :data:`IND_JOINTS` (rough solid-cylinder inertias; calibration uses none)."""
+    masses = (600.0, 250.0, 120.0, 60.0, 15.0, 5.0, 1.0)
+    links = [f'  <link name="{"base_link" if k == 0 else f"link{k}"}">\n'
+             f'    <inertial><origin xyz="0 0 0.05"/><mass value="{m}"/>'
+             f'<inertia ixx="{0.05 * m:.3f}" iyy="{0.05 * m:.3f}" izz="{0.02 * m:.3f}" ixy="0" ixz="0" iyz="0"/>'
+             '</inertial>\n  </link>' for k, m in enumerate(masses)]
+    joints = [f'  <joint name="joint{k + 1}" type="revolute">\n    <parent link="{"base_link" if k == 0 else f"link{k}"}"/>'
+              f'<child link="link{k + 1}"/>\n    <origin xyz="{" ".join(map(str, xyz))}" rpy="0 0 0"/>'
+              f'<axis xyz="{" ".join(map(str, ax))}"/>\n    <limit lower="{lo}" upper="{hi}" velocity="2" effort="1000"/>\n'
+              '  </joint>' for k, (xyz, ax, (lo, hi)) in enumerate(IND_JOINTS)]
+    return '<?xml version="1.0"?>\n<robot name="ind6">\n' + "\n".join(links + joints) + "\n</robot>\n"
+
+
+def make_wide_campaign(root: Path, seed: int, n_reflectors: int, mismatch: bool,
+                       poses=(4, 8), sweep_deg=(40.0, 120.0), noise_mm=(0.02, 0.05),
+                       offset_mm=(0.0, 1.0), robot: str | None = None, angle_sign=(1, 1),
+                       sign_in_all_logs: bool = False) -> dict:
+    """Write one tracker campaign drawn widely under ``root``; return the truth and the draws.
+
+    Each run draws: the robot (the bundled PA10, its J1 and J2 axes intersecting, or an
+    industrial arm with a 312 mm J1-J2 offset whose controller logs J3 relative to J2, declared
+    as ``[robot] coupling``, in half of its runs); the tracker 3-5 m from the base at any
+    heading and -0.5..1.5 m above it, levelled within 1 deg; per swept joint 4-8 stop-and-go
+    poses (``poses``) over 40-120 deg, centred anywhere in the joint's range, evenly spaced with
+    jitter or at random angles, in either order; the other joints held at random angles within
+    their limits (drawn anew per sweep); ``n_reflectors`` reflectors fixed on the flange or a
+    tool, each 30-330 mm from the flange centre in a random direction; noise 0.02-0.05 mm per
+    coordinate, white or (half of the runs) a tracker's line-of-sight noise 0.3-1x its
+    transverse noise; ``mismatch``: the real J1-J2 offset 0-1 mm off the URDF's (joint 2 moved
+    along the common perpendicular of the two axes). Forward kinematics by pinocchio on the real
+    model; nothing of jointlab is used. ``angle_sign`` negates a joint's logged angle in its own
+    sweep's log (``sign_in_all_logs``: in both logs)."""
+    import pinocchio as pin
+
+    rng = np.random.default_rng(seed)
+    robot = robot or ("pa10" if rng.uniform() < 0.5 else "ind")
+    (root / "robot").mkdir(parents=True)
+    (root / "calib").mkdir()
+    urdf_text = (PA10 / "pa10.urdf").read_text() if robot == "pa10" else industrial_urdf()
+    (root / "robot" / "arm.urdf").write_text(urdf_text)
+    shutil.copy(PA10 / "drives.toml", root / "robot" / "drives.toml")
+    model = pin.buildModelFromUrdf(str(root / "robot" / "arm.urdf"))
+    nq = model.nq
+    lo, hi = model.lowerPositionLimit.copy(), model.upperPositionLimit.copy()
+    coupled = robot == "ind" and rng.uniform() < 0.5
+    C = np.eye(nq)
+    if coupled:
+        C[2, 1] = -1.0          # q3_urdf = q3_log - q2_log (J2 and J3 axes point opposite ways here)
+    delta = np.zeros(3)
+    if mismatch:
+        # both URDFs: J1 along z, J2 along y in link 1, so the common perpendicular is x
+        delta = rng.choice([-1.0, 1.0]) * rng.uniform(*offset_mm) * 1e-3 * np.array([1.0, 0.0, 0.0])
+        model.jointPlacements[2].translation = model.jointPlacements[2].translation + delta
+    data = model.createData()
+    heading = rng.uniform(-np.pi, np.pi)
+    tilt_axis = np.r_[rng.normal(size=2), 0.0]
+    R_cb = _rot(tilt_axis, np.radians(rng.uniform(0.0, 1.0))) @ _rot([0, 0, 1], heading)
+    bearing = rng.uniform(-np.pi, np.pi)
+    dist = rng.uniform(3.0, 5.0)
+    p_cb = np.array([dist * np.cos(bearing), dist * np.sin(bearing), rng.uniform(-0.5, 1.5)])
+    dirs = rng.normal(size=(n_reflectors, 3))
+    refl = dirs / np.linalg.norm(dirs, axis=1, keepdims=True) * rng.uniform(0.03, 0.33, (n_reflectors, 1))
+    labels = [f"SMR{k + 1}" for k in range(n_reflectors)]
+    noise = rng.uniform(*noise_mm) * 1e-3
+    los_ratio = 1.0 if rng.uniform() < 0.5 else rng.uniform(0.3, 1.0)
+    tip = model.getJointId("joint6")
+    draws = {}
+    for j in (1, 2):
+        n = int(rng.integers(poses[0], poses[1] + 1))
+        span = np.radians(rng.uniform(*sweep_deg))
+        lo_j, hi_j = lo[j - 1], hi[j - 1]
+        centre = rng.uniform(lo_j + span / 2, hi_j - span / 2)
+        if rng.uniform() < 0.5:
+            offs = np.linspace(-span / 2, span / 2, n) + rng.uniform(-0.1, 0.1, n) * span / n
+        else:
+            offs = np.sort(np.r_[-span / 2, span / 2, rng.uniform(-span / 2, span / 2, n - 2)])
+        if rng.uniform() < 0.5:
+            offs = offs[::-1]
+        q_held = rng.uniform(lo + 0.05 * (hi - lo), hi - 0.05 * (hi - lo))
+        Q = np.tile(q_held, (n, 1))
+        Q[:, j - 1] = centre + offs
+        t = np.cumsum(rng.uniform(5.0, 9.0, n)) + 100.0 * j
+        P = np.empty((n, n_reflectors, 3))
+        for i, q in enumerate(Q):
+            pin.forwardKinematics(model, data, q)
+            M = data.oMi[tip]
+            P[i] = (R_cb @ (M.rotation @ refl.T + M.translation[:, None])).T + p_cb
+        los = P / np.linalg.norm(P, axis=2, keepdims=True)
+        e = rng.normal(size=P.shape)
+        e_los = np.sum(e * los, axis=2, keepdims=True) * los
+        s_t = noise * np.sqrt(3.0 / (2 + los_ratio ** 2))      # 3-D RMS = sqrt(3) x noise per coordinate
+        P = P + s_t * (e - e_los) + los_ratio * s_t * e_los
+        q_urdf = Q.copy()
+        for k in ((0, 1) if sign_in_all_logs else (j - 1,)):    # a sign flipped in the log: -q
+            q_urdf[:, k] = angle_sign[k] * q_urdf[:, k]
+        q_log = np.linalg.solve(C, q_urdf.T).T
+        _write_trc(root / "calib" / f"joint-{j}.trc", t, 1e3 * P, labels)
+        _write_log(root / "calib" / f"joint-{j}.csv", t, q_log)
+        draws[j] = {"poses": n, "sweep_deg": float(np.degrees(span))}
+    coupling = ("coupling = [" + ", ".join("[" + ", ".join(f"{x:g}" for x in row) + "]" for row in C) + "]\n"
+                if coupled else "")
+    (root / "campaign.toml").write_text(
+        'format = 1\nname = "tracker"\n\n[robot]\nurdf = "robot/arm.urdf"\ndrives = "robot/drives.toml"\n'
+        + coupling + "\n"
+        f"[markers]\nlink6 = [{', '.join(chr(34) + lb + chr(34) for lb in labels)}]\n\n"
+        '[[calib]]\njoint = 1\nmarkers = "calib/joint-1.trc"\nlog = "calib/joint-1.csv"\n\n'
+        '[[calib]]\njoint = 2\nmarkers = "calib/joint-2.trc"\nlog = "calib/joint-2.csv"\n')
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R_cb, p_cb
+    return {"T": T, "noise_mm": 1e3 * noise, "los_ratio": los_ratio, "robot": robot, "coupled": coupled, "draws": draws,
+            "offset_mm": 1e3 * float(np.linalg.norm(delta))}
+
+# ---------------------------------------------------------------------------------------
 # judging from calib.json alone
 # ---------------------------------------------------------------------------------------
 def _log_rotation(R):
@@ -234,6 +378,7 @@ def judge(doc: dict, T_true: np.ndarray) -> dict:
     d_p = float(x @ np.linalg.solve(C, x))
     warned = any("do not fit the URDF" in w for w in doc.get("warnings", ()))
     return {"in_origin": d_o <= q3o, "in_rotation": d_r <= q3r, "in_pose": d_p <= q6,
+            "ratio_origin": d_o / q3o, "ratio_rotation": d_r / q3r,
             "err": x, "std": np.sqrt(np.diag(C)), "misfit_warned": warned}
 
 
@@ -243,10 +388,14 @@ def run_one(cell: str, seed: int, tmp: Path) -> dict:
     from mocap.io.errors import InputError
 
     shape, kind = cell.split("-")
-    n, m = (int(x) for x in shape.split("x"))
     root = tmp / f"{cell}-{seed}"
-    truth = make_campaign(root, seed, n, m, kind in ("mismatch", "declared", "trustmis"),
-                          los_ratio=LOS_RATIO, deflect=kind.startswith("deflect"))
+    if shape.startswith("wide"):
+        truth = make_wide_campaign(root, seed, int(shape[4:]), kind == "offset")
+        kind = "exact"
+    else:
+        n, m = (int(x) for x in shape.split("x"))
+        truth = make_campaign(root, seed, n, m, kind in ("mismatch", "declared", "trustmis"),
+                              los_ratio=LOS_RATIO, deflect=kind.startswith("deflect"))
     opts = ({"urdf_tol_mm": URDF_TOL_MM} if kind in ("declared", "deflecttol") else
             {"urdf_model_error": False} if kind in ("trusted", "trustmis") else
             {"deflection": True} if kind == "deflectcomp" else {})
@@ -259,7 +408,10 @@ def run_one(cell: str, seed: int, tmp: Path) -> dict:
         return {"refused": str(exc)}
     finally:
         shutil.rmtree(root, ignore_errors=True)
-    return judge(doc, truth["T"])
+    out = judge(doc, truth["T"])
+    out["truth"] = {k: v for k, v in truth.items() if k != "T"}
+    out["d2"] = doc["region95"]
+    return out
 
 
 def summarise(cell: str, rows: list) -> dict:
@@ -287,21 +439,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="40 runs per cell")
     ap.add_argument("--runs", type=int, default=None, help="runs per cell (default 200, --quick 40)")
-    ap.add_argument("--cells", default=",".join(CELLS),
-                    help="comma-separated cells POSESxREFLECTORS-{exact,mismatch}")
+    ap.add_argument("--cells", default=",".join(WIDE_CELLS),
+                    help="comma-separated cells: wide{1,3}-{exact,offset} (default), POSESxREFLECTORS-KIND "
+                         "(the PA10 cells), or 'pa10' for all the PA10 cells")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--los-ratio", type=float, default=0.5,
                     help="line-of-sight over transverse noise (1: white noise; default 0.5)")
     args = ap.parse_args(argv)
     globals()["LOS_RATIO"] = args.los_ratio
     runs = args.runs or (40 if args.quick else 200)
-    cells = [c for c in args.cells.split(",") if c]
-    print(f"== coverage of the reported 95 % region: {runs} runs per cell (tracker sweeps, PA10) ==")
+    cells = [x for c in args.cells.split(",") if c for x in (CELLS if c == "pa10" else [c])]
+    print(f"== coverage of the reported 95 % region: {runs} runs per cell (tracker sweeps) ==")
     print("cell            runs refused  origin rotation   pose | reported/empirical std: "
           "rot x,y,z  origin x,y,z | rms err mm  deg   s")
     t_all = time.time()
-    fails = {k: [] for k in ("exact", "mismatch", "declared", "trusted", "trustmis", "deflect", "deflecttol",
-                             "deflectcomp")}
+    fails = {k: [] for k in ("exact", "mismatch", "offset", "declared", "trusted", "trustmis", "deflect",
+                             "deflecttol", "deflectcomp")}
     with tempfile.TemporaryDirectory() as td:
         for ci, cell in enumerate(cells):
             t0 = time.time()
@@ -327,8 +480,10 @@ def main(argv=None) -> int:
                 all(1 / 1.5 <= x <= 1.5 for x in s["std_ratio"])
             if not (cov_ok and std_ok and s["refused"] == 0):
                 fails[kind].append(cell)
-    for kind, what in (("exact", "URDF exact: coverage 90-98 % (origin, rotation, pose), at 3 poses std within "
-                                 "1.5x of the spread"),
+    for kind, what in (("exact", "URDF exact (PA10 cells and wide geometry): coverage 90-98 % (origin, rotation, "
+                                 "pose), at 3 poses std within 1.5x of the spread"),
+                       ("offset", "wide geometry, J1-J2 offset 0-1 mm off the URDF: coverage 90-98 % (origin, rotation, "
+                                  "pose)"),
                        ("mismatch", "J1-J2 offset 0-1 mm off the URDF, default settings: coverage 90-98 % "
                                     "(origin, rotation, pose), at 3 poses std within 1.5x of the spread"),
                        ("declared", "the same with --urdf-tol-mm declared: coverage >= 90 % (conservative)"),

@@ -276,6 +276,12 @@ def _initial_pose(meas, urdf):
     return R, np.linalg.solve(M, rhs)
 
 
+def _pooled(fit) -> bool:
+    """Whether an axis fit's noise variance is the one pooled over the sweeps
+    (:func:`calib.pipeline.pool_noise`)."""
+    return bool(getattr(fit, "extra", {}).get("noise_pooled"))
+
+
 #: below this p-value of the base solve's chi2 the axes do not fit the URDF: a warning names the
 #: mismatch
 MISFIT_P = 0.01
@@ -324,6 +330,7 @@ def model_error_terms(axes, urdf_lines, covs, tol_m: float = 0.0, estimate: bool
     inv_m = _pair_invariants(*lines[0], *lines[1])
     var = np.zeros(2)
     var2_nu = np.zeros(2)                    # sum_j u_j^4 / nu_j
+    pooled_var = np.zeros(2)                 # the u_j^2 of axes sharing one pooled variance
     h = 1e-7
     for k, (f, C) in enumerate(zip((f1, f2), covs[:2])):
         G = np.empty((2, 4))
@@ -333,7 +340,10 @@ def model_error_terms(axes, urdf_lines, covs, tol_m: float = 0.0, estimate: bool
             G[:, i] = (_pair_invariants(*pert[0], *pert[1]) - inv_m) / h
         uj2 = np.einsum("ij,jk,ik->i", G, C, G)
         var += uj2
-        var2_nu += uj2 ** 2 / max(float(f.dof), 1e-9)
+        pooled_var = pooled_var + uj2 if _pooled(f) else pooled_var
+        var2_nu += 0.0 if _pooled(f) else uj2 ** 2 / max(float(f.dof), 1e-9)
+    if any(_pooled(f) for f in (f1, f2)):     # one pooled variance: its parts add before squaring
+        var2_nu += pooled_var ** 2 / max(float(next(f.dof for f in (f1, f2) if _pooled(f))), 1e-9)
     total = (inv_m - inv_u) ** 2 + var
     ms = total if estimate else np.zeros(2)         # the later line: shift m^2, tilt rad^2
     later = 1 if f2.joint is None or f1.joint is None or f2.joint > f1.joint else 0
@@ -507,17 +517,23 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
     if tau_s > 0 or tau_t > 0:
         T, cov, r, sol, cond, A, Ls = solve([C + Vj + Wj for C, Vj, Wj in zip(covs, Vs, Vt)])
     parts = split(cov, A, Ls, covs)
+    pooled = [k for k, f in enumerate(axes) if _pooled(f) and use == "cov"]
+    if len(pooled) > 1:           # one pooled variance scales these axes' parts together: one part
+        keep = [k for k in range(len(axes)) if k not in pooled]
+        parts = [parts[k] for k in keep] + [sum(parts[k] for k in pooled)]
+        nus = [nus[k] for k in keep] + [nus[pooled[0]]]
+    n_noise = len(parts)
     for tau_k, Vk, nu_k in ((tau_s, Vs, nu_me[0]), (tau_t, Vt, nu_me[1])):
         if tau_k > 0:
             parts.append(sum(split(cov, A, Ls, Vk)))
             nus = list(nus) + [nu_k]
-    noise_cov = sum(parts[:len(axes)])
-    model_cov = sum(parts[len(axes):], np.zeros((6, 6)))
+    noise_cov = sum(parts[:n_noise])
+    model_cov = sum(parts[n_noise:], np.zeros((6, 6)))
     budget = {name: dict(zip(("origin_std_mm", "rotation_std_deg"), BasePlacement._stds(P)))
               for name, P in (("noise", noise_cov), ("model_error", model_cov))}
     inflation = 1.0
     if tau_s > 0 or tau_t > 0:     # RMS growth of the standard deviations over the noise-only solve
-        inflation = float(np.sqrt(np.trace(cov) / max(np.trace(sum(parts[:len(axes)])), 1e-300)))
+        inflation = float(np.sqrt(np.trace(cov) / max(np.trace(noise_cov), 1e-300)))
     trusted = use == "cov" and not model_error
     warnings = []
     if dof > 0 and p_value < misfit_p:

@@ -20,6 +20,7 @@ from mocap.quality import chain_reach, check_marker_units  # noqa: F401 (calib's
 from calib.axis import (MIN_POSES, AxisFit, CircleAxisEstimator, ClusterAxisEstimator,
                         marker_angles)
 from calib.base import BasePlacement, place_base, pose_errors
+from calib.geometry import chart_line
 from calib.handeye import HandEyeEstimator
 
 
@@ -358,6 +359,63 @@ def fit_axes(sweeps, method: str = "auto", noise_mm: float | None = None, frame_
         return list(pool.map(one, sweeps))
 
 
+#: below this p-value of Bartlett's test the sweeps' noise variances differ and are not pooled (small: with a
+#: few poses per sweep, variances 10-100x apart arise by chance from the same noise)
+POOL_P = 1e-4
+
+
+def pool_noise(fits, p_min: float = POOL_P) -> list:
+    r"""The axis fits with one noise variance estimated from all their residuals, where the
+    sweeps' own estimates agree.
+
+    Each fit's covariance is ``s_j^2 H_j^-1`` with ``s_j^2`` the per-coordinate residual variance
+    of its own fit on ``nu_j`` degrees of freedom. The sweeps are measured by the same instrument
+    and markers, so the noise is one: the pooled variance
+    ``s^2 = sum_j nu_j s_j^2 / sum_j nu_j`` on ``sum_j nu_j`` degrees of freedom (the pooled
+    estimate of a one-way layout) replaces each ``s_j^2``. With a few stop-and-go poses per
+    sweep (2-10 degrees of freedom each) a single sweep's variance is often several times too
+    small, and the base solve then trusts that axis's line beyond what it holds; pooled, the
+    estimate is steadier and the weights of the base solve no longer follow its chance.
+    Bartlett's test (Snedecor & Cochran 1989, sec. 13.6) checks that the variances agree: below
+    ``p_min`` (the noise differs between the sweeps) the fits are returned unchanged, as are
+    fits without a residual-based variance (infinite ``dof``: the noise given).
+
+    Parameters
+    ----------
+    fits : sequence of calib.axis.AxisFit
+        The fitted axes.
+    p_min : float, optional
+        Bartlett p-value below which the variances are kept apart; default :data:`POOL_P`.
+
+    Returns
+    -------
+    list of calib.axis.AxisFit
+        The fits with covariance ``s^2 H_j^-1``, ``sigma_mm`` and ``dof`` of the pooled variance
+        and ``extra["noise_pooled"]`` True (:func:`calib.base.place_base` then counts the one
+        variance once in the degrees of freedom of the 95 % region).
+    """
+    from scipy.stats import chi2 as chi2_dist
+
+    fits = list(fits)
+    nu = np.array([f.dof for f in fits], float)
+    if len(fits) < 2 or not np.all(np.isfinite(nu) & (nu > 0)):
+        return fits
+    s2 = np.array([(f.sigma_mm * 1e-3) ** 2 / 3.0 for f in fits])
+    if not np.all(s2 > 0):
+        return fits
+    N = nu.sum()
+    pooled = float(np.sum(nu * s2) / N)
+    # Bartlett: (N ln s^2 - sum nu_j ln s_j^2) / (1 + (sum 1/nu_j - 1/N) / (3 (k - 1))) ~ chi2(k - 1)
+    k = len(fits)
+    stat = (N * np.log(pooled) - np.sum(nu * np.log(s2))) / (1.0 + (np.sum(1.0 / nu) - 1.0 / N) / (3.0 * (k - 1)))
+    if chi2_dist.sf(stat, k - 1) < p_min:
+        return fits
+    sig = float(1e3 * np.sqrt(3.0 * pooled))
+    return [replace(f, cov=f.cov * (pooled / s), sigma_mm=sig, dof=float(N),
+                    extra={**f.extra, "noise_pooled": True, "own_sigma_mm": f.sigma_mm, "own_dof": f.dof})
+            for f, s in zip(fits, s2)]
+
+
 #: largest relative difference between the rotation the markers show and the logged swept angle
 SCALE_TOL = 0.015
 #: a URDF is implausible for the markers when a marker link's origin lies further than this
@@ -385,11 +443,32 @@ def angle_ratio(sw: SweepData, fit: AxisFit) -> float:
     return num / den if den > 0 else float("nan")
 
 
+def angle_ratio_std(sw: SweepData, fit: AxisFit) -> float:
+    """Standard uncertainty of :func:`angle_ratio` from the fitted axis's own uncertainty: the
+    ratio's first-order change with the axis's chart coordinates (central differences), through
+    the axis covariance ``fit.cov``. It is large where the markers turn close to the axis (a
+    reflector a few millimetres off it): the angles about an axis known to a few degrees are
+    then no measure of the log's scale."""
+    G = np.zeros(4)
+    scale = np.sqrt(np.maximum(np.diag(fit.cov), 1e-20))
+    for i in range(4):  # loop over the 4 chart coordinates
+        e = np.zeros(4)
+        e[i] = 1e-3 * scale[i]
+        vals = []
+        for sgn in (1.0, -1.0):
+            q, m = chart_line(sgn * e, fit.point, fit.direction, *fit.basis)
+            vals.append(angle_ratio(sw, replace(fit, point=q, direction=m)))
+        G[i] = (vals[0] - vals[1]) / (2 * e[i])
+    var = float(G @ fit.cov @ G)
+    return float(np.sqrt(var)) if np.isfinite(var) else 0.0
+
+
 def check_angle_scale(sweeps, fits, tol: float = SCALE_TOL) -> None:
-    """Refuse a sweep whose logged angle does not turn as the markers do (scale off by > ``tol``)."""
+    """Refuse a sweep whose logged angle does not turn as the markers do: the ratio off 1 by
+    more than ``tol`` plus 3 standard uncertainties of the ratio (:func:`angle_ratio_std`)."""
     for sw, f in zip(sweeps, fits):
         k = angle_ratio(sw, f)
-        if np.isfinite(k) and abs(k - 1.0) > tol:
+        if np.isfinite(k) and abs(k - 1.0) > tol and abs(k - 1.0) > tol + 3.0 * angle_ratio_std(sw, f):
             enc = float(np.nanmax(sw.q_joint) - np.nanmin(sw.q_joint))
             raise InputError(f"calibration sweep of joint {sw.joint}: the markers turn {np.degrees(k * enc):.2f} deg "
                              f"while the logged angle qm_{sw.joint} sweeps {np.degrees(enc):.2f} deg (measured "
@@ -425,18 +504,33 @@ def _on_link(x_base: np.ndarray, T_link: np.ndarray) -> np.ndarray:
     return np.einsum("tji,tmj->tmi", T_link[:, :3, :3], x_base - T_link[:, None, :3, 3])
 
 
+def _hypothesis_q(sw: SweepData, q: np.ndarray, flip) -> np.ndarray:
+    """Angles ``q`` (..., n) of sweep ``sw`` under a sign hypothesis ``flip``: pairs ``(joint,
+    mode)`` (a bare joint number is ``"held"``): ``"held"`` mirrors the joint's logged angle about
+    its held value (in every sweep: a constant angle stays), ``"zero"`` negates it in the joint's
+    own sweep (the log written with the opposite sign), ``"zero-all"`` in every sweep (the
+    controller's convention opposite for all logs)."""
+    q = np.array(q, float, copy=True)
+    for item in flip:
+        j, mode = (item, "held") if np.isscalar(item) else item
+        if mode == "held":
+            q[..., j - 1] = 2 * sw.q_held[j - 1] - q[..., j - 1]
+        elif mode == "zero-all" or (mode == "zero" and sw.joint == j):
+            q[..., j - 1] = -q[..., j - 1]
+    return q
+
+
 def marker_offset_m(sweeps, chain, T_camera_base, flip=()) -> float:
     """Median distance of the markers from their link's origin (link frame, averaged over the
-    poses) when the base is ``T_camera_base`` and the logged angles of the joints in ``flip``
-    are mirrored about their held value (the sign-flip hypothesis)."""
+    poses) when the base is ``T_camera_base`` and the logged angles follow the sign hypothesis
+    ``flip`` (:func:`_hypothesis_q`; a bare joint number mirrors its angle about its held
+    value)."""
     Tinv = np.linalg.inv(T_camera_base)
     out = []
     for sw in sweeps:
         if sw.q_frames is None:
             continue
-        q = sw.q_frames.copy()
-        for j in flip:
-            q[:, j - 1] = 2 * sw.q_held[j - 1] - q[:, j - 1]
+        q = _hypothesis_q(sw, sw.q_frames, flip)
         ok = np.all(np.isfinite(q), axis=1)
         if ok.sum() < 1:
             continue
@@ -454,8 +548,11 @@ def marker_offset_m(sweeps, chain, T_camera_base, flip=()) -> float:
 def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
     """Refuse a log whose swept angle turns the wrong way: with the sign of a joint's logged angle
     flipped the base turns 180 deg and the axis lines fit as well, but the markers end up far
-    from the links they sit on. A sweep is refused when mirroring its logged angle puts the
-    markers less than half as far from their links' origins (and at least 5 cm closer)."""
+    from the links they sit on. Each sign hypothesis is solved - the joint's logged angle
+    mirrored about its held value, negated in its own sweep's log, or negated in every log (then
+    the later joints' URDF lines move with it), for each swept joint and for all together - and
+    a log is refused when the best of them puts the markers less than half as far from their
+    links' origins (and at least 5 cm closer), whatever the number of markers."""
     if any(sw.q_frames is None for sw in sweeps):
         return
     with np.errstate(all="ignore"):
@@ -463,12 +560,22 @@ def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
         if not np.isfinite(here):
             return
         joints = [sw.joint for sw in sweeps]
-        hyps = [(j,) for j in joints] + ([tuple(joints)] if len(joints) > 1 else [])
+        modes = ("held", "zero", "zero-all")
+        hyps = [((j, mode),) for j in joints for mode in modes]
+        if len(joints) > 1:
+            hyps += [tuple((j, mode) for j in joints) for mode in modes]
         best = None
         for flip in hyps:
-            alt_fits = [f.with_joint(f.joint, flip=f.joint in flip) for f in fits]
+            flipped = {j for j, _ in flip}
+            alt_fits = [f.with_joint(f.joint, flip=f.joint in flipped) for f in fits]
+            alt_lines = lines
+            if any(mode == "zero-all" for _, mode in flip):
+                alt_lines = []
+                for sw in sweeps:
+                    p, d = chain.joint_axis_lines(_hypothesis_q(sw, sw.q_held, flip))
+                    alt_lines.append((p[sw.joint - 1], d[sw.joint - 1]))
             try:
-                alt = place_base(alt_fits, lines, with_region=False)
+                alt = place_base(alt_fits, alt_lines, with_region=False)
             except InputError:
                 continue
             there = marker_offset_m(sweeps, chain, alt.T_camera_base, flip)
@@ -476,8 +583,9 @@ def check_angle_sign(sweeps, fits, chain, lines, base: BasePlacement) -> None:
                 best = (flip, there)
     if best is not None and best[1] < 0.5 * here and here - best[1] > 0.05:
         flip, there = best
-        sw = next(s for s in sweeps if s.joint == flip[0])
-        which = " and ".join(f"qm_{j}" for j in flip)
+        flipped = [j for j, _ in flip]
+        sw = next(s for s in sweeps if s.joint == flipped[0])
+        which = " and ".join(f"qm_{j}" for j in flipped)
         ratio = angle_ratio(sw, fits[joints.index(sw.joint)])
         verb = "turns" if len(flip) == 1 else "turn"
         raise InputError(f"calibration sweep of joint {sw.joint}: the logged {which} {verb} "
@@ -544,7 +652,7 @@ def calibrate_sweeps(sweeps, chain, method: str = "auto", noise_mm: float | None
     """
     if not (np.isfinite(urdf_tol_mm) and urdf_tol_mm >= 0):
         raise InputError(f"--urdf-tol-mm must be a finite length >= 0 (mm), got {urdf_tol_mm}")
-    fits = fit_axes(sweeps, method, noise_mm, frame_step, **options)
+    fits = pool_noise(fit_axes(sweeps, method, noise_mm, frame_step, **options))
     if checks:
         check_urdf_scale(sweeps, fits, chain, urdf_path)
         check_angle_scale(sweeps, fits)

@@ -228,3 +228,77 @@ def test_deflection_is_reported_and_needs_a_declared_stiffness(bench, tmp_path, 
     assert main(["calib", str(tmp_path / "c"), "--out", str(tmp_path / "o"), "--deflection"]) == 2
     err = capsys.readouterr().err
     assert "--deflection" in err and "stiffness" in err and len(err.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------------------------
+# issue 46: wide geometry (benchmarks/calib_coverage.py make_wide_campaign)
+# ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("n_reflectors,seed", [(1, 0), (3, 5), (3, 10)])
+def test_a_sign_flipped_joint1_log_is_refused_with_any_number_of_reflectors(bench, tmp_path, capsys,
+                                                                             n_reflectors, seed):
+    """The log holds -q1 (the controller's sign opposite): exit 2 with one line, for one
+    reflector and for three (before, three reflectors were accepted: the sign hypothesis only
+    mirrored the angle about its held value)."""
+    from ident.cli.main import main
+
+    bench.make_wide_campaign(tmp_path / "camp", seed=seed, n_reflectors=n_reflectors, mismatch=False,
+                             angle_sign=(-1, 1))
+    out = tmp_path / "out"
+    assert main(["calib", str(tmp_path / "camp"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert "joint-1.csv" in err and "qm_1 turns opposite" in err, err
+    assert not out.exists()
+
+
+def test_a_reflector_millimetres_from_the_axis_is_no_angle_scale_error(bench, tmp_path):
+    """Seed 1129: the held angles put the reflector 5 mm from joint 1's axis, whose direction is
+    then known to ~5 deg; the markers' angle about it reads 3 % off the log's by that alone. The
+    correct log is accepted (before: refused as an angle-scale error)."""
+    from calib.pipeline import angle_ratio_std, calibrate
+    from mocap.io.campaign import load_campaign
+
+    bench.make_wide_campaign(tmp_path / "c", seed=1129, n_reflectors=1, mismatch=False)
+    res = calibrate(load_campaign(tmp_path / "c"))
+    assert angle_ratio_std(res.sweeps[0], res.axes[0]) > 0.01
+
+
+def test_pooled_noise_replaces_a_variance_that_is_small_by_chance(bench, tmp_path):
+    """Seed 1078 (4 poses of one reflector on joint 1): that sweep's own residual variance is
+    1/80 of the noise by chance, and the truth lay 7x beyond the reported region's threshold.
+    With the variance pooled over both sweeps (same tracker, same reflector) the truth is inside."""
+    from calib.pipeline import calibrate
+    from mocap.io.campaign import load_campaign
+
+    truth = bench.make_wide_campaign(tmp_path / "c", seed=1078, n_reflectors=1, mismatch=False)
+    res = calibrate(load_campaign(tmp_path / "c"))
+    assert all(f.extra.get("noise_pooled") for f in res.axes)
+    assert res.axes[0].dof == res.axes[1].dof == sum(f.extra["own_dof"] for f in res.axes)
+    j = bench.judge(json.loads(json.dumps(res.to_dict())), truth["T"])
+    assert j["in_origin"] and j["in_rotation"], j
+
+
+def test_pool_noise_pools_agreeing_variances_only():
+    """Bartlett's test keeps clearly different noise apart (many residuals), pools a chance
+    difference of a few residuals; the pooled variance is the dof-weighted mean."""
+    from dataclasses import replace
+
+    from calib.axis import AxisFit
+    from calib.pipeline import pool_noise
+
+    def fit(sigma_mm, dof):
+        return AxisFit(point=np.zeros(3), direction=np.array([0.0, 0.0, 1.0]),
+                       basis=(np.array([1.0, 0, 0]), np.array([0, 1.0, 0])), cov=np.eye(4) * (sigma_mm * 1e-3) ** 2,
+                       crb=np.eye(4), rms_mm=0.0, sigma_mm=sigma_mm, marker_rms_mm={}, marker_radius_m={},
+                       sweep_deg=60.0, n_frames=4, n_observations=4, n_outliers=0, iterations=1, converged=True,
+                       cond=1.0, method="circle", dof=dof)
+
+    a, b = pool_noise([fit(0.05, 2.0), fit(0.005, 6.0)])          # 100x in variance on 2 and 6 dof
+    pooled = (2 * 0.05 ** 2 + 6 * 0.005 ** 2) / 8
+    assert a.dof == b.dof == 8.0 and a.extra["noise_pooled"]
+    assert a.sigma_mm == pytest.approx(np.sqrt(pooled), rel=1e-9)
+    assert b.cov[0, 0] == pytest.approx(1e-6 * pooled, rel=1e-9)
+    kept = pool_noise([fit(0.05, 2000.0), fit(0.04, 3000.0)])     # 1.56x on thousands of dof: different
+    assert [f.sigma_mm for f in kept] == [0.05, 0.04] and "noise_pooled" not in kept[0].extra
+    known = pool_noise([fit(0.05, 2.0), replace(fit(0.05, 2.0), dof=float("inf"))])
+    assert "noise_pooled" not in known[0].extra
