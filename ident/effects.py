@@ -160,7 +160,7 @@ _SPECS = (
         "time_offset", "clock", "marker clock shifted (and possibly running at another rate) from the robot's",
         "marker clock = controller clock + dt_off", {"offset_s": 0.020},
         ("compliance",), "a fast sinusoid at low load: a clock shift grows with speed, a deflection with torque",
-        ("time_offset",),
+        ("time_offset", "torque_delay"),
         lambda M, s, ctx: {"time_offset": M * s["offset_s"]}),
 )
 

@@ -503,6 +503,34 @@ _BACKLASH_GRID = (tuple(("torque", src, w) for src in ("rigid", "motor") for w i
                   + tuple(("motion", "", w) for w in (0.002, 0.01)))
 
 
+#: delays between the logged torque and the logged position tested on continuous records, s
+#: (sensor, current-loop or logging latency); the column's sign says which signal is late
+DELAY_GRID_S = tuple(float(x) for x in tuple(np.round(np.arange(0.001, 0.0201, 0.0005), 4))
+                     + (0.0225, 0.025, 0.0275, 0.030))
+#: second-order low-passes of the logged torque (cut-off Hz, damping) tested against the delay
+LOWPASS_GRID = tuple((fc, z) for fc in (6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 25.0, 32.0, 40.0, 50.0, 65.0)
+                     for z in (0.5, 0.7, 0.9))
+
+
+def _torque_delay(d, hp):
+    """A delay ``hp`` (s) of the logged torque against the logged position: ``p(t - hp) - p(t)``
+    with ``p`` the record's rigid-body fit (:func:`ident.gap.data._record_signal_columns`);
+    amplitude 1 at the true delay. No column where the data hold none (single-joint campaigns:
+    their time offset is the marker clock's, in the transmission channel)."""
+    cols = getattr(d, "delay_cols", None)
+    if cols is None:
+        return np.zeros((d.y.shape[0], 0))
+    return cols[:, [DELAY_GRID_S.index(hp)]]
+
+
+def _delay_physical(hp, th, d) -> bool:
+    """A delay's column has amplitude 1 at the true delay (the torque late), -1 when the
+    position is the late one (to first order ``p(t) - p(t - dt) = p(t + dt) - p(t)``): within a
+    factor of two of either (a grid step is at most 30 % of the delay), else the shape is not a
+    delay."""
+    return th.shape[0] > 0 and 0.5 < abs(th[0]) < 2.0
+
+
 def _time_offset(d, hp):
     if hp == "offset":
         return d.qd_m[:, None]
@@ -554,6 +582,9 @@ FAMILIES = {
                  lambda hp: (f"smooth contact, deflection ~ |transmitted torque|^{hp[2]:.2g}" if hp[0] == "contact" else
                              f"lost motion switching with the {hp[0] if hp[0] == 'motion' else hp[1] + ' torque'} sign"),
                  _neg()),
+    "torque_delay": Family("torque", lambda g: DELAY_GRID_S, _torque_delay,
+                           lambda hp: f"a delay of {hp * 1e3:.3g} ms between the logged torque and the logged "
+                                      "position", _delay_physical),
     "time_offset": Family("transmission", lambda g: ("offset", "skew"), _time_offset,
                     lambda hp: "marker clock shifted: q_link(t) = q(t + dt)" if hp == "offset"
                     else "marker clock shifted and running at another rate", _any_sign),

@@ -21,10 +21,12 @@ from functools import cached_property
 from types import SimpleNamespace
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
+from scipy.signal import bilinear, lfilter, lfilter_zi
 
 from mocap.io.payload import payload_com
 
-from ident.gap.candidates import ssign
+from ident.gap.candidates import DELAY_GRID_S, LOWPASS_GRID, ssign
 from ident.gap.channels import _transmission_channel, motion_cycles, nominal_heldout_rms
 from ident.signals.smoothing import differentiate
 
@@ -174,6 +176,11 @@ class JointData:
     #                                 nominal's friction acts on the declared flexible joint
     stiffness: float = 0.0          # declared transmission stiffness (drives.toml), N m/rad; 0 = rigid
     tau_m_friction: np.ndarray | None = None  # link-side friction: the spring torque y at marker times
+    # continuous multi-joint records only (None elsewhere):
+    q_all: np.ndarray | None = None         # (N, n) every joint's angle (configuration-space tests)
+    delay_cols: np.ndarray | None = None    # (N, len(DELAY_GRID_S)) p(t - dt) - p(t), p the record's rigid-body fit
+    lowpass_cols: np.ndarray | None = None  # (N, len(LOWPASS_GRID)) LP2(p)(t) - p(t)
+    rigid_names: tuple = ()                 # names of the identified rigid-body columns in urdf_regs
 
     @cached_property
     def sgn(self) -> np.ndarray:
@@ -567,7 +574,8 @@ MAX_RECORD_SAMPLES = 40000
 
 def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray,
                             tau: np.ndarray, robot, armature=None, n_segments: int | None = None,
-                            v_zero: float = 0.02, coupling: np.ndarray | None = None) -> JointData:
+                            v_zero: float = 0.02, coupling: np.ndarray | None = None,
+                            tau_fixed: np.ndarray | None = None, signals: bool = False) -> JointData:
     """:class:`JointData` for one joint of a continuous record in which several joints move
     together and nothing is repeated (e.g. an industrial controller's log).
 
@@ -583,10 +591,19 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     on the TX40 record before: 10, 20 or 40 equal segments cut its 3-7 cycles per joint into
     11-40 blocks and turned `none` into `load_dependent` on joint 3 (10) and `nonlinear_viscous`
     on joints 1 and 2 (20, 40); ``benchmarks/segmentation.py``). Torque channel only.
+
+    ``tau_fixed`` (T,): the rigid-body torque the nominal's corrections correct, default the
+    URDF's without payload; :func:`ident.model.multijoint.diagnose_records` passes the rigid body
+    identified on every joint of every record (:mod:`ident.model.identified`: the arm's inertial
+    parameters and a payload's). ``signals``: the record's rigid-body fit ``p`` (least squares)
+    also gives the torque-channel time-offset columns ``p(t - dt) - p(t)``
+    (:data:`ident.gap.candidates.DELAY_GRID_S`) and the low-pass columns ``LP2(p) - p``
+    (:data:`ident.gap.candidates.LOWPASS_GRID`), and every joint's angle is kept (``q_all``) for
+    the configuration-space tests.
     """
     j0 = joint - 1
     arm = 0.0 if armature is None else float(np.asarray(armature)[j0])
-    tau_rb = robot.rnea(q, qd, qdd)[:, j0]
+    tau_rb = robot.rnea(q, qd, qdd)[:, j0] if tau_fixed is None else np.asarray(tau_fixed, float)
     grav = robot.gravity_torque(q)[:, j0]
     y = tau[:, j0] - arm * qdd[:, j0]
     keep = ~standstill(t, qd[:, j0]) & (np.abs(qd[:, j0]) >= v_zero)
@@ -612,15 +629,92 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     k = keep
     drive = robot.drives[j0]
     empty = np.zeros(0)
+    coupled = coupled_motor_columns(joint, qd, qdd, coupling)
+    extra = {}
+    regs = np.column_stack([qdd[k, j0], grav[k], np.ones(k.sum()), coupled[k]])
+    if signals:
+        extra = _record_signal_columns(t, k, y - tau_rb, qd[:, j0], np.column_stack(
+            [qdd[:, j0], grav, np.ones(t.shape[0]), coupled]), tau_rb)
+        extra["q_all"] = q[k]
     return JointData(
         joint=joint, trials=trials, trial=seg[k].astype(int), t=t[k], t_rel=(t - t[0])[k],
         q=q[k, j0], qd=qd[k, j0], qdd=qdd[k, j0], y=y[k], tau_urdf=tau_rb[k], tau_grav=grav[k],
-        urdf_regs=np.column_stack([qdd[k, j0], grav[k], np.ones(k.sum()),
-                                   coupled_motor_columns(joint, qd, qdd, coupling)[k]]), load=np.zeros(k.sum()),
+        urdf_regs=regs, load=np.zeros(k.sum()), **extra,
         vmax=float(drive.max_velocity) if np.isfinite(drive.max_velocity) else float(np.abs(qd[:, j0]).max()),
         tau_max=float(drive.max_torque), trial_m=np.zeros(0, int), e=empty, qd_m=empty, y_m=empty,
         t_m=empty, tau_m=empty, rep=np.arange(1, n_segments + 1), group=np.zeros(n_segments, int),
         fold=np.arange(1, n_segments + 1))
+
+
+def _shifted(Z: np.ndarray, s: float) -> np.ndarray:
+    """``Z`` (T, ...) delayed by ``s`` samples (fractional: linear interpolation between the two
+    neighbouring whole shifts; the first samples repeat the first row)."""
+    i0 = int(np.floor(s))
+    w = s - i0
+    idx = np.arange(Z.shape[0])
+    a = Z[np.clip(idx - i0, 0, Z.shape[0] - 1)]
+    if w == 0:
+        return a
+    return (1 - w) * a + w * Z[np.clip(idx - i0 - 1, 0, Z.shape[0] - 1)]
+
+
+#: most samples of the profile over the delay grid (evenly thinned beyond)
+DELAY_PROFILE_SAMPLES = 8000
+#: widths (s, Gaussian sigma, zero phase) of the Coulomb step in the record's torque model ``p``: a
+#: feedback controller's command crosses a friction reversal over its own response time, and a
+#: step sharper than the logged one makes a delay's column a pulse too narrow and too high
+COULOMB_WIDTHS_S = (0.0, 0.002, 0.005, 0.010, 0.020)
+
+
+def _record_signal_columns(t: np.ndarray, keep: np.ndarray, target: np.ndarray, qd: np.ndarray,
+                           X: np.ndarray, tau_rb: np.ndarray) -> dict:
+    """The time-offset and low-pass columns of one joint of a continuous record.
+
+    ``p`` is the record's rigid-body + Coulomb/viscous model of the logged torque on the states
+    at ``t`` (``[tau_rb, X, sgn qd, qd]``, least squares on the kept samples ``keep``), fitted
+    with the states delayed by the grid's delay that fits best and the Coulomb step smoothed
+    (zero phase) by the width that fits best (a profile over :data:`COULOMB_WIDTHS_S` x
+    :data:`ident.gap.candidates.DELAY_GRID_S` and 0, on at most :data:`DELAY_PROFILE_SAMPLES`
+    samples): a torque logged late is then modelled by the torque of the states at its true time,
+    smooth, without the torque noise. A logged torque late by ``dt`` is ``p(t - dt)``: the
+    column ``p(t - dt) - p(t)`` has amplitude 1 at the true ``dt`` (the candidate of
+    ``time_offset`` in the torque channel). A second-order low-pass of the logged torque (cut-off
+    ``fc``, damping ``zeta``; bilinear with pre-warping) gives ``LP2(p) - p``: the same as a
+    delay at low frequency, with its own attenuation near the cut-off (a term outside the
+    vocabulary, tested against the delay)."""
+    y = target + tau_rb
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1e-3
+    rows = np.flatnonzero(keep)
+    rows = rows[::max(1, rows.size // DELAY_PROFILE_SAMPLES)]
+    best = (np.inf, 0.0, None)
+    sg = ssign(qd)
+    for width in COULOMB_WIDTHS_S:   # profile over the Coulomb step's width and the delay grid
+        Z = np.column_stack([tau_rb, X, gaussian_filter1d(sg, width / dt, mode="nearest") if width else sg, qd])
+        sc = np.sqrt(np.mean(Z[keep] ** 2, axis=0))
+        Z = Z / np.where(sc > 0, sc, 1.0)
+        for dl in (0.0,) + DELAY_GRID_S:
+            Zs = _shifted(Z, dl / dt)[rows]
+            th = np.linalg.lstsq(Zs, y[rows], rcond=None)[0]
+            sse = float(np.sum((y[rows] - Zs @ th) ** 2))
+            if sse < best[0]:
+                best = (sse, dl, Z)
+    Z = best[2]
+    th = np.linalg.lstsq(_shifted(Z, best[1] / dt)[keep], y[keep], rcond=None)[0]
+    p = Z @ th
+    tk = t[keep]
+    pk = p[keep]
+    dcols = np.column_stack([np.interp(tk - dl, t, p) - pk for dl in DELAY_GRID_S])
+    fs = 1.0 / dt
+    lcols = []
+    for fc, zeta in LOWPASS_GRID:
+        if fc >= 0.4 * fs:
+            lcols.append(np.zeros(tk.shape[0]))
+            continue
+        w = 2 * fs * np.tan(np.pi * fc / fs)       # pre-warped
+        b, a = bilinear([w * w], [1.0, 2 * zeta * w, w * w], fs)
+        lp = lfilter(b, a, p, zi=lfilter_zi(b, a) * p[0])[0]
+        lcols.append(lp[keep] - pk)
+    return {"delay_cols": dcols, "lowpass_cols": np.column_stack(lcols)}
 
 
 def concat_joint_data(parts: list, offsets=None) -> JointData:
@@ -646,4 +740,6 @@ def concat_joint_data(parts: list, offsets=None) -> JointData:
         vmax=max(p.vmax for p in parts), tau_max=parts[0].tau_max, trial_m=np.zeros(0, int), e=empty,
         qd_m=empty, y_m=empty, t_m=empty, tau_m=empty, rep=np.arange(1, int(base[-1]) + 1),
         group=np.zeros(int(base[-1]), int),
-        fold=np.concatenate([p.fold + fbase[k] for k, p in enumerate(parts)]))
+        fold=np.concatenate([p.fold + fbase[k] for k, p in enumerate(parts)]),
+        **{f: cat(f) for f in ("q_all", "delay_cols", "lowpass_cols")
+           if all(getattr(p, f) is not None for p in parts)})

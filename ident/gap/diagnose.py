@@ -43,6 +43,7 @@ from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, gra
                               repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds,
                               unexplained_fractions, white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
+from ident.gap.unnamed import UNNAMED, configuration_localisation, prefers_unnamed, unnamed_candidates
 from ident.signals.smoothing import one_blas_thread
 
 @dataclass(frozen=True)
@@ -360,6 +361,8 @@ class _ChannelRun:
     last_d: dict | None = None    # effect -> per-unit held-out loss differential at the last step
     extrapolated: float = 0.0     # share of held-out samples with leverage > 1 (nominal columns)
     payload: _Nuisance | None = None   # a contradicted payload declaration (joined the nominal)
+    unnamed: EffectTest | None = None  # a term outside the vocabulary that led a step (the selection stopped)
+    unnamed_step: int = 0              # the step it led
 
     def powerless(self, alpha: float) -> bool:
         """True when even the most extreme outcome cannot pass Holm's first threshold."""
@@ -405,7 +408,7 @@ def _sse(X: np.ndarray, y: np.ndarray) -> float:
 
 
 def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointData,
-                  cache: _ColumnCache | None = None) -> "_Row":
+                  cache: _ColumnCache | None = None, floor: float = 0.03) -> "_Row":
     """Choose among significant candidates by their signatures, not only by fit quality.
 
     For the best-fitting candidate and each of its registered confounders that was tested
@@ -456,7 +459,44 @@ def _discriminate(sig: list, rows: dict, ch: Channel, X: np.ndarray, d: JointDat
         elif (other.test.significant and ua < SAME_TERM and ub < SAME_TERM and choice is best
               and _n_params(other, Cb) < _n_params(best, Ca) and _heldout_tie(best, other)):
             choice = other
-    return choice
+    return _specific(choice, sig, rows, X, y, s0, cols, floor)
+
+
+def _specific(choice: "_Row", sig: list, rows: dict, X: np.ndarray, y: np.ndarray, s0: float, cols,
+              floor: float) -> "_Row":
+    """A named candidate keeps its name only with its own signature (:mod:`ident.gap.unnamed`):
+    against each significant term outside the vocabulary, the pair is fitted together; when that
+    term explains the named one's (it keeps less than :data:`SAME_TERM` of its reduction) and
+    :func:`ident.gap.unnamed.prefers_unnamed` says so, the term outside the vocabulary leads (the
+    joint is then unexplained). When such a term leads, a significant named candidate that
+    explains it and keeps its own signature, or that the rule prefers, leads instead."""
+    unnamed = [rows[n] for n in UNNAMED if n in rows and rows[n].test.significant and rows[n].cv is not None]
+    if not unnamed:
+        return choice
+
+    def pair(a, b):
+        Ca, Cb = cols(a), cols(b)
+        sa, sb = _sse(np.column_stack([X, Ca]), y), _sse(np.column_stack([X, Cb]), y)
+        sab = _sse(np.column_stack([X, Ca, Cb]), y)
+        return (sb - sab) / max(s0 - sa, 1e-300), (sa - sab) / max(s0 - sb, 1e-300)
+
+    def wins(named, u):   # whether u replaces the named candidate
+        un, uu = pair(named, u)
+        named.test = replace(named.test, evidence={**named.test.evidence, f"unique_share_given_{u.effect}": float(un)})
+        margin = (u.test.evidence.get("removed_variance_over_floor", 0.0)
+                  - named.test.evidence.get("removed_variance_over_floor", 0.0))
+        return prefers_unnamed(u.effect, un, SAME_TERM, _heldout_tie(named, u), _heldout_tie(u, named),
+                               margin, floor, named.test.family)
+
+    if choice.effect not in UNNAMED:
+        for u in unnamed:
+            if wins(choice, u):
+                return u
+        return choice
+    named = [r for r in sig if r.effect not in UNNAMED and r.effect != PAYLOAD_COM]
+    keep = [r for r in sorted(named, key=lambda r: -r.test.explained_share) if not wins(r, choice)
+            and pair(choice, r)[0] < SAME_TERM]
+    return keep[0] if keep else choice
 
 
 #: the nuisance term of a payload whose centre of mass is absent from its trials (FORMAT.md: at the
@@ -643,6 +683,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     decl_ms = float(np.mean(ch.declared ** 2)) if ch.declared is not None and ch.declared.size else 0.0
     levels = (None, None)   # fitted Coulomb / viscous levels of the effects selected so far (torque)
     payload = None
+    unnamed, unnamed_step = None, 0
     for step in range(settings.max_effects + (PAYLOAD_COM in by_effect)):
         if len(steps) >= settings.max_effects:
             break
@@ -700,8 +741,13 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         sig = [r for r in rows.values() if r.test.significant]
         if not sig:
             break
-        best = _discriminate(sig, rows, ch, X, d, cache)
+        best = _discriminate(sig, rows, ch, X, d, cache, settings.min_effect_to_floor_global)
         t = best.test
+        if best.effect in UNNAMED:   # outside the vocabulary: never a verdict, the selection stops
+            hp = best.cv.hp_all[1]
+            unnamed, unnamed_step = replace(t, evidence={**t.evidence, "shape_parameter": list(hp) if isinstance(
+                hp, tuple) else hp}), step
+            break
         C, keep = best.cols[best.cv.hp_all].build(d, ch, cache), best.cols[best.cv.hp_all].keep
         if best.effect == PAYLOAD_COM:   # a wrong declaration, not an effect: it joins the nominal
             same = tuple(n for n in GAIN_LIKE if n in rows and rows[n].test.significant
@@ -725,7 +771,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
         by_effect.pop(best.effect)
     n_tested = sum(1 for r in (tested_first or {}).values() if r.test.identifiable)
     return _ChannelRun(nominal_sse, base_cv, n_per_trial, noise, mse_nom, tested_first or {}, steps,
-                       current_sse, n_blocks, p_min, n_tested, design, step_d, extrapolated, payload)
+                       current_sse, n_blocks, p_min, n_tested, design, step_d, extrapolated, payload,
+                       unnamed, unnamed_step)
 
 
 def _stability(res: _ChannelRun, settings: DiagnosisSettings) -> dict:
@@ -889,6 +936,9 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
     nominal = nominal_model(settings.nominal)
     q_range = float(np.ptp(np.percentile(d.q, [0.5, 99.5]))) if d.q.size else None
     cands = [c for c in candidate_effects(gear_ratio, q_range) if families is None or c.family in families]
+    if d.delay_cols is None:   # the torque's own delay is tested on continuous records only
+        cands = [c for c in cands if c.family != "torque_delay"]
+    cands += [c for c in unnamed_candidates(d) if families is None or c.family in families]
     pc = _payload_candidate(d)
     cands += [pc] if pc is not None else []
     channels = [_torque_channel(d, nominal)] + ([None] if d.has_transmission else [])
@@ -918,7 +968,7 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
                             f"gain on the payload's torque): with the COM declared they separate" if same else "")
                          + "; declare the measured payload_com")
         for name, row in res.first.items():
-            if name == PAYLOAD_COM:
+            if name == PAYLOAD_COM or name in UNNAMED:
                 continue
             conf, exp = confounders(name)
             effects.append(replace(row.test, confounded_with=tuple(conf), separating_experiment=exp,
@@ -956,6 +1006,10 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         verdict = "none"
     status, insufficient, next_exp = _status(verdict, runs, power, settings, d, spectrum, localisation,
                                              named, extrapolated, rep_var)
+    config_loc = ()
+    if d.q_all is not None and status in ("unexplained", "none", "effect") and not extrapolated:
+        status, insufficient, next_exp, config_loc = _unnamed_status(
+            d, tres, resid, status, insufficient, next_exp, verdict, notes)
     alternatives = _alternatives(verdict, runs, d)
     if alternatives and not next_exp:
         next_exp = {"why": f"{verdict} and {', '.join(a['effect'] for a in alternatives)} explain the same term",
@@ -975,7 +1029,50 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         status=status, detectable=power, alternatives=alternatives, next_experiment=next_exp,
         spectrum_bands=tuple(spectrum["bands"]) if spectrum else (),
         tests={c: r.design.text for c, r in runs.items() if r.design is not None},
-        extrapolated=extrapolated, series=series, notes=tuple(notes))
+        extrapolated=extrapolated, series=series, notes=tuple(notes),
+        configuration_localisation=tuple(config_loc))
+
+
+def _sample_folds(design: "_TestDesign", n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(held-out fold of every sample, mask of the samples of tested units)."""
+    fold, tested = np.zeros(n, int), np.zeros(n, bool)
+    for (s0, e0), f in zip(design.blocks.tolist(), design.fold.tolist()):   # loop over units
+        fold[s0:e0], tested[s0:e0] = f, True
+    return fold, tested
+
+
+def _unnamed_status(d: JointData, tres: "_ChannelRun", resid: np.ndarray, status: str, text: str,
+                    next_exp: dict, verdict: str, notes: list) -> tuple:
+    """The status when a term outside the vocabulary (:mod:`ident.gap.unnamed`) led a selection
+    step, and where an unexplained gap lies in configuration space. A term that led the first
+    step makes the joint ``unexplained`` (whatever the size of the gap: it passed every gate of an
+    effect); at a later step the verdict stands and a note says what else is there. Returns
+    (status, text, next experiment, configuration localisation rows)."""
+    u = tres.unnamed
+    loc = []
+    if status == "unexplained" or u is not None:
+        fold, tested = _sample_folds(tres.design, resid.shape[0])
+        loc = configuration_localisation(d, resid, fold, tres.noise_floor_mse, tested)
+    top = (f"depends on {loc[0]['variable']} (held out, {loc[0]['share']:.0%} of the gap's excess)"
+           if loc and loc[0]["share"] > 0 else "")
+
+    if u is None:
+        if status == "unexplained" and top:
+            text = f"{text}; in configuration space it {top}"
+        return status, text, next_exp, loc
+    size = u.evidence.get("removed_variance_over_floor")
+    what = (f"{u.shape}, removing {size:.3g} noise variances held out" if size is not None else u.shape)
+    if tres.unnamed_step > 0 or verdict != "none":
+        notes.append(f"beside {verdict}: {what}; not a vocabulary effect" + (f"; the residual {top}" if top else ""))
+        return status, text, next_exp, loc
+    text = (f"a held-out torque gap that no effect of the vocabulary explains: {what}"
+            + (f"; it {top}" if top else ""))
+    nxt = {"why": "a torque outside the effect vocabulary",
+           "proposal": ("check for a spring balancer, a cable or hose, or a rigid-body error on the joints "
+                        "named; the residual is plotted against that variable" if u.effect != "torque_lowpass"
+                        else "check the torque logging chain's filters (a low-pass of the logged torque "
+                             "lags and attenuates it near its cut-off)")}
+    return "unexplained", text, nxt, loc
 
 
 #: the held-out gap above the white-noise floor, in units of the floor's variance, from which a
@@ -1126,6 +1223,15 @@ def _alternatives(verdict: str, runs: dict, d: JointData) -> tuple:
             if o is not None and o.test.significant and x < SAME_TERM and ub is not None and ub < SAME_TERM:
                 out.append({"effect": other, "why": f"explains the same term (unique shares {x:.2f} / {ub:.2f})",
                             "separate_by": confounders(verdict)[1]})
+        # a delay read in the torque alone: a transmission softer than declared (or with lost
+        # motion) makes the link lag the motor, which the rigid-body torque of the motor angle reads
+        # the same way; only the link's own angle (markers) separates them
+        if (verdict == "time_offset" and row.cv is not None and row.cv.hp_all[0].family == "torque_delay"
+                and not d.has_transmission):
+            out.append({"effect": "compliance", "why": "a transmission softer than declared, or backlash, "
+                        "lags the link behind the motor like a delay of the torque against the motor angle",
+                        "separate_by": "markers on the link (the link-motor deflection follows the torque; "
+                                       "a delay does not deflect anything)"})
         # a gear efficiency (FORMAT.md's torque_scale) is friction proportional to the torque the
         # gear passes, i.e. a load-dependent friction in the friction literature: say so when it wins
         if (verdict == "torque_scale" and row.cv is not None and row.cv.hp_all[1] == "efficiency"

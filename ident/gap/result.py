@@ -16,12 +16,14 @@ def _fin(x):
 
 
 def verdict_line(verdict: str, status: str, size: dict, detectable: dict, alternatives=(), channels=None,
-                 extrapolated: float = 0.0) -> str:
-    """One line: ``stribeck: removes 2.1 noise variances (held-out RMS -14 %)``; ``none: the gap is
-    at the noise floor (this record could have shown an effect of 0.12 noise variances)``;
-    ``unexplained: ...``; ``insufficient data: ...`` (``extrapolated``: the share of held-out
-    samples the rest of the record cannot predict, when that is the reason). Alternatives that
-    explain the same term are named with it."""
+                 extrapolated: float = 0.0, where: str = "") -> str:
+    """One line: ``stribeck: removes 2.1 noise variances (held-out RMS -14 %)``; with several
+    selected effects ``position_ripple: removes ... (held-out RMS -15 %); then presliding (-12 %):
+    held-out RMS -32 % in all``; ``none: the gap is at the noise floor (this record could have
+    shown an effect of 0.12 noise variances)``; ``unexplained: ...`` (``where``: the variable the
+    held-out residual depends on, when known); ``insufficient data: ...`` (``extrapolated``: the
+    share of held-out samples the rest of the record cannot predict, when that is the reason).
+    Alternatives that explain the same term are named with it."""
     det = detectable.get("torque") if detectable else None
     dtxt = (f"{det:.2g} noise variances" if det is not None and det == det and det != float("inf")
             else "no effect at all")
@@ -33,9 +35,16 @@ def verdict_line(verdict: str, status: str, size: dict, detectable: dict, altern
                  f" (held-out RMS -{100 * size.get('reduction', 0):.0f} %, {size.get('channel', '')} channel)"
         if alternatives:
             s += "; or " + " or ".join(a["effect"] for a in alternatives) + " (same term: see how to separate)"
+        ch = (channels or {}).get(size.get("channel", "")) if size else None
+        later = [st for st in (ch.selected[1:] if ch is not None else ())]
+        if later and ch.heldout_rms_nominal > 0:
+            s += "; then " + ", ".join(f"{st.effect} (-{100 * st.reduction:.0f} % with it)" for st in later)
+            s += f": held-out RMS -{100 * (1 - ch.heldout_rms_final / ch.heldout_rms_nominal):.0f} % in all"
         return s
     if status == "unexplained":
-        return f"unexplained: a gap above the noise floor that no vocabulary effect explains (could have shown {dtxt})"
+        w = f"; {where}" if where else ""
+        return (f"unexplained: a gap above the noise floor that no vocabulary effect explains{w} "
+                f"(could have shown {dtxt})")
     if status == "insufficient_data" and extrapolated > 0:
         return (f"insufficient data: the record does not repeat its motion ({extrapolated:.0%} of the held-out "
                 "samples extrapolate the nominal model)")
@@ -233,6 +242,7 @@ class DiagnosisResult:
     tests: dict = field(default_factory=dict)          # channel -> how its units were tested
     extrapolated: float = 0.0       # share of held-out torque samples with leverage > 1 (when it decides)
     series: dict = field(default_factory=dict, repr=False, compare=False)   # plots, not in JSON
+    configuration_localisation: tuple = ()   # ({"variable", "share", ...}, ...): what the residual depends on
 
     @property
     def verdict_status(self) -> str:
@@ -242,8 +252,10 @@ class DiagnosisResult:
     def verdict_text(self) -> str:
         """The verdict in one line, the same wherever it is shown (console, study report,
         diagnosis.md, diagnosis.json's ``verdict_text``)."""
+        loc = self.configuration_localisation
+        where = (f"depends on {loc[0]['variable']}" if loc and loc[0].get("share", 0) > 0.1 else "")
         return verdict_line(self.verdict, self.verdict_status, self.effect_size(), self.detectable,
-                            self.alternatives, self.channels, self.extrapolated)
+                            self.alternatives, self.channels, self.extrapolated, where)
 
     def effect_size(self) -> dict:
         """The verdict's size: held-out variance removed over the noise floor, its held-out
@@ -293,4 +305,6 @@ class DiagnosisResult:
             d["unexplained"] = self.insufficient
         if self.notes:
             d["notes"] = list(self.notes)
+        if self.configuration_localisation:
+            d["localisation_configuration"] = [dict(r) for r in self.configuration_localisation]
         return d

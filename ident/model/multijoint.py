@@ -14,8 +14,9 @@ from ident.friction import MODELS
 from ident.model.record import RecordSettings, coupling_matrix, load_record, prepare_record
 from ident.friction.plausibility import Flag, fmt, meaning_line
 from ident.gap import diagnose_joint
-from ident.gap.data import build_joint_data_record, campaign_clock, concat_joint_data
+from ident.gap.data import build_joint_data_record, campaign_clock, concat_joint_data, standstill
 from ident.gap.nominal import check_nominal
+from ident.model.identified import PooledRigidBody, identify_rigid_body, payload_key, record_rigid_body
 from ident.model.regressor import ChainDynamics, base_parameters
 from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
                                    dynamic_data_note, friction_transition, low_speed_cut,
@@ -70,6 +71,8 @@ class MultiJointFits:
     fits: dict
     preprocessing: dict
     seconds: dict = field(default_factory=dict)
+    loads: dict = field(default_factory=dict)     # trial id -> {"load_kg", "payload_com"}
+    payload: dict = field(default_factory=dict)   # pooled identification of free payloads
 
     def trials_entry(self) -> dict:
         """The ``trials`` part of fits.json: trial -> joint -> model -> params/stderr/rms/..."""
@@ -112,9 +115,14 @@ class MultiJointFits:
         return rows
 
     def to_dict(self) -> dict:
-        return {"format": 1, "trials": {tid: {m: f.to_dict() for m, f in bm.items()}
-                                        for tid, bm in self.fits.items()},
-                "preprocessing": self.preprocessing, "seconds": self.seconds}
+        out = {"format": 1, "trials": {tid: {m: f.to_dict() for m, f in bm.items()}
+                                       for tid, bm in self.fits.items()},
+               "preprocessing": self.preprocessing, "seconds": self.seconds}
+        if self.loads:
+            out["loads"] = self.loads
+        if self.payload:
+            out["payload"] = self.payload
+        return out
 
     def merge_into(self, doc: dict) -> dict:
         """fits.json ``doc`` with these trials and summary rows added."""
@@ -128,6 +136,7 @@ class MultiJointFits:
 
     def report(self) -> str:
         lines = ["# Multi-joint identification", ""]
+        lines += loads_report(self.loads, self.payload)
         for tid, by_model in self.fits.items():
             pre = self.preprocessing[tid]
             lines += [f"## Trial `{tid}`", "", "Preprocessing:", ""]
@@ -168,6 +177,50 @@ class MultiJointFits:
         p_md = out / "rigidbody.md"
         p_md.write_text(self.report(), encoding="utf-8")
         return {"rigidbody": p_json, "rigidbody_report": p_md}
+
+
+def _com_text(v) -> str:
+    return "at the flange origin (absent)" if v is None else v if isinstance(v, str) else (
+        "[" + ", ".join(f"{x:.4g}" for x in v) + "] m")
+
+
+def loads_report(loads: dict, payload: dict) -> list:
+    """Markdown lines: which record carries which load, and the pooled payload identification."""
+    if not loads:
+        return []
+    lines = ["## Loads", "", "| record | load kg | payload_com |", "|---|---|---|"]
+    lines += [f"| `{tid}` | {v['load_kg']:g} | {_com_text(v.get('payload_com'))} |" for tid, v in loads.items()]
+    lines.append("")
+    for key, e in payload.items():
+        recs = ", ".join(f"`{r}`" for r in e.get("record_ids", []))
+        if "com_flange_m" in e:
+            com = ", ".join(f"{c * 1e3:.1f} +- {s * 1e3:.1f}" for c, s in zip(e["com_flange_m"], e["com_stderr_m"]))
+            lines.append(f"Payload {e['mass_kg']:g} kg on {recs}, identified on every joint of every record at "
+                         f"once (its mass as declared, its centre of mass and inertia free): centre of mass in "
+                         f"the flange frame [{com}] mm.")
+        if e.get("note"):
+            lines.append(f"Payload {e['mass_kg']:g} kg on {recs}: {e['note']}.")
+    return lines + [""]
+
+
+def pooled_payload(robot, trials, recs) -> tuple[dict, dict]:
+    """(loads, payload): which trial carries which load, and the pooled identification
+    (:func:`identified_rigid_body`) of every payload whose centre of mass is not declared.
+    ``recs``: each trial's prepared record."""
+    loads = {tr.id: {"load_kg": float(tr.load_kg),
+                     "payload_com": (getattr(tr, "extra", None) or {}).get("payload_com")}
+             for tr in trials}
+    if not any(tr.load_kg > 0 for tr in trials):
+        return {}, {}
+    if not any(payload_key(tr) is not None for tr in trials):
+        return loads, {}
+    pooled = identified_rigid_body(robot, [([i], rec) for i, rec in enumerate(recs)], trials)
+    payload = {}
+    for key, e in pooled.payload.items():
+        e = dict(e)
+        e["record_ids"] = [trials[k].id for k in e.pop("records")]
+        payload[f"{key:g}kg"] = e
+    return loads, payload
 
 
 def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | None = None,
@@ -222,6 +275,7 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
     base = base_parameters(chain, robot.lower, robot.upper, seed=seed)
     fits, pre, secs = {}, {}, {}
     dyn_note = dynamic_data_note(models, {t.kind for t in campaign.trials})
+    done = []
     for tr in multijoint_trials(campaign):
         t0 = time.perf_counter()
         rec = without_unlogged(load_record(campaign, tr, robot, record))
@@ -252,7 +306,9 @@ def fit_multijoint_campaign(campaign, models=("cv",), record: RecordSettings | N
                             fits[tr.id], used=idts[models[0]]._mask(rec)[0])
         _PREPARED.clear()                  # the shared design of this record is not needed again
         secs[tr.id] = time.perf_counter() - t0
-    return MultiJointFits(fits, pre, secs)
+        done.append((tr, rec))
+    loads, payload = pooled_payload(robot, [t for t, _ in done], [r for _, r in done])
+    return MultiJointFits(fits, pre, secs, loads, payload)
 
 
 def log_record_fits(sink, trial_id: str, rec, predicted: dict, fits: dict, used=None) -> None:
@@ -506,6 +562,22 @@ def _join_logs(logs):
                     source=logs[0].source)
 
 
+def identified_rigid_body(robot, recs: list, trials) -> PooledRigidBody:
+    """The rigid body identified on every joint of every record of a campaign
+    (:func:`ident.model.identified.identify_rigid_body`): ``recs`` as ``(trial indices, record)``;
+    each joint's moving samples (the diagnosis's: not at a standstill, above 0.02 rad/s)."""
+    chain = ChainDynamics.from_model(robot.model)
+    rigid = [record_rigid_body(robot, chain, rec.q, rec.qd, rec.qdd, trials[g[0]]) for g, rec in recs]
+    keeps = []
+    for _, rec in recs:
+        kp = np.zeros(rec.q.shape, bool)
+        for j in rec.moving:
+            if j not in rec.unlogged:
+                kp[:, j - 1] = ~standstill(rec.t, rec.qd[:, j - 1]) & (np.abs(rec.qd[:, j - 1]) >= 0.02)
+        keeps.append(kp)
+    return identify_rigid_body(robot, rigid, [(rec.qd, rec.qdd, rec.tau) for _, rec in recs], keeps)
+
+
 def diagnose_records(campaign, robot, settings, joints=None, record: RecordSettings | None = None,
                      n_segments: int | None = None, progress: bool = False) -> tuple[dict, dict]:
     """Run the gap diagnosis on every moving joint of the campaign's multi-joint trials.
@@ -567,6 +639,7 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
                                                        unlogged_torque=unl), robot.n, C,
                                        record)))
     offsets = campaign_clock([SimpleNamespace(time=rec.t) for _, rec in recs])
+    pooled = identified_rigid_body(robot, recs, trials)
     reports, series = {}, {}
     moving = sorted({j for g, rec in recs for j in rec.moving})
     unlogged = sorted({j for g, rec in recs for j in rec.unlogged
@@ -585,8 +658,9 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
                 if j in rec.moving and j not in rec.unlogged]
         if not mine:
             continue
-        parts = [build_joint_data_record(j, robot=robot, n_segments=n_segments, **rec.gap_inputs())
-                 for _, _, rec in mine]
+        parts = [build_joint_data_record(j, robot=robot, n_segments=n_segments, tau_fixed=pooled.torque[k][:, j - 1],
+                                         signals=True, **rec.gap_inputs())
+                 for k, _, rec in mine]
         d = concat_joint_data(parts, [offsets[k] for k, _, _ in mine])
         res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
         rep = res.to_dict()
@@ -595,7 +669,20 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
                  if n_segments is None else
                  f"leave-one-segment-out ({d.n_trials} segments of whole motion cycles, "
                  f"{n_segments} asked)")
+        # the nominal's held-out RMS on each record (a loaded record is diagnosed as well as an
+        # unloaded one when the payload is in the identified nominal)
+        r_nom, tr_idx = res.series["residual_nominal"], res.series["trial"]
+        bounds = np.cumsum([0] + [p.n_trials for p in parts])
+        by_rec = {}
+        for i, (_, _, rec) in enumerate(mine):
+            m = (tr_idx >= bounds[i]) & (tr_idx < bounds[i + 1]) & (r_nom != 0)
+            by_rec[rec.trial_id] = float(np.sqrt(np.mean(r_nom[m] ** 2))) if m.any() else None
+        if pooled.payload:
+            rep["payload_identified"] = {f"{k:g}kg": {**{kk: vv for kk, vv in e.items() if kk != "records"},
+                                                      "record_ids": [recs[i][1].trial_id for i in e["records"]]}
+                                         for k, e in pooled.payload.items()}
         rep["record"] = {"trial": " | ".join(rec.trial_id for _, _, rec in mine),
+                         "heldout_rms_nominal_by_record": by_rec,
                          "pieces": [[trials[i].id for i in g] for _, g, _ in mine],
                          "preprocessing": (mine[0][2].preprocessing if len(mine) == 1 else
                                            {rec.trial_id: rec.preprocessing for _, _, rec in mine}),

@@ -1,0 +1,228 @@
+"""The gap diagnosis on multi-joint, marker-less records of an independent world.
+
+``../shared/worlds/foreign/make_world.py --record multi``: every joint moves at once in one
+record, payloads, and effects outside the vocabulary (README of the world). For every robot x
+effect x seed the campaign is generated (cached in ``--corpus``), ``jointlab diagnose`` runs on
+it, and each joint's verdict is scored against the truth file:
+
+* in-vocabulary friction/torque effects on their joint: named, or named as the first
+  alternative where the registry declares the pair confusable (compliance and backlash are
+  listed apart: the torque alone does not show a transmission's deflection);
+* ``sensor_lag`` with a pure delay (FORMAT.md's ``time_offset``): ``time_offset``; with a
+  low-pass: ``unexplained``;
+* ``counterbalance`` and ``cable_drag``: ``unexplained`` with the right variable first in the
+  configuration-space localisation (q2 for the counterbalance, the other joint's angle for the
+  cable);
+* ``urdf_inertia_error``, ``payload_inertia``: ``none`` on every joint (the identified nominal
+  absorbs them);
+* every joint that carries no effect: a verdict with status ``effect`` is a false attribution.
+
+    python benchmarks/gap_multi.py --corpus DIR [--robots ind6,tri3] [--seeds 1,2,3] [--workers 2]
+    python benchmarks/gap_multi.py --summarize RESULTS.json
+
+Nothing here reads the world's code; the truth files are read only to score.
+"""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from multiprocessing import get_context
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+# benchmarks/ident.py would shadow the package when this folder is on the path (python benchmarks/...)
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
+WORLD = HERE.parents[1] / "shared" / "worlds" / "foreign"
+IN_VOCAB = ("stribeck", "presliding", "position_ripple", "load_dependent", "thermal_drift", "torque_scale",
+            "asymmetry", "nonlinear_viscous")
+TRANSMISSION = ("compliance", "backlash")
+OUTSIDE = ("counterbalance", "cable_drag", "sensor_lag", "urdf_inertia_error", "payload_inertia")
+EFFECTS = ("none",) + OUTSIDE + IN_VOCAB + TRANSMISSION
+
+
+def campaign(corpus: Path, robot: str, effect: str, seed: int) -> Path:
+    """The campaign (generated when missing; a private temporary name renamed into place)."""
+    name = f"{robot}-{effect}-s{seed}"
+    out = corpus / name
+    if (out / "campaign.toml").is_file() and (corpus / f"{name}.truth.json").is_file():
+        return out
+    tmp = corpus / f"{name}.tmp{os.getpid()}"
+    cmd = [sys.executable, str(WORLD / "make_world.py"), str(tmp), "--seed", str(seed), "--record", "multi",
+           "--effect", effect, "--robot", robot]
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    if r.returncode != 0:
+        raise RuntimeError(f"make_world {' '.join(cmd[3:])}: {(r.stderr or r.stdout).strip()[-300:]}")
+    for suf in (".truth.json", ".truth.npz"):
+        os.replace(f"{tmp}{suf}", corpus / f"{name}{suf}")
+    os.replace(tmp, out)
+    return out
+
+
+def diagnose(path: Path) -> tuple[dict | None, float, str | None]:
+    """``jointlab diagnose`` in this process: (diagnosis.json, CPU seconds, error)."""
+    from ident.cli.main import main as cli
+
+    with tempfile.TemporaryDirectory(prefix="jointlab-gapmulti-") as wd:
+        out = Path(wd) / "out"
+        c0 = time.process_time()
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+            try:
+                rc = cli(["diagnose", str(path), "--out", str(out)])
+            except Exception as exc:   # a crash is a result
+                return None, time.process_time() - c0, f"{type(exc).__name__}: {exc}"
+        cpu = time.process_time() - c0
+        if rc != 0:
+            return None, cpu, f"rc={rc}: {buf.getvalue().strip()[-300:]}"
+        return json.loads((out / "diagnosis.json").read_text()), cpu, None
+
+
+def _loc_top(jr: dict) -> str | None:
+    loc = jr.get("localisation_configuration") or []
+    return loc[0]["variable"] if loc else None
+
+
+def score(truth: dict, rep: dict) -> list[dict]:
+    """One row per joint: what it carries, its verdict and whether that is right."""
+    effects = {int(e["joint"]): e for e in truth["effects"] if e.get("joint")}
+    rows = []
+    for js, jr in sorted(rep["joints"].items(), key=lambda kv: int(kv[0])):
+        j = int(js)
+        e = effects.get(j)
+        status, verdict = jr.get("verdict_status"), jr.get("verdict")
+        alts = [a.get("effect") for a in jr.get("alternatives", [])]
+        row = {"joint": j, "verdict": verdict, "status": status, "alternatives": alts,
+               "where": _loc_top(jr), "text": jr.get("verdict_text")}
+        name = (e or {}).get("effect")
+        if name is None or name == "none":
+            row.update(kind="clean", correct=status != "effect")
+        elif name in ("urdf_inertia_error", "payload_inertia"):
+            row.update(kind="absorbed", correct=status == "none")
+        elif name == "sensor_lag" and e.get("form") == "delay":
+            row.update(kind="delay", correct=verdict == "time_offset")
+        elif name == "sensor_lag":
+            row.update(kind="lowpass", correct=status == "unexplained")
+        elif name == "counterbalance":
+            row.update(kind="counterbalance", correct=status == "unexplained" and row["where"] == "q2")
+        elif name == "cable_drag":
+            k = int(e["params"]["other_joint"])
+            row.update(kind="cable", correct=status == "unexplained" and row["where"] == f"q{k}", other=k)
+        elif name in TRANSMISSION:
+            row.update(kind="transmission", correct=verdict == name or (alts[:1] == [name]))
+        else:
+            row.update(kind="in_vocabulary", correct=verdict == name or (alts[:1] == [name]),
+                       exact=verdict == name)
+        row["effect"] = name or "none"
+        row["form"] = (e or {}).get("form")
+        rows.append(row)
+    # payload / URDF errors: every joint none
+    if any(e.get("effect") in ("urdf_inertia_error", "payload_inertia") for e in truth["effects"]):
+        for r in rows:
+            if r["kind"] == "clean":
+                r["kind"], r["correct"] = "absorbed_other", r["status"] == "none"
+    return rows
+
+
+def run_one(job) -> dict:
+    corpus, robot, effect, seed = job
+    t0 = time.perf_counter()
+    try:
+        path = campaign(Path(corpus), robot, effect, seed)
+    except Exception as exc:
+        return {"robot": robot, "effect": effect, "seed": seed, "error": str(exc)}
+    gen = time.perf_counter() - t0
+    rep, cpu, err = diagnose(path)
+    out = {"robot": robot, "effect": effect, "seed": seed, "gen_s": gen, "diagnose_cpu_s": cpu}
+    if err:
+        out["error"] = err
+        return out
+    truth = json.loads((Path(corpus) / f"{path.name}.truth.json").read_text())
+    out["rows"] = score(truth, rep)
+    out["log_hz"] = truth.get("rates", {}).get("log_hz")
+    out["record_s"] = None
+    return out
+
+
+def summarize(results: list) -> dict:
+    by = {}
+    for r in results:
+        for row in r.get("rows", []):
+            by.setdefault(row["kind"], []).append((r, row))
+    lines, summary = [], {}
+    goals = {"in_vocabulary": 0.9, "delay": 0.9, "lowpass": 0.9, "counterbalance": 0.9, "cable": 0.9,
+             "absorbed": 0.9, "absorbed_other": 0.9}
+    for kind in ("in_vocabulary", "transmission", "delay", "lowpass", "counterbalance", "cable", "absorbed",
+                 "absorbed_other", "clean"):
+        rows = by.get(kind, [])
+        if not rows:
+            continue
+        ok = sum(1 for _, x in rows if x["correct"])
+        summary[kind] = {"correct": ok, "n": len(rows)}
+        label = {"clean": "joints without an effect: not attributed"}.get(kind, kind)
+        goal = (f"; goal >= {goals[kind]:g}" if kind in goals else "; goal: 0 false attributions"
+                if kind == "clean" else "")
+        lines.append(f"{label}: {ok} of {len(rows)} ({ok / len(rows):.3f}{goal})")
+    errs = [r for r in results if r.get("error")]
+    cpu = sorted(r["diagnose_cpu_s"] for r in results if "diagnose_cpu_s" in r)
+    if cpu:
+        lines.append(f"diagnose CPU per campaign: median {cpu[len(cpu) // 2]:.1f} s, max {cpu[-1]:.1f} s "
+                     f"({len(cpu)} campaigns)")
+    for kind in ("in_vocabulary", "transmission", "delay", "lowpass", "counterbalance", "cable", "absorbed",
+                 "absorbed_other", "clean"):
+        for r, x in by.get(kind, []):
+            if not x["correct"]:
+                lines.append(f"  miss [{kind}] {r['robot']}-{r['effect']}-s{r['seed']} joint {x['joint']} "
+                             f"({x['effect']}/{x['form']}): {x['text']}")
+    for r in errs:
+        lines.append(f"  error {r['robot']}-{r['effect']}-s{r['seed']}: {r['error']}")
+    return {"summary": summary, "lines": lines}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--corpus", default=os.environ.get("JOINTLAB_CORPUS", str(Path.home() / ".cache" / "jointlab"
+                                                                            / "foreign-multi")))
+    ap.add_argument("--robots", default="ind6,tri3")
+    ap.add_argument("--seeds", default="1,2,3")
+    ap.add_argument("--effects", default=",".join(EFFECTS))
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--out", default=None, help="results JSON (default benchmarks/results/gap/multi-<date>.json)")
+    ap.add_argument("--summarize", default=None, help="reprint a results file")
+    a = ap.parse_args(argv)
+    if a.summarize:
+        res = json.loads(Path(a.summarize).read_text())
+        print("\n".join(summarize(res["results"])["lines"]))
+        return 0
+    corpus = Path(a.corpus)
+    corpus.mkdir(parents=True, exist_ok=True)
+    jobs = [(str(corpus), r, e, int(s)) for s in a.seeds.split(",") for r in a.robots.split(",")
+            for e in a.effects.split(",") if e]
+    results = []
+    ctx = get_context("spawn")
+    with ctx.Pool(a.workers) as pool:
+        for i, r in enumerate(pool.imap(run_one, jobs)):
+            results.append(r)
+            bad = [x for x in r.get("rows", []) if not x["correct"]]
+            print(f"[{i + 1}/{len(jobs)}] {r['robot']}-{r['effect']}-s{r['seed']}: "
+                  + (r.get("error") or ("ok" if not bad else "; ".join(f"j{x['joint']} {x['text']}" for x in bad))),
+                  flush=True)
+    summ = summarize(results)
+    print("\n".join(summ["lines"]))
+    out = Path(a.out) if a.out else HERE / "results" / "gap" / "multi-records.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"command": " ".join(["python", "benchmarks/gap_multi.py"] + (argv or sys.argv[1:])),
+                               "summary": summ["summary"], "results": results}, indent=1))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
