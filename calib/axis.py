@@ -643,7 +643,7 @@ def fit_circle_bcls(points: np.ndarray, sigma2: float | None = None):
     >>> t = np.linspace(0.0, 2.0, 50)
     >>> pts = np.stack([0.1 + 0.2 * np.cos(t), 0.2 * np.sin(t), np.full_like(t, 0.3)], axis=1)
     >>> centre, normal, radius, *_ = fit_circle_bcls(pts, sigma2=0.0)
-    >>> np.round(centre, 6).tolist(), round(radius, 6)
+    >>> (np.round(centre, 6) + 0.0).tolist(), round(radius, 6)
     ([0.1, 0.0, 0.3], 0.2)
     """
     X = np.asarray(points, float)

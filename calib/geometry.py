@@ -38,7 +38,8 @@ def chart_coords(q: np.ndarray, m: np.ndarray, p0: np.ndarray, n0: np.ndarray,
     The z axis shifted by 2 cm along x, around the z axis:
 
     >>> e = np.eye(3)
-    >>> chart_coords(np.array([0.02, 0.0, 0.5]), e[2], np.zeros(3), e[2], e[0], e[1]).tolist()
+    >>> c = chart_coords(np.array([0.02, 0.0, 0.5]), e[2], np.zeros(3), e[2], e[0], e[1])
+    >>> (c.round(12) + 0.0).tolist()
     [0.0, 0.0, 0.02, 0.0]
     """
     m = np.asarray(m, float)
@@ -72,7 +73,7 @@ def chart_line(phi: np.ndarray, p0: np.ndarray, n0: np.ndarray, u: np.ndarray,
     --------
     >>> e = np.eye(3)
     >>> point, n = chart_line(np.array([0.0, 0.0, 0.02, 0.0]), np.zeros(3), e[2], e[0], e[1])
-    >>> point.tolist(), n.tolist()
+    >>> (point.round(12) + 0.0).tolist(), (n.round(12) + 0.0).tolist()
     ([0.02, 0.0, 0.0], [0.0, 0.0, 1.0])
     """
     n = unit(n0 + phi[0] * u + phi[1] * v)
@@ -123,7 +124,7 @@ def line_distance(p1, n1, p2, n2) -> tuple[float, np.ndarray]:
 
     >>> d, mid = line_distance(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]),
     ...                        np.array([0, 1.0, 0]))
-    >>> d, mid.tolist()
+    >>> round(float(d), 12), (mid.round(12) + 0.0).tolist()
     (1.0, [0.0, 0.0, 0.5])
     """
     w = p1 - p2

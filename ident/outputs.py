@@ -181,7 +181,7 @@ class OutputDir:
         except (OSError, ValueError):
             return {}
         files = doc.get("files") if isinstance(doc, dict) else None
-        return {k: v for k, v in (files or {}).items() if isinstance(v, dict)}
+        return {k: v for k, v in files.items() if isinstance(v, dict)} if isinstance(files, dict) else {}
 
     def _save(self, files: dict) -> None:
         data = json.dumps({"format": 1, "files": dict(sorted(files.items()))}, indent=1)

@@ -214,17 +214,23 @@ def _spawn_study(camp, out):
                             start_new_session=True)
 
 
-def _workers(pid: int, n: int = 2, timeout: float = 120.0) -> list[int]:
-    """The pids of ``pid``'s child processes once ``n`` exist (the pool has started)."""
+def _workers(p, n: int = 2, timeout: float = 300.0) -> list[int]:
+    """The pids of ``p``'s child processes once ``n`` exist (the pool has started), waited for
+    at most ``timeout`` s (a generous deadline: the condition, not a time, ends the wait;
+    every thread's children are read); [] when the study ended first."""
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
-        try:
-            kids = (Path(f"/proc/{pid}/task/{pid}/children").read_text().split())
-        except OSError:
+        if p.poll() is not None:
             return []
+        kids = []
+        for task in Path(f"/proc/{p.pid}/task").glob("*"):
+            try:
+                kids += [int(k) for k in (task / "children").read_text().split()]
+            except OSError:
+                pass
         if len(kids) >= n:
-            return [int(k) for k in kids]
-        time.sleep(0.01)
+            return kids
+        time.sleep(0.005)
     return []
 
 
@@ -236,13 +242,22 @@ def test_fault_with_two_workers_is_one_line_and_resumes_to_a_clean_run(tiny, tmp
                  "--starts", "2", "--no-rrd", "--no-plots", "--quiet"]) == 0
     out = tmp_path / "out"
     p = _spawn_study(tiny, out)
-    kids = _workers(p.pid)
-    assert kids, "the worker pool never started"
+    kids = _workers(p)
+    assert kids, f"the worker pool was never seen (status {p.poll()})"
     if fault == "kill-worker":
         os.kill(kids[0], signal.SIGKILL)
     else:
         os.killpg(p.pid, signal.SIGINT)                     # what a terminal's Ctrl-C does
-    _, err = p.communicate(timeout=300)
+    try:
+        _, err = p.communicate(timeout=600)     # a deadline for a hang, not a timing
+    except subprocess.TimeoutExpired:
+        for pid in [p.pid, *kids]:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+        p.communicate()
+        raise AssertionError(f"the study did not end after the {fault}")
     err = err.decode().strip().splitlines()
     assert p.returncode == (1 if fault == "kill-worker" else 130), err
     assert len(err) == 1, err
@@ -250,6 +265,6 @@ def test_fault_with_two_workers_is_one_line_and_resumes_to_a_clean_run(tiny, tmp
         err[0] == "jointlab: interrupted; rerun to resume"
     assert "Traceback" not in "\n".join(err)
     p = _spawn_study(tiny, out)                             # resume, undisturbed
-    _, err = p.communicate(timeout=300)
+    _, err = p.communicate(timeout=600)
     assert p.returncode == 0, err.decode()
     _same_as_clean(out, clean2)

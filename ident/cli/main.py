@@ -6,19 +6,38 @@ from :func:`add_common`. User input errors print one line and exit 2, without a 
 """
 from __future__ import annotations
 
-import argparse
-import importlib
-import json
-import pkgutil
 import sys
-import warnings
-from pathlib import Path
 
-from mocap.io.errors import InputError, InputWarning
+INTERRUPTED = "jointlab: interrupted; rerun to resume"
+TERMINATED = "jointlab: terminated (SIGTERM); rerun to resume"
 
-from ident.cli import commands
-from ident.outputs import LOCK, MANIFEST, STAGE_DIR, check_out_dir as _check_out_dir
-from ident.study.executor import WorkerLost
+try:        # a Ctrl-C while the modules load (seconds on a cold disk): one line, exit 130
+    import argparse
+    import importlib
+    import json
+    import pkgutil
+    import signal
+    import warnings
+    from pathlib import Path
+
+    from mocap.io.errors import InputError, InputWarning
+
+    from ident.cli import commands
+    from ident.outputs import LOCK, MANIFEST, STAGE_DIR, check_out_dir as _check_out_dir
+    from ident.study.executor import WorkerLost
+except KeyboardInterrupt:
+    print(INTERRUPTED, file=sys.stderr)
+    raise SystemExit(130) from None
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler's or an OOM killer's polite stop), raised in the main thread like
+    Ctrl-C: the same cleanup (pool workers stopped, temporary files removed, the finished
+    items' records kept), then one line and exit status 143 (128 + 15)."""
+
+
+def _on_sigterm(signum, frame):
+    raise Terminated()
 
 
 def add_common(p: argparse.ArgumentParser, out: bool = True, out_required: bool = False,
@@ -119,16 +138,41 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    try:
-        parser = build_parser()
-        args = parser.parse_args(argv)
-    except KeyboardInterrupt:
-        print("jointlab: interrupted; rerun to resume", file=sys.stderr)
-        return 130
-    with warnings.catch_warnings():
-        warnings.simplefilter("default", InputWarning)       # each distinct warning once
-        warnings.showwarning = _show_input_warning
-        return _run(args)
+    with _sigterm_raises():
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+        except Terminated:
+            print(TERMINATED, file=sys.stderr)
+            return 143
+        except KeyboardInterrupt:
+            print(INTERRUPTED, file=sys.stderr)
+            return 130
+        with warnings.catch_warnings():
+            warnings.simplefilter("default", InputWarning)       # each distinct warning once
+            warnings.showwarning = _show_input_warning
+            return _run(args)
+
+
+class _sigterm_raises:
+    """SIGTERM raises :class:`Terminated` while a command runs (main thread only; the previous
+    handler is restored afterwards, so a program calling :func:`main` keeps its own)."""
+
+    def __enter__(self):
+        self.old = None
+        try:
+            self.old = signal.signal(signal.SIGTERM, _on_sigterm)
+        except (ValueError, OSError, AttributeError):      # not the main thread
+            pass
+        return self
+
+    def __exit__(self, *exc):
+        if self.old is not None:
+            try:
+                signal.signal(signal.SIGTERM, self.old)
+            except (ValueError, OSError):
+                pass
+        return False
 
 
 def _show_input_warning(message, category, filename, lineno, file=None, line=None):
@@ -180,8 +224,12 @@ def _run(args) -> int:
         print(f"jointlab: error: {_os_error_line(exc)}", file=sys.stderr)
         status = 2
         return status
+    except Terminated:
+        print(TERMINATED, file=sys.stderr)
+        status = 143
+        return status
     except KeyboardInterrupt:
-        print("jointlab: interrupted; rerun to resume", file=sys.stderr)
+        print(INTERRUPTED, file=sys.stderr)
         status = 130
         return status
     finally:

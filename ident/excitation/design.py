@@ -169,8 +169,8 @@ class ExcitationDesigner:
 
     >>> limits = DesignLimits(q_lower=-1.0, q_upper=1.0, qd_max=2.0, qdd_max=10.0)
     >>> design = ExcitationDesigner(n_starts=2, seed=0).fit(limits, vmax_frac=0.5)
-    >>> design.feasible, round(design.peak_speed, 6), design.cond < 10.0
-    (True, 1.0, True)
+    >>> design.feasible, abs(design.peak_speed - 1.0) < 1e-3, design.cond < 10.0
+    (True, True, True)
     >>> t, q, qd, qdd = design.trajectory(n=501)
     >>> bool(-1.0 <= q.min() and q.max() <= 1.0), round(float(abs(qd[0])), 9)
     (True, 0.0)

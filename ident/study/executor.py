@@ -1,9 +1,10 @@
 """The one executor seam for batch work: serial, a local process pool, or a Dask cluster.
 
 Every executor maps a top-level (picklable) function over items and yields results in input
-order, with a progress bar on stderr. Worker processes run with one BLAS thread each
-(OPENBLAS_NUM_THREADS=1 via threadpoolctl): on 2-core machines that was measured 2-10x faster
-and steadier for the small solves here.
+order, with a progress bar on stderr where stderr is a terminal (:func:`progress_bars`). Worker
+processes run with one BLAS thread each (OPENBLAS_NUM_THREADS=1 via threadpoolctl): on 2-core
+machines that was measured 2-10x faster and steadier for the small solves here. Pool workers
+end with the process that started them (:func:`_die_with_parent`).
 """
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ import os
 import re
 import signal
 import sys
+import threading
+import time
 from typing import Callable, Iterable
 
 from ident.outputs import cap_workers
@@ -29,34 +32,100 @@ def _worker_lost(desc: str) -> WorkerLost:
                       "the finished items are kept, rerun to resume")
 
 
+def progress_bars(enabled: bool = True, stream=None) -> bool:
+    """Whether to draw progress bars: asked for, and ``stream`` (stderr) is a terminal. In a
+    log, a pipe or a file a bar's carriage returns would pile up; the study's one line per
+    stage says what runs instead."""
+    stream = sys.stderr if stream is None else stream
+    try:
+        return bool(enabled) and stream.isatty()
+    except (AttributeError, ValueError, OSError):     # closed or replaced stderr
+        return False
+
+
 def _progress(it, total: int, desc: str, enabled: bool):
-    if not enabled:
+    if not progress_bars(enabled):
         return it
     from tqdm import tqdm
 
     return tqdm(it, total=total, desc=desc, unit="task", leave=False)
 
 
-def _init_pool_worker():
+#: Linux ``prctl`` option: the signal a process gets when the thread that forked it ends
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent: int, pdeathsig: bool) -> None:
+    """Make this pool worker end when the process that started the pool (``parent``) ends,
+    however it ends (SIGKILL, out of memory): a worker left behind would hold its caller's
+    pipes and the work it was given, and a resume of the study would find it still running.
+
+    Two mechanisms: on Linux the kernel's parent-death signal (``prctl(PR_SET_PDEATHSIG,
+    SIGKILL)``; set only when ``pdeathsig``, i.e. the pool was started from the main thread,
+    since the signal follows the forking *thread*, and only when ``parent`` forked this process
+    itself), and everywhere a daemon thread that ends the process within about 0.2 s once its
+    parent process is no longer the one it started under (``os.getppid()`` changes when a
+    process is re-parented)."""
+    ppid = os.getppid()
+    if ppid == parent and pdeathsig and sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+        ppid = os.getppid()        # the parent may have ended before the signal was set
+    if ppid != parent and not _alive(parent):
+        os._exit(1)
+
+    def watch():
+        while os.getppid() == ppid:  # loop until re-parented
+            time.sleep(0.2)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="jointlab-parent-watch", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:                # another user's process: alive
+        return True
+    return True
+
+
+def _init_pool_worker(parent: int | None = None, pdeathsig: bool = False):
     """A pool worker ignores Ctrl-C: the terminal sends SIGINT to the whole process group, and
     the main process alone reports it (one line) and stops the pool. (The worker was forked
-    with SIGINT blocked, see :func:`_sigint_blocked`; a Ctrl-C pending since then is dropped.)"""
+    with SIGINT blocked, see :func:`_sigint_blocked`; a Ctrl-C pending since then is dropped.)
+    SIGTERM ends it at once (the main process's handler, inherited by the fork, is reset). It
+    lets go of the study lock it inherited and ends with its parent (:func:`_die_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    from ident.study.lock import drop_inherited
+
+    drop_inherited()
+    if parent is not None:
+        _die_with_parent(parent, pdeathsig)
     _init_worker()
 
 
 class _sigint_blocked:
-    """SIGINT blocked in this thread while worker processes are forked: a Ctrl-C that lands
-    during ``fork`` would otherwise be raised inside the interpreter's at-fork hooks, where
-    Python prints and ignores it (in the parent and the child). Unblocked afterwards, a pending
-    Ctrl-C is raised here as a plain KeyboardInterrupt."""
+    """SIGINT and SIGTERM blocked in this thread while worker processes are forked: a Ctrl-C
+    that lands during ``fork`` would otherwise be raised inside the interpreter's at-fork hooks,
+    where Python prints and ignores it (in the parent and the child). Unblocked afterwards, a
+    pending Ctrl-C is raised here as a plain KeyboardInterrupt (a SIGTERM as what its handler
+    raises)."""
 
     def __enter__(self):
         self.old = None
         if hasattr(signal, "pthread_sigmask"):
-            self.old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            self.old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         return self
 
     def __exit__(self, *exc):
@@ -154,6 +223,8 @@ class SerialExecutor:
     def close(self):
         pass
 
+    abort = close
+
 
 class Pending:
     """A mapped batch in flight: ``result()`` waits for it and returns the results in input
@@ -213,7 +284,9 @@ class PoolExecutor:
         try:
             with _sigint_blocked():        # workers are forked inside submit()
                 if self._pool is None:
-                    self._pool = ProcessPoolExecutor(self.workers, initializer=_init_pool_worker)
+                    main = threading.current_thread() is threading.main_thread()
+                    self._pool = ProcessPoolExecutor(self.workers, initializer=_init_pool_worker,
+                                                     initargs=(os.getpid(), main))
                 futs = [self._pool.submit(_run_and_release, fn, x) for x in items]
         except BrokenProcessPool:      # a worker died before this batch was queued
             self._kill()
@@ -241,7 +314,9 @@ class PoolExecutor:
             raise
 
     def _kill(self):
-        """Stop every worker now (pending work cancelled)."""
+        """Stop every worker now (pending work cancelled): SIGKILL, which no worker can ignore
+        or be stuck past (a worker holds nothing that needs cleaning up: its outputs are
+        written under temporary names and renamed)."""
         pool, self._pool = self._pool, None
         if pool is None:
             return
@@ -249,8 +324,8 @@ class PoolExecutor:
         manager = getattr(pool, "_executor_manager_thread", None)   # shutdown() drops it
         for p in procs:
             try:
-                p.terminate()
-            except (OSError, AttributeError):
+                p.kill()
+            except (OSError, AttributeError, ValueError):
                 pass
         try:
             pool.shutdown(wait=False, cancel_futures=True)
@@ -259,9 +334,14 @@ class PoolExecutor:
         for p in procs:
             try:
                 p.join(5)
-            except (OSError, AssertionError, AttributeError):
+            except (OSError, AssertionError, AttributeError, ValueError):
                 pass
         _release_manager(manager)
+
+    def abort(self):
+        """Stop the workers now, unfinished work dropped (the command is failing or being
+        interrupted: nothing waits for queued items)."""
+        self._kill()
 
     def close(self):
         if self._pool is not None:
@@ -306,6 +386,8 @@ class DaskExecutor:
     def close(self):
         if self._own:
             self.client.close()
+
+    abort = close
 
 
 _SCHEDULER_URL = re.compile(r"^(tcp|tls|ws|wss|ucx|inproc)://[^\s/:]+(:[0-9]{1,5})?/?$")

@@ -207,5 +207,7 @@ def read_record(path, input_hash: str, version: int, file_sha: str | None = None
         if not (isinstance(outputs, dict) and all(isinstance(v, str) for v in outputs.values())):
             return None, "bad output list"
         return {"result": decode(payload), "outputs": outputs}, None
-    except (UnicodeDecodeError, ValueError, TypeError, KeyError, RecordError, RecursionError) as exc:
+    except (UnicodeDecodeError, ValueError, TypeError, KeyError, RecordError, RecursionError,
+            OverflowError, AttributeError, IndexError, MemoryError) as exc:
+        # any damage (truncated, not UTF-8, a value of the wrong type or size) means recompute
         return None, f"not a valid study record ({type(exc).__name__})"

@@ -53,7 +53,7 @@ from typing import Callable
 
 import numpy as np
 
-from calib.pipeline import calibrate, log_calibration, summary_markdown
+from calib.pipeline import CalibResult, calibrate, log_calibration, summary_markdown
 from ident.coastdown.campaign_analysis import analyse_campaign, coastdown_table, write_coastdown
 from ident.common import to_jsonable as _jsonable
 from ident.gap import DiagnosisSettings
@@ -62,9 +62,10 @@ from ident.gap.campaign_diagnosis import (diagnose_single_joint_campaign, load_a
 from ident.gap.report import make_plots, markdown, write_report
 from ident.model.multijoint import diagnose_records, fit_multijoint_campaign
 from ident.model.onelink import model_class
-from ident.outputs import FolderLock, OutputDir, file_sha256
+from ident.outputs import OutputDir, file_sha256
 from ident.signals.smoothing import one_blas_thread
 from ident.study.executor import Pending, SerialExecutor, release_free_memory
+from ident.study.lock import StudyLock
 from ident.study.records import dumps_record, read_record
 from ident.study.view import log_campaign
 from ident.thesis.campaign_fit import FitsResult, campaign_tasks, fit_trial_joint, log_fits
@@ -609,6 +610,16 @@ def _reuse_stage(ctx, stage: str, h: str, path: Path, n: int, t0: float) -> bool
     return True
 
 
+def _fits_note(camp, by_trial: dict) -> str:
+    """The fits stage's note when it had no trial to fit: where the campaign's trials went."""
+    if by_trial:
+        return ""
+    multi = plan(camp).multi_joint
+    if multi:
+        return f"no single-joint trials: the {len(multi)} multi-joint record(s) are fitted in rigidbody/"
+    return "no trials to fit"
+
+
 def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0, cpu=0.0):
     """One stage's bookkeeping; ``work_s``: the summed wall time of its computed items as the
     workers measured them (``work_s / (workers * seconds)`` is the parallel efficiency);
@@ -648,15 +659,17 @@ class Study:
         """A line the user always sees (a record that failed its check, a changed output)."""
         print(f"jointlab: note: {msg}", file=sys.stderr, flush=True)
 
-    def _record(self, ctx, rel: str, h: str):
-        """The verified record ``state/rel`` for input hash ``h`` whose outputs are all still
-        the study's, byte for byte; else ``None`` (with one line when the record or an output
-        failed its check)."""
+    def _record(self, ctx, rel: str, h: str, kind: type = dict):
+        """The verified record ``state/rel`` for input hash ``h`` whose result is a ``kind``
+        and whose outputs are all still the study's, byte for byte; else ``None`` (with one line
+        when the record or an output failed its check)."""
         path = ctx.state / rel
         try:
             rec, problem = read_record(path, h, CACHE_VERSION, ctx.man["records"].get(rel))
         except OSError as exc:
             rec, problem = None, f"unreadable: {exc.strerror or exc}"
+        if rec is not None and not isinstance(rec["result"], kind):
+            rec, problem = None, f"its result is a {type(rec['result']).__name__}, not a {kind.__name__}"
         if problem:
             self._note(f"study record {path} failed its check ({problem}); recomputing it")
         if rec is None:
@@ -703,7 +716,7 @@ class Study:
             od.rel(f"angles/{t.id}.csv")
         state = out / STATE_DIR
         state.mkdir(parents=True, exist_ok=True)
-        with FolderLock(state / "lock", self._say):
+        with StudyLock(state / "lock", self._note):
             try:
                 return self._run_locked(camp, out, state, rrd, spawn, od)
             except BaseException:
@@ -722,8 +735,8 @@ class Study:
         base_hash = hasher.combine(hasher.file(camp.manifest), hasher.file(camp.urdf),
                                    hasher.file(camp.drives))
         manifest_path = out / MANIFEST_NAME
-        old = _read_manifest(manifest_path)
-        old_records = old.get("records") if isinstance(old.get("records"), dict) else {}
+        old = _read_manifest(manifest_path, self._note)
+        old_records = old.get("records", {})
         man = {"format": 2, "campaign": camp.name, "campaign_root": str(camp.root),
                "settings": s.to_dict(), "stages": {},
                "records": {k: v for k, v in old_records.items() if isinstance(v, str)}}
@@ -803,8 +816,15 @@ class Study:
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
         if not camp.calib:
-            ctx.stages["calib"] = _stage_row(note="no [[calib]] sweeps: the camera pose comes from "
-                                                  "the static poses")
+            if not (s.mocap and camp.has_markers):
+                why = "no motion capture in this campaign" if not camp.has_markers else \
+                    "the angle solve is switched off"
+                note = f"no [[calib]] sweeps; no camera pose needed ({why})"
+            elif camp.static:
+                note = "no [[calib]] sweeps: the camera pose comes from the static poses"
+            else:
+                note = "no [[calib]] sweeps and no [[static]] poses: the camera pose is unknown"
+            ctx.stages["calib"] = _stage_row(note=note)
             return None, None
         files = [ctx.hasher.file(p) for c in camp.calib for p in (c.markers, c.log)]
         opts = s.calib_options()
@@ -813,7 +833,7 @@ class Study:
                                *([json.dumps(opts, sort_keys=True)] if opts != StudySettings().calib_options() else []))
         path = ctx.out / "calib.json"
         record = "records/calib.json"
-        rec = self._record(ctx, record, h)
+        rec = self._record(ctx, record, h, CalibResult)
         if rec is not None and "calib.json" in rec["outputs"]:
             res = rec["result"]
             ctx.stages["calib"] = _stage_row(reused=1, seconds=time.perf_counter() - t0)
@@ -945,7 +965,11 @@ class Study:
                 continue
             jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h,
                                 keep_plot=tr.id in plotted))
-        self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
+        if by_trial:
+            self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
+        elif multi:
+            self._say(f"friction fits: no single-joint trials (the {len(multi)} multi-joint "
+                      "record(s) are fitted by the rigid-body stage)")
         pending = None     # submitted with the diagnosis' items (_submit_items)
         return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending,
                     by_trial=by_trial)
@@ -1005,7 +1029,8 @@ class Study:
             ctx.paths["fits"] = fits_dir / "fits.json"
         ctx.stages["fits"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
                                         len(done) - len(jobs), len(failed), time.perf_counter() - t0,
-                                        f"skipped (coast-down): {', '.join(skipped)}" if skipped else "",
+                                        f"skipped (coast-down): {', '.join(skipped)}" if skipped else
+                                        _fits_note(camp, run["by_trial"]),
                                         work=_work(jobs, done, "trial"),
                                         cpu=_work(jobs, done, "trial", "cpu_s"))
         return result
@@ -1071,6 +1096,7 @@ class Study:
         out = ctx.out / "rigidbody"
         if _reuse_stage(ctx, "rigidbody", h, out / "rigidbody.json", len(trials), t0):
             return None
+        self._say(f"rigid-body identification: {len(trials)} multi-joint record(s)")
         try:
             res = fit_multijoint_campaign(camp, tuple(s.models), seed=s.seed, n_starts=s.n_starts)
         except (InputError, ValueError) as exc:
@@ -1243,6 +1269,7 @@ class Study:
         if _reuse_stage(ctx, "diagnosis", h, diag_dir / "diagnosis.json", len(trials), t0):
             report = json.loads((diag_dir / "diagnosis.json").read_text(encoding="utf-8"))
             return report, {}
+        self._say(f"gap diagnosis: {len(trials)} multi-joint record(s)")
         try:
             joints, series = diagnose_records(camp, ctx.robot, dset)
         except (InputError, ValueError) as exc:
@@ -1381,12 +1408,37 @@ class _Context:
     recording: object = None                  # the recording begun early (_StudyRecording)
 
 
-def _read_manifest(path: Path) -> dict:
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError):
+def _read_manifest(path: Path, note=None) -> dict:
+    """The study manifest ``path`` as the rest of the study reads it: ``{"stages": {name:
+    dict}, "records": {rel: sha256}, ...}``; ``{}`` when there is none. Any damage (unreadable,
+    not UTF-8, not JSON, truncated, a value of the wrong type) drops what it touches, with one
+    line through ``note``: those items are recomputed, never a traceback."""
+    if not path.is_file():
         return {}
-    return doc if isinstance(doc, dict) else {}
+    problem = None
+    try:
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except OSError as exc:
+        doc, problem = {}, f"unreadable: {exc.strerror or type(exc).__name__}"
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
+        doc, problem = {}, f"not valid JSON ({type(exc).__name__})"
+    if not isinstance(doc, dict):
+        doc, problem = {}, f"a JSON {type(doc).__name__}, not an object"
+    stages = doc.get("stages", {})
+    if not isinstance(stages, dict) or not all(isinstance(v, dict) for v in stages.values()):
+        problem = problem or "its stage list has the wrong type"
+        stages = {k: v for k, v in stages.items() if isinstance(v, dict)} if isinstance(stages, dict) else {}
+    for name, st in list(stages.items()):
+        if any(k in st and not isinstance(st[k], t) for k, t in (("hash", str), ("items", dict), ("outputs", list))):
+            problem = problem or f"its stage {name!r} has a value of the wrong type"
+            del stages[name]
+    records = doc.get("records", {})
+    if not isinstance(records, dict) or not all(isinstance(v, str) for v in records.values()):
+        problem = problem or "its record list has the wrong type"
+        records = {k: v for k, v in records.items() if isinstance(v, str)} if isinstance(records, dict) else {}
+    if problem and note is not None:
+        note(f"study manifest {path} is damaged ({problem}); recomputing what it described")
+    return {**doc, "stages": stages, "records": records}
 
 
 def _write_manifest(path: Path, man: dict, tmp_dir: Path) -> None:

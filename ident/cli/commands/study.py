@@ -100,8 +100,10 @@ def run_from_args(args, campaign_path: Path) -> int:
     try:
         res = Study(settings, executor, progress=not args.quiet).run(camp, out, rrd=args.rrd,
                                                                       spawn=args.spawn)
-    finally:
-        executor.close()
+    except BaseException:      # failing or interrupted (Ctrl-C, SIGTERM): stop the workers now
+        getattr(executor, "abort", executor.close)()
+        raise
+    executor.close()
     status = 1 if res.errors else 0        # something failed: say so in the exit status
     if args.json:
         print(json.dumps(res.to_dict(), indent=1))
