@@ -20,6 +20,7 @@ from typing import Callable, Iterable
 
 from ident.outputs import cap_workers
 from mocap.io.errors import InputError
+from ident.study.lock import drop_inherited
 
 
 class WorkerLost(RuntimeError):
@@ -107,7 +108,6 @@ def _init_pool_worker(parent: int | None = None, pdeathsig: bool = False):
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
-    from ident.study.lock import drop_inherited
 
     drop_inherited()
     if parent is not None:

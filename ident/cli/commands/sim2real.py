@@ -1,0 +1,68 @@
+"""``jointlab sim2real CAMPAIGN --out DIR [--mjcf FILE]``: replay the records in MuJoCo, fit the
+native joint parameters, add the named effects, export the corrected model.
+
+A shell over :func:`ident.sim2real.pipeline.sim2real_campaign` (docs/sim2real.md)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ident.cli.main import add_common
+from ident.outputs import OutputDir
+
+INPUT_ARGS = ("campaign", "mjcf")
+OUTPUT_ARGS = ("out",)
+
+
+def register(sub):
+    p = sub.add_parser("sim2real", help="replay the records in MuJoCo: the model as given, its fitted "
+                                         "native parameters and the named effects; export the model")
+    p.add_argument("campaign", type=Path)
+    add_common(p, out_required=True)
+    p.add_argument("--mjcf", type=Path, metavar="FILE",
+                   help="the user's MuJoCo model (default: [robot] mjcf, else MuJoCo's compile of the URDF)")
+    p.add_argument("--effects", metavar="SPEC",
+                   help="effects to export instead of the diagnosis's: NAME (every joint) or J:NAME,J:NAME")
+    p.add_argument("--no-sysid", action="store_true", help="do not run mujoco.sysid beside")
+    p.add_argument("--threads", type=int, default=1, help="mujoco.rollout threads (default 1)")
+    return p
+
+
+def run(args) -> int:
+    from mocap.io.campaign import load_campaign
+    from mocap.io.errors import InputError
+
+    try:
+        import mujoco  # noqa: F401
+    except ImportError:
+        raise InputError("jointlab sim2real needs MuJoCo: pip install 'jointlab[mujoco]'") from None
+    from ident.sim2real.pipeline import parse_effects, sim2real_campaign
+    from ident.sim2real.report import write_report
+
+    camp = load_campaign(args.campaign)
+    if args.mjcf is not None and not args.mjcf.is_file():
+        raise InputError("MJCF not found", path=args.mjcf)
+    robot = camp.load_robot()
+    effects = parse_effects(args.effects, robot.n)
+    with OutputDir(args.out, "sim2real", [camp.root] + ([args.mjcf] if args.mjcf else [])) as od:
+        od.check_early(["sim2real.json", "sim2real.md"])
+        result = sim2real_campaign(camp, robot, mjcf=args.mjcf, effects=effects,
+                                   sysid=not args.no_sysid, nthread=max(1, args.threads))
+        stage = od.stage()
+        from ident.sim2real.model import captured_warnings
+        with captured_warnings([]):             # no MUJOCO_LOG.TXT in the working directory
+            paths = write_report(result, Path(stage))
+        paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
+        od.commit(stage)
+    rep = result.report
+    if args.json:
+        print(json.dumps({"out": str(od.root), "errors_0.5": rep["errors"].get("native_effects", {}).get("0.5"),
+                          "effects": rep["effects"]["named"]}, indent=1))
+    else:
+        e = rep["errors"]
+        for j in rep["scored_joints"]:
+            vals = ", ".join(f"{m} {e[m]['0.5'][str(j)]['pos_rms'] * 1e3:.3g}" for m in e
+                             if e[m].get("0.5") and str(j) in e[m]["0.5"])
+            print(f"joint {j}: held-out position RMS at 0.5 s (mrad): {vals}")
+        print(f"wrote {paths['json']}, {paths['md']} and the model folder")
+    return 0

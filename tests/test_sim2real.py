@@ -1,0 +1,257 @@
+"""jointlab sim2real: MuJoCo's compile of the URDF against pinocchio, the replay, the exported
+model run by a plain script without jointlab, and the command's errors."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco", reason="MuJoCo is an optional extra: pip install '.[mujoco]'")
+
+from mocap.io.campaign import load_campaign  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+TX40 = ROOT / "fixtures" / "real" / "tx40"
+ARM7 = ROOT / "fixtures" / "arm7"
+
+
+@pytest.mark.parametrize("camp", [TX40, ROOT / "fixtures" / "real" / "tiago"])
+def test_mujoco_inverse_dynamics_matches_pinocchio(camp, tmp_path):
+    """MuJoCo's compile of the campaign's URDF chain (no armature, damping or friction) has the
+    same inverse dynamics as pinocchio's RNEA on random states, to 1e-6 relative (pinocchio on the
+    URDF with the inertias MuJoCo refuses corrected the same way: TIAGo's arm_1_link breaks the
+    triangle inequality, which the model reports)."""
+    from mocap.robot import Robot
+    from ident.sim2real.model import build_model, urdf_for_mujoco
+
+    c = load_campaign(camp)
+    robot = c.load_robot()
+    sm = build_model(c, robot)
+    corrected = []
+    sel = robot.selection
+    xml = urdf_for_mujoco(c.urdf, tuple(sel.chain), dict(sel.locked), corrected)
+    if corrected:
+        assert all(n in sm.notes[0] for n in corrected)
+        u = tmp_path / "corrected.urdf"
+        u.write_text(xml)
+        robot = Robot.from_urdf(u, c.drives, c.gravity, c.base_link, c.tip_link, c.fixed)
+    zero = {k: np.zeros(sm.n) for k in ("armature", "damping", "frictionloss")}
+    m = sm.compile(1e-3, native=zero)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)      # random states beyond limits
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, qd, qdd = rng.normal(size=(3, sm.n))
+        d.qpos[:] = 0
+        d.qpos[sm.qpos_adr] = q
+        d.qvel[:] = 0
+        d.qvel[sm.dof] = qd
+        d.qacc[:] = 0
+        d.qacc[sm.dof] = qdd
+        mujoco.mj_inverse(m, d)
+        ref = robot.rnea(q, qd, qdd)
+        got = d.qfrc_inverse[sm.dof]
+        assert np.allclose(got, ref, rtol=1e-6, atol=1e-6 * np.abs(ref).max())
+
+
+def test_payload_body_matches_pinocchio_payload():
+    """The payload body at the flange: the same inverse dynamics as pinocchio's point mass."""
+    from ident.sim2real.model import build_model
+
+    c = load_campaign(TX40)
+    robot = c.load_robot()
+    sm = build_model(c, robot)
+    zero = {k: np.zeros(sm.n) for k in ("armature", "damping", "frictionloss")}
+    com = np.array([0.03, -0.02, 0.05])
+    m = sm.compile(1e-3, payload=(2.5, com), native=zero)
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_LIMIT)
+    d = mujoco.MjData(m)
+    rb = robot.with_payload(2.5, com)
+    q, qd, qdd = np.random.default_rng(4).normal(size=(3, sm.n))
+    d.qpos[sm.qpos_adr], d.qvel[sm.dof], d.qacc[sm.dof] = q, qd, qdd
+    mujoco.mj_inverse(m, d)
+    ref = rb.rnea(q, qd, qdd)
+    assert np.allclose(d.qfrc_inverse[sm.dof], ref, rtol=1e-6, atol=1e-6 * np.abs(ref).max())
+
+
+def test_stepped_effects_equal_plain_rollout_when_zero():
+    """The one-step-at-a-time replay with a zero-amplitude effect equals the single rollout."""
+    from ident.sim2real.model import build_model
+    from ident.sim2real.replay import Replayer, records_of
+
+    c = load_campaign(TX40)
+    robot = c.load_robot()
+    sm = build_model(c, robot)
+    rec = records_of(c, robot)[0]
+    rp = Replayer(sm, robot, rec)
+    starts = rp.windows(0.1, np.ones(rec.t.size, bool))[:4]
+    doc = {"joints": [{"dof": int(sm.dof[1]), "eps": 0.01, "effects": [
+        {"effect": "stribeck", "shape": {"Vs": 0.05, "d": 1.0}, "amplitudes": {"S": 0.0}}]}]}
+    nat = {**sm.given, "armature": sm.given["armature"] + 0.05}     # TX40's link 6 is massless
+    q1, _ = rp.simulate(nat, starts, 50, None)
+    q2, _ = rp.simulate(nat, starts, 50, doc)
+    assert np.abs(q1 - q2).max() < 1e-7
+    doc["joints"][0]["effects"][0]["amplitudes"]["S"] = 5.0
+    q3, _ = rp.simulate(nat, starts, 50, doc)
+    assert np.abs(q3 - q1).max() > 1e-5          # the effect acts
+
+
+def test_effect_torques():
+    """Signs and sizes of the runtime effect torques (they oppose motion where they are friction)."""
+    from ident.sim2real import effects_runtime as fx
+
+    doc = {"joints": [{"dof": 0, "eps": 1e-3, "effects": [
+        {"effect": "stribeck", "shape": {"Vs": 0.1, "d": 1.0}, "amplitudes": {"S": 2.0}}]}]}
+    tau, _ = fx.torque(doc, np.zeros((2, 1)), np.array([[0.05], [-0.05]]), np.zeros((2, 1)),
+                       np.zeros((2, 1)), 1e-3)
+    assert tau[0, 0] == pytest.approx(-2.0 * np.exp(-0.5) * np.tanh(50.0), rel=1e-12)
+    assert tau[1, 0] == pytest.approx(-tau[0, 0], rel=1e-12)
+    z = np.array([-1.0])
+    for _ in range(2000):                         # presliding: z settles at sgn(qd)
+        z = fx.bristle_step(z, 0.01, 1e-3, 1e-3)
+    assert z[0] == pytest.approx(1.0, abs=1e-6)
+
+
+def _campaign_copy(tmp_path, seconds=8.0):
+    """The TX40 campaign with its record cut to ``seconds`` (a quick test)."""
+    import shutil
+
+    dst = tmp_path / "tx40"
+    shutil.copytree(TX40, dst)
+    log = dst / "trials" / "excitation.csv"
+    lines = log.read_text().splitlines()
+    t0 = float(lines[1].split(",")[0])
+    keep = [lines[0]] + [ln for ln in lines[1:] if float(ln.split(",")[0]) - t0 <= seconds]
+    log.write_text("\n".join(keep) + "\n")
+    return dst
+
+
+def test_command_and_plain_script_reproduce_heldout_error(tmp_path):
+    """``jointlab sim2real`` writes the report and the export; the exported model, run by its
+    example script in a subprocess without jointlab on sys.path, reproduces jointlab's held-out
+    rollout error within 1 %."""
+    from ident.cli.main import main
+
+    camp = _campaign_copy(tmp_path, 5.0)
+    out = tmp_path / "out"
+    rc = main(["sim2real", str(camp), "--out", str(out), "--effects", "2:stribeck", "--no-sysid"])
+    assert rc == 0
+    rep = json.loads((out / "sim2real.json").read_text())
+    assert set(rep["errors"]) >= {"given", "native", "native_effects"}
+    e = rep["errors"]["native"]["0.5"]["1"]
+    assert e["pos_rms"] > 0 and np.isfinite(e["vel_rms"])
+    assert (out / "sim2real.md").read_text().startswith("# Sim-to-real in MuJoCo")
+    model = out / "model"
+    env = {"PATH": os.environ.get("PATH", ""), "PYTHONNOUSERSITE": "1"}
+    code = ("import sys; sys.path = [p for p in sys.path if 'work/main' not in p or 'site-packages' in p]; "
+            "import runpy; sys.argv = ['replay_example.py', sys.argv[1]]; "
+            "runpy.run_path(sys.argv[1] + '/replay_example.py', run_name='__main__'); "
+            "assert 'ident' not in sys.modules and 'mocap' not in sys.modules")
+    res = subprocess.run([sys.executable, "-c", code, str(model)], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    got = json.loads(res.stdout.strip().splitlines()[-1])
+    check = json.loads((model / "heldout" / "check.json").read_text())
+    n = 0
+    for trial, by_h in check["trials"].items():
+        for H, entry in by_h.items():
+            ref = np.array(entry["pos_rms"])
+            assert np.allclose(got[trial][H], ref, rtol=0.01), (trial, H)
+            n += 1
+    assert n >= 1
+
+
+def test_command_errors_are_one_line(tmp_path, capsys):
+    from ident.cli.main import main
+
+    camp = _campaign_copy(tmp_path, 3.0)
+    assert main(["sim2real", str(camp), "--out", str(tmp_path / "o"), "--effects", "9:stribeck"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "--effects" in err
+    assert main(["sim2real", str(camp), "--out", str(tmp_path / "o"), "--mjcf", str(tmp_path / "no.xml")]) == 2
+    assert "MJCF not found" in capsys.readouterr().err
+    (tmp_path / "m").mkdir()
+    bad = tmp_path / "m" / "bad.xml"
+    bad.write_text("<mujoco><worldbody><body><joint name='other'/><geom size='0.1'/></body></worldbody></mujoco>")
+    assert main(["sim2real", str(camp), "--out", str(tmp_path / "o"), "--mjcf", str(bad), "--no-sysid"]) == 2
+    assert "is not in the MuJoCo model" in capsys.readouterr().err
+
+
+def _tx40_replayer(tmp_path, seconds=6.0):
+    from ident.sim2real.model import build_model
+    from ident.sim2real.replay import Replayer, records_of
+
+    c = load_campaign(_campaign_copy(tmp_path, seconds))
+    robot = c.load_robot()
+    sm = build_model(c, robot)
+    rec = records_of(c, robot)[0]
+    return sm, Replayer(sm, robot, rec), rec
+
+
+def test_batched_sets_equal_single_simulations(tmp_path):
+    """Several parameter sets (with and without an effect) simulated in one batched call give each
+    set's own simulation to 1e-10 rad: the finite-difference columns of the refinement are exact."""
+    from ident.sim2real.replay import simulate_sets
+
+    sm, rp, rec = _tx40_replayer(tmp_path)
+    starts = rp.windows(0.1, np.ones(rec.t.size, bool))[:5]
+    L = max(1, int(round(0.1 / rec.dt)))
+    base = {**sm.given, "armature": sm.given["armature"] + 0.05}
+    other = {**base, "damping": base["damping"] + 0.5, "frictionloss": base["frictionloss"] + 0.5}
+    doc = {"joints": [{"dof": int(sm.dof[1]), "eps": 0.01, "effects": [
+        {"effect": "stribeck", "shape": {"Vs": 0.05, "d": 1.0}, "amplitudes": {"S": 3.0}}]}]}
+    sets = [(base, None), (other, None), (base, doc)]
+    got = simulate_sets([(rp, starts, L)], sets)
+    for (nat, eff), per in zip(sets, got):
+        q_ref, _ = simulate_sets([(rp, starts, L)], [(nat, eff)])[0][0]
+        assert np.abs(per[0][0] - q_ref).max() < 1e-10
+    assert np.abs(got[0][0][0] - got[1][0][0]).max() > 1e-6      # the sets differ
+
+
+def test_refine_lowers_training_rollout_error(tmp_path):
+    """The batched Levenberg-Marquardt refinement from a detuned start lowers every scored joint's
+    training rollout error (never raises one: each joint keeps its best point)."""
+    from ident.sim2real.fit import Rollouts, refine
+
+    sm, rp, rec = _tx40_replayer(tmp_path)
+    mask = np.ones(rec.t.size, bool)
+    ro = Rollouts([rp], [mask], max_windows=6)
+    start = {"armature": sm.given["armature"] + 0.05, "damping": sm.given["damping"] * 0.5 + 0.1,
+             "frictionloss": np.full(sm.n, 0.5)}
+    joints = [j for j in range(sm.n) if rec.driven[j]]
+    e0 = ro.rms([(start, None)])[0]
+    nat, _, e1 = refine(ro, start, sm, joints, iters=2)
+    assert np.all(e1[joints] <= e0[joints] + 1e-12)
+    assert np.mean(e1[joints] / e0[joints]) < 0.9
+
+
+def test_mujoco_sysid_rolls_out_what_the_replay_does(tmp_path):
+    """mujoco.sysid, wired to the records (motor actuators for the logged torque, qpos observed),
+    simulates exactly jointlab's replay for the same parameters, and its fit lowers its own cost."""
+    sysid_mod = pytest.importorskip("mujoco.sysid", reason="pip install 'mujoco[sysid]'")
+    from ident.sim2real import sysid as S
+
+    sm, rp, rec = _tx40_replayer(tmp_path)
+    nat = {**sm.given, "armature": sm.given["armature"] + 0.05, "frictionloss": np.full(sm.n, 0.3)}
+    starts = rp.windows(0.1, np.ones(rec.t.size, bool))[:2]
+    L = max(1, int(round(0.1 / rec.dt)))
+    m = S._spec(rp, nat).compile()
+    x0, u = rp._init(m, starts), rp._controls(m, starts, L)
+    ctrl = np.zeros(u.shape[:2] + (m.nu,))
+    ctrl[:, :, :sm.n] = u[:, :, :sm.n]
+    ctrl[:, :, sm.n:] = u[:, :, m.nu + sm.dof]
+    q_ref, _ = rp.simulate(nat, starts, L)
+    for b in range(starts.size):
+        ts = sysid_mod.TimeSeries(rp.h * np.arange(ctrl.shape[1] + 1), np.vstack([ctrl[b], ctrl[b, -1:]]))
+        tr = sysid_mod.sysid_rollout([m], [mujoco.MjData(m)], ts, x0[b])
+        q = tr[0].state.data[:, 1:1 + m.nq][:, sm.qpos_adr][rp.sub - 1::rp.sub]
+        assert np.abs(q - q_ref[b]).max() < 1e-10
+    out = S.fit_sysid(sm, [rp], [np.ones(rec.t.size, bool)], nat, max_iters=2, max_windows=3)
+    assert out["status"] == "fitted"
+    assert out["training_cost"]["end"] < out["training_cost"]["start"]
+    assert set(out["native"]) == {"armature", "damping", "frictionloss"}
