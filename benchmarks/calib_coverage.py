@@ -31,6 +31,12 @@ estimator is used to make them. The campaign is then calibrated with ``calib.pip
   the reported region thresholds ``region95`` (Mahalanobis squared distances; chi2 quantiles
   when a result does not report them). Goal: 90-98 % in every ``exact`` and ``mismatch`` cell,
   at least 90 % in the ``declared`` cells (a declared tolerance is a conservative type-B bound).
+* the Gaussian reading (issue 46, every cell; a goal of 90-98 % in the wide cells): the same
+  covariance read as a Gaussian one, chi2(0.95; 3) and chi2(0.95; 6) thresholds whatever
+  ``region95`` says, as a user or checker without the region's thresholds reads it. This is how
+  the issue's one-reflector figures (78 / 83 %) are reproduced: on the tree before issue 46's
+  changes (e82ca8f) the wide one-reflector cells read 80 / 81 % (URDF exact) and 80 / 83 % (offset
+  off) this way, 96 / 98 % and 92 / 93 % in ``region95`` (100 runs each).
 * cells: ``NxM-exact`` (N poses per joint, M reflectors, the URDF exact), ``NxM-mismatch`` (the
   real J1-J2 axis offset 0-1 mm off the URDF's - the issue's "URDF axis offsets mismatched by
   0-1 mm" - with default settings: the model error is what the estimator makes of the measured
@@ -377,7 +383,10 @@ def judge(doc: dict, T_true: np.ndarray) -> dict:
     d_r = float(w @ np.linalg.solve(C[:3, :3], w))
     d_p = float(x @ np.linalg.solve(C, x))
     warned = any("do not fit the URDF" in w for w in doc.get("warnings", ()))
-    return {"in_origin": d_o <= q3o, "in_rotation": d_r <= q3r, "in_pose": d_p <= q6,
+    # the Gaussian reading (issue 46): the reported covariance taken as a Gaussian one, chi2
+    # quantiles whatever region95 says, as a user without the region's thresholds reads it
+    gauss = {"g_origin": d_o <= CHI2_95[3], "g_rotation": d_r <= CHI2_95[3], "g_pose": d_p <= CHI2_95[6]}
+    return {**gauss, "in_origin": d_o <= q3o, "in_rotation": d_r <= q3r, "in_pose": d_p <= q6,
             "ratio_origin": d_o / q3o, "ratio_rotation": d_r / q3r,
             "err": x, "std": np.sqrt(np.diag(C)), "misfit_warned": warned}
 
@@ -421,6 +430,7 @@ def summarise(cell: str, rows: list) -> dict:
         return out
     for k in ("origin", "rotation", "pose"):
         out[k] = 100.0 * np.mean([r[f"in_{k}"] for r in ok])
+        out[f"gauss_{k}"] = 100.0 * np.mean([r[f"g_{k}"] for r in ok])
     E = np.array([r["err"] for r in ok])
     S = np.array([r["std"] for r in ok])
     emp = np.sqrt(np.mean(E ** 2, axis=0))          # empirical spread per axis (RMS about the truth)
@@ -451,7 +461,7 @@ def main(argv=None) -> int:
     cells = [x for c in args.cells.split(",") if c for x in (CELLS if c == "pa10" else [c])]
     print(f"== coverage of the reported 95 % region: {runs} runs per cell (tracker sweeps) ==")
     print("cell            runs refused  origin rotation   pose | reported/empirical std: "
-          "rot x,y,z  origin x,y,z | rms err mm  deg   s")
+          "rot x,y,z  origin x,y,z | rms err mm  deg   s | Gaussian reading: origin rotation pose")
     t_all = time.time()
     fails = {k: [] for k in ("exact", "mismatch", "offset", "declared", "trusted", "trustmis", "deflect",
                              "deflecttol", "deflectcomp")}
@@ -468,22 +478,26 @@ def main(argv=None) -> int:
             ratio = " ".join(f"{x:4.2f}" for x in s["std_ratio"])
             print(f"{cell:15s} {s['runs']:4d} {s['refused']:7d} {s['origin']:6.1f}% {s['rotation']:7.1f}% "
                   f"{s['pose']:5.1f}% | {ratio} | {s['origin_err_mm']:9.4f} {s['rot_err_deg']:.5f} "
-                  f"{time.time() - t0:4.0f}"
+                  f"{time.time() - t0:4.0f} | {s['gauss_origin']:5.1f}% {s['gauss_rotation']:5.1f}% "
+                  f"{s['gauss_pose']:5.1f}%"
                   + (f" | chi2 misfit warned in {s['warned']:.1f} % of runs; pose covered in "
                      f"{s['quiet_pose']:.1f} % of the others" if kind == "trustmis" else ""), flush=True)
             if kind in ("trustmis", "deflect", "deflecttol"):     # informational cells: no goal
                 continue
             cov = [s[k] for k in ("origin", "rotation", "pose")]
             # declared tolerances are type-B bounds: judged as conservative (>= 90 %) only
+            if cell.startswith("wide"):     # issue 46: the Gaussian reading holds too
+                cov += [s[f"gauss_{k}"] for k in ("origin", "rotation", "pose")]
             cov_ok = all(90.0 <= c <= (100.0 if kind == "declared" else 98.0) for c in cov)
             std_ok = not cell.startswith("3x") or kind in ("declared", "trusted") or \
                 all(1 / 1.5 <= x <= 1.5 for x in s["std_ratio"])
             if not (cov_ok and std_ok and s["refused"] == 0):
                 fails[kind].append(cell)
     for kind, what in (("exact", "URDF exact (PA10 cells and wide geometry): coverage 90-98 % (origin, rotation, "
-                                 "pose), at 3 poses std within 1.5x of the spread"),
+                                 "pose; wide cells also in the Gaussian reading), at 3 poses std within 1.5x of "
+                                 "the spread"),
                        ("offset", "wide geometry, J1-J2 offset 0-1 mm off the URDF: coverage 90-98 % (origin, rotation, "
-                                  "pose)"),
+                                  "pose; region95 and the Gaussian reading)"),
                        ("mismatch", "J1-J2 offset 0-1 mm off the URDF, default settings: coverage 90-98 % "
                                     "(origin, rotation, pose), at 3 poses std within 1.5x of the spread"),
                        ("declared", "the same with --urdf-tol-mm declared: coverage >= 90 % (conservative)"),

@@ -44,7 +44,9 @@ class BasePlacement:
     T_camera_base : numpy.ndarray
         (4, 4) homogeneous transform, ``p_camera = T @ p_base`` (m).
     cov : numpy.ndarray
-        (6, 6) covariance of ``(w, dp)`` (rad, m), noise and model-error parts together.
+        (6, 6) covariance of ``(w, dp)`` (rad, m), noise and model-error parts together, each
+        noise part at the variance of the t distribution its estimated variance implies
+        (:func:`t_variance_factor`, ``nu / (nu - 2)`` times the propagated ``s^2`` part).
     crb : numpy.ndarray
         (6, 6) the same propagated from the axes' Cramer-Rao bounds (NaN where an axis has
         none).
@@ -172,22 +174,52 @@ class BasePlacement:
 REGION_DRAWS = 20000
 
 
-def region95(parts, nus, level: float = 0.95, draws: int = REGION_DRAWS) -> dict:
+#: degrees of freedom below which :func:`t_variance_factor` stays at its value for this many (the
+#: variance of Student's t is infinite at 2 and below)
+T_FACTOR_MIN_DOF = 3.0
+
+
+def t_variance_factor(nu) -> np.ndarray:
+    r"""``nu / (nu - 2)``: the variance of Student's t on ``nu`` degrees of freedom, the factor
+    from a variance estimated on ``nu`` degrees of freedom to the standard uncertainty's square.
+
+    GUM Supplement 1 (JCGM 101:2008, 6.4.9.4): a quantity known from an estimate ``s^2`` of its
+    variance on ``nu`` degrees of freedom has a scaled-and-shifted t distribution, of variance
+    ``nu / (nu - 2) s^2``. Reported as a covariance, ``s^2 H^-1`` alone is too small for a user
+    who reads it as a Gaussian one (a chi2 region or +-1.96 std): with 4-10 degrees of freedom,
+    as one reflector's few poses leave, such a region held the truth in 78-83 % of the runs of
+    issue 46. ``nu`` is floored at :data:`T_FACTOR_MIN_DOF` (the factor 3 there; the t variance
+    is infinite at 2); infinite ``nu`` (a known variance) gives 1.
+    """
+    nu = np.asarray(nu, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nu_f = np.maximum(nu, T_FACTOR_MIN_DOF)
+        return np.where(np.isfinite(nu), nu_f / (nu_f - 2.0), 1.0)
+
+
+def region95(parts, nus, level: float = 0.95, draws: int = REGION_DRAWS, scale=None) -> dict:
     """The 95 % region of ``T_camera_base`` when its covariance is a sum of ``parts`` (6x6) each
     scaled by a variance estimated with ``nus`` degrees of freedom (inf: known).
 
     The threshold on the squared Mahalanobis distance ``x' C^-1 x`` of each block (origin,
     rotation, the 6-D pose) is the ``level`` quantile of its reference distribution, drawn by
     Monte Carlo (GUM Supplement 1 style, fixed seed): ``x ~ N(0, sum_j P_j)`` and the estimated
-    ``C = sum_j u_j P_j`` with ``u_j ~ chi2(nu_j) / nu_j`` (1 for known variances); with one part
-    this is Hotelling's ``p F(level; p, nu)``, with all variances known ``chi2(level; p)``. The
-    effective degrees of freedom of each block follow Welch-Satterthwaite on the whitened traces,
-    ``nu = (sum t_j)^2 / sum(t_j^2 / nu_j)`` with ``t_j = tr(C_block^-1 P_j,block)``, and ``k95``
-    is the Student factor ``t(0.975; nu)`` for one coordinate.
+    ``C = sum_j c_j u_j P_j`` with ``u_j ~ chi2(nu_j) / nu_j`` (1 for known variances) and
+    ``c_j`` the reporting factors ``scale`` (default 1; :func:`t_variance_factor` for the
+    reported covariance); with one part and ``c = 1`` this is Hotelling's ``p F(level; p, nu)``,
+    with all variances known ``chi2(level; p)``. The effective degrees of freedom of each block
+    follow Welch-Satterthwaite on the whitened traces, ``nu = (sum t_j)^2 / sum(t_j^2 / nu_j)``
+    with ``t_j = tr(C_block^-1 P_j,block)``, and ``k95`` is the factor for one coordinate:
+    the Student factor ``t(0.975; nu)`` times the block's ``sqrt(tr P / tr C)`` (``P = sum_j
+    P_j``, ``C = sum_j c_j P_j``), so that ``+- k95 * std`` of the reported covariance is the
+    Student interval.
     """
     from scipy.stats import chi2 as chi2_dist
     from scipy.stats import t as t_dist
 
+    scale = np.ones(len(parts)) if scale is None else np.asarray(scale, float)
+    C0 = sum(parts)
+    parts = [c * P for c, P in zip(scale, parts)]
     C = sum(parts)
     nu_arr = np.asarray(nus, float)
     fin = np.isfinite(nu_arr)
@@ -199,23 +231,26 @@ def region95(parts, nus, level: float = 0.95, draws: int = REGION_DRAWS) -> dict
     z = rng.standard_normal((draws, 6))
     out = {"level": level}
     for name, idx in (("origin", slice(3, 6)), ("rotation", slice(0, 3)), ("pose", slice(0, 6))):
-        Cb = C[idx, idx]
+        Cb, C0b = C[idx, idx], C0[idx, idx]
         p = Cb.shape[0]
         Pb = np.stack([P[idx, idx] for P in parts])                     # (J, p, p)
-        Wi = np.linalg.inv(Cb)
-        t = np.einsum("ij,kji->k", Wi, Pb)
+        P0b = Pb / scale[:, None, None]
+        Wi = np.linalg.inv(C0b)
+        t = np.einsum("ij,kji->k", Wi, P0b)
         den = float(np.sum(t[fin] ** 2 / np.maximum(nu_arr[fin], 1e-9)))
         nu = float(np.sum(t) ** 2 / den) if den > 0 else float("inf")
-        if fin.any():
-            x = z[:, :p] @ np.linalg.cholesky(Cb + 1e-30 * np.eye(p)).T  # (D, p) ~ N(0, Cb)
+        if fin.any() or np.any(scale != 1.0):
+            x = z[:, :p] @ np.linalg.cholesky(C0b + 1e-30 * np.eye(p)).T  # (D, p) ~ N(0, sum P_j)
             Chat = np.einsum("dk,kij->dij", u, Pb)                       # (D, p, p)
             d2 = np.einsum("di,di->d", x, np.linalg.solve(Chat, x[..., None])[..., 0])
             q = float(np.quantile(d2, level))
         else:
             q = float(chi2_dist.ppf(level, p))
+        shrink = float(np.sqrt(np.trace(C0b) / np.trace(Cb)))
         out[f"{name}_dof"] = nu if np.isfinite(nu) else None
         out[f"{name}_d2"] = q
-        out[f"{name}_k95"] = float(t_dist.ppf(0.5 + level / 2, nu)) if np.isfinite(nu) else 1.959963984540054
+        out[f"{name}_k95"] = shrink * (float(t_dist.ppf(0.5 + level / 2, nu)) if np.isfinite(nu)
+                                       else 1.959963984540054)
     return out
 
 
@@ -391,7 +426,9 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
     ``R = exp([w]) R_0``, ``p = p_0 + dp``. This uses the intersection when the axes intersect
     (PA10) and works equally when they are offset. The covariance is the first-order
     propagation of the axis covariances ``C_j`` (with the Cramer-Rao bounds in their place, the
-    bound on ``T_camera_base``), split by source. ``model_error`` includes the URDF-model error
+    bound on ``T_camera_base``), split by source; each noise part is reported at the variance
+    of the t distribution on its degrees of freedom (:func:`t_variance_factor`, GUM Supplement 1
+    6.4.9.4 [5]_), and the 95 % region (:func:`region95`) is drawn with the same factors. ``model_error`` includes the URDF-model error
     estimated from the J1-J2 discrepancy (:func:`model_error_terms`, GUM [3]_): the lines are
     weighted by the inverse of ``C_j + V_j`` (the best linear estimate when the URDF lines
     carry random errors of covariance ``V_j``) and the covariance includes ``V_j``, as a known
@@ -440,6 +477,8 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
     .. [3] GUM, JCGM 100:2008, evaluation of measurement data - guide to the expression of
        uncertainty in measurement, F.2.4.5 and G.4 (Welch-Satterthwaite).
     .. [4] jointlab calibration (docs/calibration.md).
+    .. [5] GUM Supplement 1, JCGM 101:2008, propagation of distributions using a Monte Carlo
+       method, 6.4.9 (the t distribution of a quantity known from a few observations).
     """
     if len(axes) < 2 or len(axes) != len(urdf_lines):
         raise InputError(f"base placement needs at least two swept joints, got {len(axes)}")
@@ -527,8 +566,14 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
         if tau_k > 0:
             parts.append(sum(split(cov, A, Ls, Vk)))
             nus = list(nus) + [nu_k]
-    noise_cov = sum(parts[:n_noise])
-    model_cov = sum(parts[n_noise:], np.zeros((6, 6)))
+    # reported: each noise part at the variance of the t distribution its estimated variance
+    # implies (GUM Supplement 1, 6.4.9.4: nu / (nu - 2)); the model-error parts are mean squares
+    # D^2 + u^2 already (the second moment given the measured discrepancy) and stay; the 95 %
+    # region is the same region (region95 draws its reference distribution with the same factors)
+    fac = np.r_[t_variance_factor(nus[:n_noise]), np.ones(len(parts) - n_noise)]
+    cov = sum(c * P for c, P in zip(fac, parts))
+    noise_cov = sum(c * P for c, P in zip(fac[:n_noise], parts[:n_noise]))
+    model_cov = sum((c * P for c, P in zip(fac[n_noise:], parts[n_noise:])), np.zeros((6, 6)))
     budget = {name: dict(zip(("origin_std_mm", "rotation_std_deg"), BasePlacement._stds(P)))
               for name, P in (("noise", noise_cov), ("model_error", model_cov))}
     inflation = 1.0
@@ -547,7 +592,7 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
             f"the measured axes do not fit the URDF: chi2 = {chi2:.1f} on {dof} degrees of freedom "
             f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
             f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; {what}")
-    reg = region95(parts, nus) if with_region else None
+    reg = region95(parts, nus, scale=fac) if with_region else None
     if not sol.success:
         warnings.append(f"the base solve did not converge ({sol.message})")
     return BasePlacement(T_camera_base=T, cov=cov, crb=crb,
