@@ -505,10 +505,10 @@ _BACKLASH_GRID = (tuple(("torque", src, w) for src in ("rigid", "motor") for w i
 
 #: delays between the logged torque and the logged position tested on continuous records, s
 #: (sensor, current-loop or logging latency); the column's sign says which signal is late
-DELAY_GRID_S = tuple(float(x) for x in tuple(np.round(np.arange(0.001, 0.0201, 0.0005), 4))
-                     + (0.0225, 0.025, 0.0275, 0.030))
+DELAY_GRID_S = tuple(float(x) for x in np.round(np.r_[np.arange(0.0005, 0.0051, 0.0005), np.arange(0.006, 0.0201, 0.001),
+                                                      0.025, 0.030], 4))
 #: second-order low-passes of the logged torque (cut-off Hz, damping) tested against the delay
-LOWPASS_GRID = tuple((fc, z) for fc in (6.0, 8.0, 10.0, 12.0, 15.0, 20.0, 25.0, 32.0, 40.0, 50.0, 65.0)
+LOWPASS_GRID = tuple((fc, z) for fc in (6.0, 8.0, 10.0, 13.0, 16.0, 20.0, 25.0, 32.0, 40.0, 50.0)
                      for z in (0.5, 0.7, 0.9))
 
 
@@ -525,10 +525,11 @@ def _torque_delay(d, hp):
 
 def _delay_physical(hp, th, d) -> bool:
     """A delay's column has amplitude 1 at the true delay (the torque late), -1 when the
-    position is the late one (to first order ``p(t) - p(t - dt) = p(t + dt) - p(t)``): within a
-    factor of two of either (a grid step is at most 30 % of the delay), else the shape is not a
-    delay."""
-    return th.shape[0] > 0 and 0.5 < abs(th[0]) < 2.0
+    position is the late one (to first order ``p(t) - p(t - dt) = p(t + dt) - p(t)``); to first
+    order the amplitude scales the delay, and a logged torque whose transitions are sharper than
+    the model's fits a shorter grid delay at a larger amplitude: within 0.4-2.5 of either sign,
+    else the shape is not a delay."""
+    return th.shape[0] > 0 and 0.4 < abs(th[0]) < 2.5
 
 
 def _time_offset(d, hp):

@@ -658,6 +658,16 @@ def _shifted(Z: np.ndarray, s: float) -> np.ndarray:
     return (1 - w) * a + w * Z[np.clip(idx - i0 - 1, 0, Z.shape[0] - 1)]
 
 
+def _shifted_rows(Z: np.ndarray, s: float, rows: np.ndarray) -> np.ndarray:
+    """``_shifted(Z, s)[rows]`` without shifting the other rows."""
+    i0 = int(np.floor(s))
+    w = s - i0
+    a = Z[np.clip(rows - i0, 0, Z.shape[0] - 1)]
+    if w == 0:
+        return a
+    return (1 - w) * a + w * Z[np.clip(rows - i0 - 1, 0, Z.shape[0] - 1)]
+
+
 #: most samples of the profile over the delay grid (evenly thinned beyond)
 DELAY_PROFILE_SAMPLES = 8000
 #: widths (s, Gaussian sigma, zero phase) of the Coulomb step in the record's torque model ``p``: a
@@ -688,14 +698,16 @@ def _record_signal_columns(t: np.ndarray, keep: np.ndarray, target: np.ndarray, 
     rows = rows[::max(1, rows.size // DELAY_PROFILE_SAMPLES)]
     best = (np.inf, 0.0, None)
     sg = ssign(qd)
+    yr = y[rows]
     for width in COULOMB_WIDTHS_S:   # profile over the Coulomb step's width and the delay grid
         Z = np.column_stack([tau_rb, X, gaussian_filter1d(sg, width / dt, mode="nearest") if width else sg, qd])
         sc = np.sqrt(np.mean(Z[keep] ** 2, axis=0))
         Z = Z / np.where(sc > 0, sc, 1.0)
         for dl in (0.0,) + DELAY_GRID_S:
-            Zs = _shifted(Z, dl / dt)[rows]
-            th = np.linalg.lstsq(Zs, y[rows], rcond=None)[0]
-            sse = float(np.sum((y[rows] - Zs @ th) ** 2))
+            Zs = _shifted_rows(Z, dl / dt, rows)
+            G, b = Zs.T @ Zs, Zs.T @ yr
+            th = np.linalg.lstsq(G, b, rcond=None)[0]
+            sse = float(yr @ yr - 2 * th @ b + th @ G @ th)
             if sse < best[0]:
                 best = (sse, dl, Z)
     Z = best[2]

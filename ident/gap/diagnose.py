@@ -652,6 +652,16 @@ def _test_design(d: JointData, ch: Channel, n_effects: int, settings: "Diagnosis
                             f"(hv-block, guard {h} samples: the residual's correlation length)")
 
 
+def _shape_text(cand: Candidate, hp, amps: np.ndarray) -> str:
+    """The chosen shape in words; a torque delay's column scales with its amplitude to first order,
+    so its delay is the grid's times the fitted amplitude (the sign says which signal is late)."""
+    if cand.family == "torque_delay" and amps.size:
+        dl = float(hp) * float(amps[0])
+        return (f"the logged torque {'late' if dl > 0 else 'early'} by {abs(dl) * 1e3:.3g} ms against the logged "
+                "position")
+    return cand.describe(hp)
+
+
 def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSettings) -> _ChannelRun:
     by_effect: dict = {}
     for c in cands:
@@ -696,7 +706,8 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 continue
             cvr, _ = _cv(ch, X, fold, gb, guard=design.guard)
             cand, hp = cvr.hp_all
-            physical = bool(cand.physical(hp, _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all].keep), d))
+            amps = _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all].keep)
+            physical = bool(cand.physical(hp, amps, d))
             composed = cols[cvr.hp_all].composed
             dloss = current_sse - cvr.sse
             if design.mode == "cycles":
@@ -721,7 +732,7 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
                 explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
                 share_step=_share(mse_cur - mse_e, mse_cur - noise),
                 p_value=p, p_min_attainable=p_min,
-                shape=cand.describe(hp) + ("; also times the selected effects' friction levels" if composed else ""),
+                shape=_shape_text(cand, hp, amps) + ("; also times the selected effects' friction levels" if composed else ""),
                 evidence={**_size_evidence(mse_cur - mse_e, noise, decl_ms),
                           "removed_variance_over_floor_lcb95": _over_floor(lcb_mse, noise)}), cvr,
                 {cvr.hp_all: cols[cvr.hp_all]})   # the chosen shape's recipe (its columns are rebuilt)
@@ -1016,8 +1027,8 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
                     "proposal": alternatives[0]["separate_by"],
                     "command": _design_command(d)}
     effects.sort(key=lambda r: (not r.significant, -(r.reduction or 0.0)))
-    series = {"t": d.t, "qd": d.qd, "q": d.q, "residual_nominal": resid, "trial": d.trial,
-              "spectrum": spectrum}
+    series = {"t": d.t, "qd": d.qd, "qdd": d.qdd, "q": d.q, "residual_nominal": resid, "trial": d.trial,
+              "spectrum": spectrum, "q_all": d.q_all}
     return DiagnosisResult(
         verdict=verdict, nominal_model=nominal.label, n_trials=d.n_trials,
         folds=_folds_text(d, runs),

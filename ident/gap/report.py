@@ -109,6 +109,17 @@ def markdown(report: dict, plots: dict) -> str:
         L += [f"| {r['regime']} | {r['share']:.2f} |" for r in rep["localisation"]]
         if "localisation_rest" in rep:
             L.append(f"| rest | {rep['localisation_rest']:.2f} |")
+        if rep.get("localisation_configuration"):
+            L += ["", "What the held-out residual depends on (each variable's smooth functions fitted on the "
+                      "other folds; share of the gap's excess over the noise floor they remove held out):", "",
+                  "| variable | share |", "|---|---|"]
+            L += [f"| {r['variable']} | {r['share']:.2f} |" for r in rep["localisation_configuration"]]
+        if rep.get("payload_identified"):
+            for key, e in rep["payload_identified"].items():
+                if "com_flange_m" in e:
+                    com = ", ".join(f"{c * 1e3:.1f} +- {s_ * 1e3:.1f}" for c, s_ in zip(e["com_flange_m"], e["com_stderr_m"]))
+                    L += ["", f"Payload {key} ({', '.join(e.get('record_ids', []))}): identified in the nominal on "
+                              f"every joint of every record, centre of mass in the flange frame [{com}] mm."]
         L += ["", "Candidate effects (first selection step; size = held-out variance removed over the "
                   "channel's noise-floor variance, against the floor that effect-free campaigns set for "
                   "that kind of candidate):", "",
@@ -137,7 +148,8 @@ def markdown(report: dict, plots: dict) -> str:
             L += ["", f"To separate **{v['effect']}** from {', '.join(v['confounded_with']) or 'its neighbours'}: "
                       f"{v['separating_experiment']}. Bootstrap over trials: it gives the largest reduction in "
                       f"{100 * v.get('bootstrap_top_share', 0):.0f}% of resamples."]
-        for key in (f"joint{j}_localisation", f"joint{j}_effects", f"joint{j}_residual", f"joint{j}_spectrum"):
+        for key in (f"joint{j}_localisation", f"joint{j}_effects", f"joint{j}_residual", f"joint{j}_configuration",
+                    f"joint{j}_spectrum"):
             if key in plots:
                 L += ["", f"![{key}]({plots[key]})"]
         L.append("")
@@ -189,6 +201,17 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
             ax.set_ylabel("held-out torque residual [N m]")
             ax.set_title(f"joint {j}: nominal model residual")
             save(fig, f"joint{j}_residual")
+            loc = rep.get("localisation_configuration") or []
+            x = _variable_series(s, loc[0]["variable"]) if loc else None
+            if x is not None:   # the residual against the variable it depends on most (held out)
+                fig, ax = subplots((6, 3.5))
+                m = s["residual_nominal"] != 0
+                ax.plot(x[m][::step], s["residual_nominal"][m][::step], ".", ms=1, alpha=0.4)
+                ax.set_xlabel(f"{loc[0]['variable']}" + (" [rad]" if loc[0]["variable"].startswith("q") else ""))
+                ax.set_ylabel("held-out torque residual [N m]")
+                ax.set_title(f"joint {j}: residual vs {loc[0]['variable']} ({loc[0]['share']:.0%} of the excess, "
+                             "held out)")
+                save(fig, f"joint{j}_configuration")
             sp = s.get("spectrum") or {}
             if len(sp.get("f", ())) > 1:
                 fig, ax = subplots((6, 3.5))
@@ -200,6 +223,14 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
                 ax.legend(fontsize=8)
                 save(fig, f"joint{j}_spectrum")
     return paths
+
+
+def _variable_series(s: dict, name: str):
+    """The samples of a localisation variable (``q<k>``, ``velocity``, ``acceleration``, ``time``)
+    in a joint's diagnosis series, or None."""
+    if name.startswith("q") and s.get("q_all") is not None:
+        return s["q_all"][:, int(name[1:]) - 1]
+    return {"velocity": s.get("qd"), "acceleration": s.get("qdd"), "time": s.get("t")}.get(name)
 
 
 def write_report(report: dict, series: dict, out_dir: Path, sink=None, plots: dict | None = None) -> dict:

@@ -213,25 +213,24 @@ def identify_rigid_body(robot, rigid: list, records: list, keeps: list, armature
     live = independent_columns(S, tol=1e-6, max_rows=S.shape[0] + 1)
     scale = np.sqrt(np.mean(S[:, live] ** 2, axis=0))
     scale[scale <= 0] = 1.0
+    # per (record, joint) block: its Gram matrix, moment and energy (built once; the weights of
+    # the two passes only scale them)
+    grams = []
+    for k, j, rows in blocks:   # loop over (record, joint) blocks, vectorised over samples
+        A, y = design(k, j, rows)
+        A = A[:, live] / scale
+        grams.append((j, A.T @ A, A.T @ y, float(y @ y), rows.size))
     sigma = np.ones(n)
     for _ in range(2):   # unweighted, then weighted by each joint's residual variance
-        G = np.zeros((live.size, live.size))
-        b = np.zeros(live.size)
-        for k, j, rows in blocks:   # loop over (record, joint) blocks, vectorised over samples
-            A, y = design(k, j, rows)
-            A = A[:, live] / scale
-            w = 1.0 / sigma[j] ** 2
-            G += w * (A.T @ A)
-            b += w * (A.T @ y)
+        G = sum(g / sigma[j] ** 2 for j, g, _, _, _ in grams)
+        b = sum(v / sigma[j] ** 2 for j, _, v, _, _ in grams)
         lam = 1e-10 * np.trace(G) / max(G.shape[0], 1)
         Gi = np.linalg.pinv(G + lam * np.eye(G.shape[0]))
         th = Gi @ b
         sse, cnt = np.zeros(n), np.zeros(n)
-        for k, j, rows in blocks:
-            A, y = design(k, j, rows)
-            r = y - (A[:, live] / scale) @ th
-            sse[j] += float(r @ r)
-            cnt[j] += rows.size
+        for j, g, v, yy, m in grams:
+            sse[j] += max(yy - 2 * th @ v + th @ g @ th, 0.0)
+            cnt[j] += m
         sigma = np.where(cnt > 0, np.sqrt(sse / np.maximum(cnt, 1)), 1.0)
     theta = np.zeros(p)
     theta[live] = th / scale
