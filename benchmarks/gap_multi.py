@@ -87,9 +87,11 @@ def diagnose(path: Path) -> tuple[dict | None, float, str | None]:
         return json.loads((out / "diagnosis.json").read_text()), cpu, None
 
 
-def _loc_top(jr: dict) -> str | None:
+def _loc_top(jr: dict) -> list:
+    """The variables the residual depends on most (the first, and those the record's motion does
+    not tell from it)."""
     loc = jr.get("localisation_configuration") or []
-    return loc[0]["variable"] if loc else None
+    return [loc[0]["variable"]] + list(loc[0].get("tied_with", [])) if loc else []
 
 
 #: a ripple whose order covers fewer periods than this over the joint's motion is a smooth function
@@ -127,12 +129,14 @@ def score(truth: dict, rep: dict, q_range: dict | None = None) -> list[dict]:
         elif name == "sensor_lag":
             row.update(kind="lowpass", correct=status == "unexplained")
         elif name == "counterbalance":
-            row.update(kind="counterbalance", correct=status == "unexplained" and row["where"] == "q2")
+            row.update(kind="counterbalance", correct=status == "unexplained" and "q2" in row["where"],
+                       alone=row["where"] == ["q2"])
         elif name == "cable_drag":
             k = int(e["params"]["other_joint"])
-            row.update(kind="cable", correct=status == "unexplained" and row["where"] == f"q{k}", other=k)
+            row.update(kind="cable", correct=status == "unexplained" and f"q{k}" in row["where"], other=k,
+                       alone=row["where"] == [f"q{k}"])
         elif name == "position_ripple" and q_range and ripple_periods(e, q_range[j]) < MIN_PERIODS:
-            row.update(kind="ripple_smooth", correct=status == "unexplained" and row["where"] == f"q{j}",
+            row.update(kind="ripple_smooth", correct=status == "unexplained" and f"q{j}" in row["where"],
                        named=verdict == name, periods=ripple_periods(e, q_range[j]))
         elif name in TRANSMISSION:
             row.update(kind="transmission", correct=verdict == name or (alts[:1] == [name]))
@@ -196,6 +200,9 @@ def summarize(results: list) -> dict:
         goal = (f"; goal >= {goals[kind]:g}" if kind in goals else "; goal: 0 false attributions"
                 if kind == "clean" else "")
         lines.append(f"{label}: {ok} of {len(rows)} ({ok / len(rows):.3f}{goal})")
+        if kind in ("counterbalance", "cable"):
+            alone = sum(1 for _, x in rows if x["correct"] and x.get("alone"))
+            lines.append(f"  of which the right variable alone (not tied with another joint's angle): {alone}")
         if kind in ("clean", "absorbed_other"):
             unx = sum(1 for _, x in rows if x["status"] == "unexplained")
             lines.append(f"  of which unexplained (a gap the nominal leaves, e.g. another joint's effect leaking "

@@ -12,6 +12,7 @@ from mocap.io.plausibility import check_angles_dir, check_joints_option, check_s
 from ident.gap.data import build_joint_data, joint_log
 from ident.gap.diagnose import DiagnosisSettings, diagnose_joint
 from ident.gap.nominal import check_held_nominal, check_nominal
+from ident.study.executor import progress_bars
 
 
 def read_angles_csv(path: str | Path) -> tuple[np.ndarray, dict]:
@@ -58,7 +59,7 @@ def diagnose_single_joint_campaign(campaign, robot=None, angles: dict | None = N
               "skipped_trials": skipped, "link_angles": angles is not None and bool(angles),
               "nominal": nominal.describe()}
     items = sorted(by_joint.items())
-    if progress:
+    if progress_bars(progress):   # a bar on a terminal only, not in captured logs
         from tqdm import tqdm
         items = tqdm(items, desc="diagnose", unit="joint")
     series = {}
@@ -87,14 +88,14 @@ def diagnose_single_joint_campaign(campaign, robot=None, angles: dict | None = N
     return report, series
 
 
-def check_diagnose_options(args, campaign) -> None:
+def check_diagnose_options(campaign, *, nominal, seed, joints=None, angles=None) -> None:
     """``jointlab diagnose``: held ``--nominal`` values, ``--joints`` of the robot, an
     ``--angles`` folder that fits the campaign."""
-    check_held_nominal(args.nominal)
-    check_seed(args.seed)
-    if not args.joints and args.angles is None:
+    check_held_nominal(nominal)
+    check_seed(seed)
+    if not joints and angles is None:
         return
     robot = campaign.load_robot()
-    check_joints_option(args.joints, robot)
-    if args.angles is not None:
-        check_angles_dir(args.angles, campaign, robot)
+    check_joints_option(joints, robot)
+    if angles is not None:
+        check_angles_dir(angles, campaign, robot)

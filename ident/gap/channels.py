@@ -149,6 +149,12 @@ def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
     return Channel("torque", "N m", nominal.target(d), X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt)
 
 
+def torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
+    """The torque channel of ``d`` against ``nominal`` (default Coulomb + viscous): its target
+    (the logged torque less the fixed part), the nominal's columns and the motion-cycle blocks."""
+    return _torque_channel(d, nominal)
+
+
 def at_markers(d: JointData, x: np.ndarray) -> np.ndarray:
     """A log-clock signal of the torque channel (``d.q``, ``d.qdd`` ...) at the marker times
     (per trial, interpolated on the log clock; rests left out of the log samples are bridged)."""

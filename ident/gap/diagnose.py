@@ -1044,6 +1044,11 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         configuration_localisation=tuple(config_loc))
 
 
+def _variable_text(row: dict) -> str:
+    """``q2``, or ``q1 or q2`` when the record's motion does not tell them apart."""
+    return " or ".join([row["variable"]] + list(row.get("tied_with", ())))
+
+
 def _sample_folds(design: "_TestDesign", n: int) -> tuple[np.ndarray, np.ndarray]:
     """(held-out fold of every sample, mask of the samples of tested units)."""
     fold, tested = np.zeros(n, int), np.zeros(n, bool)
@@ -1064,7 +1069,7 @@ def _unnamed_status(d: JointData, tres: "_ChannelRun", resid: np.ndarray, status
     if status == "unexplained" or u is not None:
         fold, tested = _sample_folds(tres.design, resid.shape[0])
         loc = configuration_localisation(d, resid, fold, tres.noise_floor_mse, tested)
-    top = (f"depends on {loc[0]['variable']} (held out, {loc[0]['share']:.0%} of the gap's excess)"
+    top = (f"depends on {_variable_text(loc[0])} (held out, {loc[0]['share']:.0%} of the gap's excess)"
            if loc and loc[0]["share"] > 0 else "")
 
     if u is None:

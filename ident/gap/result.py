@@ -253,7 +253,8 @@ class DiagnosisResult:
         """The verdict in one line, the same wherever it is shown (console, study report,
         diagnosis.md, diagnosis.json's ``verdict_text``)."""
         loc = self.configuration_localisation
-        where = (f"depends on {loc[0]['variable']}" if loc and loc[0].get("share", 0) > 0.1 else "")
+        where = (f"depends on {' or '.join([loc[0]['variable']] + list(loc[0].get('tied_with', ())))}"
+                 if loc and loc[0].get("share", 0) > 0.1 else "")
         return verdict_line(self.verdict, self.verdict_status, self.effect_size(), self.detectable,
                             self.alternatives, self.channels, self.extrapolated, where)
 

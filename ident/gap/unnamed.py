@@ -37,6 +37,10 @@ UNNAMED = (CONFIGURATION, TORQUE_LOWPASS)
 #: a joint's angle varies over at least this range (rad) to be a configuration variable
 MIN_RANGE = 0.05
 KINDS = ("add", "coulomb", "viscous")
+#: two configuration variables are told apart when one keeps at least this share of the first's
+#: held-out reduction given the other (an excitation moves every joint on one fundamental, so
+#: smooth functions of two angles can explain the same residual)
+TIE_SHARE = 0.05
 
 
 def _scaled(x: np.ndarray) -> np.ndarray:
@@ -180,12 +184,20 @@ def configuration_localisation(d, resid: np.ndarray, fold: np.ndarray, noise_mse
     # are told apart by an encompassing test, each one's held-out reduction left given the other's
     # features (the variable the term depends on keeps its part, a correlated one does not)
     close = [x for x in rows[1:4] if x["share"] >= 0.8 * rows[0]["share"] > 0]
+    a0 = rows[0]["variable"]
+    top_removed = max(float(np.sum(r ** 2)) - sse[a0], 1e-300)
+    tied = {a0}
     for x in close:
         a, b = rows[0]["variable"], x["variable"]
         both = heldout_sse(np.column_stack([feats[a], feats[b]]))
-        ua, ub = sse[b] - both, sse[a] - both
-        x["unique_given_top"], rows[0].setdefault("unique_given", {})[b] = ub / r.size, ua / r.size
+        ua, ub = sse[b] - both, sse[a] - both    # each one's held-out reduction left given the other
+        if a == a0 and max(ua, ub) < TIE_SHARE * top_removed:
+            tied.add(b)
         if ub > ua:
             i = rows.index(x)
             rows[0], rows[i] = rows[i], rows[0]
+    # variables neither of which keeps TIE_SHARE of the first's held-out reduction given the other:
+    # this record's motion does not tell them apart (both are named)
+    top = rows[0]["variable"]
+    rows[0]["tied_with"] = sorted(tied - {top}) if top in tied else []
     return rows

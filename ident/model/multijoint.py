@@ -15,9 +15,12 @@ from ident.model.record import RecordSettings, coupling_matrix, load_record, pre
 from ident.friction.plausibility import Flag, fmt, meaning_line
 from ident.gap import diagnose_joint
 from ident.gap.data import build_joint_data_record, campaign_clock, concat_joint_data, standstill
+from ident.gap.channels import torque_channel
+from ident.gap.engine import cross_validate, grams
 from ident.gap.nominal import check_nominal
 from ident.model.identified import PooledRigidBody, identify_rigid_body, payload_key, record_rigid_body
 from ident.model.regressor import ChainDynamics, base_parameters
+from ident.study.executor import progress_bars
 from ident.model.rigidbody import (_PREPARED, RigidBodyIdentifier, coulomb_over_cuts,
                                    dynamic_data_note, friction_transition, low_speed_cut,
                                    residual_knee, without_unlogged)
@@ -562,6 +565,29 @@ def _join_logs(logs):
                     source=logs[0].source)
 
 
+#: contiguous held-out segments per record of `jointlab fit`'s rigid-body identification
+#: (:class:`ident.model.rigidbody.RigidBodyIdentifier` ``folds``)
+FIT_FOLDS = 5
+
+
+def _contiguous_heldout(d, nominal, folds: int, bounds: np.ndarray) -> float:
+    """The nominal's held-out torque RMS on ``folds`` contiguous segments of each record, the
+    folds `jointlab fit` reports its held-out RMS on (each motion cycle goes to the segment that
+    holds its first sample), so the two figures compare like with like. ``bounds``: the first
+    trial (motion cycle) of each record in ``d``, and the end."""
+    ch = torque_channel(d, nominal)
+    start = ch.blocks[:, 0]
+    rec = np.searchsorted(bounds[1:], ch.block_trial, side="right")
+    fold = np.zeros(start.shape[0], int)
+    for k in np.unique(rec):   # loop over records
+        m = rec == k
+        t = d.t_rel[start[m]]
+        span = max(float(t.max()) + 1e-9, 1e-9)
+        fold[m] = int(k) * folds + np.minimum((t / span * folds).astype(int), folds - 1)
+    cv = cross_validate({None: grams(ch.X0, ch.target, ch.blocks)}, fold)
+    return float(np.sqrt(np.sum(cv.sse) / max(float(np.sum(ch.blocks[:, 1] - ch.blocks[:, 0])), 1.0)))
+
+
 def identified_rigid_body(robot, recs: list, trials) -> PooledRigidBody:
     """The rigid body identified on every joint of every record of a campaign
     (:func:`ident.model.identified.identify_rigid_body`): ``recs`` as ``(trial indices, record)``;
@@ -649,7 +675,7 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
                    "torque not logged (unlogged_torque); their angles drive the kinematics, they "
                    "are not diagnosed", path=campaign.manifest)
     todo = [j for j in moving if not joints or j in joints]
-    if progress and todo:
+    if todo and progress_bars(progress):   # a bar on a terminal only, not in captured logs
         from tqdm import tqdm
 
         todo = tqdm(todo, desc="diagnose", unit="joint", leave=False)
@@ -683,6 +709,7 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
                                          for k, e in pooled.payload.items()}
         rep["record"] = {"trial": " | ".join(rec.trial_id for _, _, rec in mine),
                          "heldout_rms_nominal_by_record": by_rec,
+                         "heldout_rms_nominal_contiguous": _contiguous_heldout(d, nominal, FIT_FOLDS, bounds),
                          "pieces": [[trials[i].id for i in g] for _, g, _ in mine],
                          "preprocessing": (mine[0][2].preprocessing if len(mine) == 1 else
                                            {rec.trial_id: rec.preprocessing for _, _, rec in mine}),
