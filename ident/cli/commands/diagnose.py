@@ -54,7 +54,9 @@ def run(args) -> int:
     camp = load_campaign(args.campaign)
     joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
     check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
-    check_diagnose_options(args, camp)       # held --nominal values, --joints, --angles
+    # held --nominal values, --joints, --angles
+    check_diagnose_options(camp, nominal=args.nominal, seed=args.seed, joints=args.joints,
+                           angles=args.angles)
     with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:
         od.check_early(["diagnosis.json", "diagnosis.md"])
         out = od.root
