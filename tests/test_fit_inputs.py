@@ -152,3 +152,38 @@ def test_checks_pass_a_consistent_joint_and_name_each_mistake():
     assert w.startswith("1 fit(s) physically implausible (trial 'x' joint 5:")
     assert "check the units or scale of tau_5" in w
     assert input_warning([("trial 'y' joint 5", 5, [])]) is None
+
+
+def test_markers_shifted_in_time_give_one_warning_naming_the_clock(tmp_path, capsys):
+    """Issue 45: link angles whose marker clock is 0.4 s off the robot's (a missing
+    ``time_offset``) gave an implausible fit without a word. The angles come from `jointlab
+    mocap` on the one-trial demo; their time column is shifted here, as a wrong clock would."""
+    root = _one_trial(tmp_path)
+    ang = tmp_path / "mocap"
+    assert main(["mocap", str(root), "--out", str(ang)]) == 0
+    good = tmp_path / "fit-good"
+    assert main(["fit", str(root), "--out", str(good), "--models", "cv", "--angles", str(ang / "angles")]) == 0
+    doc = json.loads((good / "fits.json").read_text())
+    checks = doc["trials"][TRIAL]["5"]["cv"].get("input_checks", [])
+    assert "marker_clock" not in json.dumps(checks), checks
+    p = ang / "angles" / f"{TRIAL}.csv"
+    lines = p.read_text().split("\n")
+    head = lines[0].split(",")
+    k = head.index("time")
+    out = [lines[0]]
+    for ln in lines[1:]:
+        if not ln or ln.startswith("#"):
+            out.append(ln)
+            continue
+        r = ln.split(",")
+        r[k] = repr(float(r[k]) + 0.4)
+        out.append(",".join(r))
+    p.write_text("\n".join(out))
+    capsys.readouterr()
+    bad = tmp_path / "fit-bad"
+    assert main(["fit", str(root), "--out", str(bad), "--models", "cv", "--angles", str(ang / "angles")]) == 0
+    err = capsys.readouterr().err
+    warn = [ln for ln in err.splitlines() if "physically implausible" in ln]
+    assert len(warn) == 1 and "clock offset" in warn[0], err
+    doc = json.loads((bad / "fits.json").read_text())
+    assert "marker_clock" in json.dumps(doc["trials"][TRIAL]["5"]["cv"]["input_checks"])

@@ -552,6 +552,44 @@ def input_checks(time, q, qd, qdd, tau, *, params: dict, rigid: dict, stderr: di
     return out
 
 
+def marker_clock_check(t_marker, q_link, t_log, q_motor, max_lag: float = 0.6,
+                       step: float = 0.005) -> list:
+    """The marker clock against the robot's: the lag ``s`` at which the link angle from the
+    markers best follows the encoder angle (``q_link(t) = a + b q_motor(t + s)``, least squares
+    over shifts of ``step`` within ``+-max_lag`` s on the marker samples inside the log). The
+    link follows the motor within the transmission's deflection (a small fraction of a
+    degree), so a lag beyond :data:`CLOCK_LAG_S` whose residual is below 0.8 of the unshifted
+    one is a clock offset (FORMAT.md ``time_offset``): one ``marker_clock`` :class:`InputCheck`,
+    or none. Arguments: the marker samples' times on the robot clock (``time_offset``
+    applied) and link angles, the log's times and motor angles (link side)."""
+    tm, ql = np.asarray(t_marker, float), np.asarray(q_link, float)
+    tl, qm = np.asarray(t_log, float), np.asarray(q_motor, float)
+    ok = np.isfinite(tm) & np.isfinite(ql)
+    tm, ql = tm[ok], ql[ok]
+    okl = np.isfinite(qm)
+    tl, qm = tl[okl], qm[okl]
+    if tm.size < 40 or tl.size < 40 or np.ptp(qm) <= 0:
+        return []
+    rss, lags = [], np.arange(-max_lag, max_lag + step / 2, step)
+    for s in lags:   # loop over lags (a few hundred small regressions)
+        m = (tm + s >= tl[0]) & (tm + s <= tl[-1])
+        if m.sum() < 40:
+            rss.append(np.inf)
+            continue
+        X = np.column_stack([np.ones(m.sum()), np.interp(tm[m] + s, tl, qm)])
+        r = ql[m] - X @ np.linalg.lstsq(X, ql[m], rcond=None)[0]
+        rss.append(float(r @ r) / m.sum())
+    rss = np.asarray(rss)
+    k0 = int(np.argmin(np.abs(lags)))
+    kb = int(np.argmin(rss))
+    lag = float(lags[kb])
+    if np.isfinite(rss[k0]) and abs(lag) > CLOCK_LAG_S and rss[kb] < 0.8 * rss[k0]:
+        return [InputCheck("marker_clock", lag, f"the link angle from the markers follows the encoder angle "
+                           f"best {lag:+.3g} s later (residual {rss[kb] / rss[k0]:.2g} of the unshifted one)",
+                           ("clock",))]
+    return []
+
+
 def input_warning(entries) -> str | None:
     """ONE warning over the failed input checks of a set of fits: which fits, what each
     check says, and the input mistakes that would explain them, most often suspected first.

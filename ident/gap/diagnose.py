@@ -1028,7 +1028,9 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
                     "command": _design_command(d)}
     effects.sort(key=lambda r: (not r.significant, -(r.reduction or 0.0)))
     series = {"t": d.t, "qd": d.qd, "qdd": d.qdd, "q": d.q, "residual_nominal": resid, "trial": d.trial,
-              "spectrum": spectrum, "q_all": d.q_all}
+              "spectrum": spectrum}
+    if d.q_all is not None:   # records: every joint's angle, for the configuration plot
+        series["q_all"] = d.q_all
     return DiagnosisResult(
         verdict=verdict, nominal_model=nominal.label, n_trials=d.n_trials,
         folds=_folds_text(d, runs),

@@ -34,7 +34,7 @@ from ident.thesis import tables as stats
 from ident.model.onelink import OneLinkIdentifier, model_class, onelink_regressor, onelink_target
 from ident.model.linkstate import prepare_joint_signals
 from ident.signals.smoothing import FourierSmoother, SavGolSmoother, one_blas_thread
-from ident.friction.plausibility import assess, input_checks, input_warning, to_json
+from ident.friction.plausibility import assess, input_checks, input_warning, marker_clock_check, to_json
 from mocap.io.payload import payload_com, payload_com_unknown
 from mocap.io.robotlog import read_robot_log
 from mocap.robot import Robot
@@ -203,6 +203,8 @@ def _fit_trial_joint(task: FitTask) -> TrialJointFit:
         checks = tuple(input_checks(sig.time, sig.q, sig.qd, sig.qdd, sig.tau, params=cv.params,
                                     rigid=cv.rigid, stderr=cv.stderr, flags=raw["cv"],
                                     urdf_dyn=task.urdf_dyn, max_torque=task.max_torque))
+        if t_ang is not None:   # the marker clock against the robot's (FORMAT.md time_offset)
+            checks += tuple(marker_clock_check(np.asarray(t_ang) + float(sig.time_offset), q_link, log.time, qm))
         notes.extend(f"input check: {c.says}" for c in checks)
     return TrialJointFit(task, fits, sd, float(np.max(np.abs(sig.tau))), float(np.max(np.abs(sig.qd))),
                          tuple(notes), plot, pflags, checks)
