@@ -33,6 +33,7 @@ and print. The functions take a loaded campaign and write nothing; each result's
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,8 +65,9 @@ from ident.study.angles import campaign_references
 from ident.thesis.campaign_fit import FitsResult
 from ident.thesis.campaign_fit import fit_onelink_campaign as _fit_onelink
 
-__all__ = ["PATHS", "Plan", "plan", "parse_models", "prepare_fit", "FitSettings", "FitResult",
-           "fit_campaign", "CampaignDiagnosis", "diagnose_campaign", "CalibrationResult",
+__all__ = ["PATHS", "Plan", "plan", "parse_models", "check_models", "fit_plans", "subset",
+           "prepare_fit", "FitSettings", "FitResult", "fit_campaign", "CampaignDiagnosis",
+           "diagnose_campaign", "diagnosis_document", "CalibrationResult",
            "calibrate", "CampaignAngles", "references", "solve_angles"]
 
 #: The identification paths, in the order they are reported, and what each one is.
@@ -194,6 +196,27 @@ def parse_models(text: str) -> tuple:
     models = tuple(dict.fromkeys(m.strip() for m in text.split(",") if m.strip()))
     if not models:
         raise InputError("--models is empty")
+    return check_models(models)
+
+
+def check_models(models) -> tuple:
+    """``models`` as a tuple when each name is a known friction model (a one-link model of the
+    registry :func:`ident.model.onelink.model_class` or a dynamic model of
+    :data:`ident.indri.campaign_fit.DYNAMIC_MODELS`); which path fits each is :func:`plan`'s.
+
+    Raises
+    ------
+    InputError
+        Empty, or an unknown name.
+
+    Examples
+    --------
+    >>> check_models(["cv", "dm1"])
+    ('cv', 'dm1')
+    """
+    models = tuple(models)
+    if not models:
+        raise InputError("no friction models given")
     for m in models:
         if m in DYNAMIC_MODELS:
             continue
@@ -336,6 +359,44 @@ def plan(campaign, models=None, *, export_c: bool = False) -> Plan:
         reasons.setdefault("single_joint", "models asked for, but no single-joint trial to fit")
     return Plan(**base, paths=tuple(p for p in PATHS if routed.get(p) or (p == "coastdown" and coast)),
                 reasons=reasons, models={k: v for k, v in routed.items() if v}, notes=tuple(notes))
+
+
+def subset(campaign, ids):
+    """``campaign`` with only the trials whose id is in ``ids`` (campaign order kept)."""
+    keep = set(ids)
+    return dataclasses.replace(campaign, trials=tuple(t for t in campaign.trials if t.id in keep))
+
+
+def fit_plans(campaign, models) -> tuple:
+    """The friction fit's plans of ``campaign``: one :func:`plan` per manifest it would be
+    fitted from.
+
+    A mixed campaign (multi-joint records beside other trials, which :func:`plan` refuses to fit
+    as one) gives the plan of its other trials, then that of its records; any other campaign
+    its one plan. ``jointlab fit`` fits one manifest; ``jointlab study`` fits every part.
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+    models : sequence of str
+
+    Returns
+    -------
+    tuple of Plan
+
+    Raises
+    ------
+    InputError
+        As :func:`plan`, for any part.
+
+    References
+    ----------
+    .. [1] jointlab workflow layer (docs/workflow.md).
+    """
+    whole = plan(campaign)
+    if not whole.mixed:
+        return (plan(campaign, models),)
+    return tuple(plan(subset(campaign, ids), models) for ids in (whole.single_joint, whole.multi_joint))
 
 
 # ============================================================================================
@@ -669,21 +730,57 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
     check_campaign_motion(campaign, robot.n)
     p = plan(campaign)
     paths = p.diagnosis_paths
+    single = records = None
     if "single_joint" in paths or "multi_joint" not in paths:
-        report, series = _diagnose_single(campaign, robot, ang, settings, joints=joints, progress=progress)
-        if "multi_joint" not in paths:
-            return CampaignDiagnosis(p, report, series)
+        single = _diagnose_single(campaign, robot, ang, settings, joints=joints, progress=progress)
+    if "multi_joint" in paths:
+        records = diagnose_records(campaign, robot, settings, joints=joints, progress=progress)
+    report, series = diagnosis_document(p, settings, single, records)
+    return CampaignDiagnosis(p, report, series)
+
+
+def diagnosis_document(plan: Plan, settings: DiagnosisSettings, single=None, records=None) -> tuple:
+    """The ``diagnosis.json`` document and the plotted series of a campaign from its paths'
+    parts: the one place that assembles them (:func:`diagnose_campaign`, ``jointlab study``).
+
+    Parameters
+    ----------
+    plan : Plan
+        The campaign's plan (:func:`plan` without models).
+    settings : ident.gap.DiagnosisSettings
+    single : tuple, optional
+        ``(report, series)`` of the single-joint trials
+        (:func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign`, or the same
+        document assembled from its per-joint parts).
+    records : tuple, optional
+        ``(joints, series)`` of the multi-joint records
+        (:func:`ident.model.multijoint.diagnose_records`); a joint diagnosed on both paths
+        keeps the records' entry.
+
+    Returns
+    -------
+    tuple
+        ``(report, series)``.
+
+    References
+    ----------
+    .. [1] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    """
+    if single is not None:
+        report, series = dict(single[0]), dict(single[1])
+        report["joints"] = dict(report["joints"])
     else:
-        report = {"format": 1, "campaign": campaign.name, "settings": settings.to_dict(), "joints": {},
+        report = {"format": 1, "campaign": plan.campaign, "settings": settings.to_dict(), "joints": {},
                   "skipped_trials": [], "link_angles": False}
         series = {}
-    rj, rs = diagnose_records(campaign, robot, settings, joints=joints, progress=progress)
-    report["joints"].update(rj)
-    series.update(rs)
-    report["multi_joint_trials"] = list(p.multi_joint)
-    report["skipped_trials"] = [t for t in report.get("skipped_trials", [])
-                                if t not in set(p.multi_joint)]
-    return CampaignDiagnosis(p, report, series)
+    if records is not None:
+        rj, rs = records
+        report["joints"].update(rj)
+        series.update(rs)
+        report["multi_joint_trials"] = list(plan.multi_joint)
+        report["skipped_trials"] = [t for t in report.get("skipped_trials", [])
+                                    if t not in set(plan.multi_joint)]
+    return report, series
 
 
 # ============================================================================================

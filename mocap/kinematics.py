@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mocap.numerics import rotation_about_axis, rotvec_to_matrix, skew  # noqa: F401  (re-exported)
+
 
 def unit(v: np.ndarray) -> np.ndarray:
     """``v`` (..., 3) scaled to unit length along the last axis."""
@@ -26,66 +28,6 @@ def perp_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u = unit(np.cross(n, e))
     v = np.cross(n, u)
     return u, v
-
-
-def skew(w: np.ndarray) -> np.ndarray:
-    """Cross-product matrices (..., 3, 3) of vectors (..., 3): ``skew(w) @ x == cross(w, x)``."""
-    w = np.asarray(w, float)
-    K = np.zeros(w.shape[:-1] + (3, 3))
-    K[..., 0, 1], K[..., 0, 2] = -w[..., 2], w[..., 1]
-    K[..., 1, 0], K[..., 1, 2] = w[..., 2], -w[..., 0]
-    K[..., 2, 0], K[..., 2, 1] = -w[..., 1], w[..., 0]
-    return K
-
-
-def rotation_about_axis(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    r"""Rotation matrices about a unit axis (Rodrigues' formula).
-
-    .. math::
-
-        R = I + \sin\theta\, K + (1 - \cos\theta)\, K^2
-
-    with ``K`` the cross-product matrix of ``axis`` (:func:`skew`): the joint rotation of the
-    forward kinematics behind thesis eq. 3-3 [1]_.
-
-    Parameters
-    ----------
-    axis : array_like
-        (3,) unit rotation axis.
-    angle : array_like
-        (...) angles (rad).
-
-    Returns
-    -------
-    numpy.ndarray
-        (..., 3, 3) rotation matrices.
-
-    References
-    ----------
-    .. [1] PA10 thesis (seeds 002), eq. 3-3.
-
-    Examples
-    --------
-    >>> np.round(rotation_about_axis([0.0, 0.0, 1.0], np.pi / 2) @ [1.0, 0.0, 0.0], 12)
-    array([0., 1., 0.])
-    """
-    K = skew(np.asarray(axis, float))
-    angle = np.asarray(angle, float)
-    s = np.sin(angle)[..., None, None]
-    c = np.cos(angle)[..., None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
-
-
-def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula for rotation vectors (..., 3) -> (..., 3, 3)."""
-    w = np.asarray(w, float)
-    th = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = skew(w)
-    small = th < 1e-12
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
-    return np.eye(3) + a * K + b * (K @ K)
 
 
 def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:

@@ -158,7 +158,9 @@ def write_drives(path: str | Path, drives, overwrite: bool = False) -> Path:
     return path
 
 
-def _joint_axis(jm) -> np.ndarray:
+def joint_axis(jm) -> np.ndarray | None:
+    """The unit axis (3,) of a pinocchio revolute joint model in its joint frame (RX, RY, RZ or
+    revolute-unaligned), or None for any other joint type."""
     short = jm.shortname()
     table = {"JointModelRX": (1, 0, 0), "JointModelRY": (0, 1, 0), "JointModelRZ": (0, 0, 1)}
     if short in table:
@@ -220,7 +222,7 @@ class Robot:
         axes, placements, names = [], [], []
         for i in range(1, model.njoints):
             jm = model.joints[i]
-            ax = _joint_axis(jm)
+            ax = joint_axis(jm)
             if ax is None or jm.nq != 1:
                 raise InputError(f"joint {model.names[i]!r} is {jm.shortname()}; only revolute (and "
                                  "continuous) joints are supported in the arm's chain: choose [robot] "

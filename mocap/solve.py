@@ -38,6 +38,7 @@ import numpy as np
 from mocap.io.payload import payload_com
 from mocap.io.errors import InputError
 from mocap.io.plausibility import check_trial_rigid_fit
+from mocap.numerics import rotate_about_axis, savgol
 from mocap.kinematics import (Chain, apply_transform, invert_transform, make_transform, perp_basis,
                               rotation_about_axis)
 
@@ -462,11 +463,9 @@ class _SingleJoint:
         return self._y
 
     def _rot(self, qs):
-        c = np.cos(qs)[:, None, None]
-        s = np.sin(qs)[:, None, None]
         a = self.a
         xa = (self.x @ a)[..., None] * a
-        return c * self.x_perp + s * self.ax + xa  # Rot(a, q) x, (T, M, 3)
+        return rotate_about_axis(self.x_perp, self.ax, xa, qs)  # Rot(a, q) x, (T, M, 3)
 
     def predict(self, qs, idx=None):
         qs = np.asarray(qs).reshape(-1)
@@ -474,9 +473,7 @@ class _SingleJoint:
         Rj, oj = self.Rj, self.oj
         if idx is not None and Rj.shape[0] > 1:
             x, xp, ax, Rj, oj = x[idx], xp[idx], ax[idx], Rj[idx], oj[idx]
-        c = np.cos(qs)[:, None, None]
-        s = np.sin(qs)[:, None, None]
-        p = c * xp + s * ax + (x @ self.a)[..., None] * self.a
+        p = rotate_about_axis(xp, ax, (x @ self.a)[..., None] * self.a, qs)
         return np.einsum("tij,tmj->tmi", Rj, p) + oj[:, None, :]
 
     def model_markers(self, qs, idx=None):
@@ -1044,8 +1041,6 @@ def held_placement(robot, trial, log, time: np.ndarray, q_guess: np.ndarray, mov
     .. [1] PA10 thesis (seeds 002), eq. 2-1.
     .. [2] jointlab data format (docs/format.md), sec. robot/drives.toml.
     """
-    from scipy.signal import savgol_filter
-
     if robot is None or not (robot.stiffness > 0).any() or time.size == 0:
         return q_guess
     moving = list(moving)
@@ -1061,8 +1056,8 @@ def held_placement(robot, trial, log, time: np.ndarray, q_guess: np.ndarray, mov
         w = max(int(round(0.04 / dt)) | 1, 7)
         if w > x.size:
             w = x.size if x.size % 2 else x.size - 1
-        qd[:, j] = np.interp(time, lt, savgol_filter(x, w, 3, deriv=1, delta=dt))
-        qdd[:, j] = np.interp(time, lt, savgol_filter(x, w, 3, deriv=2, delta=dt))
+        qd[:, j] = np.interp(time, lt, savgol(x, w, 3, deriv=1, delta=dt))
+        qdd[:, j] = np.interp(time, lt, savgol(x, w, 3, deriv=2, delta=dt))
     load = float(getattr(trial, "load_kg", 0.0) or 0.0)
     com = payload_com(trial)
     rb = robot.with_payload(load, com) if load > 0 else robot

@@ -134,13 +134,13 @@ def test_rests_before_and_after_are_trimmed():
 def test_cached_savgol_equals_scipy_savgol_filter(w):
     from scipy.signal import savgol_filter
 
-    from ident.signals.smoothing import _savgol
+    from mocap.numerics import savgol
 
     rng = np.random.default_rng(31)
     x = np.cumsum(rng.normal(size=1500)) * 0.01 + np.sin(np.arange(1500) * 0.02)
     for deriv in (0, 1, 2):
         ref = savgol_filter(x, w, 3, deriv=deriv, delta=0.005, mode="interp")
-        np.testing.assert_allclose(_savgol(x, w, 3, deriv, 0.005), ref, rtol=0,
+        np.testing.assert_allclose(savgol(x, w, 3, deriv, 0.005), ref, rtol=0,
                                    atol=1e-10 * np.max(np.abs(ref)))
 
 

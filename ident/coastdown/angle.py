@@ -62,6 +62,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from mocap.io.errors import InputError
+from mocap.numerics import phi, psi
 from ident.signals.smoothing import one_blas_thread
 
 __all__ = ["Flex", "CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coasts", "coast_angle", "coast_speed",
@@ -70,20 +71,6 @@ __all__ = ["Flex", "CoastWindow", "AngleCoastFit", "AngleCoastResult", "find_coa
 
 
 # -- the model ----------------------------------------------------------------------------
-def _phi(z):
-    z = np.asarray(z, float)
-    small = np.abs(z) < 1e-4
-    zs = np.where(small, 1.0, z)
-    return np.where(small, 1.0 - z / 2.0 + z * z / 6.0, -np.expm1(-zs) / zs)
-
-
-def _psi(z):
-    z = np.asarray(z, float)
-    small = np.abs(z) < 1e-3
-    zs = np.where(small, 1.0, z)
-    return np.where(small, 0.5 - z / 6.0 + z * z / 24.0, (zs + np.expm1(-zs)) / (zs * zs))
-
-
 def _log1p_over(y):
     y = np.asarray(y, float)
     small = np.abs(y) < 1e-6
@@ -338,7 +325,7 @@ def coast_angle(tau, J, Kv, Kc_eff, w):
     tau_s = coast_stop(J, Kv, Kc_eff, w)
     tt = np.clip(tau, 0.0, tau_s)
     z = Kv * tt / J
-    x = w * tt * _phi(z) - Kc_eff / J * tt * tt * _psi(z)
+    x = w * tt * phi(z) - Kc_eff / J * tt * tt * psi(z)
     return x, tau_s
 
 
@@ -365,7 +352,7 @@ def coast_speed(tau, J, Kv, Kc_eff, w):
     x, tau_s = coast_angle(tau, J, Kv, Kc_eff, w)
     tt = np.clip(np.asarray(tau, float), 0.0, tau_s)
     z = Kv * tt / J
-    v = np.maximum(w, 0.0) * np.exp(-z) - Kc_eff / J * tt * _phi(z)
+    v = np.maximum(w, 0.0) * np.exp(-z) - Kc_eff / J * tt * phi(z)
     return np.where(np.asarray(tau, float) < tau_s, v, 0.0)
 
 

@@ -72,6 +72,7 @@ from ident.friction import laws
 from ident.friction.base import FrictionModel
 from ident.friction.laws import _2_PI, s0, s1
 from ident.friction.static import Arctan
+from mocap.numerics import foh_drive, zoh_drive
 
 
 # --------------------------------------------------------------------------------------------
@@ -172,14 +173,6 @@ def linear_scan(decay, drive, z0: float, block: int = 8, max_chunks: int = 1024)
     carry = linear_scan(D[:, block], loc[:, block], z0, block, max_chunks)   # (nb+1,)
     z = loc[:, :block] + np.exp(-D[:, :block]) * carry[:nb, None]
     return np.concatenate([z.ravel(), carry[nb:]])[: n + 1]
-
-
-def _phi(x):
-    """``(1 - exp(-x)) / x`` with the limit 1 at x = 0."""
-    x = np.asarray(x, float)
-    small = np.abs(x) < 1e-12
-    xs = np.where(small, 1.0, x)
-    return np.where(small, 1.0 - 0.5 * x, -np.expm1(-xs) / xs)
 
 
 # --------------------------------------------------------------------------------------------
@@ -286,13 +279,13 @@ class _LuGre(FrictionModel):
         if self.hold == "zero" or qd_next is None:
             a, b, _ = self._ab(qd)
             x = a * np.asarray(dt, float)
-            return np.exp(-x) * z + dt * _phi(x) * b
+            return np.exp(-x) * z + zoh_drive(x, dt, b)
         v1 = np.asarray(qd_next, float)
         a0, _, g0 = self._ab(qd)
         a1, _, g1 = self._ab(v1)
         zs0, zs1 = self._zss(qd, g0), self._zss(v1, g1)
         x = 0.5 * np.asarray(dt, float) * (a0 + a1)
-        return np.exp(-x) * z - np.expm1(-x) * zs0 + (zs1 - zs0) * (1.0 - _phi(x))
+        return np.exp(-x) * z + foh_drive(x, zs0, zs1)
 
     def states(self, qd, dt) -> np.ndarray:
         """Bristle states z (T,) at the samples of ``qd`` by the exact discretisation eq. 29-30.
@@ -315,12 +308,11 @@ class _LuGre(FrictionModel):
         if self.hold == "zero":                                   # eq. 29-30 as printed
             a, b, _ = self._ab(v[:-1])
             x = a * steps
-            return linear_scan(x, steps * _phi(x) * b, z0)
+            return linear_scan(x, zoh_drive(x, steps, b), z0)
         a, _, g = self._ab(v)                                     # first-order hold
         zss = self._zss(v, g)
         x = 0.5 * steps * (a[:-1] + a[1:])
-        drive = -np.expm1(-x) * zss[:-1] + (zss[1:] - zss[:-1]) * (1.0 - _phi(x))
-        return linear_scan(x, drive, z0)
+        return linear_scan(x, foh_drive(x, zss[:-1], zss[1:]), z0)
 
     def linear_design(self, qd, qdd=None, dt=None):
         """``(Phi, offset)`` with ``torque = Phi @ (linear params) + offset`` for sampled signals."""

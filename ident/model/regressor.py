@@ -17,17 +17,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from ident.signals.blas import one_blas_thread
-from mocap.robot import _joint_axis
+from mocap.numerics import rotation_about_axis, skew
+from mocap.robot import joint_axis
 
 PARAM_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
-
-
-def _rodrigues(axis: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) rotations about a unit ``axis`` by angles ``q``."""
-    k = np.asarray(axis, float)
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    s, c = np.sin(q)[:, None, None], np.cos(q)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
 
 
 def _cross(a, b):
@@ -47,15 +40,6 @@ def _inertia_cols(w: np.ndarray) -> np.ndarray:
     return L
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    T = w.shape[0]
-    S = np.zeros((T, 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -w[:, 2], w[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = w[:, 2], -w[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -w[:, 1], w[:, 0]
-    return S
-
-
 def _body_regressor(v, w, a, al) -> np.ndarray:
     """(T, 6, 10) spatial force regressor (linear force, moment) of one body at its frame's
     origin from its spatial velocity (v, w) and spatial acceleration (a, al) in that frame:
@@ -69,7 +53,7 @@ def _body_regressor(v, w, a, al) -> np.ndarray:
         ek = np.broadcast_to(e[k], (T, 3))
         Y[:, :3, 1 + k] = _cross(al, ek) + _cross(w, _cross(w, ek))
         Y[:, 3:, 1 + k] = _cross(ek, a) + _cross(w, _cross(ek, v)) + _cross(v, _cross(w, ek))
-    Y[:, 3:, 4:] = _inertia_cols(al) + _skew(w) @ _inertia_cols(w)
+    Y[:, 3:, 4:] = _inertia_cols(al) + skew(w) @ _inertia_cols(w)
     return Y
 
 
@@ -132,7 +116,7 @@ class ChainDynamics:
 
         n = model.njoints - 1
         pl = np.array([model.jointPlacements[i].homogeneous for i in range(1, n + 1)])
-        ax = np.array([_joint_axis(model.joints[i]) for i in range(1, n + 1)], float)
+        ax = np.array([joint_axis(model.joints[i]) for i in range(1, n + 1)], float)
         ax /= np.linalg.norm(ax, axis=1, keepdims=True)
         pi = np.concatenate([np.asarray(model.inertias[i].toDynamicParameters()).ravel()
                              for i in range(1, n + 1)])
@@ -185,7 +169,7 @@ class ChainDynamics:
         out = np.zeros((T, n, 10 * n))
         for i in range(n):
             R0, p = self.placements[i, :3, :3], self.placements[i, :3, 3]
-            Ei = R0 @ _rodrigues(self.axes[i], q[:, i])       # child axes in the parent frame
+            Ei = R0 @ rotation_about_axis(self.axes[i], q[:, i])       # child axes in the parent frame
             Et = np.swapaxes(Ei, 1, 2)
             pb = np.broadcast_to(p, (T, 3))
             v_lin = (Et @ (v + _cross(w, pb))[:, :, None])[:, :, 0]

@@ -42,6 +42,7 @@ from ident.friction.presliding import reversal_displacement, shape_line_fits
 from ident.friction.base import CoulombViscous
 from ident.model.regressor import BaseParameters, ChainDynamics, base_parameters
 from ident.signals.blas import one_blas_thread
+from mocap.numerics import savgol, savgol_kernel
 
 LINEAR_MODELS = ("cv",)
 _PREPARED: dict = {}       # the last record's model-independent design (RigidBodyIdentifier._prepared)
@@ -119,8 +120,6 @@ def low_speed_cut(log, rec, drives=(), k: float = 3.0) -> dict:
     ``c`` the cubic Savitzky-Golay first-derivative kernel of the record's window for the joint
     (``rec.preprocessing["window_s"]``) at the record's step: the noise that kernel passes to
     the velocity. Returns ``{"v_zero": (n,), "sigma_q", "sigma_v", "k"}`` (rad, rad/s)."""
-    from scipy.signal import savgol_coeffs, savgol_filter
-
     n, dt = rec.n, rec.dt
     sq, sv, v0 = np.zeros(n), np.zeros(n), np.zeros(n)
     win = rec.preprocessing.get("window_s", {})
@@ -131,11 +130,11 @@ def low_speed_cut(log, rec, drives=(), k: float = 3.0) -> dict:
         d = np.abs(np.diff(q))
         d = d[d > 1e-12]
         quantum = float(d.min()) if d.size else 0.0
-        white = (float(np.std(q - savgol_filter(q, 7, 3))) / np.sqrt(1.0 - 1.0 / 3.0)
+        white = (float(np.std(q - savgol(q, 7, 3))) / np.sqrt(1.0 - 1.0 / 3.0)
                  if q.size >= 7 else 0.0)
         sq[j] = max(enc / np.sqrt(12.0), quantum / np.sqrt(12.0), white)
         w = max(5, int(round(float(win.get(str(j + 1), 5 * dt)) / dt)) | 1)
-        c = savgol_coeffs(w, 3, deriv=1, delta=dt)
+        c = savgol_kernel(w, 3, 1, dt)
         sv[j] = sq[j] * float(np.linalg.norm(c))
         v0[j] = k * sv[j]
     return {"v_zero": v0, "sigma_q": sq, "sigma_v": sv, "k": float(k)}

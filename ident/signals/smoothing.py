@@ -31,15 +31,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import lapack
 from scipy.optimize import minimize_scalar
-from scipy.signal import savgol_coeffs, savgol_filter
 
 from mocap.io.errors import InputError
+from mocap.numerics import differentiate, savgol, savgol_kernel, savgol_window  # noqa: F401  (re-exported: the one differentiator)
 
 from ident.friction.constants import REST_FRAC
 from ident.signals.blas import one_blas_thread  # noqa: F401  (re-exported)
@@ -149,142 +148,6 @@ class SmoothFit:
 # ---------------------------------------------------------------------------------------------
 # Savitzky-Golay smoother (non-periodic fallback)
 # ---------------------------------------------------------------------------------------------
-@functools.lru_cache(maxsize=512)
-def _savgol_plan(w: int, p: int, deriv: int, delta: float):
-    """Cached linear maps of a Savitzky-Golay filter (``scipy.signal.savgol_filter``'s, mode
-    ``"interp"``): the interior coefficients (``savgol_coeffs``, dot order) and the matrices
-    that evaluate the polynomial fitted to the first / last ``w`` samples (or its ``deriv``-th
-    derivative) at the first / last ``w // 2`` positions."""
-    c = savgol_coeffs(w, p, deriv=deriv, delta=delta, use="dot")
-    h = w // 2
-    mid = (w - 1) / 2.0
-    k = np.arange(p + 1)
-    V = ((np.arange(w) - mid) / max(h, 1))[:, None] ** k          # scaled positions in [-1, 1]
-    P = np.linalg.pinv(V)                                           # samples -> poly coefficients
-    fac = np.array([math.perm(int(j), deriv) for j in k], float)   # d^deriv u^j = j!/(j-deriv)! u^(j-deriv)
-
-    def at(pos):
-        u = (pos - mid) / max(h, 1)
-        pw = np.where(k >= deriv, u[:, None] ** np.maximum(k - deriv, 0), 0.0) * fac
-        return pw @ P / (max(h, 1) * delta) ** deriv
-
-    return c, at(np.arange(h, dtype=float)), at(np.arange(w - h, w, dtype=float))
-
-
-def _savgol(x, w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
-    """``scipy.signal.savgol_filter(x, w, p, deriv, delta, mode="interp")`` (the same values to
-    rounding) from cached coefficients: a valid correlation in the interior and the edge
-    polynomials as two small matrix products."""
-    x = np.asarray(x, float)
-    n = x.size
-    if w > n:
-        raise ValueError(f"window {w} is longer than the {n} samples")
-    c, Ms, Me = _savgol_plan(int(w), int(p), int(deriv), float(delta))
-    h = w // 2
-    y = np.empty(n)
-    y[h:n - h] = np.correlate(x, c, mode="valid")
-    y[:h] = Ms @ x[:w]
-    y[n - h:] = Me @ x[n - w:]
-    return y
-
-
-def savgol_window(window_s: float, dt: float, n: int, polyorder: int = 3) -> int:
-    """The one window rule of jointlab's Savitzky-Golay filters, in samples.
-
-    ``window_s`` seconds at the sample period ``dt`` rounded to an odd number of samples, at
-    least ``polyorder + 2`` (odd) and at most the ``n`` samples (odd) [1]_.
-
-    Parameters
-    ----------
-    window_s : float
-        Window length (s).
-    dt : float
-        Sample period (s).
-    n : int
-        Number of samples.
-    polyorder : int, optional
-        Local polynomial degree (default 3).
-
-    Returns
-    -------
-    int
-        The odd window length in samples.
-
-    References
-    ----------
-    .. [1] Savitzky & Golay 1964, smoothing and differentiation of data by simplified least
-       squares procedures.
-
-    Examples
-    --------
-    >>> savgol_window(0.05, 0.01, 1000), savgol_window(0.05, 0.01, 4)
-    (5, 3)
-    """
-    w = int(round(window_s / dt)) | 1
-    w = max(w, polyorder + 2 + (polyorder % 2 == 0))
-    return min(w, n if n % 2 else n - 1)
-
-
-def differentiate(x, dt: float, window_s: float, deriv: int = 1, polyorder: int = 3) -> np.ndarray:
-    """Differentiate uniform samples by a Savitzky-Golay filter: jointlab's one differentiator.
-
-    The ``deriv``-th derivative (0: the smoothed signal) of the local least-squares
-    polynomials of degree ``polyorder`` [1]_ over :func:`savgol_window`
-    (``scipy.signal.savgol_filter``, mode ``"interp"``; 1-D signals through the cached kernel,
-    the same values to rounding).
-
-    Parameters
-    ----------
-    x : array_like
-        Uniform samples, along axis 0.
-    dt : float
-        Sample period (s).
-    window_s : float
-        Window length (s).
-    deriv : int, optional
-        Derivative order (default 1).
-    polyorder : int, optional
-        Local polynomial degree (default 3).
-
-    Returns
-    -------
-    numpy.ndarray
-        The derivative, the shape of ``x`` (units of ``x`` per s^deriv).
-
-    Raises
-    ------
-    InputError
-        If the samples are too few for the window.
-
-    References
-    ----------
-    .. [1] Savitzky & Golay 1964, smoothing and differentiation of data by simplified least
-       squares procedures.
-
-    Examples
-    --------
-    >>> t = np.arange(50) * 0.01
-    >>> round(float(differentiate(t ** 2, 0.01, 0.05)[10]), 9)
-    0.2
-    """
-    x = np.asarray(x, float)
-    n = x.shape[0]
-    w = savgol_window(window_s, dt, n, polyorder)
-    if w < polyorder + 2:
-        raise InputError(f"{n} samples are too few to differentiate")
-    if x.ndim == 1:
-        return _savgol(x, w, polyorder, deriv, dt)
-    return savgol_filter(x, w, polyorder, deriv=deriv, delta=dt, axis=0, mode="interp")
-
-
-@functools.lru_cache(maxsize=512)
-def _savgol_coeffs(w: int, p: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
-    """``savgol_coeffs`` cached (read-only)."""
-    c = savgol_coeffs(w, p, deriv=deriv, delta=delta)
-    c.setflags(write=False)
-    return c
-
-
 class SavGolSmoother:
     r"""Savitzky-Golay smoothing and differentiation on a uniform grid.
 
@@ -371,9 +234,9 @@ class SavGolSmoother:
         for w in cands:  # a dozen candidate windows, each one vectorised filter
             if w <= self.polyorder:
                 continue
-            g0 = _savgol(qu, w, self.polyorder)
+            g0 = savgol(qu, w, self.polyorder)
             rss = float(np.sum((qu - g0) ** 2))
-            h0 = float(_savgol_coeffs(w, self.polyorder)[w // 2])
+            h0 = float(savgol_kernel(w, self.polyorder)[w // 2])
             dof = n * (1.0 - h0)
             if dof <= 0:
                 continue
@@ -393,14 +256,14 @@ class SavGolSmoother:
             w, sigma = self._window(dt, tu.size), float("nan")
         if w <= self.polyorder:
             raise InputError(f"{tu.size} samples are too few for a Savitzky-Golay window")
-        g0, g1, g2 = (_savgol(qu, w, self.polyorder, k, dt) for k in (0, 1, 2))
+        g0, g1, g2 = (savgol(qu, w, self.polyorder, k, dt) for k in (0, 1, 2))
         r = q - np.interp(t, tu, g0)
         rms = float(np.sqrt(np.mean(r ** 2)))
         if not np.isfinite(sigma):
-            h0 = float(_savgol_coeffs(w, self.polyorder)[w // 2])
+            h0 = float(savgol_kernel(w, self.polyorder)[w // 2])
             sigma = rms / np.sqrt(max(1.0 - h0, 1e-12))
-        h1 = _savgol_coeffs(w, self.polyorder, 1, dt)
-        h2 = _savgol_coeffs(w, self.polyorder, 2, dt)
+        h1 = savgol_kernel(w, self.polyorder, 1, dt)
+        h2 = savgol_kernel(w, self.polyorder, 2, dt)
         return SmoothFit("savgol", rms, float(np.max(np.abs(r))), int(t.size), float(t[0]),
                          float(t[-1]), None, float("nan"), rms, (tu, g0, g1, g2), window_s=w * dt,
                          bandwidth_hz=(self.polyorder + 1) / (3.2 * w - 4.6) / dt, sigma=sigma, qd_noise=float(sigma * np.linalg.norm(h1)),

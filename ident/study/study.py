@@ -60,8 +60,7 @@ from ident.gap import DiagnosisSettings
 from ident.gap.campaign_diagnosis import (diagnose_single_joint_campaign, load_angles_dir,
                                           read_angles_csv)
 from ident.gap.report import make_plots, markdown, write_report
-from ident.model.multijoint import diagnose_records, fit_multijoint_campaign
-from ident.model.onelink import model_class
+from ident.model.multijoint import diagnose_records
 from ident.outputs import OutputDir, file_sha256
 from ident.signals.smoothing import one_blas_thread
 from ident.study.executor import Pending, SerialExecutor, release_free_memory
@@ -69,7 +68,8 @@ from ident.study.lock import StudyLock
 from ident.study.records import dumps_record, read_record
 from ident.study.view import log_campaign
 from ident.thesis.campaign_fit import FitsResult, campaign_tasks, fit_trial_joint, log_fits
-from ident.workflow import plan
+from ident.workflow import (FitResult, FitSettings, Plan, check_models, diagnosis_document, fit_campaign,
+                            fit_plans, plan, subset)
 from mocap.io.campaign import Campaign, load_campaign
 from mocap.io.errors import InputError
 from mocap.quality import marker_report
@@ -128,13 +128,7 @@ class StudySettings:
                     deflection=bool(self.calib_deflection))
 
     def validate(self) -> "StudySettings":
-        if not self.models:
-            raise InputError("no friction models given")
-        for m in self.models:
-            try:
-                model_class(m)
-            except KeyError as exc:
-                raise InputError(str(exc.args[0]), label=m) from None
+        check_models(self.models)     # names only: which path fits each is the plan's
         if self.sync not in ("clock", "estimate"):
             raise InputError(f"sync must be 'clock' or 'estimate', got {self.sync!r}")
         if self.calib_method not in ("cluster", "circle"):
@@ -148,6 +142,10 @@ class StudySettings:
         if self.diagnosis_reps is not None and self.diagnosis_reps < 0:
             raise InputError(f"diagnosis_reps must be >= 0 (0: all), got {self.diagnosis_reps}")
         return self
+
+    def fit_settings(self) -> FitSettings:
+        """The :class:`ident.workflow.FitSettings` of ``jointlab fit`` these settings ask for."""
+        return FitSettings(n_starts=self.n_starts, seed=self.seed, sync=self.sync)
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -537,11 +535,17 @@ def _run_plot_job(job: _PlotJob):
     return write_study_plots(fits, out)
 
 
-def _planned_trials(camp, path: str) -> list:
-    """The trials :func:`ident.workflow.plan` routes to ``path`` (``single_joint``,
+def _planned_trials(ctx, path: str) -> list:
+    """The trials the study's :func:`ident.workflow.plan` routes to ``path`` (``single_joint``,
     ``multi_joint`` or ``coastdown``), in campaign order: the study runs what the plan decides."""
-    ids = set(getattr(plan(camp), path))
-    return [t for t in camp.trials if t.id in ids]
+    ids = set(getattr(ctx.plan, path))
+    return [t for t in ctx.camp.trials if t.id in ids]
+
+
+def _fit_plan(ctx, path: str) -> Plan | None:
+    """The fit plan (:func:`ident.workflow.fit_plans`) whose models include ``path``
+    (``single_joint``, ``indri`` or ``multi_joint``), or None."""
+    return next((p for p in ctx.fit_plans if p.models.get(path)), None)
 
 
 def _by_joint(entries) -> dict:
@@ -610,11 +614,11 @@ def _reuse_stage(ctx, stage: str, h: str, path: Path, n: int, t0: float) -> bool
     return True
 
 
-def _fits_note(camp, by_trial: dict) -> str:
+def _fits_note(ctx, by_trial: dict) -> str:
     """The fits stage's note when it had no trial to fit: where the campaign's trials went."""
-    if by_trial:
+    if by_trial or _fit_plan(ctx, "indri") is not None:
         return ""
-    multi = plan(camp).multi_joint
+    multi = ctx.plan.multi_joint
     if multi:
         return f"no single-joint trials: the {len(multi)} multi-joint record(s) are fitted in rigidbody/"
     return "no trials to fit"
@@ -710,6 +714,8 @@ class Study:
         a viewer."""
 
         camp = campaign if isinstance(campaign, Campaign) else load_campaign(campaign)
+        # the routing, decided once before any output: a model no path can fit is refused here
+        plans = (plan(camp), fit_plans(camp, self.settings.models))
         od = OutputDir(out, "study", inputs=[camp.root])
         out = od.root
         for t in camp.trials:            # ids are data: every id-derived path stays in --out
@@ -718,14 +724,14 @@ class Study:
         state.mkdir(parents=True, exist_ok=True)
         with StudyLock(state / "lock", self._note):
             try:
-                return self._run_locked(camp, out, state, rrd, spawn, od)
+                return self._run_locked(camp, out, state, rrd, spawn, od, plans)
             except BaseException:
                 shutil.rmtree(state / "tmp", ignore_errors=True)
                 raise
             finally:
                 od.discard()
 
-    def _run_locked(self, camp, out: Path, state: Path, rrd, spawn, od) -> StudyResult:
+    def _run_locked(self, camp, out: Path, state: Path, rrd, spawn, od, plans) -> StudyResult:
         tmp_dir = state / "tmp"
         shutil.rmtree(tmp_dir, ignore_errors=True)   # leftovers of an interrupted run
         tmp_dir.mkdir(parents=True, exist_ok=True)
@@ -742,7 +748,7 @@ class Study:
                "records": {k: v for k, v in old_records.items() if isinstance(v, str)}}
         stages, errors, paths = {}, {}, {}
         ctx = _Context(camp, robot, out, state, tmp_dir, hasher, base_hash, man, old, stages,
-                       errors, paths, od)
+                       errors, paths, od, *plans)
 
         prewarm = self._prewarm_hashes(ctx)
         T_cb, calib_res = self._calib(ctx)
@@ -936,14 +942,17 @@ class Study:
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
-        tasks, skipped = campaign_tasks(camp, None, s.models, s.n_starts, s.seed, s.sync, robot=ctx.robot)
-        multi = set(plan(camp).multi_joint)   # the rigid-body stage's
-        tasks = [t for t in tasks if t.trial not in multi]
+        one = _fit_plan(ctx, "single_joint")
+        models = tuple(one.models["single_joint"]) if one is not None else ()
+        tasks, skipped = [], []
+        if models:   # the one-link path's trials (the plan's part without the multi-joint records)
+            tasks, skipped = campaign_tasks(subset(camp, one.single_joint), None, models, s.n_starts,
+                                            s.seed, s.sync, robot=ctx.robot)
         by_trial: dict = {}
         for t in tasks:  # loop over (trial, joint) tasks
             by_trial.setdefault(t.trial, []).append(t)
         jobs, done, hashes = [], {}, {}
-        fit_settings = [list(s.models), s.n_starts, s.seed, s.sync]
+        fit_settings = [list(models), s.n_starts, s.seed, s.sync]
         bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith("mocap/")}
         plotted = _plotted_trials(tasks, camp, s.rrd_trials, bad)
         for tr in camp.trials:  # loop over trials
@@ -967,21 +976,38 @@ class Study:
                                 keep_plot=tr.id in plotted))
         if by_trial:
             self._say(f"friction fits: {len(jobs)} trial(s) to fit, {len(done)} reused")
-        elif multi:
-            self._say(f"friction fits: no single-joint trials (the {len(multi)} multi-joint "
-                      "record(s) are fitted by the rigid-body stage)")
+        elif ctx.plan.multi_joint:
+            self._say(f"friction fits: no single-joint trials (the {len(ctx.plan.multi_joint)} "
+                      "multi-joint record(s) are fitted by the rigid-body stage)")
         pending = None     # submitted with the diagnosis' items (_submit_items)
         return dict(t0=t0, jobs=jobs, done=done, hashes=hashes, skipped=skipped, pending=pending,
-                    by_trial=by_trial)
+                    by_trial=by_trial, models=models, indri=self._indri_inputs(ctx, angles_dir))
+
+    def _indri_inputs(self, ctx, angles_dir) -> dict | None:
+        """The Indri & Trapani path's part of the fits stage (:func:`ident.workflow.fit_campaign`
+        on the plan's ``indri`` models, fitted whole when ``fits/`` is rewritten): its plan, the
+        angles folder it reads and its input hash; None when the plan routes no model there."""
+        p = _fit_plan(ctx, "indri")
+        if p is None:
+            return None
+        trials = [t for t in ctx.camp.trials if t.id in set(p.single_joint)]
+        ang = [ctx.hasher.file(angles_dir / f"{t.id}.csv") if angles_dir is not None
+               and t.id in ctx.angles_ok else None for t in trials]
+        h = ctx.hasher.combine("indri", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials], ang,
+                               list(p.models["indri"]))
+        return {"plan": dataclasses.replace(p, models={"indri": p.models["indri"]}),
+                "angles": angles_dir, "hash": h}
 
     def _fits_finish(self, ctx, run):
         camp, s = ctx.camp, self.settings
         t0, jobs, done, hashes, skipped = (run[k] for k in ("t0", "jobs", "done", "hashes", "skipped"))
-        stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots)
+        indri = run["indri"]
+        stage_hash = ctx.hasher.combine("fits-stage", sorted(hashes.items()), s.plots,
+                                        *([indri["hash"]] if indri is not None else []))
         prev = ctx.old.get("stages", {}).get("fits", {})
         current = prev.get("hash") == stage_hash and _tree_ok(ctx, "fits/", "fits/fits.json")
         tmp = ctx.tmp_dir / "fits-new"
-        models = tuple(s.models)
+        models = run["models"]
         # each joint's PNGs are drawn by this process as soon as the joint's last item is in
         # (while the workers fit the other joints), not all after the last item
         joints_of = {tid: {t.joint for t in ts} for tid, ts in run["by_trial"].items()}
@@ -1015,9 +1041,17 @@ class Study:
         man = {"hash": stage_hash, "outputs": ["fits/"],
                "items": {tid: {"hash": h} for tid, h in hashes.items() if tid in done and done[tid].get("ok")}}
         ctx.fits_commit = (None, None, man)
+        dyn = None
+        if indri is not None and not current:
+            dyn = self._indri_fit(ctx, indri)
+            if dyn is None:       # failed: a hash no rerun matches, so the stage is recomputed
+                man = {**man, "hash": "failed:" + stage_hash}
         if not current:
-            if entries:
-                result.write(tmp, plots=False)
+            if entries or dyn is not None:
+                tmp.mkdir(parents=True, exist_ok=True)
+                fplan = _fit_plan(ctx, "single_joint") or indri["plan"]
+                # the writer of jointlab fit: fits.json (the Indri joints merged in) and the reports
+                FitResult(fplan, onelink=result if entries else None, indri=dyn).write(tmp, plots=False)
                 plots = None
                 if s.plots:
                     order = [d.result() if isinstance(d, Pending) else d for d in
@@ -1025,15 +1059,28 @@ class Study:
                     plots = Pending(lambda: [o[0] for o in order])
                     ctx.study_plots = Pending(lambda: [o[1] for o in order])
                 ctx.fits_commit = (tmp, plots, man)
-        if entries:
+        if entries or (current and indri is not None) or dyn is not None:
             ctx.paths["fits"] = fits_dir / "fits.json"
         ctx.stages["fits"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.trial in failed),
-                                        len(done) - len(jobs), len(failed), time.perf_counter() - t0,
+                                        len(done) - len(jobs), len(failed) + ("fits/indri" in ctx.errors),
+                                        time.perf_counter() - t0,
                                         f"skipped (coast-down): {', '.join(skipped)}" if skipped else
-                                        _fits_note(camp, run["by_trial"]),
+                                        _fits_note(ctx, run["by_trial"]),
                                         work=_work(jobs, done, "trial"),
                                         cpu=_work(jobs, done, "trial", "cpu_s"))
         return result
+
+    def _indri_fit(self, ctx, indri: dict):
+        """The Indri & Trapani fits (:func:`ident.workflow.fit_campaign` on the plan's ``indri``
+        models, the study's link angles), or None with the failure in the stage's errors."""
+        self._say(f"dynamic friction models: {', '.join(indri['plan'].models['indri'])}")
+        try:
+            with one_blas_thread():
+                return fit_campaign(ctx.camp, plan=indri["plan"], angles=indri["angles"],
+                                    settings=self.settings.fit_settings()).indri
+        except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+            ctx.errors["fits/indri"] = _error_text(exc)
+            return None
 
     def _plot_samples(self, ctx, done: dict, hashes: dict, trials) -> None:
         """A failed trial hands its place in the plots to the next repetition: read that trial's
@@ -1088,26 +1135,27 @@ class Study:
 
         t0 = time.perf_counter()
         camp, s = ctx.camp, self.settings
-        trials = _planned_trials(camp, "multi_joint")
-        if not trials:
+        p = _fit_plan(ctx, "multi_joint")
+        if p is None:
             return None
+        trials = _planned_trials(ctx, "multi_joint")
         h = ctx.hasher.combine("rigidbody", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
-                               list(s.models), s.seed)
+                               list(p.models["multi_joint"]), s.seed, s.n_starts)
         out = ctx.out / "rigidbody"
         if _reuse_stage(ctx, "rigidbody", h, out / "rigidbody.json", len(trials), t0):
             return None
         self._say(f"rigid-body identification: {len(trials)} multi-joint record(s)")
         try:
-            res = fit_multijoint_campaign(camp, tuple(s.models), seed=s.seed, n_starts=s.n_starts)
+            # the fit of jointlab fit on the records' part of the campaign
+            res = fit_campaign(subset(camp, p.multi_joint), plan=p, settings=s.fit_settings())
         except (InputError, ValueError) as exc:
             ctx.errors["rigidbody"] = _error_text(exc)
             ctx.stages["rigidbody"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
             return None
         tmp = ctx.tmp_dir / "rigidbody-new"
         tmp.mkdir(parents=True, exist_ok=True)
-        (tmp / "fits.json").write_text(json.dumps(res.merge_into({"format": 1, "trials": {}, "summary": []}),
-                                                  indent=1, allow_nan=False), encoding="utf-8")
-        res.write(tmp)
+        res.write(tmp)           # fits.json, rigidbody.json, rigidbody.md (FitResult.write)
+        res = res.rigidbody
         ctx.od.commit(tmp, "rigidbody", prune=True)
         ctx.man["stages"]["rigidbody"] = {"hash": h, "outputs": ["rigidbody/"]}
         ctx.paths["rigidbody"] = out / "rigidbody.json"
@@ -1127,10 +1175,10 @@ class Study:
             return {"off": True}
         dset = DiagnosisSettings(seed=s.seed)
         by_joint: dict = {}
-        for t in _planned_trials(camp, "single_joint"):  # loop over trials
+        for t in _planned_trials(ctx, "single_joint"):  # loop over trials
             by_joint.setdefault(int(t.joints[0]), []).append(t)
-        if "single_joint" not in plan(camp).diagnosis_paths:
-            return {"records": (dset, t0)}
+        if "single_joint" not in ctx.plan.diagnosis_paths:
+            return {"records_only": (dset, t0)}
         jobs, done, hashes = [], {}, {}
         n_all = sum(len(v) for v in by_joint.values())
         n_joint = {j: len(v) for j, v in by_joint.items()}
@@ -1155,7 +1203,8 @@ class Study:
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
                                  dset, str(ctx.state / record), str(ctx.tmp_dir), h,
                                  tuple(t.id for t in trials) if len(trials) < n_joint[j] else None))
-        if jobs and not self._diagnosis_current(ctx, hashes):
+        records = self._records_hash(ctx, dset) if "multi_joint" in ctx.plan.diagnosis_paths else None
+        if jobs and not self._diagnosis_current(ctx, hashes, records):
             # each job draws its joint's PNGs where its series are in memory
             plots_dir = str(ctx.tmp_dir / "diagnosis-new")
             jobs = [dataclasses.replace(job, plots_dir=plots_dir) for job in jobs]
@@ -1172,7 +1221,7 @@ class Study:
             note = (f"the first {s.diagnosis_reps} repetition(s) of each condition: {n_read} of "
                     f"{n_all} trials")
         return dict(dset=dset, jobs=jobs, done=done, hashes=hashes, pending=pending,
-                    prep_s=time.perf_counter() - t0, note=note)
+                    prep_s=time.perf_counter() - t0, note=note, records=records)
 
     def _submit_items(self, diag_run: dict, fits_run: dict) -> None:
         """Queue the diagnosis' and the fits' items, interleaved: each of the few long diagnosis
@@ -1195,11 +1244,44 @@ class Study:
         fits_run["pending"] = _chain(fparts)
 
     @staticmethod
-    def _diagnosis_current(ctx, hashes: dict) -> bool:
+    def _diagnosis_hash(ctx, hashes: dict, records: str | None = None) -> str:
+        """The diagnosis stage's hash: its joints' items and (a campaign with multi-joint records
+        beside its single-joint trials) the records' part."""
+        return ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()),
+                                  *([records] if records is not None else []))
+
+    def _diagnosis_current(self, ctx, hashes: dict, records: str | None = None) -> bool:
         """Whether ``diagnosis/`` is the one these items' hashes wrote (nothing to draw)."""
         prev = ctx.old.get("stages", {}).get("diagnosis", {})
-        stage_hash = ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()))
-        return prev.get("hash") == stage_hash and _tree_ok(ctx, "diagnosis/", "diagnosis/diagnosis.json")
+        return (prev.get("hash") == self._diagnosis_hash(ctx, hashes, records)
+                and _tree_ok(ctx, "diagnosis/", "diagnosis/diagnosis.json"))
+
+    @staticmethod
+    def _records_hash(ctx, dset) -> str:
+        """The input hash of the multi-joint records' diagnosis."""
+        return ctx.hasher.combine("diagnosis-records", ctx.base_hash,
+                                  [ctx.hasher.file(t.log) for t in _planned_trials(ctx, "multi_joint")],
+                                  dset.to_dict())
+
+    def _records_part(self, ctx, dset, h: str):
+        """``(joints, series)`` of the multi-joint records' diagnosis
+        (:func:`ident.model.multijoint.diagnose_records`, the one ``jointlab diagnose`` runs)
+        beside the single-joint trials: from its record when up to date, else computed here and
+        recorded; None with the failure in the errors."""
+        rel = "records/diagnosis/records.json"
+        rec = self._record(ctx, rel, h, tuple)
+        if rec is not None:
+            return rec["result"]
+        self._say(f"gap diagnosis: {len(ctx.plan.multi_joint)} multi-joint record(s)")
+        try:
+            with one_blas_thread():
+                part = tuple(diagnose_records(ctx.camp, ctx.robot, dset))
+        except (InputError, ValueError) as exc:
+            ctx.errors["diagnosis/records"] = _error_text(exc)
+            return None
+        _write_record(ctx.state / rel, h, part, ctx.tmp_dir)
+        self._keep_record(ctx, rel)
+        return part
 
     def _diagnosis_finish(self, ctx, run):
         """Collect the diagnosis items; ``seconds``: the preparation plus the wait beyond the
@@ -1207,8 +1289,8 @@ class Study:
         if "off" in run:
             ctx.stages["diagnosis"] = _stage_row(note="switched off")
             return None
-        if "records" in run:
-            return self._diagnosis_records(ctx, *run["records"])
+        if "records_only" in run:
+            return self._diagnosis_records(ctx, *run["records_only"])
         t0 = time.perf_counter() - run["prep_s"]
         camp = ctx.camp
         dset, jobs, done, hashes = (run[k] for k in ("dset", "jobs", "done", "hashes"))
@@ -1221,13 +1303,19 @@ class Study:
         ok = {j: r for j, r in sorted(done.items()) if r.get("ok")}
         report = {"format": 1, "campaign": camp.name, "settings": dset.to_dict(),
                   "joints": {str(j): r["report"] for j, r in ok.items() if r["report"] is not None},
-                  "skipped_trials": list(plan(camp).multi_joint),
+                  "skipped_trials": list(ctx.plan.multi_joint),
                   "link_angles": any(r["link_angles"] for r in ok.values())}
         folder = ctx.state / "records" / "diagnosis"
         series = {str(j): _series_ref(r["series"], folder) for j, r in ok.items()}
-        stage_hash = ctx.hasher.combine("diagnosis-stage", sorted(hashes.items()))
+        records = None
+        if run["records"] is not None:     # multi-joint records beside: one report of both
+            records = self._records_part(ctx, dset, run["records"])
+            report, series = diagnosis_document(ctx.plan, dset, (report, series), records)
+        stage_hash = self._diagnosis_hash(ctx, hashes, run["records"])
+        if records is None and run["records"] is not None:
+            stage_hash = "failed:" + stage_hash      # recomputed by a rerun
         diag_dir = ctx.out / "diagnosis"
-        if report["joints"] and not self._diagnosis_current(ctx, hashes):
+        if report["joints"] and not self._diagnosis_current(ctx, hashes, run["records"]):
             tmp = ctx.tmp_dir / "diagnosis-new"
             plots = {}
             for r in ok.values():   # drawn by the items computed in this run
@@ -1248,7 +1336,8 @@ class Study:
         if report["joints"]:
             ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
-                                             len(done) - len(jobs), len(failed),
+                                             len(done) - len(jobs),
+                                             len(failed) + ("diagnosis/records" in ctx.errors),
                                              time.perf_counter() - t0, run["note"],
                                              work=_work(jobs, done, "joint"),
                                              cpu=_work(jobs, done, "joint", "cpu_s"))
@@ -1259,26 +1348,23 @@ class Study:
         serial, recomputed when the logs or settings change."""
 
         camp = ctx.camp
-        trials = _planned_trials(camp, "multi_joint")
+        trials = _planned_trials(ctx, "multi_joint")
         if not trials:
             ctx.stages["diagnosis"] = _stage_row(note="no single-joint trials to diagnose")
             return None
-        h = ctx.hasher.combine("diagnosis-records", ctx.base_hash,
-                               [ctx.hasher.file(t.log) for t in trials], dset.to_dict())
+        h = self._records_hash(ctx, dset)
         diag_dir = ctx.out / "diagnosis"
         if _reuse_stage(ctx, "diagnosis", h, diag_dir / "diagnosis.json", len(trials), t0):
             report = json.loads((diag_dir / "diagnosis.json").read_text(encoding="utf-8"))
             return report, {}
         self._say(f"gap diagnosis: {len(trials)} multi-joint record(s)")
         try:
-            joints, series = diagnose_records(camp, ctx.robot, dset)
+            records = diagnose_records(camp, ctx.robot, dset)
         except (InputError, ValueError) as exc:
             ctx.errors["diagnosis/records"] = _error_text(exc)
             ctx.stages["diagnosis"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
             return None
-        report = {"format": 1, "campaign": camp.name, "settings": dset.to_dict(), "joints": joints,
-                  "skipped_trials": [], "multi_joint_trials": [t.id for t in trials],
-                  "link_angles": False}
+        report, series = diagnosis_document(ctx.plan, dset, None, records)
         tmp = ctx.tmp_dir / "diagnosis-new"
         write_report(report, series, tmp, None)
         ctx.od.commit(tmp, "diagnosis", prune=True)
@@ -1294,7 +1380,7 @@ class Study:
         returns the report's section (empty without coast-down trials)."""
 
         t0 = time.perf_counter()
-        trials = _planned_trials(ctx.camp, "coastdown")
+        trials = _planned_trials(ctx, "coastdown")
         if not trials:      # no stage row: campaigns without coast-downs keep their report
             return ""
         h = ctx.hasher.combine("coastdown", ctx.base_hash, [ctx.hasher.file(t.log) for t in trials],
@@ -1402,6 +1488,8 @@ class _Context:
     errors: dict
     paths: dict
     od: OutputDir
+    plan: Plan                                # ident.workflow.plan(camp): the paths
+    fit_plans: tuple                          # ident.workflow.fit_plans(camp, models): the fits' routing
     angles_ok: frozenset = frozenset()
     fits_commit: tuple = (None, None, None)   # (tmp folder, its plots in flight, manifest entry)
     study_plots: object = None                # plots/ in flight (ident.study.executor.Pending)

@@ -694,12 +694,12 @@ def check_angles_dir(angles_dir, campaign, robot=None) -> None:
 
 
 # ---- option values of the commands (one line naming the option, exit 2) ---------------------
-def check_synth_options(args) -> None:
+def check_synth_options(*, magnitude, seed, loads, vmax, joints, duration, marker_rate, log_rate, reps, label_swaps) -> None:
     """``jointlab synth``: values in range and one trial's arrays within the available memory
     (log: time + 3 signals x 6 joints; markers: up to 8 x 7 links x 3; float64, a few copies)."""
-    check_number(args.magnitude, "--magnitude", lo=0.0, hi=1e3)
-    check_seed(args.seed)
-    for opt, text in (("--loads", args.loads), ("--vmax", args.vmax)):
+    check_number(magnitude, "--magnitude", lo=0.0, hi=1e3)
+    check_seed(seed)
+    for opt, text in (("--loads", loads), ("--vmax", vmax)):
         for x in str(text).split(","):
             try:
                 v = float(x)
@@ -707,20 +707,20 @@ def check_synth_options(args) -> None:
                 continue                  # the command's own parser names it
             if not math.isfinite(v):
                 raise InputError(f"{opt}: {x.strip()!r} is not a finite number")
-    _distinct_tags(args.joints, "--joints", lambda v: int(float(v)), "")
-    _distinct_tags(args.loads, "--loads", lambda v: int(float(v) * 10 + 1e-9), "load", "tenths of a kg")
-    _distinct_tags(args.vmax, "--vmax", lambda v: int(round(float(v) * 100)), "v", "per cent")
-    check_number(args.duration, "--duration", lo=2.0)
-    check_number(args.marker_rate, "--marker-rate", lo=0.0, lo_open=True)
-    check_number(args.log_rate, "--log-rate", lo=0.0, lo_open=True)
-    if not 1 <= args.reps <= 1000:
-        raise InputError(f"--reps must be in 1..1000, got {args.reps}")
-    if args.label_swaps < 0:
-        raise InputError(f"--label-swaps must be >= 0, got {args.label_swaps}")
-    seconds = args.duration + 2 * 4.0
-    n_bytes = 8 * 4 * seconds * (args.log_rate * 19 + args.marker_rate * 8 * 7 * 3)
-    check_allocation(n_bytes, f"--log-rate {args.log_rate:g} / --marker-rate {args.marker_rate:g} "
-                              f"over --duration {args.duration:g} s")
+    _distinct_tags(joints, "--joints", lambda v: int(float(v)), "")
+    _distinct_tags(loads, "--loads", lambda v: int(float(v) * 10 + 1e-9), "load", "tenths of a kg")
+    _distinct_tags(vmax, "--vmax", lambda v: int(round(float(v) * 100)), "v", "per cent")
+    check_number(duration, "--duration", lo=2.0)
+    check_number(marker_rate, "--marker-rate", lo=0.0, lo_open=True)
+    check_number(log_rate, "--log-rate", lo=0.0, lo_open=True)
+    if not 1 <= reps <= 1000:
+        raise InputError(f"--reps must be in 1..1000, got {reps}")
+    if label_swaps < 0:
+        raise InputError(f"--label-swaps must be >= 0, got {label_swaps}")
+    seconds = duration + 2 * 4.0
+    n_bytes = 8 * 4 * seconds * (log_rate * 19 + marker_rate * 8 * 7 * 3)
+    check_allocation(n_bytes, f"--log-rate {log_rate:g} / --marker-rate {marker_rate:g} "
+                              f"over --duration {duration:g} s")
 
 
 def _distinct_tags(text, option: str, tag, prefix: str, unit: str = "") -> None:
@@ -747,38 +747,38 @@ def check_seed(seed, option: str = "--seed") -> None:
         raise InputError(f"{option} must be an integer >= 0, got {seed}")
 
 
-def check_design_options(args) -> None:
+def check_design_options(*, seed, period, harmonics, starts, dt, amax) -> None:
     """``jointlab design``: period, harmonics, starts, dt (and the trajectory's arrays within
     the available memory: t, q, qd, qdd and their copies), amax, seed."""
-    check_seed(args.seed)
-    check_number(args.period, "--period", lo=0.0, lo_open=True, hi=1e5)
-    if not 1 <= args.harmonics <= 200:
-        raise InputError(f"--harmonics must be in 1..200, got {args.harmonics}")
-    if not 1 <= args.starts <= 10000:
-        raise InputError(f"--starts must be in 1..10000, got {args.starts}")
-    check_number(args.dt, "--dt", lo=0.0, lo_open=True, hi=args.period / 4)
-    if args.amax is not None:
-        check_number(args.amax, "--amax", lo=0.0, lo_open=True)
-    check_allocation(8 * 4 * 4 * (args.period / args.dt + 1), f"--dt {args.dt:g} over --period {args.period:g} s")
+    check_seed(seed)
+    check_number(period, "--period", lo=0.0, lo_open=True, hi=1e5)
+    if not 1 <= harmonics <= 200:
+        raise InputError(f"--harmonics must be in 1..200, got {harmonics}")
+    if not 1 <= starts <= 10000:
+        raise InputError(f"--starts must be in 1..10000, got {starts}")
+    check_number(dt, "--dt", lo=0.0, lo_open=True, hi=period / 4)
+    if amax is not None:
+        check_number(amax, "--amax", lo=0.0, lo_open=True)
+    check_allocation(8 * 4 * 4 * (period / dt + 1), f"--dt {dt:g} over --period {period:g} s")
 
 
-def check_mocap_options(args) -> None:
+def check_mocap_options(*, trial, reject_sigma, min_markers, calib) -> None:
     """``jointlab mocap``: ``--trial`` ids (FORMAT.md), ``--reject-sigma`` > 0, ``--min-markers``
     >= 1, a valid ``--calib`` file."""
-    for t in args.trial or ():
+    for t in trial or ():
         check_trial_id(t, "--trial")
-    check_number(args.reject_sigma, "--reject-sigma", lo=0.0, lo_open=True)
-    if args.min_markers < 1:
-        raise InputError(f"--min-markers must be >= 1, got {args.min_markers}")
-    if args.calib:
-        check_calib_json(args.calib)
+    check_number(reject_sigma, "--reject-sigma", lo=0.0, lo_open=True)
+    if min_markers < 1:
+        raise InputError(f"--min-markers must be >= 1, got {min_markers}")
+    if calib:
+        check_calib_json(calib)
 
 
-def check_calib_options(args) -> None:
+def check_calib_options(*, noise_mm, min_sweep_deg) -> None:
     """``jointlab calib``: ``--noise-mm`` > 0 (at most a metre), ``--min-sweep-deg`` in 0..360."""
-    if args.noise_mm is not None:
-        check_number(args.noise_mm, "--noise-mm", lo=0.0, lo_open=True, hi=1e3)
-    check_number(args.min_sweep_deg, "--min-sweep-deg", lo=0.0, hi=360.0)
+    if noise_mm is not None:
+        check_number(noise_mm, "--noise-mm", lo=0.0, lo_open=True, hi=1e3)
+    check_number(min_sweep_deg, "--min-sweep-deg", lo=0.0, hi=360.0)
 
 
 def check_joints_option(joints, robot, option: str = "--joints") -> None:

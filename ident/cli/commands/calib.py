@@ -51,7 +51,7 @@ def run(args) -> int:
 
     from ident import workflow
 
-    check_calib_options(args)
+    check_calib_options(noise_mm=args.noise_mm, min_sweep_deg=args.min_sweep_deg)
     camp = load_campaign(args.campaign)
     with OutputDir(args.out, "calib", [camp.root]) as od:
         od.check_early(["calib.json"])

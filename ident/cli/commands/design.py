@@ -62,7 +62,9 @@ def run(args) -> int:
 
     from mocap.io.plausibility import check_design_options
 
-    check_design_options(args)             # ranges and a memory estimate, before any work
+    # ranges and a memory estimate, before any work
+    check_design_options(seed=args.seed, period=args.period, harmonics=args.harmonics,
+                         starts=args.starts, dt=args.dt, amax=args.amax)
     robot = load_robot_arg(args.robot)
     if not 1 <= args.joint <= robot.n:
         raise InputError(f"--joint {args.joint}: the robot has joints 1..{robot.n}", path=args.robot)

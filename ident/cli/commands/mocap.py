@@ -41,7 +41,9 @@ def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from mocap.io.plausibility import check_mocap_options
 
-    check_mocap_options(args)              # --trial ids, ranges, --calib, before any work
+    # --trial ids, ranges, --calib, before any work
+    check_mocap_options(trial=args.trial, reject_sigma=args.reject_sigma,
+                        min_markers=args.min_markers, calib=args.calib)
     camp = load_campaign(args.campaign)
     trials = [camp.trial(t) for t in args.trial] if args.trial else list(camp.trials)
     with OutputDir(args.out, "mocap", [camp.root] + ([args.calib] if args.calib else [])) as od:

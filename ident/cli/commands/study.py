@@ -58,8 +58,9 @@ def register(sub):
 
 def settings_from_args(args):
     from ident.study.study import StudySettings
+    from ident.workflow import parse_models
 
-    models = tuple(m.strip() for m in args.models.split(",") if m.strip())
+    models = parse_models(args.models)
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     if args.diagnosis_reps is not None and args.diagnosis_reps < 0:

@@ -100,7 +100,10 @@ def run(args) -> int:
 
     from ident.sim.campaign_synth import CampaignSynth, SynthConfig
 
-    check_synth_options(args)              # ranges and a memory estimate, before any work
+    # ranges and a memory estimate, before any work
+    check_synth_options(magnitude=args.magnitude, seed=args.seed, loads=args.loads, vmax=args.vmax,
+                        joints=args.joints, duration=args.duration, marker_rate=args.marker_rate,
+                        log_rate=args.log_rate, reps=args.reps, label_swaps=args.label_swaps)
     cfg = SynthConfig(joints=_ints(args.joints, "--joints"), loads=_floats(args.loads, "--loads"),
                       vmax=_floats(args.vmax, "--vmax"), reps=args.reps, duration=args.duration,
                       kinds=tuple(k.strip() for k in args.kinds.split(",") if k.strip()),

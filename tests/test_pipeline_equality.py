@@ -1,0 +1,177 @@
+"""One pipeline: ``jointlab study`` computes what the commands compute (issue 44).
+
+On four small synthesised campaigns (single-joint trials; Indri & Trapani kinds with the
+dynamic models; one multi-joint record; both kinds of trials in one manifest) the study's
+``fits.json``/``rigidbody/fits.json`` and ``diagnosis.json`` hold the numbers of
+:func:`ident.workflow.fit_campaign` and :func:`ident.workflow.diagnose_campaign` (the functions
+``jointlab fit`` and ``jointlab diagnose`` run) on the same inputs: the study's link angles where
+it solved them, the motor angles where it did not."""
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from ident.cli.main import main
+from ident.study.executor import SerialExecutor
+from ident.study.study import Study, StudySettings
+from ident.workflow import FitSettings, diagnose_campaign, fit_campaign, plan, subset
+from mocap.io.campaign import load_campaign
+from mocap.io.errors import InputError
+
+N_STARTS = 2
+
+
+def _synth(root: Path, name: str, *opts) -> Path:
+    out = root / name
+    rc = main(["synth", str(out), "--reps", "1", "--duration", "5", "--vmax", "1.0", "--loads", "0",
+               "--seed", "5", "--quiet", *opts])
+    assert rc == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def campaigns(tmp_path_factory):
+    root = tmp_path_factory.mktemp("equality")
+    single = _synth(root, "single", "--vmax", "0.5,1.0")
+    indri = _synth(root, "indri", "--kinds", "excitation,reversals,constant_velocity")
+    multi = _synth(root, "multi", "--joints", "2,3", "--together")
+    # mixed: the multi-joint record's manifest with the single-joint trials appended
+    mixed = root / "mixed"
+    shutil.copytree(multi, mixed)
+    for p in (single / "trials").iterdir():
+        shutil.copy(p, mixed / "trials" / p.name)
+    text = (single / "campaign.toml").read_text(encoding="utf-8")
+    trials = text[text.index("[[trial]]"):]
+    with open(mixed / "campaign.toml", "a", encoding="utf-8") as fh:
+        fh.write("\n" + trials)
+    return {"single": single, "indri": indri, "multi": multi, "mixed": mixed}
+
+
+def _study(campaign: Path, out: Path, models, mocap: bool):
+    s = StudySettings(models=models, n_starts=N_STARTS, mocap=mocap, plots=False, rrd=False)
+    res = Study(s, SerialExecutor(progress=False), progress=False).run(campaign, out)
+    assert not res.errors, res.errors
+    return res
+
+
+def _same(a, b, where=""):
+    """Equal JSON documents, floats within a relative 1e-9."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), (where, sorted(a), sorted(b))
+        for k in a:
+            _same(a[k], b[k], f"{where}/{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _same(x, y, f"{where}[{i}]")
+    elif isinstance(a, float) and not isinstance(a, bool):
+        assert isinstance(b, (int, float)), where
+        assert (math.isnan(a) and math.isnan(b)) or b == pytest.approx(a, rel=1e-9, abs=1e-12), where
+    else:
+        assert a == b, where
+
+
+def _read(path: Path):
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def _jsonish(doc):
+    """A document as it reads back from its JSON file."""
+    return json.loads(json.dumps(doc, default=float))
+
+
+def _same_diagnosis(study_doc: dict, cmd_doc: dict) -> None:
+    cmd_doc = _jsonish(cmd_doc)
+    assert study_doc["joints"], "nothing diagnosed"
+    for key in ("joints", "skipped_trials", "multi_joint_trials", "link_angles", "settings"):
+        assert (key in study_doc) == (key in cmd_doc), key
+        if key in study_doc:
+            _same(study_doc[key], cmd_doc[key], key)
+
+
+def test_single_joint_study_equals_fit_and_diagnose(campaigns, tmp_path):
+    out = tmp_path / "study"
+    _study(campaigns["single"], out, ("cv", "stribeck"), mocap=True)
+    camp = load_campaign(campaigns["single"])
+    fits = fit_campaign(camp, models=("cv", "stribeck"), angles=out / "angles",
+                        settings=FitSettings(n_starts=N_STARTS))
+    _same(_read(out / "fits" / "fits.json"), _jsonish(fits.to_dict()))
+    diag = diagnose_campaign(camp, angles=out / "angles", progress=False)
+    study_diag = _read(out / "diagnosis" / "diagnosis.json")
+    assert study_diag["link_angles"] is True
+    _same_diagnosis(study_diag, diag.report)
+
+
+def test_study_runs_the_indri_models_like_fit(campaigns, tmp_path):
+    models = ("cv", "arctan", "dm1")
+    camp = load_campaign(campaigns["indri"])
+    assert dict(plan(camp, models).models) == {"single_joint": ("cv",), "indri": ("arctan", "dm1")}
+    out = tmp_path / "study"
+    _study(campaigns["indri"], out, models, mocap=True)
+    fits = fit_campaign(camp, models=models, angles=out / "angles", settings=FitSettings(n_starts=N_STARTS))
+    doc = _read(out / "fits" / "fits.json")
+    assert set(doc["joints"]["5"]["models"]) == {"arctan", "dm1"}
+    _same(doc, _jsonish(fits.to_dict()))
+    _same_diagnosis(_read(out / "diagnosis" / "diagnosis.json"),
+                    diagnose_campaign(camp, angles=out / "angles", progress=False).report)
+
+
+def test_multi_joint_study_equals_fit_and_diagnose(campaigns, tmp_path):
+    out = tmp_path / "study"
+    _study(campaigns["multi"], out, ("cv",), mocap=False)
+    camp = load_campaign(campaigns["multi"])
+    fits = fit_campaign(camp, models=("cv",), settings=FitSettings(n_starts=N_STARTS))
+    _same(_read(out / "rigidbody" / "fits.json"), _jsonish(fits.to_dict()))
+    _same_diagnosis(_read(out / "diagnosis" / "diagnosis.json"),
+                    diagnose_campaign(camp, markers=False, progress=False).report)
+
+
+def test_mixed_campaign_study_fits_both_parts_and_diagnoses_both(campaigns, tmp_path):
+    camp = load_campaign(campaigns["mixed"])
+    p = plan(camp)
+    assert p.mixed
+    out = tmp_path / "study"
+    _study(campaigns["mixed"], out, ("cv",), mocap=False)
+    # the fits of the two manifests jointlab fit asks for
+    single = fit_campaign(subset(camp, p.single_joint), models=("cv",), settings=FitSettings(n_starts=N_STARTS))
+    multi = fit_campaign(subset(camp, p.multi_joint), models=("cv",), settings=FitSettings(n_starts=N_STARTS))
+    _same(_read(out / "fits" / "fits.json"), _jsonish(single.to_dict()))
+    _same(_read(out / "rigidbody" / "fits.json"), _jsonish(multi.to_dict()))
+    # one diagnosis of both, as jointlab diagnose writes it
+    study_diag = _read(out / "diagnosis" / "diagnosis.json")
+    assert set(study_diag["joints"]) == {"2", "3", "5"}
+    assert study_diag["multi_joint_trials"] == list(p.multi_joint)
+    _same_diagnosis(study_diag, diagnose_campaign(camp, markers=False, progress=False).report)
+
+
+def test_the_study_routes_models_through_the_plan(campaigns, tmp_path):
+    # a dynamic model whose data sets are missing is left out, as by jointlab fit; the one-link
+    # fits go on (the study builds no dm1 task)
+    out = tmp_path / "study"
+    _study(campaigns["single"], out, ("cv", "dm1"), mocap=False)
+    doc = _read(out / "fits" / "fits.json")
+    assert {m for t in doc["trials"].values() for j in t.values() for m in j} == {"cv"}
+    # nothing left to fit: refused before any output, like jointlab fit
+    with pytest.raises(InputError, match="dm1 not identified"):
+        _study(campaigns["single"], tmp_path / "refused", ("dm1",), mocap=False)
+    assert not (tmp_path / "refused").exists()
+    with pytest.raises(InputError, match="unknown"):
+        StudySettings(models=("cv", "nope")).validate()
+
+
+def test_cli_study_parses_models_like_fit(campaigns, tmp_path, capsys):
+    # parse_models (duplicates dropped), then the plan's routing: dm1 is left out, cv fitted
+    out = tmp_path / "s"
+    rc = main(["study", str(campaigns["single"]), "--out", str(out), "--models", "cv, dm1,cv",
+               "--no-mocap", "--no-diagnosis", "--no-rrd", "--no-plots", "--workers", "1", "--quiet",
+               "--starts", "1"])
+    assert rc == 0, capsys.readouterr()
+    assert json.loads((out / ".jointlab-study.json").read_text())["settings"]["models"] == ["cv", "dm1"]
+    rc = main(["study", str(campaigns["single"]), "--out", str(tmp_path / "t"), "--models", "cv,,nope",
+               "--no-mocap", "--no-diagnosis", "--no-rrd", "--no-plots", "--workers", "1", "--quiet"])
+    assert rc == 2
+    assert "nope" in capsys.readouterr().err
