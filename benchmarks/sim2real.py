@@ -7,7 +7,8 @@ For each withheld effect and seed: generate (or reuse, under --cache) a campaign
 joint (from the campaign's truth) for the native fit, mujoco.sysid on the same parameters, and the
 native fit + the named effects, with the ratios the acceptance asks (<= 0.7 against both). Where
 the diagnosis does not name the true effect on that joint, a second run gives the true name
-(``--effects J:E``, no sysid) and its ratio is printed beside. Effect-free campaigns (``none``):
+(``--effects J:E``, no sysid) and its ratio is printed beside, and the diagnosis's verdict on that
+joint is quoted (an ``unexplained`` term names no effect). Effect-free campaigns (``none``):
 the RMS over all scored joints and the worst joint's ratio (acceptance <= 1.05).
 
     python benchmarks/sim2real.py [--effects stribeck,...,none] [--seeds 1,2] [--cache DIR] [--threads N]
@@ -71,7 +72,9 @@ def main(argv=None) -> int:
             named = rep["effects"]["named"]
             nat, sy, fx = (pos(rep, m, joints) for m in ("native", "sysid", "native_effects"))
             true_cells = ["-", "-"]
-            row = {"effect": eff, "seed": seed, "joint": ej, "named": named, "native": nat, "sysid": sy,
+            verdict = rep["effects"]["diagnosis_verdicts"].get(str(ej)) if ej else None
+            row = {"effect": eff, "seed": seed, "joint": ej, "named": named, "verdict": verdict,
+                   "native": nat, "sysid": sy,
                    "native_effects": fx, "effect_choice": rep["effect_choice"], "seconds": rep["seconds"]}
             if ej and named.get(str(ej)) != [eff]:
                 rt = sim2real_campaign(c, effects={ej: (eff,)}, sysid=False, nthread=a.threads).report
@@ -88,6 +91,8 @@ def main(argv=None) -> int:
             else:
                 ratio = f"{fx / nat:.2f}"
             nm = ", ".join(f"{j}:{v[0]}" for j, v in named.items()) or "none"
+            if ej and str(ej) not in named and verdict:     # what the diagnosis said on the joint
+                nm += f" (joint {ej}: {verdict.split(';')[0][:90]})"
             print(f"| {eff} | {seed} | {ej or 'all'} | {nm} | {nat:.3g} | "
                   + (f"{sy:.3g}" if sy is not None else "-") + f" | {fx:.3g} | {ratio} | "
                   + (f"{fx / sy:.2f}" if sy else "-") + " | " + " | ".join(true_cells) + f" | {sec:.0f} |",

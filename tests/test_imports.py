@@ -33,6 +33,9 @@ LOCAL_IMPORT_ALLOWED = {
     ("viz/sink.py", "viz.rerun_sink"): "optional dependency: rerun",
     # costly dependency: viz.plots imports matplotlib, needed only when figures are written.
     ("ident/coastdown/campaign_analysis.py", "viz.plots"): "import cost: matplotlib (figures only)",
+    # optional dependency: the MuJoCo nominal (--nominal mjcf:PATH) reads the model through
+    # ident.sim2real.model, which imports mujoco (the [mujoco] extra)
+    ("ident/gap/nominal.py", "ident.sim2real.model"): "optional dependency: mujoco",
 }
 
 

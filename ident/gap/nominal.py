@@ -17,6 +17,13 @@ feedback column). What differs is the friction, by ``SPEC``:
   ``FILE:MODEL`` to choose one of its models: the friction of each joint is FIXED to the file's
   parameters (subtracted from the torque, nothing of it refitted); only the rigid part and the
   feedback gain are fitted. The diagnosis then says what that model is missing.
+* ``mjcf:PATH``, the MuJoCo model (``PATH`` a campaign folder: its ``[robot] mjcf``, else MuJoCo's
+  compile of its URDF with the drives' motor values; or an MJCF file inside a campaign folder),
+  read through :func:`ident.sim2real.model.build_model`: each joint's friction FIXED like a
+  fits.json's to what MuJoCo simulates, ``damping qd + frictionloss sgn(qd) + armature qdd``
+  (viscous, Coulomb, rotor inertia); the rigid part and the feedback gain are fitted as for every
+  nominal (its free armature correction stays). The diagnosis then says what *this* simulator
+  model is missing. Bare ``mjcf`` does not know the campaign: it is refused with the form to use.
 
 A registry nominal's shape is chosen once on all of the joint's samples (the candidate
 effects choose theirs per training fold): its held-out figures include that one choice of 1-3
@@ -37,6 +44,7 @@ from typing import Callable
 
 import numpy as np
 
+from mocap.io.campaign import load_campaign
 from mocap.io.errors import InputError, read_text
 
 from ident.friction import MODELS, laws
@@ -480,6 +488,8 @@ def nominal_model(spec: str = "cv") -> NominalModel:
     or file is an :class:`InputError` naming the file and key. The same SPEC gives the same
     instance (a file's while it is unchanged), so per-joint fits are shared within a run."""
     spec = str(spec)
+    if spec == MJCF_SPEC or spec.startswith(MJCF_SPEC + ":"):
+        return mjcf_nominal(spec)
     if spec in NOMINAL_MODELS:
         return NOMINAL_MODELS[spec]
     name, sep, rest = spec.partition(":")
@@ -543,3 +553,93 @@ def check_held_nominal(spec: str) -> None:
         if not val > 0:
             raise InputError(f"--nominal {spec}: {k.strip()} is a shape parameter of {name} and must be "
                              f"> 0, got {v.strip()}", label=k.strip())
+
+
+# --------------------------------------------------------------------------------------------
+# the MuJoCo model: friction fixed to the MJCF's joint parameters
+# --------------------------------------------------------------------------------------------
+MJCF_SPEC = "mjcf"
+
+
+def _mjcf_target(spec: str) -> tuple:
+    """(campaign root, MJCF file or None) of ``mjcf:PATH``: a campaign folder (or its
+    ``campaign.toml``): its own model; an MJCF file: that file, with the campaign folder that
+    holds it (the nearest parent with a ``campaign.toml``), whose URDF names the joints."""
+    _, sep, rest = spec.partition(":")
+    if not sep or not rest:
+        raise InputError(f"--nominal {spec}: the MuJoCo model needs its campaign: --nominal "
+                         "mjcf:CAMPAIGN (its [robot] mjcf, else MuJoCo's compile of its URDF) or "
+                         "mjcf:FILE.xml (an MJCF inside the campaign folder)", label=spec)
+    path = Path(rest)
+    if path.is_dir() and (path / "campaign.toml").is_file():
+        return path, None
+    if path.is_file() and path.name == "campaign.toml":
+        return path.parent, None
+    if not path.is_file():
+        raise InputError("MJCF or campaign folder not found (--nominal mjcf:PATH)", path=path)
+    for parent in path.resolve().parents:
+        if (parent / "campaign.toml").is_file():
+            return parent, path
+    raise InputError("the MJCF is not inside a campaign folder (no campaign.toml above it), so its "
+                     "joints cannot be matched to the arm's (--nominal mjcf:PATH)", path=path)
+
+
+def mjcf_nominal(spec: str) -> NominalModel:
+    """The nominal of ``--nominal mjcf:PATH`` (see the module docstring; cached while the files
+    are unchanged)."""
+    root, mjcf = _mjcf_target(spec)
+    stamp = tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size)
+                  for p in (root / "campaign.toml", mjcf) if p is not None)
+    return _mjcf_cached(spec, str(root), None if mjcf is None else str(mjcf), stamp)
+
+
+@lru_cache(maxsize=8)
+def _mjcf_cached(spec, root, mjcf, stamp) -> NominalModel:
+
+    try:
+        import mujoco  # noqa: F401
+    except ImportError:
+        raise InputError(f"--nominal {spec} needs MuJoCo: pip install 'jointlab[mujoco]'",
+                         label=spec) from None
+    from ident.sim2real.model import NATIVE, build_model
+
+    campaign = load_campaign(Path(root))
+    robot = campaign.load_robot()
+    sm = build_model(campaign, robot, None if mjcf is None else Path(mjcf))
+    values = {k: np.asarray(sm.given[k], float) for k in NATIVE}
+    n = len(sm.names)
+    where = str(sm.path)
+
+    def check(joints):
+        for j in sorted(set(int(x) for x in joints)):
+            if not 1 <= j <= n:
+                raise InputError(f"joint {j} is not in the MuJoCo model's arm (joints 1..{n})",
+                                 path=sm.path, label=str(j))
+
+    def params(d) -> dict:
+        check([d.joint])
+        return {k: float(values[k][d.joint - 1]) for k in NATIVE}
+
+    def fixed(d):
+        p = params(d)
+        sgn = np.asarray(d.sgn, float)       # the data's Coulomb direction (jump consistent)
+        return (p["damping"] * np.asarray(d.qd, float) + p["frictionloss"] * sgn
+                + p["armature"] * np.asarray(d.qdd, float))
+
+    def details(d):
+        return {"joint_parameters": {"fixed_parameters": {"viscous (damping)": params(d)["damping"],
+                                                          "coulomb (frictionloss)": params(d)["frictionloss"],
+                                                          "armature": params(d)["armature"]},
+                                     "from": f"{where}: joint {sm.names[d.joint - 1]!r}"}}
+
+    what = "the MJCF" if sm.source == "mjcf" else "MuJoCo's compile of the URDF (drives' motor values)"
+    doc = (f"MuJoCo's joint friction fixed per joint to {what} `{where}`: damping qd + frictionloss "
+           "sgn(qd) + armature qdd (nothing of it refitted); only the rigid-body corrections and the "
+           "feedback gain are fitted")
+    summary = {"spec": spec, "kind": "mjcf", "file": where, "source": sm.source,
+               "friction_model": "coulomb_viscous", "friction": doc, "free": list(RIGID_FREE),
+               "fixed": ["damping (viscous)", "frictionloss (Coulomb)", "armature"],
+               "note": "the rigid part's free armature correction can still move the armature",
+               "text": doc}
+    return NominalModel(f"MuJoCo model {Path(where).name}", doc, _no_friction, fixed, details,
+                        summary, check)

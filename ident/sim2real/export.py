@@ -45,6 +45,7 @@ for trial, by_h in check["trials"].items():
     rec = np.load(folder / "heldout" / f"{trial}.npz")
     q, qd, tau, sub = rec["q"], rec["qd"], rec["tau"], int(rec["substeps"])
     dof, qadr, driven = rec["dof"], rec["qpos_adr"], rec["driven"].astype(bool)
+    M, dt = int(rec["history_steps"]), float(rec["dt"])
     for H, entry in by_h.items():
         starts, L = rec[f"starts_{H}"], int(rec[f"L_{H}"])
         err = []
@@ -52,7 +53,9 @@ for trial, by_h in check["trials"].items():
             mujoco.mj_resetData(m, d)
             d.qpos[qadr] = q[k0]
             d.qvel[dof] = qd[k0]
-            fx.reset(m, d, params)
+            hist = np.zeros((M, m.nv))               # measured velocities before the start
+            hist[:, dof] = qd[np.maximum(k0 - M + np.arange(M), 0)]
+            fx.reset(m, d, params, hist, dt)         # effects' state (presliding from the history)
             for i in range(L):
                 d.ctrl[:len(dof)] = q[k0 + i]          # servo targets (zero gain on driven joints)
                 d.qfrc_applied[:] = 0.0
@@ -75,7 +78,7 @@ def export_model(folder, result, horizons=None, max_windows: int = 40) -> dict:
     folder = Path(folder)
     (folder / "heldout").mkdir(parents=True, exist_ok=True)
     sm, doc, native = result.sim, result.effects, result.native
-    nud = 2 * sm.spec.copy().compile().nv + 1
+    nud = effects_runtime.nuserdata(sm.spec.copy().compile().nv)
     rps = result.replayers
     h0 = rps[0].h
     paths = {}
@@ -109,7 +112,8 @@ def export_model(folder, result, horizons=None, max_windows: int = 40) -> dict:
             a.biasprm = [0.0, -kp, -kv] + [0.0] * 7
         (folder / "heldout" / f"{rec.trial_id}.xml").write_text(spec2.to_xml())
         arrays = {"q": rec.q, "qd": rec.qd, "tau": rec.tau, "substeps": rp.sub, "dof": sm.dof,
-                  "qpos_adr": sm.qpos_adr, "driven": rec.driven}
+                  "qpos_adr": sm.qpos_adr, "driven": rec.driven, "dt": rec.dt,
+                  "history_steps": rp.history_steps}
         entry = {}
         for H in horizons:
             key = f"{H:g}"

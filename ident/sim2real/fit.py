@@ -2,14 +2,15 @@
 
 Inverse-dynamics least squares (the start): per joint ``j`` and training sample ``k``
 
-    tau_jk - ID_j(q_k, qd_k, qdd_k) = a_j qdd_jk + b_j qd_jk + c_j s(qd_jk) + sum_e F_e(x_k) theta_e
+    tau_jk - ID_j(q_k, qd_k, qdd_k) = a_j qdd_jk + b_j qd_jk + c_j s(qd_jk) - sum_e F_e(x_k) theta_e
 
 with ``ID`` MuJoCo's inverse dynamics of the record's model without native friction or armature
 (``mj_inverse``), ``a, b, c`` armature, damping and frictionloss (bounded below by 0), ``s`` the
 smooth sign of :mod:`ident.sim2real.effects_runtime` and ``F_e`` the named effect's basis
-(:func:`ident.sim2real.effects_runtime.features`) whose shape parameters (Stribeck velocity and
-exponent, viscous power, ripple order, presliding length) are tried on a grid and ranked by the
-training rollout error. The refinement (:func:`refine`) then minimises the training rollout
+(:func:`ident.sim2real.effects_runtime.features`: ``F_e theta_e`` is the torque the effect puts on
+the joint, so the drive carries minus it) whose shape parameters (Stribeck velocity and exponent,
+viscous power, ripple order, presliding length, load saturation torque) are tried on a grid and
+ranked by the training rollout error. The refinement (:func:`refine`) then minimises the training rollout
 position error at the 0.5 s horizon over the native parameters, the amplitudes and the continuous
 shape parameters (bounded Levenberg-Marquardt, finite differences batched in one rollout call).
 """
@@ -71,8 +72,12 @@ def presliding_states(qd: np.ndarray, delta: np.ndarray, h: float) -> np.ndarray
     return z
 
 
-def shape_grid(effect: str, drive=None) -> list:
-    """Candidate shape parameters of an effect (the grid the training residual chooses on)."""
+def shape_grid(effect: str, drive=None, load_scale: float = 1.0) -> list:
+    """Candidate shape parameters of an effect (the grid the training residual chooses on);
+    ``load_scale``: the joint's transmitted-torque scale (N m), for ``load_dependent``'s saturation
+    torque ``T`` (the last, 1e3 scales, is linear in practice)."""
+    if effect == "load_dependent":
+        return [{"T": float(f * load_scale)} for f in (0.25, 0.5, 1.0, 2.0, 1e3)]
     if effect == "stribeck":
         return [{"Vs": float(v), "d": float(d)} for v in np.geomspace(0.01, 0.8, 14) for d in (1.0, 2.0)]
     if effect == "nonlinear_viscous":
@@ -128,8 +133,12 @@ class TrainingSet:
                 z = None
                 if effect == "presliding":
                     z = presliding_states(rec.qd[:, j], np.array([shape["delta"]]), rp.h * rp.sub)[rows, 0]
-                F = fx.features(effect, shape, q, qd, rec.tau[rows, j], z, self.eps[j])
-                cols += list(F.T)
+                # load_dependent: the transmitted torque is the link's rigid-body torque (the
+                # simulation's estimate of it: effects_runtime.transmitted)
+                F = fx.features(effect, shape, q, qd, tid[:, j], z, self.eps[j])
+                # the drive overcomes the friction: the effect's torque on the joint is F theta,
+                # so the drive torque carries -F theta (the native columns are +qdd, +qd, +s)
+                cols += list((-F).T)
             ys.append(rec.tau[rows, j] - tid[:, j])
             As.append(np.stack(cols, 1))
         return np.concatenate(ys), np.concatenate(As)
@@ -138,7 +147,8 @@ class TrainingSet:
         """Least-squares native parameters (and the effect's amplitudes) of joint ``j`` for every
         shape of the effect's grid (:func:`shape_grid`), best training torque residual first."""
         out = []
-        for shape in (shape_grid(effect, drive) if effect else [{}]):
+        scale = max(float(np.percentile(np.abs(np.concatenate([t[:, j] for _, _, t in self.parts])), 95)), 1e-6)
+        for shape in (shape_grid(effect, drive, scale) if effect else [{}]):
             y, A = self.columns(j, effect, shape, drive)
             ok = np.isfinite(y) & np.isfinite(A).all(1) & (np.abs(A[:, 1]) > REST_WIDTHS * self.eps[j])
             y, A = y[ok], A[ok]
@@ -192,7 +202,8 @@ LM_LAMBDAS = (1e-2, 1e-1, 1.0)
 #: the effects' shape parameters the refinement frees: (log or lin, lower, upper)
 SHAPE_FREE = {"stribeck": {"Vs": ("log", 1e-3, 5.0), "d": ("lin", 0.4, 3.0)},
               "nonlinear_viscous": {"p": ("lin", 1.05, 4.0)},
-              "presliding": {"delta": ("log", 1e-6, 0.1)}}
+              "presliding": {"delta": ("log", 1e-6, 0.1)},
+              "load_dependent": {"T": ("log", 1e-3, 1e7)}}
 
 
 class Rollouts:

@@ -15,8 +15,10 @@ Train/test split: with two or more records every second record (manifest order, 
 """
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -87,6 +89,7 @@ class Sim2RealResult:
     sim: object = None
     replayers: list = field(default_factory=list)
     test_masks: list = field(default_factory=list)
+    diagnosis: dict | None = None      # the diagnosis report this run computed (diagnosis.json)
 
 
 def evaluate(replayers, masks, native, effects=None, horizons=HORIZONS, max_windows=None) -> dict:
@@ -125,13 +128,12 @@ def evaluate(replayers, masks, native, effects=None, horizons=HORIZONS, max_wind
     return out
 
 
-def diagnosed_effects(campaign, robot, progress=False) -> tuple:
-    """(joint -> (effect,), joint -> verdict): the effects jointlab's gap diagnosis names
-    (``ident.workflow.diagnose_campaign``, torque channel) that the export implements."""
-
-    d = diagnose_campaign(campaign, robot=robot, markers=False, progress=progress)
+def named_from_report(report: dict) -> tuple:
+    """(joint -> (effect,), joint -> verdict): the effects a gap diagnosis report
+    (``diagnosis.json``) names per joint that the export implements: the verdict, else the first
+    selected effect."""
     verdicts, named = {}, {}
-    for j, r in d.report["joints"].items():
+    for j, r in report["joints"].items():
         verdicts[int(j)] = r.get("verdict_text", r.get("verdict"))
         names = [s["effect"] for s in r.get("selected", []) if isinstance(s, dict) and s.get("effect") in fx.EFFECTS]
         v = r.get("verdict")
@@ -140,6 +142,38 @@ def diagnosed_effects(campaign, robot, progress=False) -> tuple:
         if names:
             named[int(j)] = tuple(names[:1])
     return named, verdicts
+
+
+def diagnosed_effects(campaign, robot, progress=False) -> tuple:
+    """(joint -> (effect,), joint -> verdict, report): the effects jointlab's gap diagnosis names
+    (``ident.workflow.diagnose_campaign``, torque channel; :func:`named_from_report`) and its
+    ``diagnosis.json`` document."""
+
+    d = diagnose_campaign(campaign, robot=robot, markers=False, progress=progress)
+    return (*named_from_report(d.report), d.report)
+
+
+def read_diagnosis(path, campaign, n: int) -> dict:
+    """An earlier ``diagnosis.json`` (``jointlab diagnose`` or ``jointlab sim2real``) of this
+    campaign, checked: a JSON object whose ``campaign`` is this campaign's name and whose ``joints``
+    are joint numbers 1..n, each with a ``verdict``. A mismatch is an :class:`InputError` naming the
+    file and key."""
+    path = Path(path)
+    try:
+        rep = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError("diagnosis file not found", path=path) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"not a readable diagnosis.json ({e})", path=path) from None
+    if not isinstance(rep, dict) or not isinstance(rep.get("joints"), dict):
+        raise InputError("not a diagnosis.json: no 'joints' object", path=path, label="joints")
+    if rep.get("campaign") != campaign.name:
+        raise InputError(f"the diagnosis is of campaign {rep.get('campaign')!r}, not {campaign.name!r}",
+                         path=path, label="campaign")
+    for j, r in rep["joints"].items():
+        if not (str(j).isdigit() and 1 <= int(j) <= n) or not isinstance(r, dict) or "verdict" not in r:
+            raise InputError(f"joint {j!r}: not a joint 1..{n} with a verdict", path=path, label="joints")
+    return rep
 
 
 def sim2real_campaign(campaign, robot=None, **kw) -> Sim2RealResult:
@@ -154,8 +188,9 @@ def sim2real_campaign(campaign, robot=None, **kw) -> Sim2RealResult:
     return res
 
 
-def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, horizons=HORIZONS,
-                       sysid: bool = True, nthread: int = 1, progress: bool = False) -> Sim2RealResult:
+def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, diagnosis=None,
+                       horizons=HORIZONS, sysid: bool = True, nthread: int = 1,
+                       progress: bool = False) -> Sim2RealResult:
     """The three (four with ``mujoco.sysid``) models' held-out trajectory errors (module docstring).
 
     Parameters
@@ -167,6 +202,9 @@ def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, horizon
         The user's MJCF (default: ``[robot] mjcf``, else the URDF compile).
     effects : dict, optional
         joint -> (effect,) (:func:`parse_effects`); None: the diagnosis's named effects.
+    diagnosis : dict, optional
+        An earlier diagnosis report of the campaign (:func:`read_diagnosis`) whose named effects
+        are used instead of running the diagnosis again (ignored with ``effects``).
     horizons : sequence of float
         Simulation horizons (s).
     sysid : bool
@@ -187,11 +225,15 @@ def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, horizon
     rps = [Replayer(sm, robot, r, nthread) for r in records]
     timing = {}
     t0 = time.perf_counter()
-    if effects is None:
-        named, verdicts = diagnosed_effects(campaign, robot, progress)
-        source = "diagnosis"
-    else:
+    diag_report = None
+    if effects is not None:
         named, verdicts, source = dict(effects), {}, "--effects"
+    elif diagnosis is not None:
+        named, verdicts = named_from_report(diagnosis)
+        source = "diagnosis file"
+    else:
+        named, verdicts, diag_report = diagnosed_effects(campaign, robot, progress)
+        source = "diagnosis"
     timing["diagnosis_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     ts = TrainingSet(rps, train)
@@ -237,4 +279,4 @@ def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, horizon
         "errors": errors,
         "seconds": timing,
     }
-    return Sim2RealResult(report, native_fx, doc, sm, rps, test)
+    return Sim2RealResult(report, native_fx, doc, sm, rps, test, diag_report)

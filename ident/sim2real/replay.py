@@ -28,6 +28,8 @@ from mocap.io.payload import payload_com
 from ident.model.record import load_record
 
 HORIZONS = (0.1, 0.5, 2.0)
+#: measured motion before a window start that the presliding state is integrated over (s)
+HISTORY_S = 1.0
 REGIMES = ("low_speed", "reversal", "high_speed")
 
 
@@ -144,6 +146,20 @@ class Replayer:
             starts = starts[np.linspace(0, starts.size - 1, max_windows).round().astype(int)]
         return starts
 
+    @property
+    def history_steps(self) -> int:
+        """Samples of :data:`HISTORY_S`."""
+        return max(1, int(round(HISTORY_S / self.rec.dt)))
+
+    def history(self, starts: np.ndarray, nv: int) -> np.ndarray:
+        """(B, :data:`HISTORY_S` / dt, nv) measured velocities before each start, in dof order
+        (samples before the record's first repeat it): what the presliding state starts from."""
+        M = self.history_steps
+        idx = np.maximum(starts[:, None] - M + np.arange(M)[None, :], 0)
+        out = np.zeros((starts.size, M, nv))
+        out[:, :, self.sm.dof] = self.rec.qd[idx]
+        return out
+
     def _init(self, m, starts):
         mj = self._mj
         d = mj.MjData(m)
@@ -189,6 +205,10 @@ class Replayer:
 
 def _active(effects) -> bool:
     return effects is not None and any(jt.get("effects") for jt in effects.get("joints", ()))
+
+
+def _presliding(effects) -> bool:
+    return any(e["effect"] == "presliding" for jt in effects.get("joints", ()) for e in jt.get("effects", ()))
 
 
 def simulate_sets(items, sets, nthread: int = 1) -> list:
@@ -263,13 +283,23 @@ def _stepped(ro, models, datas, x0, u, cspec, items, sets, rows, nq, nv, nu):
     uk = np.empty((B, 1, nu + nv))
     st = np.empty((B, 1, ns))
     sens = np.empty((B, 1, 0))
-    act = [(sl, sets[p][1], items[i][0]) for p, i, sl in rows if _active(sets[p][1])]
+    act = []
+    for p, i, sl in rows:
+        if _active(sets[p][1]):
+            rp, starts, _ = items[i]
+            if _presliding(sets[p][1]):        # the bristles' state from the measured motion before
+                z[sl] = fx.initial_state(sets[p][1], x[sl, 1 + nq:1 + nq + nv],
+                                         rp.history(starts, nv), rp.rec.dt)
+            nat = np.zeros((3, nv))          # the model's dof_armature, dof_damping, dof_frictionloss
+            for r, key in enumerate(("armature", "damping", "frictionloss")):
+                nat[r, rp.sm.dof] = sets[p][0][key]
+            act.append((sl, sets[p][1], rp, nat))
     for k in range(N):
         uk[:, 0, :] = u[:, k]
-        for sl, doc, rp in act:
+        for sl, doc, rp, nat in act:
             qv = np.zeros((sl.stop - sl.start, nv))
             qv[:, rp.sm.dof] = x[sl, 1:1 + nq][:, rp.sm.qpos_adr]
-            tau, z[sl] = fx.torque(doc, qv, x[sl, 1 + nq:1 + nq + nv], u[sl, k, nu:], z[sl], rp.h)
+            tau, z[sl] = fx.torque(doc, qv, x[sl, 1 + nq:1 + nq + nv], u[sl, k, nu:], z[sl], rp.h, nat)
             uk[sl, 0, nu:] += tau
         ro.rollout(models, datas, x, uk, control_spec=cspec, skip_checks=True, nstep=1, state=st,
                    sensordata=sens)

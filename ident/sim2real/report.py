@@ -104,12 +104,16 @@ def plot(result, folder: Path, horizon: float = 2.0) -> list:
 
 
 def write_report(result, folder: Path) -> dict:
-    """``sim2real.json``, ``sim2real.md``, the plots and the export folder ``model/``."""
+    """``sim2real.json``, ``sim2real.md``, ``diagnosis.json`` (the diagnosis this run computed,
+    for ``--diagnosis``), the plots and the export folder ``model/``."""
 
     folder = Path(folder)
     (folder / "sim2real.json").write_text(json.dumps(to_jsonable(result.report), indent=1))
     (folder / "sim2real.md").write_text(markdown(result.report))
     paths = {"json": folder / "sim2real.json", "md": folder / "sim2real.md"}
+    if result.diagnosis is not None:       # reusable with --diagnosis
+        (folder / "diagnosis.json").write_text(json.dumps(to_jsonable(result.diagnosis), indent=1))
+        paths["diagnosis"] = folder / "diagnosis.json"
     paths["plots"] = plot(result, folder)
     paths["export"] = export_model(folder / "model", result)
     return paths

@@ -23,7 +23,9 @@ def register(sub):
                         "hyperbolic, arctan, dm1, dm2: shape parameters fitted on the joint's samples, "
                         "or held with NAME:k=v,...; amplitudes free); or a fits.json (FILE or "
                         "FILE:MODEL): the friction fixed to the file's values per joint, only the "
-                        "rigid-body corrections refitted")
+                        "rigid-body corrections refitted; or mjcf:PATH (a campaign folder or an MJCF "
+                        "inside one): the friction fixed to the MuJoCo model's damping, frictionloss "
+                        "and armature")
     p.add_argument("--angles", type=Path, metavar="DIR",
                    help="link angles from `jointlab mocap` (angles/<trial>.csv); default: solve them here")
     p.add_argument("--no-markers", action="store_true", help="torque channel only (ignore marker files)")
@@ -52,6 +54,8 @@ def run(args) -> int:
     from ident.gap.nominal import check_nominal
 
     camp = load_campaign(args.campaign)
+    if args.nominal == "mjcf":   # the campaign's own MuJoCo model ([robot] mjcf, or its URDF compiled)
+        args.nominal = f"mjcf:{camp.root}"
     joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
     check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
     # held --nominal values, --joints, --angles

@@ -1,5 +1,5 @@
-"""``jointlab sim2real CAMPAIGN --out DIR [--mjcf FILE]``: replay the records in MuJoCo, fit the
-native joint parameters, add the named effects, export the corrected model.
+"""``jointlab sim2real CAMPAIGN --out DIR [--mjcf FILE] [--diagnosis FILE]``: replay the records in
+MuJoCo, fit the native joint parameters, add the named effects, export the corrected model.
 
 A shell over :func:`ident.sim2real.pipeline.sim2real_campaign` (docs/sim2real.md)."""
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 from ident.cli.main import add_common
 from ident.outputs import OutputDir
 
-INPUT_ARGS = ("campaign", "mjcf")
+INPUT_ARGS = ("campaign", "mjcf", "diagnosis")
 OUTPUT_ARGS = ("out",)
 
 
@@ -23,6 +23,9 @@ def register(sub):
                    help="the user's MuJoCo model (default: [robot] mjcf, else MuJoCo's compile of the URDF)")
     p.add_argument("--effects", metavar="SPEC",
                    help="effects to export instead of the diagnosis's: NAME (every joint) or J:NAME,J:NAME")
+    p.add_argument("--diagnosis", type=Path, metavar="FILE",
+                   help="reuse an earlier diagnosis of this campaign (a diagnosis.json of jointlab "
+                        "diagnose or of an earlier sim2real run) instead of running it again")
     p.add_argument("--no-sysid", action="store_true", help="do not run mujoco.sysid beside")
     p.add_argument("--threads", type=int, default=1, help="mujoco.rollout threads (default 1)")
     return p
@@ -36,7 +39,7 @@ def run(args) -> int:
         import mujoco  # noqa: F401
     except ImportError:
         raise InputError("jointlab sim2real needs MuJoCo: pip install 'jointlab[mujoco]'") from None
-    from ident.sim2real.pipeline import parse_effects, sim2real_campaign
+    from ident.sim2real.pipeline import parse_effects, read_diagnosis, sim2real_campaign
     from ident.sim2real.report import write_report
 
     camp = load_campaign(args.campaign)
@@ -44,9 +47,11 @@ def run(args) -> int:
         raise InputError("MJCF not found", path=args.mjcf)
     robot = camp.load_robot()
     effects = parse_effects(args.effects, robot.n)
-    with OutputDir(args.out, "sim2real", [camp.root] + ([args.mjcf] if args.mjcf else [])) as od:
+    diagnosis = read_diagnosis(args.diagnosis, camp, robot.n) if args.diagnosis is not None else None
+    inputs = [camp.root] + [p for p in (args.mjcf, args.diagnosis) if p is not None]
+    with OutputDir(args.out, "sim2real", inputs) as od:
         od.check_early(["sim2real.json", "sim2real.md"])
-        result = sim2real_campaign(camp, robot, mjcf=args.mjcf, effects=effects,
+        result = sim2real_campaign(camp, robot, mjcf=args.mjcf, effects=effects, diagnosis=diagnosis,
                                    sysid=not args.no_sysid, nthread=max(1, args.threads))
         stage = od.stage()
         from ident.sim2real.model import captured_warnings
