@@ -200,14 +200,30 @@ def parse_models(text: str) -> tuple:
 
 
 def check_models(models) -> tuple:
-    """``models`` as a tuple when each name is a known friction model (a one-link model of the
-    registry :func:`ident.model.onelink.model_class` or a dynamic model of
+    """The friction model names checked against the registry, as a tuple.
+
+    Each name must be a known friction model (a one-link model of the registry
+    :func:`ident.model.onelink.model_class` or a dynamic model of
     :data:`ident.indri.campaign_fit.DYNAMIC_MODELS`); which path fits each is :func:`plan`'s.
+
+    Parameters
+    ----------
+    models : sequence of str
+        Friction model names (FORMAT.md's names).
+
+    Returns
+    -------
+    tuple of str
+        The names, in the order given.
 
     Raises
     ------
     InputError
         Empty, or an unknown name.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. fits.json.
 
     Examples
     --------
@@ -362,14 +378,30 @@ def plan(campaign, models=None, *, export_c: bool = False) -> Plan:
 
 
 def subset(campaign, ids):
-    """``campaign`` with only the trials whose id is in ``ids`` (campaign order kept)."""
+    """The campaign with only the trials whose id is in ``ids`` (campaign order kept).
+
+    Parameters
+    ----------
+    campaign : mocap.io.campaign.Campaign
+        The loaded campaign.
+    ids : iterable of str
+        Trial ids to keep.
+
+    Returns
+    -------
+    mocap.io.campaign.Campaign
+        A copy holding those trials.
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. campaign.toml.
+    """
     keep = set(ids)
     return dataclasses.replace(campaign, trials=tuple(t for t in campaign.trials if t.id in keep))
 
 
 def fit_plans(campaign, models) -> tuple:
-    """The friction fit's plans of ``campaign``: one :func:`plan` per manifest it would be
-    fitted from.
+    """The friction fit's plans of a campaign: one :func:`plan` per manifest it is fitted from.
 
     A mixed campaign (multi-joint records beside other trials, which :func:`plan` refuses to fit
     as one) gives the plan of its other trials, then that of its records; any other campaign
@@ -740,8 +772,10 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
 
 
 def diagnosis_document(plan: Plan, settings: DiagnosisSettings, single=None, records=None) -> tuple:
-    """The ``diagnosis.json`` document and the plotted series of a campaign from its paths'
-    parts: the one place that assembles them (:func:`diagnose_campaign`, ``jointlab study``).
+    """The ``diagnosis.json`` document and the plotted series of a campaign, from its parts.
+
+    The one place that assembles them from the paths' parts (:func:`diagnose_campaign`,
+    ``jointlab study``).
 
     Parameters
     ----------

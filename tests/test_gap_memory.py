@@ -106,7 +106,7 @@ def test_study_keeps_series_beside_the_record_and_recomputes_a_changed_one(campa
     assert set(series) == {"file", "sha256", "spectrum"} and series["file"] == "joint5.series.npz"
     assert "__array__" not in json.dumps(series).replace(json.dumps(series["spectrum"]), "")
     with np.load(rec_dir / "joint5.series.npz") as z:
-        assert set(z.files) == {"t", "qd", "q", "residual_nominal", "trial"}
+        assert set(z.files) == {"t", "qd", "qdd", "q", "residual_nominal", "trial"}
         n = z["qd"].size
     assert n > 1000 and (out / "diagnosis" / "joint5_residual.png").is_file()
     first = (out / "diagnosis" / "diagnosis.json").read_text()

@@ -137,6 +137,12 @@ class JointData:
         Declared transmission stiffness (drives.toml, N m/rad); 0: rigid.
     tau_m_friction : numpy.ndarray or None
         Link-side friction: the spring torque ``y`` at marker times.
+    q_all : numpy.ndarray or None
+        (N, n) every joint's angle (continuous multi-joint records: the configuration-space tests).
+    delay_cols : numpy.ndarray or None
+        (N, len(DELAY_GRID_S)) ``p(t - dt) - p(t)`` of the record's smooth torque model (records).
+    lowpass_cols : numpy.ndarray or None
+        (N, len(LOWPASS_GRID)) ``LP2(p) - p`` (records).
 
     References
     ----------
@@ -180,7 +186,6 @@ class JointData:
     q_all: np.ndarray | None = None         # (N, n) every joint's angle (configuration-space tests)
     delay_cols: np.ndarray | None = None    # (N, len(DELAY_GRID_S)) p(t - dt) - p(t), p the record's rigid-body fit
     lowpass_cols: np.ndarray | None = None  # (N, len(LOWPASS_GRID)) LP2(p)(t) - p(t)
-    rigid_names: tuple = ()                 # names of the identified rigid-body columns in urdf_regs
 
     @cached_property
     def sgn(self) -> np.ndarray:

@@ -17,9 +17,11 @@ def _fin(x):
 
 def verdict_line(verdict: str, status: str, size: dict, detectable: dict, alternatives=(), channels=None,
                  extrapolated: float = 0.0, where: str = "") -> str:
-    """One line: ``stribeck: removes 2.1 noise variances (held-out RMS -14 %)``; with several
-    selected effects ``position_ripple: removes ... (held-out RMS -15 %); then presliding (-12 %):
-    held-out RMS -32 % in all``; ``none: the gap is at the noise floor (this record could have
+    """The verdict in one line, the same wherever it is shown.
+
+    ``stribeck: removes 2.1 noise variances (held-out RMS -14 %)``; with several selected effects
+    ``position_ripple: removes 19.7 noise variances (held-out RMS -16 %); then presliding (-32 %
+    with it): held-out RMS -32 % in all``; ``none: the gap is at the noise floor (this record could have
     shown an effect of 0.12 noise variances)``; ``unexplained: ...`` (``where``: the variable the
     held-out residual depends on, when known); ``insufficient data: ...`` (``extrapolated``: the
     share of held-out samples the rest of the record cannot predict, when that is the reason).
@@ -215,6 +217,9 @@ class DiagnosisResult:
         fold's training rows (:func:`ident.gap.engine.heldout_leverage`); 0 otherwise.
     series : dict
         Time series for the plots (not in the JSON).
+    configuration_localisation : tuple
+        ``({"variable", "share", ...}, ...)``: on multi-joint records, the variables the held-out
+        residual depends on (each joint's angle, the velocity, acceleration, time), largest first.
 
     References
     ----------

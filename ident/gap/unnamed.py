@@ -49,7 +49,7 @@ def _scaled(x: np.ndarray) -> np.ndarray:
 
 
 def legendre(x: np.ndarray, deg: int) -> np.ndarray:
-    """(N, deg) Legendre polynomials ``P_1 .. P_deg`` of ``x`` (Bonnet's recursion)."""
+    """(N, deg) Legendre polynomials of degrees 1 to ``deg`` of ``x`` (Bonnet's recursion)."""
     out = np.empty((x.shape[0], deg))
     p0, p1 = np.ones_like(x), x
     for n in range(1, deg + 1):
