@@ -651,20 +651,9 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
         fold=np.arange(1, n_segments + 1))
 
 
-def _shifted(Z: np.ndarray, s: float) -> np.ndarray:
-    """``Z`` (T, ...) delayed by ``s`` samples (fractional: linear interpolation between the two
-    neighbouring whole shifts; the first samples repeat the first row)."""
-    i0 = int(np.floor(s))
-    w = s - i0
-    idx = np.arange(Z.shape[0])
-    a = Z[np.clip(idx - i0, 0, Z.shape[0] - 1)]
-    if w == 0:
-        return a
-    return (1 - w) * a + w * Z[np.clip(idx - i0 - 1, 0, Z.shape[0] - 1)]
-
-
 def _shifted_rows(Z: np.ndarray, s: float, rows: np.ndarray) -> np.ndarray:
-    """``_shifted(Z, s)[rows]`` without shifting the other rows."""
+    """Rows ``rows`` of ``Z`` (T, ...) delayed by ``s`` samples (fractional: linear interpolation
+    between the two neighbouring whole shifts; the first samples repeat the first row)."""
     i0 = int(np.floor(s))
     w = s - i0
     a = Z[np.clip(rows - i0, 0, Z.shape[0] - 1)]
@@ -716,7 +705,7 @@ def _record_signal_columns(t: np.ndarray, keep: np.ndarray, target: np.ndarray, 
             if sse < best[0]:
                 best = (sse, dl, Z)
     Z = best[2]
-    th = np.linalg.lstsq(_shifted(Z, best[1] / dt)[keep], y[keep], rcond=None)[0]
+    th = np.linalg.lstsq(_shifted_rows(Z, best[1] / dt, np.flatnonzero(keep)), y[keep], rcond=None)[0]
     p = Z @ th
     tk = t[keep]
     pk = p[keep]

@@ -36,7 +36,6 @@ TORQUE_LOWPASS = "torque_lowpass"
 UNNAMED = (CONFIGURATION, TORQUE_LOWPASS)
 #: a joint's angle varies over at least this range (rad) to be a configuration variable
 MIN_RANGE = 0.05
-KINDS = ("add", "coulomb", "viscous")
 #: two configuration variables are told apart when one keeps at least this share of the first's
 #: held-out reduction given the other (an excitation moves every joint on one fundamental, so
 #: smooth functions of two angles can explain the same residual)

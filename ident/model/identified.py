@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import qr
 
 from ident.gap.candidates import ssign
 from mocap.io.payload import payload_com, payload_com_unknown
@@ -101,15 +102,11 @@ def joint_rigid_columns(parts: list, j0: int, keys: list) -> tuple[np.ndarray, l
     return np.concatenate(rows), names
 
 
-def independent_columns(A: np.ndarray, tol: float = 1e-7, max_rows: int = 6000,
-                        keep_first: int = 0) -> np.ndarray:
+def independent_columns(A: np.ndarray, tol: float = 1e-7, max_rows: int = 6000) -> np.ndarray:
     """Indices of a maximal set of linearly independent columns of ``A`` (N, k): QR with column
     pivoting of the unit-RMS columns on at most ``max_rows`` evenly spaced rows (Gautier's
     numerical base parameters, on the record's own states); columns whose RMS is below ``tol``
-    times the largest are dropped first. The first ``keep_first`` columns are kept when they are
-    independent of each other (they are pivoted first)."""
-    from scipy.linalg import qr
-
+    times the largest are dropped first."""
     if A.shape[1] == 0:
         return np.zeros(0, int)
     step = max(1, A.shape[0] // max_rows)
@@ -118,19 +115,7 @@ def independent_columns(A: np.ndarray, tol: float = 1e-7, max_rows: int = 6000,
     live = np.flatnonzero(rms > tol * max(float(rms.max()), 1e-300))
     if live.size == 0:
         return live
-    Sn = S[:, live] / rms[live]
-    first = live < keep_first
-    if first.any():
-        # the kept columns first, the others orthogonalised against them, then pivoted
-        F = Sn[:, first]
-        Qf, Rf = np.linalg.qr(F)
-        okf = np.abs(np.diag(Rf)) > tol * max(np.abs(np.diag(Rf)).max(), 1e-300)
-        R_rest = Sn[:, ~first] - Qf @ (Qf.T @ Sn[:, ~first])
-        _, R, piv = qr(R_rest, mode="economic", pivoting=True)
-        d = np.abs(np.diag(R))
-        r = int(np.sum(d > tol * np.sqrt(Sn.shape[0]))) if d.size else 0
-        return np.sort(np.concatenate([live[first][okf], live[~first][piv[:r]]]))
-    _, R, piv = qr(Sn, mode="economic", pivoting=True)
+    _, R, piv = qr(S[:, live] / rms[live], mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
     r = int(np.sum(d > tol * max(d[0], 1e-300)))
     return np.sort(live[piv[:r]])
