@@ -26,6 +26,7 @@ import numpy as np
 
 from mocap.io.errors import InputError
 from mocap.kinematics import angle_about, kabsch_batch, perp_basis, rotation_about_axis, unit
+from mocap.numerics import rodrigues_axis_derivative
 
 from calib.geometry import chart_coords, chart_line
 
@@ -236,10 +237,9 @@ class _RigidSweep:
         K = len(ti)
         Jg = np.zeros((K, 3, self.G))
         st = np.sin(theta[ti])[:, None]
-        ct1 = (1.0 - np.cos(theta[ti]))[:, None]
-        nd = d @ n
+        ct = np.cos(theta[ti])[:, None]
         for col, e in ((0, u), (1, v)):
-            Jg[:, :, col] = st * np.cross(e, d) + ct1 * (e[None] * nd[:, None] + n[None] * (d @ e)[:, None])
+            Jg[:, :, col] = rodrigues_axis_derivative(e, d, n, st, ct)
         IR = np.eye(3) - R
         Jg[:, :, 2] = IR @ u
         Jg[:, :, 3] = IR @ v
@@ -780,11 +780,45 @@ class CircleAxisEstimator:
         X = P[t_idx, k_idx]
         c = X.mean(axis=0)
         hk = np.bincount(k_idx, weights=(X - c) @ n, minlength=M) / np.bincount(k_idx, minlength=M)
-        w_rob = np.ones(len(t_idx))
+        many = int(vis.sum(axis=0).min()) >= WEIGHTS_MIN_FRAMES
+        a, n, rad, hk, w_rob, w_mk, it, conv = self._refine_axis(X, k_idx, a, n, rad, hk, c, many)
+        a = a + ((c - a) @ n) * n
+        u, v = perp_basis(n)
+        r, J = self._residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c)
+        w = w_rob * w_mk[k_idx]
+        H = np.einsum("k,kig,kih->gh", w, J, J)
+        sig2, nu = self._noise_variance(r, w, len(k_idx), M)
+        cov = sig2 * np.linalg.pinv(H)[:4, :4]
+        crb, sweep = self._bound(P, labels, a, n, (u, v), cov, J, sig2)
+        # 3-D residual per observation: in-plane tangential component is not modelled
+        rn = np.linalg.norm(r, axis=1)
+        scale = _robust_scale(rn, 2)
+        mrms = np.sqrt(np.bincount(k_idx, weights=rn ** 2, minlength=M) / np.bincount(k_idx, minlength=M))
+        return AxisFit(point=a, direction=n, basis=(u, v), cov=cov, crb=crb,
+                       rms_mm=float(1e3 * np.sqrt(np.mean(rn ** 2))),
+                       sigma_mm=float(1e3 * np.sqrt(3 * sig2)),
+                       marker_rms_mm={lb: 1e3 * float(x) for lb, x in zip(labels, mrms)},
+                       marker_radius_m={lb: float(x) for lb, x in zip(labels, rad)},
+                       sweep_deg=sweep, n_frames=int(np.any(vis, axis=1).sum()),
+                       n_observations=len(k_idx), n_outliers=int(np.sum(rn > 4 * scale)),
+                       iterations=it, converged=conv or not self.refine,
+                       cond=float(np.linalg.cond(H[:4, :4])), method=self.method,
+                       extra={"bcls_radius_m": {lb: c[2] for lb, c in zip(labels, circles)},
+                              "marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}},
+                       dof=nu)
+
+    def _refine_axis(self, X, k_idx, a, n, rad, hk, c, many):
+        """The common-axis refinement: Gauss-Newton on the radial and axial residuals of the
+        observations ``X`` (K, 3) (marker ``k_idx``) to their markers' circles, from the axis
+        ``(a, n)``, radii ``rad`` and axial offsets ``hk`` (from the centroid ``c``), with Huber
+        IRLS and per-marker noise weights where every marker has ``many`` frames (one
+        evaluation without :attr:`refine`). Returns the axis, radii, offsets, the robust and
+        marker weights, the iterations and whether it converged."""
+        M = rad.shape[0]
+        w_rob = np.ones(len(k_idx))
         w_mk = np.ones(M)
         it, conv = 0, False
         iters = self.max_iter if self.refine else 1
-        many = int(vis.sum(axis=0).min()) >= WEIGHTS_MIN_FRAMES
         for it in range(1, iters + 1):
             a = a + ((c - a) @ n) * n
             u, v = perp_basis(n)
@@ -810,52 +844,39 @@ class CircleAxisEstimator:
             if np.abs(dx).max() < 1e-11 and it > 3:
                 conv = True
                 break
-        a = a + ((c - a) @ n) * n
-        u, v = perp_basis(n)
-        r, J = self._residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c)
-        w = w_rob * w_mk[k_idx]
-        H = np.einsum("k,kig,kih->gh", w, J, J)
-        dof = 2 * len(k_idx) - (4 + 2 * M)
-        nu = float(dof)
+        return a, n, rad, hk, w_rob, w_mk, it, conv
+
+    def _noise_variance(self, r, w, K, M):
+        """Per-axis noise variance and its degrees of freedom: from the weighted residuals ``r``
+        (K, 2) of ``K`` observations of ``M`` markers (``2 K - 4 - 2 M`` degrees of freedom), or
+        :attr:`noise_mm` (infinite degrees of freedom) when they leave no residual."""
+        dof = 2 * K - (4 + 2 * M)
         if dof >= 1:
-            sig2 = float(np.sum(w * np.sum(r ** 2, axis=1)) / dof)
-        elif self.noise_mm is not None:
-            sig2, nu = (self.noise_mm * 1e-3) ** 2 / 3.0, float("inf")
-        else:
-            raise InputError(f"{len(k_idx)} observations of {M} marker(s) leave no residual to estimate "
-                             "the noise from: give the noise (--noise-mm) or add poses")
-        Hinv = np.linalg.pinv(H)
-        cov = sig2 * Hinv[:4, :4]
-        fit0 = AxisFit(point=a, direction=n, basis=(u, v), cov=cov, crb=np.full((4, 4), np.nan),
+            return float(np.sum(w * np.sum(r ** 2, axis=1)) / dof), float(dof)
+        if self.noise_mm is not None:
+            return (self.noise_mm * 1e-3) ** 2 / 3.0, float("inf")
+        raise InputError(f"{K} observations of {M} marker(s) leave no residual to estimate "
+                         "the noise from: give the noise (--noise-mm) or add poses")
+
+    def _bound(self, P, labels, a, n, basis, cov, J, sig2):
+        """The Cramer-Rao bound (4, 4) of the axis ``(a, n)`` and the sweep (deg): the rigid
+        sweep model's (:func:`sweep_crb` through :class:`ClusterAxisEstimator`) re-expressed in
+        this fit's chart, or with fewer than 3 markers the circle model's own (Jacobian ``J``,
+        noise ``sig2`` per axis unless :attr:`noise_mm`)."""
+        fit0 = AxisFit(point=a, direction=n, basis=basis, cov=cov, crb=np.full((4, 4), np.nan),
                        rms_mm=0.0, sigma_mm=0.0, marker_rms_mm={}, marker_radius_m={},
                        sweep_deg=0.0, n_frames=0, n_observations=0, n_outliers=0, iterations=0,
                        converged=True, cond=0.0, method=self.method)
         try:
             rigid = ClusterAxisEstimator(robust=False, marker_weights=False, noise_mm=self.noise_mm,
                                          min_frames=self.min_frames).fit(P, labels)
-            crb, sweep = _rebase_cov(rigid.crb, rigid, fit0), rigid.sweep_deg
+            return _rebase_cov(rigid.crb, rigid, fit0), rigid.sweep_deg
         except InputError:          # fewer than 3 markers: the bound of the circle model itself
             H1 = np.einsum("kig,kih->gh", J, J)
             noise_m = np.sqrt(3 * sig2) if self.noise_mm is None else self.noise_mm * 1e-3
             crb = noise_m ** 2 / 3.0 * np.linalg.pinv(H1)[:4, :4]
             th = marker_angles(P, a, n)
-            sweep = float(np.degrees(np.nanmax(np.nanmax(th, axis=0) - np.nanmin(th, axis=0))))
-        # 3-D residual per observation: in-plane tangential component is not modelled
-        rn = np.linalg.norm(r, axis=1)
-        scale = _robust_scale(rn, 2)
-        mrms = np.sqrt(np.bincount(k_idx, weights=rn ** 2, minlength=M) / np.bincount(k_idx, minlength=M))
-        return AxisFit(point=a, direction=n, basis=(u, v), cov=cov, crb=crb,
-                       rms_mm=float(1e3 * np.sqrt(np.mean(rn ** 2))),
-                       sigma_mm=float(1e3 * np.sqrt(3 * sig2)),
-                       marker_rms_mm={lb: 1e3 * float(x) for lb, x in zip(labels, mrms)},
-                       marker_radius_m={lb: float(x) for lb, x in zip(labels, rad)},
-                       sweep_deg=sweep, n_frames=int(np.any(vis, axis=1).sum()),
-                       n_observations=len(k_idx), n_outliers=int(np.sum(rn > 4 * scale)),
-                       iterations=it, converged=conv or not self.refine,
-                       cond=float(np.linalg.cond(H[:4, :4])), method=self.method,
-                       extra={"bcls_radius_m": {lb: c[2] for lb, c in zip(labels, circles)},
-                              "marker_weight": {lb: float(x) for lb, x in zip(labels, w_mk)}},
-                       dof=nu)
+            return crb, float(np.degrees(np.nanmax(np.nanmax(th, axis=0) - np.nanmin(th, axis=0))))
 
     @staticmethod
     def _residual_jacobian(X, k_idx, a, n, u, v, rad, hk, M, c):

@@ -407,6 +407,129 @@ def model_error_terms(axes, urdf_lines, covs, tol_m: float = 0.0, estimate: bool
     return float(np.sqrt(max(ms[0], tol2))), float(np.sqrt(ms[1])), Vs, Vt, [float(x) for x in nus]
 
 
+def _pair_geometry(axes, urdf_lines):
+    """The measured lines ``(point, direction)`` of the fitted ``axes``, the URDF lines (unit
+    directions) and the J1-J2 pair's geometry ``(measured distance (m), URDF distance (m),
+    measured angle (deg), URDF angle (deg))``; the two URDF axes must be 5 deg apart or more."""
+    if len(axes) < 2 or len(axes) != len(urdf_lines):
+        raise InputError(f"base placement needs at least two swept joints, got {len(axes)}")
+    meas = [(f.point, f.direction) for f in axes]
+    urdf = [(np.asarray(b, float), unit(m)) for b, m in urdf_lines]
+    ang_u = float(np.degrees(np.arccos(np.clip(abs(urdf[0][1] @ urdf[1][1]), 0, 1))))
+    if ang_u < 5.0:
+        raise InputError(f"the URDF axes of joints {axes[0].joint} and {axes[1].joint} are parallel "
+                         f"({ang_u:.2f} deg apart): they cannot place the base")
+    ang_m = float(np.degrees(np.arccos(np.clip(meas[0][1] @ meas[1][1], -1, 1))))
+    ang_u_signed = float(np.degrees(np.arccos(np.clip(urdf[0][1] @ urdf[1][1], -1, 1))))
+    dist_m, _ = line_distance(meas[0][0], meas[0][1], meas[1][0], meas[1][1])
+    dist_u, _ = line_distance(urdf[0][0], urdf[0][1], urdf[1][0], urdf[1][1])
+    return meas, urdf, (dist_m, dist_u, ang_m, ang_u_signed)
+
+
+def _whitening(C):
+    """``L`` with ``L^T L = C^-1`` (eigenvalues floored at 1e-12 of the largest)."""
+    C = 0.5 * (C + C.T)
+    w, V = np.linalg.eigh(C)
+    w = np.maximum(w, 1e-12 * max(w.max(), 1e-30))
+    return (V / np.sqrt(w)).T
+
+
+def _line_residuals(x, axes, urdf, Ls, R0, p0):
+    """Whitened chart coordinates of the URDF lines ``urdf`` moved by ``R = exp([x_0:3]) R0``,
+    ``p = p0 + x_3:6`` against the measured ``axes`` (the objective of :func:`place_base`)."""
+    R = rotvec_to_matrix(x[:3]) @ R0
+    p = p0 + x[3:]
+    out = []
+    for f, (b, m), L in zip(axes, urdf, Ls):
+        c = chart_coords(R @ b + p, R @ m, f.point, f.direction, *f.basis)
+        out.append(L @ c)
+    return np.concatenate(out)
+
+
+def _solve_lines(axes, meas, urdf, covs):
+    """The weighted least-squares placement of :func:`place_base` with the line covariances
+    ``covs``: ``T_camera_base``, its covariance, the whitened residuals (n, 4), the solver's
+    result, cond(J^T J), the unwhitened chart Jacobians ``A_j`` and the whitening ``L_j``."""
+    Ls = [_whitening(C) for C in covs]
+    R0, p0 = _initial_pose(meas, urdf)
+    sol = least_squares(_line_residuals, np.zeros(6), method="lm", xtol=1e-15, ftol=1e-15,
+                        gtol=1e-15, args=(axes, urdf, Ls, R0, p0))
+    J = sol.jac
+    JtJ = J.T @ J
+    cov = np.linalg.inv(JtJ)
+    R = rotvec_to_matrix(sol.x[:3]) @ R0
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p0 + sol.x[3:]
+    r = _line_residuals(sol.x, axes, urdf, Ls, R0, p0).reshape(len(axes), 4)
+    # unwhitened chart Jacobians A_j = L_j^-1 J_j, for splitting the covariance by source
+    A = [np.linalg.solve(L, Jj) for L, Jj in zip(Ls, J.reshape(len(axes), 4, 6))]
+    return T, cov, r, sol, float(np.linalg.cond(JtJ)), A, Ls
+
+
+def _split_cov(cov, A, Ls, blocks):
+    """cov = sum_j G A_j' W_j B_j W_j A_j G for covariance blocks B_j (W_j = L_j' L_j)."""
+    out = []
+    for Aj, L, B in zip(A, Ls, blocks):
+        W = L.T @ L
+        out.append(cov @ Aj.T @ W @ B @ W @ Aj @ cov)
+    return out
+
+
+def _covariance_parts(axes, use, cov, A, Ls, covs, nus, model_terms):
+    """The placement's covariance split by source: one noise part per axis (the axes that share
+    one pooled variance as one part), then a part per model-error term ``(tau, V_j, nu)`` of
+    ``model_terms`` with ``tau > 0``. Returns the parts, their degrees of freedom and the number
+    of noise parts."""
+    parts = _split_cov(cov, A, Ls, covs)
+    pooled = [k for k, f in enumerate(axes) if _pooled(f) and use == "cov"]
+    if len(pooled) > 1:           # one pooled variance scales these axes' parts together: one part
+        keep = [k for k in range(len(axes)) if k not in pooled]
+        parts = [parts[k] for k in keep] + [sum(parts[k] for k in pooled)]
+        nus = [nus[k] for k in keep] + [nus[pooled[0]]]
+    n_noise = len(parts)
+    for tau_k, Vk, nu_k in model_terms:
+        if tau_k > 0:
+            parts.append(sum(_split_cov(cov, A, Ls, Vk)))
+            nus = list(nus) + [nu_k]
+    return parts, nus, n_noise
+
+
+def _reported_covariance(parts, nus, n_noise, model_error: bool):
+    """The reported covariance of the placement from its ``parts`` (the first ``n_noise`` from
+    noise, on ``nus`` degrees of freedom): each noise part at the variance of the t distribution
+    its estimated variance implies (GUM Supplement 1, 6.4.9.4: nu / (nu - 2)); the model-error
+    parts are mean squares D^2 + u^2 already (the second moment given the measured discrepancy)
+    and stay; the 95 % region is the same region (region95 draws its reference distribution with
+    the same factors). Returns the covariance, the factors, the budget by source and the
+    inflation (RMS growth of the standard deviations over noise alone; 1 without ``model_error``)."""
+    fac = np.r_[t_variance_factor(nus[:n_noise]), np.ones(len(parts) - n_noise)]
+    cov = sum(c * P for c, P in zip(fac, parts))
+    noise_cov = sum(c * P for c, P in zip(fac[:n_noise], parts[:n_noise]))
+    model_cov = sum((c * P for c, P in zip(fac[n_noise:], parts[n_noise:])), np.zeros((6, 6)))
+    budget = {name: dict(zip(("origin_std_mm", "rotation_std_deg"), BasePlacement._stds(P)))
+              for name, P in (("noise", noise_cov), ("model_error", model_cov))}
+    inflation = 1.0
+    if model_error:     # RMS growth of the standard deviations over the noise-only solve
+        inflation = float(np.sqrt(np.trace(cov) / max(np.trace(noise_cov), 1e-300)))
+    return cov, fac, budget, inflation
+
+
+def _misfit_warning(axes, pair, chi2, dof, p_value, trusted, tau_s, tau_t, inflation) -> str:
+    """The warning that the measured axes do not fit the URDF: the test, the J1-J2 geometry
+    measured and declared (``pair``, :func:`_pair_geometry`), and what the placement did."""
+    dist_m, dist_u, ang_m, ang_u_signed = pair
+    j1, j2 = axes[0].joint, axes[1].joint
+    what = (f"the URDF's J{j1}-J{j2} geometry is trusted (--trust-urdf): the base absorbs the "
+            "discrepancy and the reported uncertainty leaves it out; calibrate without --trust-urdf"
+            if trusted else
+            f"a model error of {1e3 * tau_s:.3f} mm and {np.degrees(tau_t):.4f} deg per axis line is "
+            f"included (standard deviations x{inflation:.2f})")
+    return (f"the measured axes do not fit the URDF: chi2 = {chi2:.1f} on {dof} degrees of freedom "
+            f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
+            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; {what}")
+
+
 def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
                model_error: bool = True, urdf_tol_m: float = 0.0,
                with_region: bool = True) -> BasePlacement:
@@ -480,69 +603,17 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
     .. [5] GUM Supplement 1, JCGM 101:2008, propagation of distributions using a Monte Carlo
        method, 6.4.9 (the t distribution of a quantity known from a few observations).
     """
-    if len(axes) < 2 or len(axes) != len(urdf_lines):
-        raise InputError(f"base placement needs at least two swept joints, got {len(axes)}")
-    meas = [(f.point, f.direction) for f in axes]
-    urdf = [(np.asarray(b, float), unit(m)) for b, m in urdf_lines]
-    ang_u = float(np.degrees(np.arccos(np.clip(abs(urdf[0][1] @ urdf[1][1]), 0, 1))))
-    if ang_u < 5.0:
-        raise InputError(f"the URDF axes of joints {axes[0].joint} and {axes[1].joint} are parallel "
-                         f"({ang_u:.2f} deg apart): they cannot place the base")
-    ang_m = float(np.degrees(np.arccos(np.clip(meas[0][1] @ meas[1][1], -1, 1))))
-    ang_u_signed = float(np.degrees(np.arccos(np.clip(urdf[0][1] @ urdf[1][1], -1, 1))))
-    dist_m, _ = line_distance(meas[0][0], meas[0][1], meas[1][0], meas[1][1])
-    dist_u, _ = line_distance(urdf[0][0], urdf[0][1], urdf[1][0], urdf[1][1])
-
-    def whitening(C):
-        C = 0.5 * (C + C.T)
-        w, V = np.linalg.eigh(C)
-        w = np.maximum(w, 1e-12 * max(w.max(), 1e-30))
-        return (V / np.sqrt(w)).T
-
-    def solve(covs):
-        Ls = [whitening(C) for C in covs]
-        R0, p0 = _initial_pose(meas, urdf)
-
-        def resid(x):
-            R = rotvec_to_matrix(x[:3]) @ R0
-            p = p0 + x[3:]
-            out = []
-            for f, (b, m), L in zip(axes, urdf, Ls):
-                c = chart_coords(R @ b + p, R @ m, f.point, f.direction, *f.basis)
-                out.append(L @ c)
-            return np.concatenate(out)
-
-        sol = least_squares(resid, np.zeros(6), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
-        J = sol.jac
-        JtJ = J.T @ J
-        cov = np.linalg.inv(JtJ)
-        R = rotvec_to_matrix(sol.x[:3]) @ R0
-        T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = p0 + sol.x[3:]
-        r = resid(sol.x).reshape(len(axes), 4)
-        # unwhitened chart Jacobians A_j = L_j^-1 J_j, for splitting the covariance by source
-        A = [np.linalg.solve(L, Jj) for L, Jj in zip(Ls, J.reshape(len(axes), 4, 6))]
-        return T, cov, r, sol, float(np.linalg.cond(JtJ)), A, Ls
-
-    def split(cov, A, Ls, blocks):
-        """cov = sum_j G A_j' W_j B_j W_j A_j G for covariance blocks B_j (W_j = L_j' L_j)."""
-        out = []
-        for Aj, L, B in zip(A, Ls, blocks):
-            W = L.T @ L
-            out.append(cov @ Aj.T @ W @ B @ W @ Aj @ cov)
-        return out
-
+    meas, urdf, pair = _pair_geometry(axes, urdf_lines)
     from scipy.stats import chi2 as chi2_dist
 
     covs = [f.cov if use == "cov" else f.crb for f in axes]
     dof = 4 * len(axes) - 6
-    T, cov, r, sol, cond, A, Ls = solve(covs)
+    T, cov, r, sol, cond, A, Ls = _solve_lines(axes, meas, urdf, covs)
     chi2 = float(np.sum(r ** 2))
     p_value = float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan")
     if all(np.all(np.isfinite(f.crb)) for f in axes):
         # the bound at the same estimate: rebuild the whitened Jacobian with the CRB weights
-        crb = solve([f.crb for f in axes])[1]
+        crb = _solve_lines(axes, meas, urdf, [f.crb for f in axes])[1]
     else:
         crb = np.full((6, 6), np.nan)
     # model error: the URDF axis lines are off the real ones by unknown shifts and tilts of
@@ -554,47 +625,20 @@ def place_base(axes, urdf_lines, use: str = "cov", misfit_p: float = MISFIT_P,
                                    else (0.0, 0.0, zero, zero, [np.inf, np.inf]))
     nus = [f.dof for f in axes] if use == "cov" else [np.inf] * len(axes)
     if tau_s > 0 or tau_t > 0:
-        T, cov, r, sol, cond, A, Ls = solve([C + Vj + Wj for C, Vj, Wj in zip(covs, Vs, Vt)])
-    parts = split(cov, A, Ls, covs)
-    pooled = [k for k, f in enumerate(axes) if _pooled(f) and use == "cov"]
-    if len(pooled) > 1:           # one pooled variance scales these axes' parts together: one part
-        keep = [k for k in range(len(axes)) if k not in pooled]
-        parts = [parts[k] for k in keep] + [sum(parts[k] for k in pooled)]
-        nus = [nus[k] for k in keep] + [nus[pooled[0]]]
-    n_noise = len(parts)
-    for tau_k, Vk, nu_k in ((tau_s, Vs, nu_me[0]), (tau_t, Vt, nu_me[1])):
-        if tau_k > 0:
-            parts.append(sum(split(cov, A, Ls, Vk)))
-            nus = list(nus) + [nu_k]
-    # reported: each noise part at the variance of the t distribution its estimated variance
-    # implies (GUM Supplement 1, 6.4.9.4: nu / (nu - 2)); the model-error parts are mean squares
-    # D^2 + u^2 already (the second moment given the measured discrepancy) and stay; the 95 %
-    # region is the same region (region95 draws its reference distribution with the same factors)
-    fac = np.r_[t_variance_factor(nus[:n_noise]), np.ones(len(parts) - n_noise)]
-    cov = sum(c * P for c, P in zip(fac, parts))
-    noise_cov = sum(c * P for c, P in zip(fac[:n_noise], parts[:n_noise]))
-    model_cov = sum((c * P for c, P in zip(fac[n_noise:], parts[n_noise:])), np.zeros((6, 6)))
-    budget = {name: dict(zip(("origin_std_mm", "rotation_std_deg"), BasePlacement._stds(P)))
-              for name, P in (("noise", noise_cov), ("model_error", model_cov))}
-    inflation = 1.0
-    if tau_s > 0 or tau_t > 0:     # RMS growth of the standard deviations over the noise-only solve
-        inflation = float(np.sqrt(np.trace(cov) / max(np.trace(noise_cov), 1e-300)))
+        T, cov, r, sol, cond, A, Ls = _solve_lines(axes, meas, urdf,
+                                                   [C + Vj + Wj for C, Vj, Wj in zip(covs, Vs, Vt)])
+    parts, nus, n_noise = _covariance_parts(axes, use, cov, A, Ls, covs, nus,
+                                            ((tau_s, Vs, nu_me[0]), (tau_t, Vt, nu_me[1])))
+    cov, fac, budget, inflation = _reported_covariance(parts, nus, n_noise, tau_s > 0 or tau_t > 0)
     trusted = use == "cov" and not model_error
     warnings = []
     if dof > 0 and p_value < misfit_p:
-        j1, j2 = axes[0].joint, axes[1].joint
-        what = (f"the URDF's J{j1}-J{j2} geometry is trusted (--trust-urdf): the base absorbs the "
-                "discrepancy and the reported uncertainty leaves it out; calibrate without --trust-urdf"
-                if trusted else
-                f"a model error of {1e3 * tau_s:.3f} mm and {np.degrees(tau_t):.4f} deg per axis line is "
-                f"included (standard deviations x{inflation:.2f})")
-        warnings.append(
-            f"the measured axes do not fit the URDF: chi2 = {chi2:.1f} on {dof} degrees of freedom "
-            f"(p = {p_value:.1e}); J{j1}-J{j2} offset measured {1e3 * dist_m:.3f} mm at {ang_m:.3f} deg, "
-            f"URDF {1e3 * dist_u:.3f} mm at {ang_u_signed:.3f} deg; {what}")
+        warnings.append(_misfit_warning(axes, pair, chi2, dof, p_value, trusted, tau_s, tau_t,
+                                        inflation))
     reg = region95(parts, nus, scale=fac) if with_region else None
     if not sol.success:
         warnings.append(f"the base solve did not converge ({sol.message})")
+    dist_m, dist_u, ang_m, ang_u_signed = pair
     return BasePlacement(T_camera_base=T, cov=cov, crb=crb,
                          residual_chart={f.joint: rr for f, rr in zip(axes, r)},
                          axis_distance_mm=1e3 * dist_m, urdf_axis_distance_mm=1e3 * dist_u,

@@ -19,10 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 from mocap.io.errors import InputError
-from mocap.kinematics import invert_transform, kabsch_batch, rotvec_to_matrix
+from mocap.kinematics import invert_transform, kabsch_batch, matrix_to_rotvec, rotvec_to_matrix
 
 
 
@@ -185,42 +184,18 @@ class HandEyeEstimator:
             raise InputError(f"hand-eye: fewer than 2 frames share {self.min_markers} markers on "
                              f"{link!r} with the best-seen frame")
         C = B @ invert_transform(B[ref])[None]
-        a = Rotation.from_matrix(RA[good]).as_rotvec()
-        c = Rotation.from_matrix(C[good, :3, :3]).as_rotvec()
-        H = a.T @ c
-        U, _, Vt = np.linalg.svd(H)
-        Rz = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-        Ab = RA[good] - np.eye(3)
-        rhs = np.einsum("ij,tj->ti", Rz, C[good, :3, 3]) - tA[good]
-        tz = np.linalg.lstsq(Ab.reshape(-1, 3), rhs.reshape(-1), rcond=None)[0]
-
+        Rz, tz = _park_martin(RA[good], tA[good], C[good])
         t_idx, k_idx = np.nonzero(vis)
-        obs = P[t_idx, k_idx]
-        Rb, pb = B[t_idx, :3, :3], B[t_idx, :3, 3]
         M = P.shape[1]
-        cnt = np.bincount(k_idx, minlength=M)
-
-        def project(x):
-            R = rotvec_to_matrix(x[:3]) @ Rz
-            p = tz + x[3:]
-            # back to the link frame: s = Rb^T (R^T (obs - p) - pb)
-            back = np.einsum("kji,kj->ki", Rb, (obs - p) @ R - pb)
-            s = np.stack([np.bincount(k_idx, weights=back[:, i], minlength=M) for i in range(3)], 1) \
-                / np.maximum(cnt, 1)[:, None]
-            return R, p, s
-
-        def resid(x):
-            R, p, s = project(x)
-            model = (np.einsum("kij,kj->ki", Rb, s[k_idx]) + pb) @ R.T + p
-            return (obs - model).ravel()
-
-        r0 = resid(np.zeros(6))
+        # the observations and the link poses behind them, for the refinement
+        obs = (P[t_idx, k_idx], B[t_idx, :3, :3], B[t_idx, :3, 3], k_idx, np.bincount(k_idx, minlength=M))
+        r0 = _handeye_residuals(np.zeros(6), Rz, tz, *obs)
         scale = max(float(np.median(np.abs(r0))) / 0.6745, 1e-5)
-        sol = least_squares(resid, np.zeros(6), method="trf", loss="soft_l1" if self.robust else "linear",
+        sol = least_squares(_handeye_residuals, np.zeros(6), method="trf", loss="soft_l1" if self.robust else "linear",
                             f_scale=3 * scale, x_scale=np.array([1e-3] * 3 + [1e-3] * 3),
-                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
-        R, p, s = project(sol.x)
-        r = resid(sol.x).reshape(-1, 3)
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12, args=(Rz, tz, *obs))
+        R, p, s = _project_markers(sol.x, Rz, tz, *obs)
+        r = _handeye_residuals(sol.x, Rz, tz, *obs).reshape(-1, 3)
         J = sol.jac
         dof = max(r.size - 6 - 3 * M, 1)
         sig2 = float(np.sum(r ** 2) / dof)
@@ -230,3 +205,41 @@ class HandEyeEstimator:
         return HandEyeResult(T, {lb: s[k] for k, lb in enumerate(labels)}, link,
                              float(1e3 * np.sqrt(np.mean(np.sum(r ** 2, axis=1)))), cov,
                              int(P.shape[0]), int(sol.nfev), bool(sol.success))
+
+
+def _park_martin(RA, tA, C):
+    """The closed-form start of ``A X = X B`` (Park & Martin 1994): the rotation ``Rz`` aligning
+    the rotation vectors of the camera-frame motions ``RA`` (T, 3, 3) with those of the
+    base-frame motions ``C`` (T, 4, 4) (SVD of their correlation), then the translation ``tz``
+    by linear least squares ``(RA - I) tz = Rz c_t - tA``."""
+    a = matrix_to_rotvec(RA)
+    c = matrix_to_rotvec(C[:, :3, :3])
+    H = a.T @ c
+    U, _, Vt = np.linalg.svd(H)
+    Rz = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    Ab = RA - np.eye(3)
+    rhs = np.einsum("ij,tj->ti", Rz, C[:, :3, 3]) - tA
+    tz = np.linalg.lstsq(Ab.reshape(-1, 3), rhs.reshape(-1), rcond=None)[0]
+    return Rz, tz
+
+
+def _project_markers(x, Rz, tz, obs, Rb, pb, k_idx, cnt):
+    """The pose ``R = exp([x_0:3]) Rz``, ``p = tz + x_3:6`` and the link-frame markers (M, 3)
+    it implies: the observations ``obs`` (K, 3) of marker ``k_idx`` carried back to the link
+    frame (``Rb``, ``pb`` the link pose of each), ``s = Rb^T (R^T (obs - p) - pb)``, averaged
+    over each marker's ``cnt`` observations."""
+    M = cnt.shape[0]
+    R = rotvec_to_matrix(x[:3]) @ Rz
+    p = tz + x[3:]
+    back = np.einsum("kji,kj->ki", Rb, (obs - p) @ R - pb)
+    s = np.stack([np.bincount(k_idx, weights=back[:, i], minlength=M) for i in range(3)], 1) \
+        / np.maximum(cnt, 1)[:, None]
+    return R, p, s
+
+
+def _handeye_residuals(x, Rz, tz, obs, Rb, pb, k_idx, cnt):
+    """Camera-frame residuals (3 K,) of the observations to the link-frame markers of
+    :func:`_project_markers` carried forward by the link poses and the pose ``x``."""
+    R, p, s = _project_markers(x, Rz, tz, obs, Rb, pb, k_idx, cnt)
+    model = (np.einsum("kij,kj->ki", Rb, s[k_idx]) + pb) @ R.T + p
+    return (obs - model).ravel()

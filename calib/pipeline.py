@@ -824,25 +824,29 @@ def calibrate(campaign, robot=None, method: str = "auto", sink=None,
     sweeps = load_sweeps(campaign, robot, min_sweep_deg, joints)
     if deflection:
         check_deflection_stiffness(campaign, robot)
-    result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm,
-                              urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
+    settings = dict(urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
+    result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm, **settings)
     if deflection:
         sweeps, shift_mm = compensate_deflection(sweeps, robot, campaign.markers, result.T_camera_base)
-        result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm,
-                                  urdf_path=getattr(robot, "urdf", None), urdf_tol_mm=urdf_tol_mm, **options)
+        result = calibrate_sweeps(sweeps, robot.chain, method, noise_mm, **settings)
         result = replace(result, extra={**dict(result.extra),
                                         "deflection": {"compensated": True, "largest_shift_mm": shift_mm}})
     if cross_check:
-
-        he = handeye_cross_check(sweeps, robot.chain, campaign.markers)
-        dp, dr = pose_errors(he.T_camera_base, result.T_camera_base)
-        extra = dict(result.extra)
-        extra["handeye"] = {**he.to_dict(), "difference_origin_mm": dp, "difference_rotation_deg": dr}
-        result = CalibResult(result.T_camera_base, result.axes, result.base, result.method,
-                             result.noise_mm, result.sweeps, extra)
+        result = _with_handeye_check(result, sweeps, robot.chain, campaign.markers)
     if sink is not None:
         log_calibration(sink, result)
     return result
+
+
+def _with_handeye_check(result: CalibResult, sweeps, chain, markers) -> CalibResult:
+    """``result`` with the hand-eye cross-check (:func:`handeye_cross_check` on the same
+    ``sweeps``) and its difference from the axis calibration in ``extra["handeye"]``."""
+    he = handeye_cross_check(sweeps, chain, markers)
+    dp, dr = pose_errors(he.T_camera_base, result.T_camera_base)
+    extra = dict(result.extra)
+    extra["handeye"] = {**he.to_dict(), "difference_origin_mm": dp, "difference_rotation_deg": dr}
+    return CalibResult(result.T_camera_base, result.axes, result.base, result.method,
+                       result.noise_mm, result.sweeps, extra)
 
 
 def log_calibration(sink, result: CalibResult, prefix: str = "calib") -> None:

@@ -2,8 +2,9 @@
 
 The chain is extracted once from a pinocchio model (see :mod:`mocap.robot`); the batched
 functions here take joint angles ``q`` of shape ``(T, n)`` and return homogeneous transforms
-of shape ``(T, n, 4, 4)`` without a Python loop over frames. Rotation helpers (Rodrigues,
-rotation vectors, rotation angles, Kabsch) live here too; every other module imports them.
+of shape ``(T, n, 4, 4)`` without a Python loop over frames. Rotation helpers (rotation
+angles, Kabsch) live here too, and the rotations of :mod:`mocap.numerics` (Rodrigues, rotation
+vectors and their logarithm) are re-exported.
 """
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mocap.numerics import rotation_about_axis, rotvec_to_matrix, skew  # noqa: F401  (re-exported)
+from mocap.numerics import rodrigues_combine, rodrigues_terms
+from mocap.numerics import (matrix_to_rotvec, rotation_about_axis, rotvec_to_matrix,  # noqa: F401
+                            skew)  # re-exported
 
 
 def unit(v: np.ndarray) -> np.ndarray:
@@ -28,14 +31,6 @@ def perp_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u = unit(np.cross(n, e))
     v = np.cross(n, u)
     return u, v
-
-
-def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors (..., 3) of rotation matrices (..., 3, 3) (inverse of rotvec_to_matrix)."""
-    from scipy.spatial.transform import Rotation
-
-    R = np.asarray(R, float)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
 def _vee_antisym(R: np.ndarray) -> np.ndarray:
@@ -232,7 +227,7 @@ class Chain:
                 ob = oprev + B[:, :, 9]
             s = np.sin(q[:, i])[:, None, None]
             c = np.cos(q[:, i])[:, None, None]
-            Rprev = B[:, :, 0:3] + s * B[:, :, 3:6] + (1.0 - c) * B[:, :, 6:9]
+            Rprev = rodrigues_combine(B[:, :, 0:3], B[:, :, 3:6], B[:, :, 6:9], s, c)
             oprev = ob
             R[:, i] = Rprev
             o[:, i] = ob
@@ -247,9 +242,7 @@ class Chain:
             blocks = []
             for i in range(self.n):
                 P = self.T_parent_joint[i]
-                K = skew(self.axes[i])
-                Pr = P[:3, :3]
-                blocks.append(np.hstack([Pr, Pr @ K, Pr @ K @ K, P[:3, 3:4]]))
+                blocks.append(np.hstack([*(P[:3, :3] @ rodrigues_terms(self.axes[i])), P[:3, 3:4]]))
             object.__setattr__(self, "_blocks", blocks)       # a cache, not a field
         return blocks
 
@@ -315,27 +308,22 @@ class Chain:
                 B = np.matmul(Ct, prev[:, :3])          # (3, 11, T) = R_{i-1} [C blocks | p | Pr a]
                 np.add(prev[:, 3], B[:, 9], out=F[r, :, 3])
             W[r] = B[:, 10]
-            R = F[r, :, :3]
-            np.multiply(B[:, 3:6], s, out=R)
-            R += B[:, 0:3]
-            np.multiply(B[:, 6:9], c, out=tmp)
-            R += tmp
+            rodrigues_combine(B[:, 0:3], B[:, 3:6], B[:, 6:9], s, c, out=F[r, :, :3], scratch=tmp)
             prev = F[r]
         return F, W
 
     def _soa_blocks(self) -> list:
-        """Per joint the transposed ``[Pr + Pr K^2, Pr K, -Pr K^2, p, Pr a]`` (11, 3) of
-        :meth:`joint_frames_soa` (``R_i = R_{i-1} (B_0 + sin q B_1 + cos q B_2)``); once per chain."""
+        """Per joint the transposed ``[Pr, Pr K, Pr K^2, p, Pr a]`` (11, 3) of
+        :meth:`joint_frames_soa` (``R_i = R_{i-1} (B_0 + sin q B_1 + (1 - cos q) B_2)``, the terms
+        of :func:`mocap.numerics.rodrigues_terms`); once per chain."""
         blocks = self.__dict__.get("_blocks_soa")
         if blocks is None:
             blocks = []
             for i in range(self.n):
                 P = self.T_parent_joint[i]
-                K = skew(self.axes[i])
                 Pr = P[:3, :3]
-                PK2 = Pr @ K @ K
                 blocks.append(np.ascontiguousarray(np.hstack(
-                    [Pr + PK2, Pr @ K, -PK2, P[:3, 3:4], (Pr @ self.axes[i])[:, None]]).T))
+                    [*(Pr @ rodrigues_terms(self.axes[i])), P[:3, 3:4], (Pr @ self.axes[i])[:, None]]).T))
             object.__setattr__(self, "_blocks_soa", blocks)   # a cache, not a field
         return blocks
 

@@ -1,8 +1,11 @@
 """The numerical ground floor that ``mocap``, ``calib`` and ``ident`` share: one definition each.
 
-- **Rotations**: :func:`skew` (the cross-product matrix), :func:`rotation_about_axis`
-  (Rodrigues' formula about a unit axis), :func:`rotvec_to_matrix` (the exponential map of a
-  rotation vector), :func:`rotate_about_axis` (Rodrigues' formula applied to vectors).
+- **Rotations**: :func:`skew` (the cross-product matrix), :func:`rodrigues_terms` and
+  :func:`rodrigues_combine` (Rodrigues' formula, its one writing), :func:`rotation_about_axis`
+  (Rodrigues' formula about a unit axis), :func:`rodrigues_axis_derivative` (its derivative
+  with respect to the axis), :func:`rotvec_to_matrix` (the exponential map of a rotation
+  vector) and :func:`matrix_to_rotvec` (its logarithm), :func:`rotate_about_axis` (Rodrigues'
+  formula applied to vectors).
 - **Savitzky-Golay differentiation**: :func:`savgol` (one filter, from cached kernels),
   :func:`savgol_kernel`, :func:`savgol_window` (the one window rule) and :func:`differentiate`
   (jointlab's differentiator, re-exported by :mod:`ident.signals.smoothing`).
@@ -23,8 +26,10 @@ from scipy.signal import savgol_coeffs, savgol_filter
 
 from mocap.io.errors import InputError
 
-__all__ = ["skew", "rotation_about_axis", "rotate_about_axis", "rotvec_to_matrix", "savgol",
-           "savgol_kernel", "savgol_window", "differentiate", "phi", "psi", "zoh_drive", "foh_drive"]
+__all__ = ["skew", "rodrigues_terms", "rodrigues_combine", "rodrigues_axis_derivative",
+           "rotation_about_axis", "rotate_about_axis", "rotvec_to_matrix", "matrix_to_rotvec",
+           "savgol", "savgol_kernel", "savgol_window", "differentiate", "phi", "psi", "zoh_drive",
+           "foh_drive"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -40,6 +45,120 @@ def skew(w: np.ndarray) -> np.ndarray:
     return K
 
 
+def rodrigues_terms(axis: np.ndarray) -> np.ndarray:
+    r"""The three constant terms of Rodrigues' formula about a unit axis: ``(I, K, K^2)``.
+
+    ``R(\theta) = I + \sin\theta\, K + (1 - \cos\theta)\, K^2`` with ``K`` the
+    cross-product matrix of ``axis`` (:func:`skew`); the terms are computed once per axis and
+    combined per angle by :func:`rodrigues_combine` (a chain pre-multiplies them by its fixed
+    placements, :class:`mocap.kinematics.Chain`) [1]_.
+
+    Parameters
+    ----------
+    axis : array_like
+        (3,) unit rotation axis.
+
+    Returns
+    -------
+    numpy.ndarray
+        (3, 3, 3): ``I``, ``K`` and ``K @ K`` stacked along the first axis.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-3.
+
+    Examples
+    --------
+    >>> I, K, K2 = rodrigues_terms([0.0, 0.0, 1.0])
+    >>> K2.diagonal().tolist()
+    [-1.0, -1.0, 0.0]
+    """
+    K = skew(np.asarray(axis, float))
+    return np.stack([np.eye(3), K, K @ K])
+
+
+def rodrigues_combine(T0: np.ndarray, T1: np.ndarray, T2: np.ndarray, s: np.ndarray,
+                      c: np.ndarray, out: np.ndarray | None = None,
+                      scratch: np.ndarray | None = None) -> np.ndarray:
+    r"""Rodrigues' formula from its terms: ``T0 + s T1 + (1 - c) T2``, ``s = sin q``, ``c = cos q``.
+
+    With ``(T0, T1, T2) = (I, K, K^2)`` (:func:`rodrigues_terms`) this is the rotation about the
+    axis; with the terms pre-multiplied by a fixed matrix ``A`` it is ``A R(q)`` (the joint step
+    of the forward kinematics, thesis eq. 3-3 [1]_). The one place where the formula is written:
+    :func:`rotation_about_axis` and :class:`mocap.kinematics.Chain` call it.
+
+    Parameters
+    ----------
+    T0, T1, T2 : numpy.ndarray
+        The terms, broadcast against ``s`` and ``c``.
+    s, c : numpy.ndarray
+        Sines and cosines of the angles, shaped to broadcast against the terms.
+    out : numpy.ndarray, optional
+        Where to write the result (in place, no temporary of the result's size but ``scratch``).
+    scratch : numpy.ndarray, optional
+        A buffer of the result's shape used with ``out``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The combination (``out`` when given).
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-3.
+
+    Examples
+    --------
+    >>> I, K, K2 = rodrigues_terms([0.0, 0.0, 1.0])
+    >>> np.round(rodrigues_combine(I, K, K2, 1.0, 0.0) @ [1.0, 0.0, 0.0], 12).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    if out is None:
+        return T0 + s * T1 + (1.0 - c) * T2
+    np.multiply(T1, s, out=out)
+    out += T0
+    np.multiply(T2, 1.0 - c, out=scratch)
+    out += scratch
+    return out
+
+
+def rodrigues_axis_derivative(e: np.ndarray, d: np.ndarray, axis: np.ndarray,
+                              s: np.ndarray, c: np.ndarray) -> np.ndarray:
+    r"""Derivative of ``R(n, q) d`` (Rodrigues) as the unit axis ``n`` moves along ``e``, ``e \perp n``.
+
+    .. math::
+
+        \frac{\partial}{\partial \epsilon} R(n + \epsilon e, q)\, d
+        = \sin q\, (e \times d) + (1 - \cos q) \left(e\, (n \cdot d) + n\, (e \cdot d)\right)
+
+    (the derivative of ``sin q K + (1 - cos q) K^2`` with ``K = [n]_x``, using
+    ``[e]_x [n]_x + [n]_x [e]_x = n e^T + e n^T - 2 (e . n) I`` and ``e . n = 0``): the axis
+    columns of the rigid-sweep Jacobian of :class:`calib.axis.ClusterAxisEstimator` [1]_.
+
+    Parameters
+    ----------
+    e : numpy.ndarray
+        (3,) direction of the axis' motion, perpendicular to ``axis``.
+    d : numpy.ndarray
+        (K, 3) vectors rotated.
+    axis : numpy.ndarray
+        (3,) unit rotation axis ``n``.
+    s, c : numpy.ndarray
+        (K, 1) sines and cosines of the angles.
+
+    Returns
+    -------
+    numpy.ndarray
+        (K, 3) the derivative of each rotated vector.
+
+    References
+    ----------
+    .. [1] PA10 thesis (seeds 002), eq. 3-3 (the joint rotation).
+    """
+    return s * np.cross(e, d) + (1.0 - c) * (e[None] * (d @ axis)[:, None]
+                                             + axis[None] * (d @ e)[:, None])
+
+
 def rotation_about_axis(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     r"""Rotation matrices about a unit axis (Rodrigues' formula).
 
@@ -48,7 +167,8 @@ def rotation_about_axis(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
         R = I + \sin\theta\, K + (1 - \cos\theta)\, K^2
 
     with ``K`` the cross-product matrix of ``axis`` (:func:`skew`): the joint rotation of the
-    forward kinematics behind thesis eq. 3-3 [1]_.
+    forward kinematics behind thesis eq. 3-3 [1]_ (:func:`rodrigues_terms` combined by
+    :func:`rodrigues_combine`).
 
     Parameters
     ----------
@@ -71,11 +191,9 @@ def rotation_about_axis(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     >>> np.round(rotation_about_axis([0.0, 0.0, 1.0], np.pi / 2) @ [1.0, 0.0, 0.0], 12)
     array([0., 1., 0.])
     """
-    K = skew(np.asarray(axis, float))
+    I, K, K2 = rodrigues_terms(axis)
     angle = np.asarray(angle, float)
-    s = np.sin(angle)[..., None, None]
-    c = np.cos(angle)[..., None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+    return rodrigues_combine(I, K, K2, np.sin(angle)[..., None, None], np.cos(angle)[..., None, None])
 
 
 def rotate_about_axis(x_perp: np.ndarray, a_cross_x: np.ndarray, x_along: np.ndarray,
@@ -121,6 +239,16 @@ def rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
     a = np.where(small, 1.0, np.sin(ths) / ths)
     b = np.where(small, 0.5, (1.0 - np.cos(ths)) / ths ** 2)
     return np.eye(3) + a * K + b * (K @ K)
+
+
+def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) of rotation matrices (..., 3, 3): the logarithm of SO(3), the
+    inverse of :func:`rotvec_to_matrix` (``scipy.spatial.transform.Rotation``'s, angles in
+    [0, pi])."""
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(R, float)
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -268,6 +268,43 @@ class MarkerSolver:
         ----------
         .. [1] PA10 thesis (seeds 002), eq. 3-5.
         """
+        Y, q0, vis, flags, no_guess = self._prepare(p_base, q_guess)
+        if len(self.joints) == 1 and self.closed_form:
+            model = _SingleJoint(self, q0)
+            method = "closed_form_1d"
+        else:
+            model = _Chain(self, q0)
+            method = "levenberg_marquardt"
+        qs, P, inl, thr, iters = self._robust_stages(model, q0, Y, vis)
+        swaps = []
+        if self.detect_swaps:
+            Y, inl, swaps, touched = self._repair_swaps(P, Y, vis, inl, thr)
+            if touched.any():
+                qs_t, _ = model.solve(qs, Y, inl, loss="linear", scale=1.0, max_iter=self.max_iter,
+                                      frames=touched)
+                qs[touched] = qs_t[touched]
+                P[touched] = model.model_markers(qs, np.flatnonzero(touched))
+                flags[touched] |= FLAG_SWAP_REPAIRED
+        r = P - Y
+        res = np.where(vis, _norm3(r), np.nan)
+        n_in = inl.sum(axis=1)
+        rms = np.sqrt((np.where(inl, res, 0.0) ** 2).sum(axis=1) / np.maximum(n_in, 1))
+        flags[(vis & ~inl).any(axis=1)] |= FLAG_OUTLIERS_REJECTED
+        Hinv, cond = self._flag_frames(model, qs, inl, n_in, no_guess, flags)
+        valid = (flags & INVALID_FLAGS) == 0
+        sig_axis, stderr = _standard_errors(res, inl, n_in, valid, Hinv, len(self.joints))
+        q = q0.copy()
+        q[:, self.joints] = np.where(valid[:, None], qs, np.nan)
+        return SolveResult(q=q, joints=self.joints, labels=self.labels, residual_m=res, inlier=inl,
+                           rms_m=np.where(valid, rms, np.nan), n_markers=n_in.astype(int),
+                           stderr=stderr, flags=flags, swaps=tuple(swaps),
+                           iterations=int(iters), sigma_m=sig_axis, reject_m=thr,
+                           method=method, model_markers=P, cond=cond)
+
+    def _prepare(self, p_base, q_guess):
+        """The checked inputs of :meth:`fit`: markers ``Y`` (T, M, 3) zeroed where not visible,
+        the start ``q0`` (T, n) (0 where the guess is missing), the visibility (T, M) of the
+        markers the solved joints move, the flags (T,) and the frames without a guess."""
         Y = np.array(p_base, float)
         q_guess = np.atleast_2d(np.asarray(q_guess, float))
         T, M = Y.shape[0], self.p_joint.shape[0]
@@ -283,13 +320,14 @@ class MarkerSolver:
         q0 = np.where(np.isfinite(q_guess), q_guess, 0.0)
         vis[no_guess] = False
         Y = np.where(vis[..., None], Y, 0.0)
-        if len(self.joints) == 1 and self.closed_form:
-            model = _SingleJoint(self, q0)
-            method = "closed_form_1d"
-        else:
-            model = _Chain(self, q0)
-            method = "levenberg_marquardt"
-        S = len(self.joints)
+        return Y, q0, vis, flags, no_guess
+
+    def _robust_stages(self, model, q0, Y, vis):
+        """Stages 1 and 2 of eq. 3-5's solve: least squares on every visible marker from the
+        motor angles, then, on the frames with a marker beyond the threshold, robust (Cauchy)
+        IRLS, hard rejection and a least-squares polish on the inliers. Returns the solved
+        angles (T, S), the model markers (T, M, 3), the inliers (T, M), the threshold (m) and
+        the iterations."""
         qs = q0[:, self.joints].copy()
         # stage 1: plain least squares on every visible marker, from the motor angle (eq. 3-5)
         qs, iters = model.solve(qs, Y, vis, loss="linear", scale=1.0, max_iter=self.max_iter)
@@ -313,21 +351,13 @@ class MarkerSolver:
             qs[idx] = qp[idx]
             P[idx] = model.model_markers(qs, idx)
             iters += it2 + it3
-        swaps = []
-        if self.detect_swaps:
-            Y, inl, swaps, touched = self._repair_swaps(P, Y, vis, inl, thr)
-            if touched.any():
-                qs_t, _ = model.solve(qs, Y, inl, loss="linear", scale=1.0, max_iter=self.max_iter,
-                                      frames=touched)
-                qs[touched] = qs_t[touched]
-                P[touched] = model.model_markers(qs, np.flatnonzero(touched))
-                flags[touched] |= FLAG_SWAP_REPAIRED
-        r = P - Y
-        res = np.where(vis, _norm3(r), np.nan)
-        n_in = inl.sum(axis=1)
-        rms = np.sqrt((np.where(inl, res, 0.0) ** 2).sum(axis=1) / np.maximum(n_in, 1))
-        flags[(vis & ~inl).any(axis=1)] |= FLAG_OUTLIERS_REJECTED
-        # validity: markers distal to each solved joint, redundancy, conditioning, convergence
+        return qs, P, inl, thr, iters
+
+    def _flag_frames(self, model, qs, inl, n_in, no_guess, flags):
+        """Validity of each frame: enough markers distal to each solved joint, redundancy,
+        conditioning of the final normal matrix and convergence (``flags`` updated in place).
+        Returns the inverse normal matrices (T, S, S) and the bound on their condition (T,)."""
+        S = len(self.joints)
         few = 3 * n_in < S + 1
         for j in self.joints:
             few |= inl[:, self.marker_joint >= j].sum(axis=1) < self.min_markers
@@ -349,20 +379,7 @@ class MarkerSolver:
         bad = ~ok_h | ~np.isfinite(nfi) | (nf * nfi > self.max_cond) | (1.0 / nfi < lever2)
         flags[bad & (n_in > 0)] |= FLAG_ILL_CONDITIONED
         flags[~model.converged] |= FLAG_NOT_CONVERGED
-        valid = (flags & INVALID_FLAGS) == 0
-        # pooled noise estimate (per axis) and per-frame standard errors
-        dof = 3 * n_in[valid].sum() - S * np.count_nonzero(valid)
-        ss = (np.where(inl, res, 0.0) ** 2).sum(axis=1)[valid].sum()
-        sig_axis = float(np.sqrt(ss / dof)) if dof > 0 else float("nan")
-        stderr = sig_axis * np.sqrt(np.maximum(np.diagonal(Hinv, axis1=1, axis2=2), 0.0))
-        stderr[~valid] = np.nan
-        q = q0.copy()
-        q[:, self.joints] = np.where(valid[:, None], qs, np.nan)
-        return SolveResult(q=q, joints=self.joints, labels=self.labels, residual_m=res, inlier=inl,
-                           rms_m=np.where(valid, rms, np.nan), n_markers=n_in.astype(int),
-                           stderr=stderr, flags=flags, swaps=tuple(swaps),
-                           iterations=int(iters), sigma_m=sig_axis, reject_m=thr,
-                           method=method, model_markers=P, cond=nf * nfi)
+        return Hinv, nf * nfi
 
     # ------------------------------------------------------------------------------------------
     def _noise_level(self, res: np.ndarray) -> float:
@@ -399,6 +416,18 @@ class MarkerSolver:
                 touched |= fit
                 swaps += [(int(t), self.labels[a], self.labels[b]) for t in np.flatnonzero(fit)]
         return Y, inl, swaps, touched
+
+
+def _standard_errors(res, inl, n_in, valid, Hinv, S):
+    """Pooled per-axis noise ``sigma`` over the valid frames' inlier residuals ``res`` (T, M)
+    (``S`` angles per frame) and the per-frame standard errors ``sigma sqrt(diag H^-1)`` (T, S),
+    NaN where a frame is not valid."""
+    dof = 3 * n_in[valid].sum() - S * np.count_nonzero(valid)
+    ss = (np.where(inl, res, 0.0) ** 2).sum(axis=1)[valid].sum()
+    sig_axis = float(np.sqrt(ss / dof)) if dof > 0 else float("nan")
+    stderr = sig_axis * np.sqrt(np.maximum(np.diagonal(Hinv, axis1=1, axis2=2), 0.0))
+    stderr[~valid] = np.nan
+    return sig_axis, stderr
 
 
 def _frames(idx: np.ndarray):
@@ -796,97 +825,129 @@ class _Chain:
         (that matrix moves by O(|step|) relative, so an estimate below ``tol`` differs from the
         exact step by < tol^1.5 rad, far below the noise); the normal matrix is recomputed only
         for the frames whose estimate is not small."""
-        S = qs.shape[1]
         lin = loss == "linear"
         tol = self.s.tol
         q = np.ascontiguousarray(qs[act].T)               # (S, K)
         y = Yc[:, :, _frames(act)]                         # (3, M, K)
         m = maskT[:, _frames(act)]                         # (M, K)
-        w = m.astype(float) if lin else None
-        lam = np.full(act.size, 1e-6)
         P, X = self._eval(q, act, True)
         r = P - y
         r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2]
-        cost = _cost(r2, m, loss, scale, axis=0)
+        st = _BlockState(act=act, q=q, y=y, m=m, w=m.astype(float) if lin else None, P=P, X=X,
+                         r=r, r2=r2, cost=_cost(r2, m, loss, scale, axis=0),
+                         lam=np.full(act.size, 1e-6), H=None)
         conv[act] = False
         it = 0
-        H = None
-
-        def leave(sel):
-            """Frames ``sel`` (bool over the block) have converged: write them out."""
-            every = bool(sel.all())     # the usual case: the whole rest of the block at once
-            at = _frames(act) if every else act[sel]
-            conv[at] = True
-            qs[at] = (q if every else q[:, sel]).T
-            if lin:
-                self.P_last[:, :, at] = P if every else P[:, :, sel]
-                self.H_last[:, :, at] = H if every else H[:, :, sel]
-                self.has_last[at] = True
-
-        while act.size and it < max_iter:
+        while st.act.size and it < max_iter:
             it += 1
-            H, g = self._normal(P, X, r, w if lin else _weights(r2, m, loss, scale))
-            L = H.copy()
-            Ld = L.reshape(S * S, -1)[::S + 1]                 # the diagonal, a view
-            Ld += lam * (Ld + 1e-12)                           # A = H + lam (diag(H) + 1e-12)
-            _cholesky(L)
-            step = -_cholesky_solve(L, g)
+            step, L = self._damped_step(st, loss, scale)
             # a step below tol (1e-6 rad: 1000x under the marker noise) is taken without
             # checking it: the frame has converged
             small = np.abs(step).max(axis=0) < tol
             if small.any():
-                q[:, small] += step[:, small]
-                leave(small)
+                st.q[:, small] += step[:, small]
+                self._leave(st, small, qs, conv, lin)
                 keep = ~small
-                act, q, y, m, P, X, r, r2, cost, lam, step, H, L = (
-                    act[keep], q[:, keep], y[..., keep], m[:, keep], P[..., keep], X[..., keep],
-                    r[..., keep], r2[:, keep], cost[keep], lam[keep], step[:, keep], H[..., keep],
-                    L[..., keep])
-                w = w[:, keep] if lin else None
-                if not act.size:
+                st.keep(keep)
+                step, L = step[:, keep], L[..., keep]
+                if not st.act.size:
                     break
-            qn = q + step
-            Pn, Xn = self._eval(qn, act, True)
-            rn = Pn - y
-            r2n = rn[0] * rn[0] + rn[1] * rn[1] + rn[2] * rn[2]
-            cn = _cost(r2n, m, loss, scale, axis=0)
-            acc = cn <= cost
-            flat = (cost - cn) <= 1e-12 * cost + 1e-30
-            lam = np.where(acc, np.maximum(lam * 0.1, 1e-12), lam * 10.0)
-            if acc.all():                   # the usual case: take the new state whole
-                q, P, X, r, r2, cost = qn, Pn, Xn, rn, r2n, cn
-            else:
-                q[:, acc] = qn[:, acc]
-                P[..., acc], X[..., acc], r[..., acc] = Pn[..., acc], Xn[..., acc], rn[..., acc]
-                r2[:, acc], cost[acc] = r2n[:, acc], cn[acc]
-            done = (acc & flat) | (lam > 1e8)
+            done = self._accept(st, step, loss, scale)
             if lin:
-                # the next step at the new state with this iteration's factor, after a step below
-                # sqrt(tol) (the next one is then ~|step|^2 or ~1e-3 |step|, the Gauss-Newton
-                # rate at this noise level): where it is below tol it is taken and the frame
-                # stops without a new J^T J
-                chk = np.flatnonzero(acc & ~done & (np.abs(step).max(axis=0) < np.sqrt(tol)))
-                if chk.size:
-                    _, gq = self._normal(P[..., chk], X[..., chk], r[..., chk], w[:, chk],
-                                         hess=False)
-                    sq = -_cholesky_solve(L[..., chk], gq)
-                    ok = np.abs(sq).max(axis=0) < tol
-                    q[:, chk[ok]] += sq[:, ok]
-                    done[chk[ok]] = True
+                self._step_with_old_factor(st, step, L, done, tol)
             if done.any():
-                leave(done)
-                keep = ~done
-                act, q, y, m, P, X, r, r2, cost, lam, H = (
-                    act[keep], q[:, keep], y[..., keep], m[:, keep], P[..., keep], X[..., keep],
-                    r[..., keep], r2[:, keep], cost[keep], lam[keep], H[..., keep])
-                w = w[:, keep] if lin else None
-        if act.size:  # max_iter reached: the state so far, not converged
-            qs[act] = q.T
-            if lin and H is not None:
-                self.P_last[:, :, act] = P
-                self.H_last[:, :, act] = H
-                self.has_last[act] = True
+                self._leave(st, done, qs, conv, lin)
+                st.keep(~done)
+        if st.act.size:  # max_iter reached: the state so far, not converged
+            qs[st.act] = st.q.T
+            if lin and st.H is not None:
+                self.P_last[:, :, st.act] = st.P
+                self.H_last[:, :, st.act] = st.H
+                self.has_last[st.act] = True
         return it
+
+    def _damped_step(self, st, loss, scale):
+        """The Levenberg-Marquardt step of every frame of ``st`` (:class:`_BlockState`; its
+        normal matrix ``H`` updated): ``(H + lam (diag(H) + 1e-12)) step = -g`` by Cholesky.
+        Returns the step (S, K) and the factor (S, S, K)."""
+        S = st.q.shape[0]
+        st.H, g = self._normal(st.P, st.X, st.r, st.w if loss == "linear"
+                               else _weights(st.r2, st.m, loss, scale))
+        L = st.H.copy()
+        Ld = L.reshape(S * S, -1)[::S + 1]                 # the diagonal, a view
+        Ld += st.lam * (Ld + 1e-12)                        # A = H + lam (diag(H) + 1e-12)
+        _cholesky(L)
+        return -_cholesky_solve(L, g), L
+
+    def _accept(self, st, step, loss, scale) -> np.ndarray:
+        """Take ``step`` where it lowers the cost (the damping ``lam`` down tenfold there, up
+        tenfold elsewhere); returns the frames that have converged (an accepted step that no
+        longer lowers the cost, or damping beyond 1e8)."""
+        qn = st.q + step
+        Pn, Xn = self._eval(qn, st.act, True)
+        rn = Pn - st.y
+        r2n = rn[0] * rn[0] + rn[1] * rn[1] + rn[2] * rn[2]
+        cn = _cost(r2n, st.m, loss, scale, axis=0)
+        acc = cn <= st.cost
+        flat = (st.cost - cn) <= 1e-12 * st.cost + 1e-30
+        st.lam = np.where(acc, np.maximum(st.lam * 0.1, 1e-12), st.lam * 10.0)
+        if acc.all():                   # the usual case: take the new state whole
+            st.q, st.P, st.X, st.r, st.r2, st.cost = qn, Pn, Xn, rn, r2n, cn
+        else:
+            st.q[:, acc] = qn[:, acc]
+            st.P[..., acc], st.X[..., acc], st.r[..., acc] = Pn[..., acc], Xn[..., acc], rn[..., acc]
+            st.r2[:, acc], st.cost[acc] = r2n[:, acc], cn[acc]
+        st.accepted = acc
+        return (acc & flat) | (st.lam > 1e8)
+
+    def _step_with_old_factor(self, st, step, L, done, tol) -> None:
+        """The next step at the new state with this iteration's factor ``L``, after an accepted
+        ``step`` below sqrt(tol) (the next one is then ~|step|^2 or ~1e-3 |step|, the
+        Gauss-Newton rate at this noise level): where it is below ``tol`` it is taken and the
+        frame is marked ``done`` without a new J^T J (least squares only)."""
+        chk = np.flatnonzero(st.accepted & ~done & (np.abs(step).max(axis=0) < np.sqrt(tol)))
+        if chk.size:
+            _, gq = self._normal(st.P[..., chk], st.X[..., chk], st.r[..., chk], st.w[:, chk],
+                                 hess=False)
+            sq = -_cholesky_solve(L[..., chk], gq)
+            ok = np.abs(sq).max(axis=0) < tol
+            st.q[:, chk[ok]] += sq[:, ok]
+            done[chk[ok]] = True
+
+    def _leave(self, st, sel, qs, conv, lin) -> None:
+        """Frames ``sel`` (bool over the block ``st``) have converged: write their angles into
+        ``qs``, mark them in ``conv`` and (least squares) keep their model markers and normal
+        matrix for the final one."""
+        every = bool(sel.all())     # the usual case: the whole rest of the block at once
+        at = _frames(st.act) if every else st.act[sel]
+        conv[at] = True
+        qs[at] = (st.q if every else st.q[:, sel]).T
+        if lin:
+            self.P_last[:, :, at] = st.P if every else st.P[:, :, sel]
+            self.H_last[:, :, at] = st.H if every else st.H[:, :, sel]
+            self.has_last[at] = True
+
+
+class _BlockState:
+    """The per-frame state of :meth:`_Chain._solve_block` over a block of frames, the frame
+    the last axis of every array: frame indices ``act`` (K,), angles ``q`` (S, K), measured
+    markers ``y`` (3, M, K), mask ``m`` and weights ``w`` (M, K), model markers ``P``, twists
+    ``X``, residuals ``r`` and their squares ``r2``, cost and damping ``lam`` (K,), normal
+    matrices ``H`` (S, S, K), and which frames the last step was ``accepted`` on."""
+
+    __slots__ = ("act", "q", "y", "m", "w", "P", "X", "r", "r2", "cost", "lam", "H", "accepted")
+
+    def __init__(self, **fields):
+        self.accepted = None
+        for k, v in fields.items():
+            setattr(self, k, v)
+
+    def keep(self, sel) -> None:
+        """Only the frames ``sel`` (bool over the block) stay."""
+        for k in ("act", "q", "y", "m", "w", "P", "X", "r", "r2", "cost", "lam", "H"):
+            v = getattr(self, k)
+            if v is not None:
+                setattr(self, k, v[..., sel])
 
 
 # ---- campaign level --------------------------------------------------------------------------
@@ -1125,6 +1186,42 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     joints0 = tuple(sorted(j - 1 for j in trial.joints))
     T_cb = references.T_camera_base if T_camera_base is None else np.asarray(T_camera_base, float)
     link_of = campaign.link_of_label()
+    used = _trial_markers(campaign, trial, chain, references, link_of, joints0)
+    rec = campaign.read_markers(trial, robot)
+    log = campaign.read_log(trial, robot)
+
+    check_trial_rigid_fit(rec, log, references, robot, trial, T_cb)
+    p_base, absent = _markers_in_base(rec, used, T_cb, trial.markers)
+    q_guess = _trial_guess(robot, trial, log, rec.time, joints0,
+                           max(chain.frames[link_of[lb]][0] for lb in used))
+    fixed = _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
+    res, refinement = _solve_markers(chain, joints0, used, references, T_cb, p_base, q_guess,
+                                     refine, refine_geometry, solver_settings)
+    out = AnglesResult(trial.id, rec.time, tuple(j + 1 for j in joints0), res.q[:, list(joints0)],
+                       q_guess[:, list(joints0)], res.rms_m, res.n_markers, res.flags, res, absent,
+                       refinement, fixed)
+    if sink is not None and getattr(sink, "enabled", False):
+        log_trial(sink, robot, out, p_base, q_guess, used, link_of)
+    return out
+
+
+def _markers_in_base(rec, used, T_cb, source):
+    """The markers ``used`` of the recording ``rec`` in the base frame, (T, M, 3) with NaN where
+    a marker is missing, and the labels absent from the marker file ``source`` (not all)."""
+    absent = tuple(lb for lb in used if lb not in rec.labels)
+    if len(absent) == len(used):
+        raise InputError(f"none of the markers on the moving links ({', '.join(used[:6])}) is in the "
+                         "marker file", path=source, label=used[0])
+    Y = np.full((rec.n_frames, len(used), 3), np.nan)
+    for k, lb in enumerate(used):  # loop over markers
+        if lb in rec.labels:
+            Y[:, k] = rec.positions[:, rec.labels.index(lb)]
+    return apply_transform(invert_transform(T_cb), Y), absent
+
+
+def _trial_markers(campaign, trial, chain, references, link_of, joints0) -> list:
+    """The labels of the markers on the links the trial's joints ``joints0`` (0-based) move,
+    checked: at least 3 markers per link, a marked moving link, a static reference for each."""
     for link, labels in campaign.markers.items():
         if len(labels) < 3:
             raise InputError(f"link {link!r} has {len(labels)} marker(s); at least 3 per link are "
@@ -1137,49 +1234,41 @@ def solve_trial(campaign, trial, references, T_camera_base=None, sink=None, robo
     if norefs:
         raise InputError(f"trial {trial.id!r}: marker {norefs[0]!r} has no static reference (it is "
                          "not in the static pose)", path=campaign.manifest, label=norefs[0])
-    rec = campaign.read_markers(trial, robot)
-    log = campaign.read_log(trial, robot)
+    return used
 
-    check_trial_rigid_fit(rec, log, references, robot, trial, T_cb)
-    absent = tuple(lb for lb in used if lb not in rec.labels)
-    if len(absent) == len(used):
-        raise InputError(f"none of the markers on the moving links ({', '.join(used[:6])}) is in the "
-                         "marker file", path=trial.markers, label=used[0])
-    Y = np.full((rec.n_frames, len(used), 3), np.nan)
-    for k, lb in enumerate(used):  # loop over markers
-        if lb in rec.labels:
-            Y[:, k] = rec.positions[:, rec.labels.index(lb)]
-    p_base = apply_transform(invert_transform(T_cb), Y)
-    # FORMAT.md: t_robot = t_marker + time_offset (the trial's key, 0 by default)
+
+def _solve_markers(chain, joints0, used, references, T_cb, p_base, q_guess, refine,
+                   refine_geometry, solver_settings):
+    """The angles of the joints ``joints0`` from the markers ``used`` (``p_base`` (T, M, 3) in
+    the base frame): one :class:`MarkerSolver` fit, or with ``refine``/``refine_geometry`` the
+    refinement anchored by the static poses (:func:`refine_markers`). Returns the
+    :class:`SolveResult` and the refinement's summary (None without)."""
+    mj, pj = references.for_chain(chain, used)
+    if not (refine or refine_geometry):
+        return MarkerSolver(chain, joints0, mj, pj, labels=used, **solver_settings).fit(p_base, q_guess), None
+    T_bc = invert_transform(T_cb)
+    ri = [references.index(lb) for lb in used]
+    static = [(p.q, apply_transform(T_bc, p.p_camera[ri]), p.n_frames[ri].astype(float))
+              for p in references.poses]
+    rr = refine_markers(chain, joints0, mj, pj, p_base, q_guess, static=static, labels=used,
+                        geometry=refine_geometry, **solver_settings)
+    refinement = {k: v for k, v in rr.to_dict().items() if k != "solve"}
+    refinement["labels"] = list(used)
+    return rr.solve, refinement
+
+
+def _trial_guess(robot, trial, log, t_marker, joints0, deepest) -> np.ndarray:
+    """The start of eq. 3-5 at the marker times ``t_marker``: the motor angles of the solved
+    joints ``joints0`` and the held placement of the others (FORMAT.md: ``t_robot = t_marker +
+    time_offset``); every joint up to ``deepest`` (the deepest marked joint) needs angles."""
     offset = float(getattr(trial, "extra", {}).get("time_offset", 0.0))
-    q_guess = motor_guess(log, rec.time + offset, joints0)
-    q_guess = held_placement(robot, trial, log, rec.time + offset, q_guess, joints0)
-    deepest = max(chain.frames[link_of[lb]][0] for lb in used)
+    q_guess = motor_guess(log, t_marker + offset, joints0)
+    q_guess = held_placement(robot, trial, log, t_marker + offset, q_guess, joints0)
     lost = [j for j in range(deepest + 1) if not np.isfinite(log.qm[:, j]).any()]
     if lost:   # a braked joint without angles would flag every frame
         raise InputError(f"no qm_{lost[0] + 1} values: trial {trial.id!r} needs joint {lost[0] + 1}'s "
                          "angle to place its markers", path=log.source, line=1, label=f"qm_{lost[0] + 1}")
-    mj, pj = references.for_chain(chain, used)
-    fixed = _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess)
-    refinement = None
-    if refine or refine_geometry:
-        T_bc = invert_transform(T_cb)
-        ri = [references.index(lb) for lb in used]
-        static = [(p.q, apply_transform(T_bc, p.p_camera[ri]), p.n_frames[ri].astype(float))
-                  for p in references.poses]
-        rr = refine_markers(chain, joints0, mj, pj, p_base, q_guess, static=static, labels=used,
-                            geometry=refine_geometry, **solver_settings)
-        res = rr.solve
-        refinement = {k: v for k, v in rr.to_dict().items() if k != "solve"}
-        refinement["labels"] = list(used)
-    else:
-        res = MarkerSolver(chain, joints0, mj, pj, labels=used, **solver_settings).fit(p_base, q_guess)
-    out = AnglesResult(trial.id, rec.time, tuple(j + 1 for j in joints0), res.q[:, list(joints0)],
-                       q_guess[:, list(joints0)], res.rms_m, res.n_markers, res.flags, res, absent,
-                       refinement, fixed)
-    if sink is not None and getattr(sink, "enabled", False):
-        log_trial(sink, robot, out, p_base, q_guess, used, link_of)
-    return out
+    return q_guess
 
 
 def _fixed_marker_check(chain, references, link_of, joints0, rec, T_cb, q_guess):
@@ -1281,6 +1370,86 @@ def _static_model(chain, mj, p_joint, q_s):
     return o[0, jj] + np.einsum("mij,mj->mi", R[0, jj], p_joint)
 
 
+def _marker_update(chain, joints, mj, p_joint, res, Yb, static):
+    """One closed-form update of the marker references ``p_joint`` (M, 3): eq. 3-4 averaged
+    over the valid frames of the solve ``res`` (inliers of ``Yb`` back-projected into each
+    marker's joint frame, ``R^T (y - o)``) and over the ``static`` poses (their weights); markers
+    the solved ``joints`` do not move keep their references."""
+    jj = np.clip(mj, 0, None)
+    ok = res.valid
+    R, o = chain.joint_frames(res.q[ok])
+    y = np.where(res.inlier[ok][..., None], Yb[ok], 0.0)
+    loc = np.einsum("tmji,tmj->tmi", R[:, jj], y - o[:, jj])  # back-projected: R^T (y - o)
+    w = res.inlier[ok].astype(float)
+    num = (loc * w[..., None]).sum(axis=0)
+    den = w.sum(axis=0)
+    for q_s, p_s, w_s in static:  # loop over static poses
+        Rs, os_ = chain.joint_frames(np.asarray(q_s, float)[None])
+        ps = np.asarray(p_s, float)
+        fin = np.all(np.isfinite(ps), axis=1)
+        ls = np.einsum("mji,mj->mi", Rs[0, jj], np.where(fin[:, None], ps, 0.0) - os_[0, jj])
+        ws = np.where(fin, np.asarray(w_s, float), 0.0)
+        num += ls * ws[:, None]
+        den += ws
+    used = (den > 0) & (mj >= joints[0])
+    p_joint = p_joint.copy()
+    p_joint[used] = num[used] / den[used, None]
+    return p_joint
+
+
+def _unpack_geometry(x, p_joint, free, S):
+    """The geometry fit's vector ``x`` as ``(offsets (S, 4), p_joint (M, 3))``: the offsets first,
+    then the free markers' positions (the others from ``p_joint``)."""
+    pj = p_joint.copy()
+    pj[free] = x[4 * S:].reshape(-1, 3)
+    return x[:4 * S].reshape(S, 4), pj
+
+
+def _geometry_residuals(x, chain, joints, mj, p_joint, free, qg, Ysub, msub, anchors, sig,
+                        solver_settings):
+    """Residuals of the geometry fit at ``x`` (:func:`_unpack_geometry`): the trial frames'
+    marker residuals with the angles re-solved on the offset chain (variable projection), the
+    static poses' at their known angles ``anchors`` (weighted), and a weak prior that keeps the
+    offsets small (``sig`` the noise, 0.05 the prior's scale)."""
+    S = len(joints)
+    off, pj = _unpack_geometry(x, p_joint, free, S)
+    c2 = offset_chain(chain, joints, off)
+    sv = MarkerSolver(c2, joints, mj, pj, **solver_settings)
+    model = _SingleJoint(sv, qg) if S == 1 and sv.closed_form else _Chain(sv, qg)
+    qs, _ = model.solve(qg[:, list(joints)].copy(), Ysub, msub, loss="linear", scale=1.0,
+                        max_iter=sv.max_iter)
+    out = [np.where(msub[..., None], model.predict(qs) - Ysub, 0.0).ravel()]
+    for q_s, p_s, w_s in anchors:  # static poses: known angles
+        fin = np.all(np.isfinite(p_s), axis=1) & (mj >= joints[0])
+        d = _static_model(c2, mj, pj, q_s) - np.where(fin[:, None], p_s, 0.0)
+        out.append((np.where(fin[:, None], d, 0.0) * np.sqrt(w_s)[:, None]).ravel())
+    out.append(sig * x[:4 * S] / 0.05)  # weak prior: offsets are small (bounds gauges)
+    return np.concatenate(out)
+
+
+def _geometry_fit(chain, joints, mj, p_joint, Yb, q_guess, res, static, max_frames, max_nfev,
+                  solver_settings):
+    """Joint least squares over the placement offsets of the solved joints and the marker
+    positions, the angles re-solved inside every evaluation (variable projection), on at most
+    ``max_frames`` valid frames of the solve ``res``. Returns ``(offsets (S, 4), p_joint)``."""
+    from scipy.optimize import least_squares
+
+    sub = np.flatnonzero(res.valid)
+    if sub.size:
+        sub = sub[np.linspace(0, sub.size - 1, min(max_frames, sub.size)).astype(int)]
+    Ysub = np.where(res.inlier[sub][..., None], Yb[sub], 0.0)
+    msub = res.inlier[sub]
+    qg = q_guess[sub]
+    sig = res.sigma_m if np.isfinite(res.sigma_m) and res.sigma_m > 0 else 1e-3
+    anchors = [(q_s, np.asarray(p_s, float), np.asarray(w_s, float)) for q_s, p_s, w_s in static]
+    free = np.flatnonzero(mj >= joints[0])
+    x0 = np.concatenate([np.zeros(4 * len(joints)), p_joint[free].ravel()])
+    sol = least_squares(_geometry_residuals, x0, method="trf", x_scale=1e-3, diff_step=1e-5,
+                        max_nfev=max_nfev, args=(chain, joints, mj, p_joint, free, qg, Ysub, msub,
+                                                 anchors, sig, solver_settings))
+    return _unpack_geometry(sol.x, p_joint, free, len(joints))
+
+
 def refine_markers(chain, joints, marker_joint, p_joint, p_base, q_guess, static=(),
                    iterations: int = 4, labels=None, geometry: bool = False,
                    max_frames: int = 1500, max_nfev: int = 8, **solver_settings) -> RefineResult:
@@ -1335,76 +1504,22 @@ def refine_markers(chain, joints, marker_joint, p_joint, p_base, q_guess, static
     .. [1] PA10 thesis (seeds 002), eq. 3-4, 3-5.
     .. [2] Golub & Pereyra 1973, variable projection.
     """
-    from scipy.optimize import least_squares
-
     joints = tuple(sorted(int(j) for j in joints))
     p_joint = np.asarray(p_joint, float).copy()
     p0 = p_joint.copy()
     mj = np.asarray(marker_joint, int)
-    jj = np.clip(mj, 0, None)
     Yb = np.asarray(p_base, float)
-    S = len(joints)
-    offsets = np.zeros((S, 4))
+    offsets = np.zeros((len(joints), 4))
     ch = chain
     hist = []
     res = None
     for _ in range(iterations):  # outer alternation, a handful of passes
         res = MarkerSolver(ch, joints, mj, p_joint, labels=labels, **solver_settings).fit(Yb, q_guess)
         hist.append(float(np.sqrt(np.nanmean(res.rms_m ** 2))))
-        ok = res.valid
-        R, o = ch.joint_frames(res.q[ok])
-        y = np.where(res.inlier[ok][..., None], Yb[ok], 0.0)
-        loc = np.einsum("tmji,tmj->tmi", R[:, jj], y - o[:, jj])  # back-projected: R^T (y - o)
-        w = res.inlier[ok].astype(float)
-        num = (loc * w[..., None]).sum(axis=0)
-        den = w.sum(axis=0)
-        for q_s, p_s, w_s in static:  # loop over static poses
-            Rs, os_ = ch.joint_frames(np.asarray(q_s, float)[None])
-            ps = np.asarray(p_s, float)
-            fin = np.all(np.isfinite(ps), axis=1)
-            ls = np.einsum("mji,mj->mi", Rs[0, jj], np.where(fin[:, None], ps, 0.0) - os_[0, jj])
-            ws = np.where(fin, np.asarray(w_s, float), 0.0)
-            num += ls * ws[:, None]
-            den += ws
-        used = (den > 0) & (mj >= joints[0])
-        p_joint[used] = num[used] / den[used, None]
+        p_joint = _marker_update(ch, joints, mj, p_joint, res, Yb, static)
     if geometry:
-        # joint least squares over the placement offsets and the marker positions, the angles
-        # re-solved inside every evaluation (variable projection), on a subsample of frames
-        sub = np.flatnonzero(res.valid)
-        if sub.size:
-            sub = sub[np.linspace(0, sub.size - 1, min(max_frames, sub.size)).astype(int)]
-        Ysub = np.where(res.inlier[sub][..., None], Yb[sub], 0.0)
-        msub = res.inlier[sub]
-        qg = q_guess[sub]
-        sig = res.sigma_m if np.isfinite(res.sigma_m) and res.sigma_m > 0 else 1e-3
-        anchors = [(q_s, np.asarray(p_s, float), np.asarray(w_s, float)) for q_s, p_s, w_s in static]
-        free = np.flatnonzero(mj >= joints[0])
-
-        def unpack(x):
-            pj = p_joint.copy()
-            pj[free] = x[4 * S:].reshape(-1, 3)
-            return x[:4 * S].reshape(S, 4), pj
-
-        def resid(x):
-            off, pj = unpack(x)
-            c2 = offset_chain(chain, joints, off)
-            sv = MarkerSolver(c2, joints, mj, pj, **solver_settings)
-            model = _SingleJoint(sv, qg) if S == 1 and sv.closed_form else _Chain(sv, qg)
-            qs, _ = model.solve(qg[:, list(joints)].copy(), Ysub, msub, loss="linear", scale=1.0,
-                                max_iter=sv.max_iter)
-            out = [np.where(msub[..., None], model.predict(qs) - Ysub, 0.0).ravel()]
-            for q_s, p_s, w_s in anchors:  # static poses: known angles
-                fin = np.all(np.isfinite(p_s), axis=1) & (mj >= joints[0])
-                d = _static_model(c2, mj, pj, q_s) - np.where(fin[:, None], p_s, 0.0)
-                out.append((np.where(fin[:, None], d, 0.0) * np.sqrt(w_s)[:, None]).ravel())
-            out.append(sig * x[:4 * S] / 0.05)  # weak prior: offsets are small (bounds gauges)
-            return np.concatenate(out)
-
-        x0 = np.concatenate([offsets.ravel(), p_joint[free].ravel()])
-        sol = least_squares(resid, x0, method="trf", x_scale=1e-3, diff_step=1e-5,
-                            max_nfev=max_nfev)
-        offsets, p_joint = unpack(sol.x)
+        offsets, p_joint = _geometry_fit(chain, joints, mj, p_joint, Yb, q_guess, res, static,
+                                         max_frames, max_nfev, solver_settings)
         ch = offset_chain(chain, joints, offsets)
     res = MarkerSolver(ch, joints, mj, p_joint, labels=labels, **solver_settings).fit(Yb, q_guess)
     hist.append(float(np.sqrt(np.nanmean(res.rms_m ** 2))))

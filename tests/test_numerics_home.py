@@ -22,11 +22,20 @@ from tests_paths import REPO
 
 
 @contextlib.contextmanager
-def perturbed(fn, scale: float = 1.01):
-    """``fn`` (a function of :mod:`mocap.numerics`) returns ``scale`` times its value meanwhile."""
+def perturbed(fn, scale: float = 1.01, shift: float = 0.0):
+    """``fn`` (a function of :mod:`mocap.numerics`) returns ``scale`` times its value plus
+    ``shift`` meanwhile (in place where the caller passed ``out=``: the caller may not read the
+    return value then). A shift also moves users that a scale cannot (an orthonormalised
+    rotation, a fit whose free parameters absorb a scale)."""
     original = fn.__code__
     namespace = {}
-    exec(f"def shadow(*a, **k):\n    return {scale!r} * _orig(*a, **k)\n", namespace)   # noqa: S102
+    exec("def shadow(*a, **k):\n"                                                       # noqa: S102
+         "    r = _orig(*a, **k)\n"
+         "    if k.get('out') is not None:\n"
+         f"        r *= {scale!r}\n"
+         f"        r += {shift!r}\n"
+         "        return r\n"
+         f"    return {scale!r} * r + {shift!r}\n", namespace)
     copy = type(fn)(original, fn.__globals__, fn.__name__, fn.__defaults__, fn.__closure__)
     fn.__globals__["_orig"] = copy
     fn.__code__ = namespace["shadow"].__code__.replace(co_name=fn.__name__)
@@ -37,9 +46,9 @@ def perturbed(fn, scale: float = 1.01):
         del fn.__globals__["_orig"]
 
 
-def _changes(fn, home, *args, **kw) -> bool:
+def _changes(fn, home, *args, shift: float = 0.0, **kw) -> bool:
     before = np.asarray(fn(*args, **kw), float)
-    with perturbed(home):
+    with perturbed(home, shift=shift):
         after = np.asarray(fn(*args, **kw), float)
     return not np.allclose(before, after, rtol=1e-6, atol=0)
 
@@ -96,3 +105,105 @@ def test_rotation_homes_drive_kinematics_the_regressor_and_the_marker_solve():
                     np.linspace(0, 1, 4))
     src = (REPO / "mocap" / "solve.py").read_text()
     assert src.count("rotate_about_axis(") >= 2 and "np.cos(qs)" not in src
+
+
+def _arm7_chain():
+    """A fresh chain of the arm7 fixture (a chain caches its Rodrigues terms on first use)."""
+    from mocap.robot import Robot
+
+    return Robot.from_urdf(REPO / "fixtures" / "arm7" / "arm7.urdf").chain
+
+
+@pytest.mark.parametrize("home", ["rodrigues_terms", "rodrigues_combine"])
+def test_rodrigues_homes_drive_both_forward_kinematics(home):
+    """Both layouts of :class:`mocap.kinematics.Chain` (frames first and frames last) take the
+    joint rotation from the home: its terms and its one combination."""
+    q = np.random.default_rng(2).uniform(-1, 1, (5, _arm7_chain().n))
+    fn = getattr(nm, home)
+    assert _changes(lambda: _arm7_chain().joint_frames(q)[0], fn)
+    assert _changes(lambda: _arm7_chain().joint_frames_soa(q.T)[0], fn)
+    assert _changes(lambda: nm.rotation_about_axis([0.0, 0.6, 0.8], q[:, 0]), fn)
+
+
+def _sweep(seed=3):
+    """Three markers turning about a tilted axis, with noise: a calibration sweep (T, 3, 3)."""
+    rng = np.random.default_rng(seed)
+    axis = np.array([0.2, -0.3, 0.9]) / np.linalg.norm([0.2, -0.3, 0.9])
+    q = np.linspace(-1.0, 1.0, 60)
+    p0 = np.array([[0.15, 0.0, 0.1], [0.0, 0.2, -0.05], [-0.1, -0.12, 0.2]])
+    P = np.einsum("tij,mj->tmi", nm.rotation_about_axis(axis, q), p0) + [0.3, 0.1, 1.5]
+    return P + rng.normal(scale=2e-4, size=P.shape)
+
+
+def test_rodrigues_homes_drive_the_axis_fit():
+    """The circle-point sweep fit (:class:`calib.axis.ClusterAxisEstimator`): its model comes from
+    the Rodrigues combination, its axis Jacobian (hence the covariance) from
+    :func:`mocap.numerics.rodrigues_axis_derivative`."""
+    from calib.axis import ClusterAxisEstimator
+
+    P = _sweep()
+    est = ClusterAxisEstimator()
+    assert _changes(lambda: est.fit(P).cov, nm.rodrigues_axis_derivative)
+    assert _changes(lambda: est.fit(P).point, nm.rodrigues_combine, shift=1e-3)
+
+
+def test_rotation_home_drives_the_mujoco_urdf():
+    """``ident.sim2real.model.urdf_for_mujoco`` folds a locked joint's rotation into its origin
+    through :func:`mocap.numerics.rotation_about_axis`."""
+    import xml.etree.ElementTree as ET
+
+    from ident.sim2real.model import urdf_for_mujoco
+
+    urdf = REPO / "fixtures" / "arm7" / "arm7.urdf"
+    names = [j.get("name") for j in ET.parse(urdf).getroot().findall("joint")
+             if j.get("type") in ("revolute", "continuous")]
+    locked = names[-1]
+
+    def rpy():
+        root = ET.fromstring(urdf_for_mujoco(urdf, tuple(names[:-1]), {locked: 0.7}))
+        j = next(j for j in root.findall("joint") if j.get("name") == locked)
+        return [float(x) for x in j.find("origin").get("rpy").split()]
+
+    assert _changes(rpy, nm.rotation_about_axis, shift=1e-3)
+
+
+def test_rodrigues_axis_derivative_is_the_derivative():
+    """Central differences of ``R(n + eps e, q) d`` (the axis renormalised: ``e`` perpendicular
+    to ``n`` leaves its length unchanged to first order) agree with the closed form."""
+    rng = np.random.default_rng(5)
+    n = nm.rotation_about_axis([1.0, 0.0, 0.0], 0.4) @ np.array([0.0, 0.0, 1.0])
+    e = np.cross(n, [1.0, 0.0, 0.0])
+    e /= np.linalg.norm(e)
+    d = rng.standard_normal((7, 3))
+    q = rng.uniform(-2, 2, 7)
+    h = 1e-6
+
+    def rotated(eps):
+        a = (n + eps * e) / np.linalg.norm(n + eps * e)
+        return np.einsum("kij,kj->ki", nm.rotation_about_axis(a, q), d)
+
+    fd = (rotated(h) - rotated(-h)) / (2 * h)
+    exact = nm.rodrigues_axis_derivative(e, d, n, np.sin(q)[:, None], np.cos(q)[:, None])
+    assert np.allclose(exact, fd, atol=1e-8, rtol=0)
+
+
+def test_rotation_log_home_drives_the_hand_eye_start():
+    """The rotation vectors of the hand-eye start (Park & Martin, :mod:`calib.handeye`) and of the
+    static poses' camera pose (:mod:`mocap.references`, through :mod:`mocap.kinematics`) are the
+    home's :func:`mocap.numerics.matrix_to_rotvec`."""
+    import mocap.kinematics as kin
+    import mocap.references as refs
+    from calib.handeye import _park_martin
+
+    assert kin.matrix_to_rotvec is nm.matrix_to_rotvec is refs.matrix_to_rotvec
+    rng = np.random.default_rng(4)
+    X = np.eye(4)
+    X[:3, :3], X[:3, 3] = nm.rotvec_to_matrix([0.3, -0.5, 0.9]), [0.2, -0.1, 1.4]
+    C = np.tile(np.eye(4), (6, 1, 1))
+    C[:, :3, :3] = nm.rotvec_to_matrix(rng.uniform(-0.8, 0.8, (6, 3)))
+    C[:, :3, 3] = rng.uniform(-0.3, 0.3, (6, 3))
+    A = X @ C @ np.linalg.inv(X)                   # A X = X B with B = C
+    Rz, tz = _park_martin(A[:, :3, :3], A[:, :3, 3], C)
+    assert np.allclose(Rz, X[:3, :3], atol=1e-9) and np.allclose(tz, X[:3, 3], atol=1e-9)
+    assert _changes(lambda: _park_martin(A[:, :3, :3], A[:, :3, 3], C)[0], nm.matrix_to_rotvec,
+                    shift=1e-3)

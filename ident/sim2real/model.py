@@ -15,7 +15,6 @@ link side already).
 from __future__ import annotations
 
 import contextlib
-import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from mocap.io.errors import InputError
+from mocap.numerics import rotation_about_axis
 
 #: native parameters of every joint, in the order of the parameter vectors
 NATIVE = ("armature", "damping", "frictionloss")
@@ -47,9 +47,10 @@ def captured_warnings(sink: list):
 
 
 def _rot(axis, a):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K
+    """Rotation by ``a`` (rad) about the URDF joint axis ``axis`` (any length): Rodrigues'
+    formula from :func:`mocap.numerics.rotation_about_axis`."""
+    axis = np.asarray(axis, float)
+    return rotation_about_axis(axis / np.linalg.norm(axis), a)
 
 
 def _rpy(R):
