@@ -943,6 +943,22 @@ class CampaignAngles:
         return {r.trial_id: (r.time, {j: r.q_link[:, k] for k, j in enumerate(r.joints)})
                 for r in self.trials}
 
+    def write(self, folder) -> dict:
+        """``angles/<trial>.csv`` (FORMAT.md), ``references.json`` and ``mocap.json`` into
+        ``folder`` (the trial ids were checked as output names by the caller's output folder);
+        returns name -> path (``angles``: the folder)."""
+        folder = Path(folder)
+        for res in self.trials:
+            name = f"{res.trial_id}.csv"          # an id is data: one plain file name, never a path
+            if Path(name).name != name or name.startswith(".") or "\\" in name:
+                raise InputError(f"trial id {res.trial_id!r} cannot name a file in angles/", label=res.trial_id)
+            res.write_csv(folder / "angles" / name, overwrite=True)
+        (folder / "references.json").write_text(json.dumps(self.references.to_dict(), indent=1),
+                                                encoding="utf-8")
+        (folder / "mocap.json").write_text(json.dumps(self.summary(), indent=1), encoding="utf-8")
+        return {"angles": folder / "angles", "references": folder / "references.json",
+                "mocap": folder / "mocap.json"}
+
 
 def references(campaign, *, robot=None, T_camera_base=None) -> tuple:
     """The static-pose references (thesis eq. 3-4) and where the camera pose came from.

@@ -2,10 +2,11 @@
 
 On four small synthesised campaigns (single-joint trials; Indri & Trapani kinds with the
 dynamic models; one multi-joint record; both kinds of trials in one manifest) the study's
-``fits.json``/``rigidbody/fits.json`` and ``diagnosis.json`` hold the numbers of
-:func:`ident.workflow.fit_campaign` and :func:`ident.workflow.diagnose_campaign` (the functions
-``jointlab fit`` and ``jointlab diagnose`` run) on the same inputs: the study's link angles where
-it solved them, the motor angles where it did not."""
+``fits.json``/``rigidbody/fits.json`` and ``diagnosis.json`` hold the numbers the plain runner
+writes (:func:`ident.pipeline.stage.run_stages` over the ``fits``, ``rigidbody`` and
+``diagnosis`` stages of :func:`ident.pipeline.plan.plan`, what ``jointlab fit`` and ``jointlab
+diagnose`` run) on the same inputs: the study's link angles where it solved them, the motor
+angles where it did not."""
 from __future__ import annotations
 
 import json
@@ -16,9 +17,12 @@ from pathlib import Path
 import pytest
 
 from ident.cli.main import main
+from ident.pipeline.plan import PipelineSettings, stage_named
+from ident.pipeline.plan import plan as stage_list
+from ident.pipeline.stage import Context, Runtime, run_stages
 from ident.study.executor import SerialExecutor
 from ident.study.study import Study, StudySettings
-from ident.workflow import FitSettings, diagnose_campaign, fit_campaign, plan, subset
+from ident.workflow import FitSettings, plan
 from mocap.io.campaign import load_campaign
 from mocap.io.errors import InputError
 
@@ -56,6 +60,16 @@ def _study(campaign: Path, out: Path, models, mocap: bool):
     res = Study(s, SerialExecutor(progress=False), progress=False).run(campaign, out)
     assert not res.errors, res.errors
     return res
+
+
+def _plain(camp, folder: Path, stage: str, **settings) -> dict:
+    """The document the plain runner writes for ``stage`` (``fits.json`` or ``diagnosis.json``):
+    the command's stage of the one list, run once into ``folder``."""
+    s = PipelineSettings(fit=FitSettings(n_starts=N_STARTS), plots=False, **settings)
+    folder.mkdir(parents=True)
+    done = run_stages(stage_named(stage_list(camp, s), stage), Context(camp, s, folder), Runtime())
+    assert done.stages[stage].status == "ran", done.stages[stage]
+    return _read(folder / ("diagnosis.json" if stage == "diagnosis" else "fits.json"))
 
 
 def _same(a, b, where=""):
@@ -97,13 +111,12 @@ def test_single_joint_study_equals_fit_and_diagnose(campaigns, tmp_path):
     out = tmp_path / "study"
     _study(campaigns["single"], out, ("cv", "stribeck"), mocap=True)
     camp = load_campaign(campaigns["single"])
-    fits = fit_campaign(camp, models=("cv", "stribeck"), angles=out / "angles",
-                        settings=FitSettings(n_starts=N_STARTS))
-    _same(_read(out / "fits" / "fits.json"), _jsonish(fits.to_dict()))
-    diag = diagnose_campaign(camp, angles=out / "angles", progress=False)
+    fits = _plain(camp, tmp_path / "fit", "fits", models=("cv", "stribeck"), angles=out / "angles")
+    _same(_read(out / "fits" / "fits.json"), fits)
+    diag = _plain(camp, tmp_path / "diag", "diagnosis", angles=out / "angles")
     study_diag = _read(out / "diagnosis" / "diagnosis.json")
     assert study_diag["link_angles"] is True
-    _same_diagnosis(study_diag, diag.report)
+    _same_diagnosis(study_diag, diag)
 
 
 def test_study_runs_the_indri_models_like_fit(campaigns, tmp_path):
@@ -112,22 +125,21 @@ def test_study_runs_the_indri_models_like_fit(campaigns, tmp_path):
     assert dict(plan(camp, models).models) == {"single_joint": ("cv",), "indri": ("arctan", "dm1")}
     out = tmp_path / "study"
     _study(campaigns["indri"], out, models, mocap=True)
-    fits = fit_campaign(camp, models=models, angles=out / "angles", settings=FitSettings(n_starts=N_STARTS))
+    fits = _plain(camp, tmp_path / "fit", "fits", models=models, angles=out / "angles")
     doc = _read(out / "fits" / "fits.json")
     assert set(doc["joints"]["5"]["models"]) == {"arctan", "dm1"}
-    _same(doc, _jsonish(fits.to_dict()))
+    _same(doc, fits)
     _same_diagnosis(_read(out / "diagnosis" / "diagnosis.json"),
-                    diagnose_campaign(camp, angles=out / "angles", progress=False).report)
+                    _plain(camp, tmp_path / "diag", "diagnosis", angles=out / "angles"))
 
 
 def test_multi_joint_study_equals_fit_and_diagnose(campaigns, tmp_path):
     out = tmp_path / "study"
     _study(campaigns["multi"], out, ("cv",), mocap=False)
     camp = load_campaign(campaigns["multi"])
-    fits = fit_campaign(camp, models=("cv",), settings=FitSettings(n_starts=N_STARTS))
-    _same(_read(out / "rigidbody" / "fits.json"), _jsonish(fits.to_dict()))
+    _same(_read(out / "rigidbody" / "fits.json"), _plain(camp, tmp_path / "fit", "rigidbody", models=("cv",)))
     _same_diagnosis(_read(out / "diagnosis" / "diagnosis.json"),
-                    diagnose_campaign(camp, markers=False, progress=False).report)
+                    _plain(camp, tmp_path / "diag", "diagnosis", markers=False))
 
 
 def test_mixed_campaign_study_fits_both_parts_and_diagnoses_both(campaigns, tmp_path):
@@ -136,16 +148,14 @@ def test_mixed_campaign_study_fits_both_parts_and_diagnoses_both(campaigns, tmp_
     assert p.mixed
     out = tmp_path / "study"
     _study(campaigns["mixed"], out, ("cv",), mocap=False)
-    # the fits of the two manifests jointlab fit asks for
-    single = fit_campaign(subset(camp, p.single_joint), models=("cv",), settings=FitSettings(n_starts=N_STARTS))
-    multi = fit_campaign(subset(camp, p.multi_joint), models=("cv",), settings=FitSettings(n_starts=N_STARTS))
-    _same(_read(out / "fits" / "fits.json"), _jsonish(single.to_dict()))
-    _same(_read(out / "rigidbody" / "fits.json"), _jsonish(multi.to_dict()))
+    # the fits of the two manifests jointlab fit asks for: the list's fits and rigidbody stages
+    _same(_read(out / "fits" / "fits.json"), _plain(camp, tmp_path / "fit", "fits", models=("cv",)))
+    _same(_read(out / "rigidbody" / "fits.json"), _plain(camp, tmp_path / "rb", "rigidbody", models=("cv",)))
     # one diagnosis of both, as jointlab diagnose writes it
     study_diag = _read(out / "diagnosis" / "diagnosis.json")
     assert set(study_diag["joints"]) == {"2", "3", "5"}
     assert study_diag["multi_joint_trials"] == list(p.multi_joint)
-    _same_diagnosis(study_diag, diagnose_campaign(camp, markers=False, progress=False).report)
+    _same_diagnosis(study_diag, _plain(camp, tmp_path / "diag", "diagnosis", markers=False))
 
 
 def test_the_study_routes_models_through_the_plan(campaigns, tmp_path):

@@ -62,6 +62,10 @@ from ident.gap.campaign_diagnosis import (diagnose_single_joint_campaign, load_a
 from ident.gap.report import make_plots, markdown, write_report
 from ident.model.multijoint import diagnose_records
 from ident.outputs import OutputDir, file_sha256
+from ident.pipeline.plan import PipelineSettings
+from ident.pipeline.plan import plan as pipeline_plan
+from ident.pipeline.stage import Context as StageContext
+from ident.pipeline.stage import Runtime, input_key
 from ident.signals.smoothing import one_blas_thread
 from ident.study.executor import Pending, SerialExecutor, release_free_memory
 from ident.study.lock import StudyLock
@@ -83,6 +87,10 @@ __all__ = ["StudySettings", "StudyResult", "Study", "run_study", "file_sha256", 
 MANIFEST_NAME = ".jointlab-study.json"
 STATE_DIR = ".jointlab-study"
 CACHE_VERSION = 2     # bump when a record's content changes meaning
+#: the pipeline's stages the study runs with per-item records (per trial, per joint), in the
+#: list's order; every other stage of :func:`ident.pipeline.plan.plan` runs whole
+#: (:meth:`Study._whole_stage`)
+ITEM_POLICIES = ("calib", "mocap", "fits", "rigidbody", "diagnosis", "coastdown")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -100,7 +108,8 @@ class StudySettings:
     ``calib_urdf_tol_mm``, ``calib_trust_urdf``, ``calib_deflection``: the calibration's declared URDF
     tolerance, trusted J1-J2 geometry and gravity-deflection compensation (``jointlab calib
     --urdf-tol-mm``, ``--trust-urdf``, ``--deflection``; :func:`calib.pipeline.calibrate`);
-    ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
+    ``sim2real``: also the MuJoCo replay stage (:mod:`ident.pipeline.stages.sim2real`,
+    ``sim2real/``); ``diagnosis_reps``: the gap diagnosis of a joint reads the first that many repetitions of
     every condition (0: all; None, the default: the most repetitions whose samples stay within
     :data:`DIAGNOSIS_SAMPLES` per joint, at least one). It holds a joint's samples (a few hundred
     bytes each) while it runs; the rest of its memory does not grow with the trials
@@ -121,6 +130,7 @@ class StudySettings:
     calib_urdf_tol_mm: float = 0.0
     calib_trust_urdf: bool = False
     calib_deflection: bool = False
+    sim2real: bool = False
 
     def calib_options(self) -> dict:
         """The keyword options of :func:`calib.pipeline.calibrate` these settings ask for."""
@@ -147,9 +157,20 @@ class StudySettings:
         """The :class:`ident.workflow.FitSettings` of ``jointlab fit`` these settings ask for."""
         return FitSettings(n_starts=self.n_starts, seed=self.seed, sync=self.sync)
 
+    def pipeline_settings(self) -> PipelineSettings:
+        """The :class:`ident.pipeline.plan.PipelineSettings` of the stages these settings ask
+        for (what a stage without a per-item policy reads: the ``sim2real`` stage)."""
+        return PipelineSettings(calib_method=self.calib_method, calib_urdf_tol_mm=self.calib_urdf_tol_mm,
+                                calib_trust_urdf=self.calib_trust_urdf, calib_deflection=self.calib_deflection,
+                                mocap=self.mocap, models=tuple(self.models), fit=self.fit_settings(),
+                                plots=self.plots, diagnose=self.diagnose,
+                                diagnosis=DiagnosisSettings(seed=self.seed), sim2real=self.sim2real)
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["models"] = list(self.models)
+        if not self.sim2real:     # studies written before the stage existed keep their hashes
+            del d["sim2real"]
         return d
 
 
@@ -748,7 +769,7 @@ class Study:
                "records": {k: v for k, v in old_records.items() if isinstance(v, str)}}
         stages, errors, paths = {}, {}, {}
         ctx = _Context(camp, robot, out, state, tmp_dir, hasher, base_hash, man, old, stages,
-                       errors, paths, od, *plans)
+                       errors, paths, od, *plans, pipeline=self.stages(camp))
 
         prewarm = self._prewarm_hashes(ctx)
         T_cb, calib_res = self._calib(ctx)
@@ -781,6 +802,10 @@ class Study:
             _write_manifest(manifest_path, man, tmp_dir)
             self._coast_md = self._coastdown(ctx)
             _write_manifest(manifest_path, man, tmp_dir)
+            for st in ctx.pipeline:        # the list's stages without a per-item policy here
+                if st.name not in ITEM_POLICIES:
+                    self._whole_stage(ctx, st)
+                    _write_manifest(manifest_path, man, tmp_dir)
             self._report(ctx, calib_res, refs, mocap_summary, fits, diag, angles_dir, rrd_path, spawn)
         finally:
             if ctx.recording is not None:     # not finished: the study stopped
@@ -797,6 +822,49 @@ class Study:
                      "rotation_std_deg": float(calib_res.rotation_std_deg)}
         return StudyResult(out, camp.name, len(camp.trials), stages, paths, verdicts, calib, errors,
                            verdict_lines=lines)
+
+    def stages(self, camp) -> list:
+        """The pipeline's stages for this study (:func:`ident.pipeline.plan.plan`), in the order
+        it runs them; the names in :data:`ITEM_POLICIES` run with per-item records (the methods
+        below), every other stage whole (:meth:`_whole_stage`)."""
+        stages = pipeline_plan(camp, self.settings.pipeline_settings())
+        names = [st.name for st in stages if st.name in ITEM_POLICIES]
+        if names != [n for n in ITEM_POLICIES if n in names]:    # the order below is the list's
+            raise RuntimeError(f"the pipeline's order {names} is not the study's {list(ITEM_POLICIES)}")
+        return stages
+
+    def _whole_stage(self, ctx, st) -> None:
+        """Run one pipeline stage (:class:`ident.pipeline.stage.Stage`) resumably as a whole: the
+        key of its declared inputs (:func:`ident.pipeline.stage.input_key`, files by their
+        sha256) is its hash; an entry of the same hash whose files are the study's, byte for
+        byte, is kept, otherwise the stage runs and its files replace ``<folder>/`` (the first
+        component of ``st.output``). A stage that does not apply gets a row saying why; a
+        failure is the stage's error, and the study goes on."""
+        t0 = time.perf_counter()
+        pctx = StageContext(ctx.camp, self.settings.pipeline_settings(), ctx.out, _robot=ctx.robot)
+        why = st.skip(pctx)
+        if why:
+            ctx.stages[st.name] = _stage_row(note=f"skipped: {why}")
+            return
+        inputs = st.inputs(pctx)
+        h = ctx.hasher.combine(st.name, input_key(inputs, ctx.hasher.file))
+        folder = st.output.split("/", 1)[0]
+        if _reuse_stage(ctx, st.name, h, ctx.out / st.output, 1, t0):
+            return
+        self._say(f"{st.name}: running")
+        try:
+            result = st.run(inputs, Runtime(progress=False))
+        except (InputError, ValueError, np.linalg.LinAlgError) as exc:
+            ctx.errors[st.name] = _error_text(exc)
+            ctx.stages[st.name] = _stage_row(failed=1, seconds=time.perf_counter() - t0)
+            return
+        tmp = ctx.tmp_dir / f"{folder}-new"
+        tmp.mkdir(parents=True, exist_ok=True)
+        st.write(result, inputs, tmp, Runtime())
+        ctx.od.commit(tmp, folder, prune=True)
+        ctx.man["stages"][st.name] = {"hash": h, "outputs": [folder + "/"]}
+        ctx.paths[st.name] = ctx.out / st.output
+        ctx.stages[st.name] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
 
     @staticmethod
     def _prewarm_hashes(ctx):
@@ -1494,6 +1562,7 @@ class _Context:
     fits_commit: tuple = (None, None, None)   # (tmp folder, its plots in flight, manifest entry)
     study_plots: object = None                # plots/ in flight (ident.study.executor.Pending)
     recording: object = None                  # the recording begun early (_StudyRecording)
+    pipeline: list = field(default_factory=list)   # ident.pipeline.plan.plan(camp, settings)
 
 
 def _read_manifest(path: Path, note=None) -> dict:
@@ -1711,6 +1780,7 @@ def _existing_files(out: Path, will_write=()) -> str:
     study writes after the report: ``will_write``), each once."""
     cands = [("calib.json", ""), ("references.json", ""), ("angles/", ""), ("mocap.json", ""),
              ("fits/", ""), ("rigidbody/", ""), ("coastdown/", ""), ("diagnosis/", ""),
+             ("sim2real/", ""),
              ("plots/", ""), ("csv/trials.csv", ""), ("csv/diagnosis_effects.csv", ""),
              ("study.rrd", " (open with `jointlab view`)"),
              (MANIFEST_NAME, " (input hashes: a rerun skips what is up to date)")]
@@ -1725,6 +1795,21 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
     5-1..5-3 / A / B of 002), the multi-joint rigid-body fits, the plots and the gap-diagnosis
     verdicts; the Files line names only the outputs that exist (or ``will_write``: written
     after the report)."""
+    L = _stages_section(campaign, stages, errors)
+    L += ["", "## Camera-to-base calibration", ""]
+    if calib_res is not None:
+        L += [summary_markdown(calib_res).replace("## ", "### ", 1), "", "Written to `calib.json`."]
+    else:
+        L.append(stages.get("calib", {}).get("note") or "No calibration.")
+    L += ["", "## Link angles from the markers", ""] + _mocap_section(campaign, stages, mocap_summary)
+    L += ["", "## Friction identification (thesis eq. 2-4)", ""] + _fits_section(fits, plots, out)
+    L += ["", "## Sim-to-real gap", ""] + _gap_section(stages, diagnosis, out)
+    L += ["", "## Files", "", _existing_files(out, will_write), ""]
+    return "\n".join(L)
+
+
+def _stages_section(campaign, stages, errors) -> list:
+    """The report's title, its campaign line and the stage table (with the failures)."""
     trials = campaign.trials
     joints = sorted({j for t in trials for j in t.joints})
     loads = sorted({t.load_kg for t in trials})
@@ -1743,25 +1828,27 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
                  f"{note} |")
     if errors:
         L += ["", "Failures:", ""] + [f"- `{k}`: {v}" for k, v in sorted(errors.items())]
-    L += ["", "## Camera-to-base calibration", ""]
-    if calib_res is not None:
+    return L
 
-        L += [summary_markdown(calib_res).replace("## ", "### ", 1), "", "Written to `calib.json`."]
-    else:
-        L.append(stages.get("calib", {}).get("note") or "No calibration.")
-    L += ["", "## Link angles from the markers", ""]
-    if mocap_summary and mocap_summary.get("trials"):
-        L += [f"Camera pose from {mocap_summary['camera_from']}; per-trial CSVs in `angles/`.", "",
-              "| trial | joints | frames | RMS residual (mm) | flagged frames | link - motor RMS (mrad) |",
-              "|---|---|---|---|---|---|"]
-        for tid, d in mocap_summary["trials"].items():
-            lm = d.get("link_minus_motor_rms_rad") or []
-            lm = ", ".join(_f(None if x is None else 1e3 * x) for x in lm)
-            L.append(f"| {tid} | {', '.join(map(str, campaign.trial(tid).joints))} | {d.get('frames')} | {_f(d.get('rms_mm'))} | "
-                     f"{d.get('flagged_frames', '-')} | {lm} |")
-    else:
-        L.append(stages.get("mocap", {}).get("note") or "No link angles.")
-    L += ["", "## Friction identification (thesis eq. 2-4)", ""]
+
+def _mocap_section(campaign, stages, mocap_summary) -> list:
+    """The report's link-angle quality table (or the mocap stage's note)."""
+    if not (mocap_summary and mocap_summary.get("trials")):
+        return [stages.get("mocap", {}).get("note") or "No link angles."]
+    L = [f"Camera pose from {mocap_summary['camera_from']}; per-trial CSVs in `angles/`.", "",
+         "| trial | joints | frames | RMS residual (mm) | flagged frames | link - motor RMS (mrad) |",
+         "|---|---|---|---|---|---|"]
+    for tid, d in mocap_summary["trials"].items():
+        lm = d.get("link_minus_motor_rms_rad") or []
+        lm = ", ".join(_f(None if x is None else 1e3 * x) for x in lm)
+        L.append(f"| {tid} | {', '.join(map(str, campaign.trial(tid).joints))} | {d.get('frames')} | {_f(d.get('rms_mm'))} | "
+                 f"{d.get('flagged_frames', '-')} | {lm} |")
+    return L
+
+
+def _fits_section(fits, plots, out: Path) -> list:
+    """The report's friction section: the rigid-body fits, the thesis tables, the plots."""
+    L = []
     tables = out / "fits" / "tables" / "tables.md"
     multi = _multijoint_section(out)
     if multi:
@@ -1779,33 +1866,35 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
                  "`fits/fits.json`, `fits/fits_diagnostics.json`.")
     elif not multi:
         L.append("No fits.")
-    L += ["", "## Sim-to-real gap", ""]
-    if diagnosis and diagnosis.get("joints"):
-        L += ["| joint | verdict | held-out RMS nominal | best effect | reduction | largest gap share |",
-              "|---|---|---|---|---|---|"]
-        for j, rep in diagnosis["joints"].items():
-            eff = [e for e in rep.get("effects", []) if e.get("identifiable", True)
-                   and e.get("reduction") is not None]
-            best = max(eff, key=lambda e: e["reduction"]) if eff else None
-            loc = rep.get("localisation") or []
-            top = max(loc, key=lambda r: r["share"]) if loc else None
-            L.append(f"| {j} | **{rep.get('verdict_text', rep.get('verdict'))}** | {_f(rep.get('heldout_rms_nominal'))} | "
-                     f"{best['effect'] if best else '-'} | {_f(best['reduction']) if best else '-'} | "
-                     f"{(top['regime'] + ' ' + _f(top['share'], 2)) if top else '-'} |")
-        L.append("")
-        for j, rep in diagnosis["joints"].items():
-            for n in rep.get("notes", []):
-                L += [f"Note on joint {j}: {n}.", ""]
-        for j in diagnosis["joints"]:
-            for kind in ("localisation", "effects"):
-                p = out / "diagnosis" / f"joint{j}_{kind}.png"
-                if p.is_file():
-                    L += [f"![joint {j} {kind}](diagnosis/{p.name})", ""]
-        L.append("Full report: `diagnosis/diagnosis.md`, `diagnosis/diagnosis.json`.")
-    else:
-        L.append(stages.get("diagnosis", {}).get("note") or "No diagnosis.")
-    L += ["", "## Files", "", _existing_files(out, will_write), ""]
-    return "\n".join(L)
+    return L
+
+
+def _gap_section(stages, diagnosis, out: Path) -> list:
+    """The report's gap-diagnosis table, notes and plots (or the diagnosis stage's note)."""
+    if not (diagnosis and diagnosis.get("joints")):
+        return [stages.get("diagnosis", {}).get("note") or "No diagnosis."]
+    L = ["| joint | verdict | held-out RMS nominal | best effect | reduction | largest gap share |",
+         "|---|---|---|---|---|---|"]
+    for j, rep in diagnosis["joints"].items():
+        eff = [e for e in rep.get("effects", []) if e.get("identifiable", True)
+               and e.get("reduction") is not None]
+        best = max(eff, key=lambda e: e["reduction"]) if eff else None
+        loc = rep.get("localisation") or []
+        top = max(loc, key=lambda r: r["share"]) if loc else None
+        L.append(f"| {j} | **{rep.get('verdict_text', rep.get('verdict'))}** | {_f(rep.get('heldout_rms_nominal'))} | "
+                 f"{best['effect'] if best else '-'} | {_f(best['reduction']) if best else '-'} | "
+                 f"{(top['regime'] + ' ' + _f(top['share'], 2)) if top else '-'} |")
+    L.append("")
+    for j, rep in diagnosis["joints"].items():
+        for n in rep.get("notes", []):
+            L += [f"Note on joint {j}: {n}.", ""]
+    for j in diagnosis["joints"]:
+        for kind in ("localisation", "effects"):
+            p = out / "diagnosis" / f"joint{j}_{kind}.png"
+            if p.is_file():
+                L += [f"![joint {j} {kind}](diagnosis/{p.name})", ""]
+    L.append("Full report: `diagnosis/diagnosis.md`, `diagnosis/diagnosis.json`.")
+    return L
 
 
 def _rrd_trials(campaign, which: str):

@@ -49,19 +49,24 @@ def run(args) -> int:
     from mocap.io.plausibility import check_calib_options
     from viz import make_sink
 
-    from ident import workflow
+    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.stage import Context, Runtime, run_stages
 
     check_calib_options(noise_mm=args.noise_mm, min_sweep_deg=args.min_sweep_deg)
     camp = load_campaign(args.campaign)
+    settings = PipelineSettings(calib_method=args.method, calib_noise_mm=args.noise_mm,
+                                calib_min_sweep_deg=args.min_sweep_deg, calib_cross_check=args.cross_check,
+                                calib_urdf_tol_mm=args.urdf_tol_mm, calib_trust_urdf=args.trust_urdf,
+                                calib_deflection=args.deflection)
     with OutputDir(args.out, "calib", [camp.root]) as od:
         od.check_early(["calib.json"])
-        with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-            result = workflow.calibrate(camp, method=args.method, sink=sink, noise_mm=args.noise_mm,
-                                        min_sweep_deg=args.min_sweep_deg, cross_check=args.cross_check,
-                                        urdf_tol_mm=args.urdf_tol_mm, trust_urdf=args.trust_urdf,
-                                        deflection=args.deflection)
         stage = od.stage()
-        path = od.final(result.write(stage))
+        with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
+            # the pipeline's calib stage (ident.pipeline.stages.calib), run once
+            done = run_stages(stage_named(plan(camp, settings), "calib"), Context(camp, settings, stage),
+                              Runtime(sink=sink), force=("calib",))
+        result = done["calib"]
+        path = od.final(done.stages["calib"].paths["calib"])
         od.commit(stage)
     for w in result.warnings:
         print(f"jointlab: warning: {w}", file=sys.stderr)

@@ -49,9 +49,10 @@ def run(args) -> int:
     from ident.gap.campaign_diagnosis import check_diagnose_options
     from viz import make_sink
 
-    from ident import workflow
     from ident.gap import DiagnosisSettings
     from ident.gap.nominal import check_nominal
+    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.stage import Context, Runtime, run_stages
 
     camp = load_campaign(args.campaign)
     if args.nominal == "mjcf":   # the campaign's own MuJoCo model ([robot] mjcf, or its URDF compiled)
@@ -64,13 +65,14 @@ def run(args) -> int:
     with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:
         od.check_early(["diagnosis.json", "diagnosis.md"])
         out = od.root
-        robot = camp.load_robot()
+        settings = PipelineSettings(angles=args.angles, markers=not args.no_markers, joints=args.joints,
+                                    diagnosis=DiagnosisSettings(seed=args.seed, nominal=args.nominal))
+        stage = od.stage()
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
-            result = workflow.diagnose_campaign(
-                camp, robot=robot, angles=args.angles, markers=not args.no_markers, joints=args.joints,
-                settings=DiagnosisSettings(seed=args.seed, nominal=args.nominal), sink=sink)
-            stage = od.stage()
-            paths = result.write(stage, sink)
+            # the pipeline's diagnosis stage (ident.pipeline.stages.diagnosis), run once
+            done = run_stages(stage_named(plan(camp, settings), "diagnosis"), Context(camp, settings, stage),
+                              Runtime(sink=sink, progress=True))
+            result, paths = done["diagnosis"], done.stages["diagnosis"].paths
         paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
         od.commit(stage)
     summary = result.summary()

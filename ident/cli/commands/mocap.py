@@ -52,27 +52,23 @@ def run(args) -> int:
 
 
 def _run(args, camp, trials, od) -> int:
-    from mocap.references import read_calib
     from viz import make_sink
 
-    from ident import workflow
+    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.stage import Context, Runtime, run_stages
 
     out, stage = od.root, od.stage()
-    T_cb = read_calib(args.calib) if args.calib else None
-    if T_cb is None and not args.json:
+    if args.calib is None and not args.json:
         print("camera pose: from the static pose(s) if they fix it, else from the [[calib]] sweeps "
               "(save it with `jointlab calib`)")
-    robot = camp.load_robot()
-    refs = workflow.references(camp, robot=robot, T_camera_base=T_cb)
+    settings = PipelineSettings(calib_file=args.calib, trials=tuple(args.trial) if args.trial else None,
+                                solver=dict(refine=args.refine, refine_geometry=args.refine_geometry,
+                                            min_markers=args.min_markers, reject_sigma=args.reject_sigma))
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-        result = workflow.solve_angles(camp, robot=robot, refs=refs, trials=trials, sink=sink,
-                                       refine=args.refine, refine_geometry=args.refine_geometry,
-                                       min_markers=args.min_markers, reject_sigma=args.reject_sigma)
-    for res in result.trials:
-        res.write_csv(stage / od.rel(f"angles/{res.trial_id}.csv"), overwrite=True)
+        # the pipeline's mocap stage (ident.pipeline.stages.mocap): solve, then write into the stage
+        result = run_stages(stage_named(plan(camp, settings), "mocap"), Context(camp, settings, stage),
+                            Runtime(sink=sink), force=("mocap",))["mocap"]
     refs, doc = result.references, result.summary()
-    (stage / "references.json").write_text(json.dumps(refs.to_dict(), indent=1), encoding="utf-8")
-    (stage / "mocap.json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
     od.commit(stage)
     if args.json:
         print(json.dumps(doc, indent=1))

@@ -44,6 +44,9 @@ def add_study_options(p) -> None:
     p.add_argument("--deflection", action="store_true",
                    help="calibration: undo the joints' static deflection under gravity at the declared "
                         "stiffness (as jointlab calib --deflection)")
+    p.add_argument("--sim2real", action="store_true",
+                   help="also replay the multi-joint records in MuJoCo (as jointlab sim2real; "
+                        "sim2real/, needs the 'mujoco' extra; skipped with the reason otherwise)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -69,7 +72,8 @@ def settings_from_args(args):
                          mocap=not args.no_mocap, diagnose=not args.no_diagnosis, plots=not args.no_plots,
                          rrd=not args.no_rrd, rrd_trials=args.rrd_trials,
                          diagnosis_reps=args.diagnosis_reps, calib_urdf_tol_mm=args.urdf_tol_mm,
-                         calib_trust_urdf=args.trust_urdf, calib_deflection=args.deflection).validate()
+                         calib_trust_urdf=args.trust_urdf, calib_deflection=args.deflection,
+                         sim2real=getattr(args, "sim2real", False)).validate()
 
 
 def run_from_args(args, campaign_path: Path) -> int:
