@@ -407,12 +407,18 @@ def phi(x):
     :math:`\frac{1}{h}\int_0^h e^{-a (h - s)} ds` of a step ``h`` at ``x = a h`` (the input
     weight of the exact discretisation of a first-order linear system, Indri & Trapani eq. 29).
 
+    A complex ``x`` (a complex rate, or ``x = s h`` of a Laplace/Fourier variable ``s``) gives the
+    complex value by the same two branches (numpy's complex ``expm1``); ``t phi(-lambda t)`` is
+    :math:`\int_0^t e^{\lambda s} ds` for any complex ``lambda``. A real ``x`` stays real.
+
     Examples
     --------
     >>> float(phi(0.0)), round(float(phi(1.0)), 12)
     (1.0, 0.632120558829)
+    >>> complex(np.round(phi(1j), 12))          # (1 - e^{-i}) / i = sin 1 - i (1 - cos 1)
+    (0.841470984808-0.459697694132j)
     """
-    x = np.asarray(x, float)
+    x = np.asarray(x, complex if np.iscomplexobj(x) else float)
     small = np.abs(x) < _PHI_SERIES_BELOW
     xs = np.where(small, 1.0, x)
     return np.where(small, 1.0 - x / 2.0 + x * x / 6.0, -np.expm1(-xs) / xs)

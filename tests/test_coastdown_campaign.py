@@ -121,6 +121,30 @@ def test_cli_writes_format_outputs_and_paper_methods(tmp_path, capsys):
     json.loads(capsys.readouterr().out)
 
 
+def test_command_runs_the_pipeline_coastdown_stage(tmp_path, monkeypatch, capsys):
+    """``jointlab coastdown`` is the pipeline's ``coastdown`` stage run once (issue 44): its
+    estimator call, with ``--joints`` and ``--no-plots`` passed through the stage's settings."""
+    import ident.pipeline.stages.coastdown as stage
+
+    seen = []
+    real = stage.analyse_campaign
+
+    def spy(camp, settings=None, progress=False):
+        seen.append((settings.joints, progress))
+        return real(camp, settings=settings, progress=progress)
+
+    monkeypatch.setattr(stage, "analyse_campaign", spy)
+    root = tmp_path / "camp"
+    write_campaign(root, 3, f_log=200.0)
+    out = tmp_path / "out"
+    assert main(["coastdown", str(root), "--out", str(out), "--joints", "1", "--no-plots", "--json"]) == 0
+    assert seen == [((1,), False)]
+    d = json.loads((out / "coastdown.json").read_text())
+    assert d["settings"]["joints"] == [1] and set(d["joints"]) == {"1"}
+    assert not (out / "plots").exists()
+    assert json.loads(capsys.readouterr().out)["out"] == str(out)
+
+
 def test_campaign_without_coastdown_trials_is_one_line_exit_2(tmp_path, capsys):
     root = tmp_path / "camp"
     write_campaign(root, 3, f_log=200.0)

@@ -72,6 +72,27 @@ def test_phi_and_psi_homes_drive_the_coast_down():
     assert _changes(lambda: coast_angle(tau, 0.01, 0.02, 0.05, 3.0)[0], nm.psi)
 
 
+def test_phi_home_drives_the_record_spectrum_and_the_two_mass_coast():
+    """The complex users of phi: the FDM's end half-hats ``(1 - phi(s dt)) / s`` and the
+    two-mass coast's modal integrals ``t phi(-lambda t)`` (complex lambda)."""
+    from ident.coastdown.angle import two_mass_coast
+    from ident.coastdown.estimators import record_spectrum
+
+    t = np.arange(600) / 200.0
+    v = 10.0 * np.exp(-t) - 0.1
+
+    def spectrum():
+        V = record_spectrum(t, v, w_max=30.0)[1]
+        return np.r_[V.real, V.imag]
+
+    assert _changes(spectrum, nm.phi)
+    tau = np.linspace(0.0, 1.0, 200)
+    for side in ("link", "motor"):          # complex modes (a soft spring) and real ones
+        for K in (50.0, 5e3):
+            assert _changes(lambda: two_mass_coast(tau, 0.05, 0.04, 0.01, K, 0.01, 0.1, 0.3, 0.05, 0.3,
+                                                   2.0, -1.0, side=side)[0], nm.phi), (side, K)
+
+
 def test_savgol_home_drives_every_differentiator():
     t = np.arange(400) * 0.005
     x = np.sin(3 * t) + 0.01 * np.cos(40 * t)

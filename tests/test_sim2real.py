@@ -236,10 +236,21 @@ def test_command_errors_are_one_line(tmp_path, capsys):
     assert "is not in the MuJoCo model" in capsys.readouterr().err
 
 
-def test_command_reuses_an_earlier_diagnosis(tmp_path, capsys):
+def test_command_reuses_an_earlier_diagnosis(tmp_path, capsys, monkeypatch):
     """``--diagnosis FILE``: the named effects come from the file (no diagnosis is run); a file of
-    another campaign or without joints is one line, exit 2."""
+    another campaign or without joints is one line, exit 2. The command is the pipeline's
+    ``sim2real`` stage run once (issue 44): its options reach the stage's call."""
+    import ident.pipeline.stages.sim2real as stage
     from ident.cli.main import main
+
+    seen = []
+    real = stage.sim2real_campaign
+
+    def spy(camp, robot, **kw):
+        seen.append(kw)
+        return real(camp, robot, **kw)
+
+    monkeypatch.setattr(stage, "sim2real_campaign", spy)
 
     camp = _campaign_copy(tmp_path, 3.0)
     name = load_campaign(camp).name
@@ -250,6 +261,7 @@ def test_command_reuses_an_earlier_diagnosis(tmp_path, capsys):
         "2": {"verdict": "stribeck", "selected": [{"effect": "stribeck"}]}}}))
     out = tmp_path / "o"
     assert main(["sim2real", str(camp), "--out", str(out), "--diagnosis", str(diag), "--no-sysid"]) == 0
+    assert len(seen) == 1 and seen[0]["sysid"] is False and seen[0]["diagnosis"]["campaign"] == name
     rep = json.loads((out / "sim2real.json").read_text())
     assert rep["effects"]["source"] == "diagnosis file"
     assert rep["effects"]["named"] == {"2": ["stribeck"]}
@@ -263,6 +275,41 @@ def test_command_reuses_an_earlier_diagnosis(tmp_path, capsys):
     diag.write_text("[]")
     assert main(["sim2real", str(camp), "--out", str(tmp_path / "o2"), "--diagnosis", str(diag)]) == 2
     assert "joints" in capsys.readouterr().err
+
+
+def test_command_replays_records_that_hold_some_joints(tmp_path, capsys):
+    """Issue 43: records that move two of the arm's joints (the others held at their logged
+    angle) replay: the moving joints are fitted and scored, the held ones keep the given model's
+    parameters; records that drive no common joint are one line naming the trials, exit 2."""
+    from ident.cli.main import main
+    from ident.sim.campaign_synth import CampaignSynth, SynthConfig
+    from ident.sim2real.model import build_model
+
+    camp = tmp_path / "j23"
+    CampaignSynth(SynthConfig(joints=(2, 3), together=True, reps=1, duration=5.0, loads=(0.0,),
+                              vmax=(0.3, 0.6), seed=5)).write(camp, progress=False)
+    out = tmp_path / "o"
+    assert main(["sim2real", str(camp), "--out", str(out), "--effects", "3:stribeck", "--no-sysid"]) == 0
+    rep = json.loads((out / "sim2real.json").read_text())
+    assert rep["scored_joints"] == [2, 3]
+    c = load_campaign(camp)
+    robot = c.load_robot()
+    held = [j for j in range(1, robot.n + 1) if j not in (2, 3)]
+    assert rep["unfitted_joints"] == held
+    given = build_model(c, robot).given
+    for k, v in rep["parameters"]["native"].items():
+        assert np.allclose([v[j - 1] for j in held], given[k][[j - 1 for j in held]], rtol=1e-12, atol=0)
+    for m in ("given", "native", "native_effects"):
+        for j in ("2", "3"):
+            assert np.isfinite(rep["errors"][m]["0.5"][j]["pos_rms"]), (m, j)
+    assert rep["effects"]["named"] == {"3": ["stribeck"]}
+    capsys.readouterr()
+    single = tmp_path / "j2j3"
+    CampaignSynth(SynthConfig(joints=(2, 3), reps=1, duration=3.0, loads=(0.0,), vmax=(0.6,),
+                              seed=5)).write(single, progress=False)
+    assert main(["sim2real", str(single), "--out", str(tmp_path / "o2"), "--no-sysid"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "campaign.toml" in err and "j2-load0-v60-r1: 2" in err, err
 
 
 def _tx40_replayer(tmp_path, seconds=6.0):

@@ -206,7 +206,6 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
     v_inf = -np.linalg.solve(A, b[..., None])[..., 0]
     v0 = np.stack([w, (I_link * a0 + (0.0 if motor else Kc) + bl * w) / K, np.zeros(n)], axis=1)
     c = np.linalg.solve(V, (v0 - v_inf).astype(complex)[..., None])[..., 0]   # (n, 3)
-    lam_s = np.where(np.abs(lam) > 0, lam, 1.0)
 
     cvs = V * c[:, None, :]                                             # (K, 3 comp, 3 modes)
 
@@ -220,7 +219,8 @@ def two_mass_coast(tau, J, I_link, J_m, K, B_m, d, Kc, Kv, Kc_eff, w, a0, kk=Non
         dd = vi[:, 2, None] + np.real(np.sum(cv[..., 2, :] * e, axis=-1))
         if speeds_only:
             return vi[:, 0, None] + np.real(np.sum(cv[..., 0, :] * e, axis=-1)), dd
-        ie = np.where(np.abs(la) > 0, np.expm1(la * tt[..., None]) / lam_s[ix][:, None, :], tt[..., None])
+        # int_0^t e^{lambda s} ds = t phi(-lambda t) (t at lambda = 0), complex lambda
+        ie = tt[..., None] * phi(-la * tt[..., None])
         X = vi[:, 0, None] * tt + np.real(np.sum(cv[..., 0, :] * ie, axis=-1))
         dl = vi[:, 1, None] + np.real(np.sum(cv[..., 1, :] * e, axis=-1))
         return X, dl, dd

@@ -63,6 +63,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from mocap.io.errors import InputError
+from mocap.numerics import phi
 
 __all__ = ["CoastdownResult", "CoastdownBound", "CoastdownSim", "coast_velocity", "stop_time",
            "tdm", "fdm", "fdm_batch", "record_spectrum", "nls", "crb", "simulate_sdof_coastdown",
@@ -500,8 +501,10 @@ def record_spectrum(t, v, w_max: float, pad: int = 64):
     hat = dt * np.sinc(w * dt / (2.0 * np.pi)) ** 2
     V = hat * czt(u, m=K, w=np.exp(-1j * dw * dt), a=1.0, axis=-1)
     s = 1j * w[1:]
-    first = 1.0 / s - (1.0 - np.exp(-s * dt)) / (s * s * dt)            # int_0^dt (1-t/dt) e^-st
-    last = np.exp(-s * tr[-1]) * (-1.0 / s + (np.exp(s * dt) - 1.0) / (s * s * dt))
+    # int_0^dt (1 - t/dt) e^-st dt = (1 - phi(s dt)) / s and the last half-hat's
+    # e^-sT (phi(-s dt) - 1) / s, phi(x) = (1 - e^-x) / x (mocap.numerics.phi, complex x)
+    first = (1.0 - phi(s * dt)) / s
+    last = np.exp(-s * tr[-1]) * (phi(-s * dt) - 1.0) / s
     V[..., 1:] += v[..., :1] * first + v[..., -1:] * last
     V[..., 0] = dt * (np.sum(v, axis=-1) - 0.5 * (v[..., 0] + v[..., -1]))
     return w, V

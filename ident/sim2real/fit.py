@@ -123,10 +123,15 @@ class TrainingSet:
         self.eps = eps_of(qd)
 
     def columns(self, j: int, effect: str | None, shape: dict, drive=None):
-        """(y, A, names): the residual torque of joint ``j`` and its regressor."""
+        """(y, A): the residual torque of joint ``j`` and its regressor, on the training rows of
+        the records that drive the joint by its logged torque (a held joint's torque is its
+        servo's or brake's, no friction measurement)."""
         ys, As = [], []
+        ncol = 3 + (len(fx.amplitude_names(effect)) if effect is not None else 0)
         for rp, rows, tid in self.parts:
             rec = rp.rec
+            if not rec.driven[j]:
+                continue
             q, qd, qdd = rec.q[rows, j], rec.qd[rows, j], rec.qdd[rows, j]
             cols = [qdd, qd, fx.smooth_sign(qd, self.eps[j])]
             if effect is not None:
@@ -141,12 +146,24 @@ class TrainingSet:
                 cols += list((-F).T)
             ys.append(rec.tau[rows, j] - tid[:, j])
             As.append(np.stack(cols, 1))
+        if not ys:
+            return np.zeros(0), np.zeros((0, ncol))
         return np.concatenate(ys), np.concatenate(As)
+
+    def moving_rows(self, j: int) -> int:
+        """How many training rows of joint ``j`` the least squares uses: finite, of a record that
+        drives the joint, faster than :data:`REST_WIDTHS` smooth-sign widths."""
+        y, A = self.columns(j, None, {})
+        return int(np.count_nonzero(np.isfinite(y) & np.isfinite(A).all(1)
+                                    & (np.abs(A[:, 1]) > REST_WIDTHS * self.eps[j])))
 
     def candidates(self, j: int, effect: str | None = None, drive=None) -> list:
         """Least-squares native parameters (and the effect's amplitudes) of joint ``j`` for every
-        shape of the effect's grid (:func:`shape_grid`), best training torque residual first."""
+        shape of the effect's grid (:func:`shape_grid`), best training torque residual first;
+        empty where the joint has no moving training row (:meth:`moving_rows`)."""
         out = []
+        if self.moving_rows(j) == 0:
+            return out
         scale = max(float(np.percentile(np.abs(np.concatenate([t[:, j] for _, _, t in self.parts])), 95)), 1e-6)
         for shape in (shape_grid(effect, drive, scale) if effect else [{}]):
             y, A = self.columns(j, effect, shape, drive)
@@ -168,23 +185,32 @@ class TrainingSet:
             out.append(r)
         return sorted(out, key=lambda r: r["rms"])
 
-    def fit_joint(self, j: int, effect: str | None = None, drive=None) -> dict:
-        """The candidate of :meth:`candidates` with the smallest training torque residual."""
-        return self.candidates(j, effect, drive)[0]
+    def fit_joint(self, j: int, effect: str | None = None, drive=None) -> dict | None:
+        """The candidate of :meth:`candidates` with the smallest training torque residual (None:
+        the joint has no moving training row)."""
+        c = self.candidates(j, effect, drive)
+        return c[0] if c else None
 
 
-def fit_native(ts: TrainingSet, n: int, effects_by_joint: dict | None = None, drives=()) -> tuple:
-    """Native parameters of every joint and the effects document (:mod:`effects_runtime`)."""
-    native = {k: np.zeros(n) for k in NATIVE}
+def fit_native(ts: TrainingSet, n: int, effects_by_joint: dict | None = None, drives=(),
+               start: dict | None = None) -> tuple:
+    """Native parameters of every joint and the effects document (:mod:`effects_runtime`).
+
+    A joint without a moving training row of a record that drives it (held by the servo in every
+    training record, or never faster than the rest cut) keeps its ``start`` value (the given
+    model's; zero without ``start``) and its ``per_joint`` entry is None."""
+    native = {k: (np.array(start[k], float) if start is not None else np.zeros(n)) for k in NATIVE}
     doc = {"joints": []}
     per_joint = {}
     for j in range(n):
         names = (effects_by_joint or {}).get(j + 1, ())
         eff = names[0] if names else None
         r = ts.fit_joint(j, eff, drives[j] if j < len(drives) else None)
+        per_joint[j + 1] = r
+        if r is None:
+            continue
         for k in NATIVE:
             native[k][j] = r["native"][k]
-        per_joint[j + 1] = r
         if eff:
             doc["joints"].append({"joint": j + 1, "eps": r["eps"], "effects": [r["effect"]]})
     return native, doc, per_joint

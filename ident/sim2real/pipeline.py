@@ -12,6 +12,11 @@
 Train/test split: with two or more records every second record (manifest order, the second, fourth,
 ...) is held out and the others train; a single record alternates time blocks of
 :data:`BLOCK_S` seconds (at least an eighth of the record). Errors: :mod:`ident.sim2real.replay`.
+
+Scored joints: those every record drives by its logged torque (none: an :class:`InputError`). A
+joint without a moving training row of a record that drives it (a joint the trials hold, followed
+through the servo) keeps the given model's native parameters (``unfitted_joints`` in
+``sim2real.json``).
 """
 from __future__ import annotations
 
@@ -221,6 +226,13 @@ def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, diagnos
     if not any(r.driven.any() for r in records):
         raise InputError("no record drives any joint by a logged torque (every moving joint is "
                          "unlogged_torque)", path=campaign.manifest)
+    scored = [j for j in range(sm.n) if all(r.driven[j] for r in records)]
+    if not scored:
+        moving = "; ".join(f"{r.trial_id}: {', '.join(str(j + 1) for j in np.flatnonzero(r.driven)) or 'none'}"
+                           for r in records)
+        raise InputError("no joint is driven by its logged torque in every record, so none can be "
+                         f"scored on held-out data (joints each trial drives: {moving})",
+                         path=campaign.manifest)
     train, test = split_masks(records)
     rps = [Replayer(sm, robot, r, nthread) for r in records]
     timing = {}
@@ -237,12 +249,14 @@ def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, diagnos
     timing["diagnosis_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     ts = TrainingSet(rps, train)
-    native, _, per_native = fit_native(ts, sm.n, None, robot.drives)
-    scored = [j for j in range(sm.n) if all(r.driven[j] for r in records)]
+    # joints no training record drives (held at their logged angle by the servo) keep the given
+    # model's parameters
+    native, _, per_native = fit_native(ts, sm.n, None, robot.drives, start=sm.given)
+    unfitted = [j for j in range(sm.n) if per_native[j + 1] is None]
     native_ls = {k: v.copy() for k, v in native.items()}
     ro = Rollouts(rps, train, nthread=nthread)
     native, _, base_rms = refine(ro, native, sm, scored)
-    named = {j: v for j, v in named.items() if j - 1 in scored}
+    named = {j: v for j, v in named.items() if j - 1 in scored and j - 1 not in unfitted}
     native_fx, doc, choice = fit_effects(ts, ro, Rollouts(rps, train, RANK_WINDOWS, nthread), native,
                                          base_rms, named, sm, robot.drives)
     timing["fit_s"] = time.perf_counter() - t0
@@ -268,7 +282,8 @@ def _sim2real_campaign(campaign, robot=None, *, mjcf=None, effects=None, diagnos
                   "test": [t for t, m in zip(tid, test) if m.any()],
                   "rule": ("every second record held out" if len(records) >= 2 else
                            "alternate time blocks of one record")},
-        "scored_joints": [j + 1 for j in range(sm.n) if all(r.driven[j] for r in records)],
+        "scored_joints": [j + 1 for j in scored],
+        "unfitted_joints": [j + 1 for j in unfitted],
         "effects": {"source": source, "named": {str(j): list(v) for j, v in sorted(named.items())},
                     "diagnosis_verdicts": {str(j): v for j, v in sorted(verdicts.items())}},
         "parameters": {name: {k: [float(x) for x in v[k]] for k in NATIVE} for name, (v, _) in models.items()},

@@ -27,6 +27,9 @@ def markdown(rep: dict) -> str:
         tr = c["training_rollout_rms"]
         lines.append(f"- joint {j} {c['effect']}: {'kept' if c['kept'] else 'dropped'} (training 0.5 s "
                      f"position RMS {tr['effect_free'] * 1e3:.3g} -> {tr['with_effect'] * 1e3:.3g} mrad)")
+    if rep.get("unfitted_joints"):
+        lines.append(f"- joints {', '.join(map(str, rep['unfitted_joints']))}: no training record moves "
+                     "them by torque; the given native parameters kept")
     if rep.get("sysid"):
         lines.append(f"- mujoco.sysid: {rep['sysid'].get('status')}")
     lines.append("")

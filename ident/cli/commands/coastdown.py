@@ -1,4 +1,7 @@
-"""``jointlab coastdown CAMPAIGN --out DIR``: Coulomb and viscous friction from coast-down trials."""
+"""``jointlab coastdown CAMPAIGN --out DIR``: Coulomb and viscous friction from coast-down trials.
+
+A shell over the pipeline's ``coastdown`` stage (:mod:`ident.pipeline.stages.coastdown`: the
+estimator of :func:`ident.coastdown.campaign_analysis.analyse_campaign`), run once."""
 from __future__ import annotations
 
 import json
@@ -23,19 +26,21 @@ def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from viz import make_sink
 
-    from ident.coastdown.campaign_analysis import CoastdownSettings, analyse_campaign, write_coastdown
-
+    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.stage import Context, Runtime, run_stages
     from mocap.io.plausibility import check_coastdown_campaign
 
     camp = load_campaign(args.campaign)
     check_coastdown_campaign(camp, args.joints)   # --joints, and every coast-down trial's log
     with OutputDir(args.out, "coastdown", [camp.root]) as od:
         out = od.root
-        report = analyse_campaign(camp, settings=CoastdownSettings(joints=tuple(args.joints)),
-                                  progress=not args.json)
+        settings = PipelineSettings(joints=tuple(args.joints) or None, plots=not args.no_plots)
         stage = od.stage()
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-coastdown") as sink:
-            paths = write_coastdown(report, stage, sink, plots=not args.no_plots)
+            # the pipeline's coastdown stage (ident.pipeline.stages.coastdown), run once
+            done = run_stages(stage_named(plan(camp, settings), "coastdown"), Context(camp, settings, stage),
+                              Runtime(sink=sink, progress=not args.json), force=("coastdown",))
+            report, paths = done["coastdown"], done.stages["coastdown"].paths
         paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
         od.commit(stage)
     if args.json:

@@ -1,7 +1,8 @@
 """``jointlab sim2real CAMPAIGN --out DIR [--mjcf FILE] [--diagnosis FILE]``: replay the records in
 MuJoCo, fit the native joint parameters, add the named effects, export the corrected model.
 
-A shell over :func:`ident.sim2real.pipeline.sim2real_campaign` (docs/sim2real.md)."""
+A shell over the pipeline's ``sim2real`` stage (:mod:`ident.pipeline.stages.sim2real`:
+:func:`ident.sim2real.pipeline.sim2real_campaign`, docs/sim2real.md), run once."""
 from __future__ import annotations
 
 import json
@@ -39,24 +40,29 @@ def run(args) -> int:
         import mujoco  # noqa: F401
     except ImportError:
         raise InputError("jointlab sim2real needs MuJoCo: pip install 'jointlab[mujoco]'") from None
-    from ident.sim2real.pipeline import parse_effects, read_diagnosis, sim2real_campaign
-    from ident.sim2real.report import write_report
+    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.stage import Context, Runtime, run_stages
+    from ident.sim2real.pipeline import parse_effects, read_diagnosis
 
     camp = load_campaign(args.campaign)
     if args.mjcf is not None and not args.mjcf.is_file():
         raise InputError("MJCF not found", path=args.mjcf)
     robot = camp.load_robot()
-    effects = parse_effects(args.effects, robot.n)
-    diagnosis = read_diagnosis(args.diagnosis, camp, robot.n) if args.diagnosis is not None else None
+    parse_effects(args.effects, robot.n)          # a bad --effects or --diagnosis fails before any work
+    if args.diagnosis is not None:
+        read_diagnosis(args.diagnosis, camp, robot.n)
     inputs = [camp.root] + [p for p in (args.mjcf, args.diagnosis) if p is not None]
     with OutputDir(args.out, "sim2real", inputs) as od:
         od.check_early(["sim2real.json", "sim2real.md"])
-        result = sim2real_campaign(camp, robot, mjcf=args.mjcf, effects=effects, diagnosis=diagnosis,
-                                   sysid=not args.no_sysid, nthread=max(1, args.threads))
+        settings = PipelineSettings(sim2real=True, sim2real_mjcf=args.mjcf, sim2real_effects=args.effects,
+                                    sim2real_diagnosis=args.diagnosis, sim2real_sysid=not args.no_sysid,
+                                    sim2real_threads=args.threads)
         stage = od.stage()
-        from ident.sim2real.model import captured_warnings
-        with captured_warnings([]):             # no MUJOCO_LOG.TXT in the working directory
-            paths = write_report(result, Path(stage))
+        # the pipeline's sim2real stage (ident.pipeline.stages.sim2real), run once; forced: the
+        # command replays single-joint records too, which a study's stage skips
+        done = run_stages(stage_named(plan(camp, settings), "sim2real"), Context(camp, settings, Path(stage)),
+                          Runtime(), force=("sim2real",))
+        result, paths = done["sim2real"], done.stages["sim2real"].paths
         paths = {k: od.final(v) if isinstance(v, (str, Path)) else v for k, v in paths.items()}
         od.commit(stage)
     rep = result.report

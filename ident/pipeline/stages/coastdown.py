@@ -3,7 +3,8 @@
 ``coastdown.md`` and its plots (``coastdown/`` in a study)."""
 from __future__ import annotations
 
-from ident.coastdown.campaign_analysis import analyse_campaign, coastdown_trials, write_coastdown
+from ident.coastdown.campaign_analysis import (CoastdownSettings, analyse_campaign, coastdown_trials,
+                                               write_coastdown)
 from ident.pipeline.stage import Stage
 
 
@@ -13,13 +14,19 @@ def skip(ctx) -> str | None:
 
 
 def inputs(ctx) -> dict:
-    """The campaign and the plots switch."""
-    return {"campaign": ctx.campaign, "plots": ctx.settings.plots}
+    """The campaign, the plots switch and, where ``settings.joints`` restricts them
+    (``jointlab coastdown --joints``), the joints (absent otherwise: a study's cache key of the
+    stage is what it was before the key existed)."""
+    out = {"campaign": ctx.campaign, "plots": ctx.settings.plots}
+    if ctx.settings.joints:
+        out["joints"] = [int(j) for j in ctx.settings.joints]
+    return out
 
 
 def run(inp: dict, rt):
-    """:func:`ident.coastdown.campaign_analysis.analyse_campaign`."""
-    return analyse_campaign(inp["campaign"], progress=rt.progress)
+    """:func:`ident.coastdown.campaign_analysis.analyse_campaign` (on ``joints`` where given)."""
+    return analyse_campaign(inp["campaign"], settings=CoastdownSettings(joints=tuple(inp.get("joints", ()))),
+                            progress=rt.progress)
 
 
 def write(result, inp: dict, folder, rt) -> dict:
