@@ -107,6 +107,49 @@ def ripple_periods(e: dict, q_range: float) -> float:
     return float(n) * q_range / (2 * np.pi)
 
 
+#: an in-vocabulary effect counts as one the record can show when at least this many torque noise
+#: variances of it are left by a least-squares fit of the rigid body and Coulomb + viscous + offset
+#: (the world's own size metric, :func:`shown_size`); the threshold of ``benchmarks/gap_single.py``
+MIN_SIZE = 0.3
+
+
+def shown_size(corpus: Path, name: str) -> float | None:
+    """The truth's size of the effect on its joint in torque noise variances, by the world's own
+    size metric (truth.json ``size_metric``): the effect's added logged torque (the truth's
+    ``friction - friction_nominal`` plus ``tau_logged_clean - tau_applied``) on the true states,
+    about every 10 ms, less its least-squares fit on the arm's rigid-body regressor (pinocchio, the
+    campaign's URDF) and ``[sgn qd, qd, 1, qdd]`` of the joint, each half of alternating 2 s blocks
+    fitted on the other. None for an effect without a joint."""
+    import pinocchio as pin
+
+    truth = json.loads((corpus / f"{name}.truth.json").read_text())
+    eff = [e for e in truth["effects"] if e.get("joint")]
+    if not eff:
+        return None
+    j = int(eff[0]["joint"]) - 1
+    z = np.load(corpus / f"{name}.truth.npz")
+    model = pin.buildModelFromUrdf(str(corpus / name / "robot" / "arm.urdf"))
+    data = model.createData()
+    A, y, half = [], [], []
+    for r in sorted({k.split("/")[0] for k in z.files}):   # loop over the records
+        t, q, qd, qdd = (z[f"{r}/{k}"] for k in ("time", "q_link", "qd_link", "qdd_link"))
+        d = (z[f"{r}/friction"] - z[f"{r}/friction_nominal"] + z[f"{r}/tau_logged_clean"]
+             - z[f"{r}/tau_applied"])[:, j]
+        idx = np.arange(0, t.size, max(1, int(round(0.01 / np.median(np.diff(t))))))
+        R = np.array([pin.computeJointTorqueRegressor(model, data, q[i], qd[i], qdd[i])[j] for i in idx])
+        v = qd[idx, j]
+        A.append(np.column_stack([R, np.sign(v), v, np.ones_like(v), qdd[idx, j]]))
+        y.append(d[idx])
+        half.append(np.floor(t[idx] / 2.0).astype(int) % 2)
+    A, y, half = np.vstack(A), np.concatenate(y), np.concatenate(half)
+    A = A[:, np.abs(A).max(axis=0) > 1e-12]
+    ms = []
+    for h in (0, 1):
+        c, *_ = np.linalg.lstsq(A[half != h], y[half != h], rcond=None)
+        ms.append(np.mean((y[half == h] - A[half == h] @ c) ** 2))
+    return float(np.mean(ms) / truth["joints"][j]["torque_noise_std"] ** 2)
+
+
 def score(truth: dict, rep: dict, q_range: dict | None = None) -> list[dict]:
     """One row per joint: what it carries, its verdict and whether that is right. ``q_range``:
     joint -> range of motion (rad), for the ripples (:func:`ripple_periods`)."""
@@ -174,6 +217,11 @@ def run_one(job) -> dict:
         q = np.concatenate([z[k] for k in z.files if k.endswith("/q_link")])
         q_range = {j + 1: float(np.ptp(q[:, j])) for j in range(q.shape[1])}
     out["rows"] = score(truth, rep, q_range)
+    if effect in IN_VOCAB:
+        size = shown_size(Path(corpus), path.name)
+        for row in out["rows"]:
+            if row["kind"] == "in_vocabulary":
+                row["size_noise_var"] = size
     out["log_hz"] = truth.get("rates", {}).get("log_hz")
     out["record_s"] = None
     return out
@@ -200,6 +248,12 @@ def summarize(results: list) -> dict:
         goal = (f"; goal >= {goals[kind]:g}" if kind in goals else "; goal: 0 false attributions"
                 if kind == "clean" else "")
         lines.append(f"{label}: {ok} of {len(rows)} ({ok / len(rows):.3f}{goal})")
+        if kind == "in_vocabulary" and all("size_noise_var" in x for _, x in rows):
+            big = [x for _, x in rows if x["size_noise_var"] is not None and x["size_noise_var"] >= MIN_SIZE]
+            okb = sum(1 for x in big if x["correct"])
+            summary[kind + "_shown"] = {"correct": okb, "n": len(big), "min_size": MIN_SIZE}
+            lines.append(f"  of which the record can show (>= {MIN_SIZE:g} noise variances left by the world's "
+                         f"size metric): {okb} of {len(big)} ({okb / max(len(big), 1):.3f})")
         if kind in ("counterbalance", "cable"):
             alone = sum(1 for _, x in rows if x["correct"] and x.get("alone"))
             lines.append(f"  of which the right variable alone (not tied with another joint's angle): {alone}")
@@ -217,7 +271,9 @@ def summarize(results: list) -> dict:
         for r, x in by.get(kind, []):
             if not x["correct"]:
                 lines.append(f"  miss [{kind}] {r['robot']}-{r['effect']}-s{r['seed']} joint {x['joint']} "
-                             f"({x['effect']}/{x['form']}): {x['text']}")
+                             f"({x['effect']}/{x['form']}"
+                             + (f", {x['size_noise_var']:.2g} noise variances" if x.get("size_noise_var") is not None
+                                else "") + f"): {x['text']}")
     for r in errs:
         lines.append(f"  error {r['robot']}-{r['effect']}-s{r['seed']}: {r['error']}")
     return {"summary": summary, "lines": lines}
@@ -233,9 +289,20 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default=None, help="results JSON (default benchmarks/results/gap/multi-<date>.json)")
     ap.add_argument("--summarize", default=None, help="reprint a results file")
+    ap.add_argument("--rescore", action="store_true", help="with --summarize: add the truth's effect sizes "
+                    "(shown_size) from --corpus to the file")
     a = ap.parse_args(argv)
     if a.summarize:
         res = json.loads(Path(a.summarize).read_text())
+        if a.rescore:   # add the truth's sizes to an earlier results file (no diagnosis re-run)
+            for r in res["results"]:
+                if r.get("effect") in IN_VOCAB and r.get("rows"):
+                    size = shown_size(Path(a.corpus), f"{r['robot']}-{r['effect']}-s{r['seed']}")
+                    for row in r["rows"]:
+                        if row["kind"] == "in_vocabulary":
+                            row["size_noise_var"] = size
+            res["summary"] = summarize(res["results"])["summary"]
+            Path(a.summarize).write_text(json.dumps(res, indent=1))
         print("\n".join(summarize(res["results"])["lines"]))
         return 0
     corpus = Path(a.corpus)

@@ -224,11 +224,8 @@ def test_cli_start_up_loads_no_heavy_dependency():
 
 
 # a private (underscore) name taken from another package, still to be made public by the owner
-# of the module that defines it: (importing file, module, name) -> why it waits
-PRIVATE_IMPORT_PENDING = {
-    ("ident/cli/commands/fit.py", "ident.model.multijoint", "_pv"): "ident/model/multijoint.py (lead)",
-    ("ident/cli/commands/fit.py", "ident.model.multijoint", "_arm"): "ident/model/multijoint.py (lead)",
-}
+# of the module that defines it: (importing file, module, name) -> why it waits (none left)
+PRIVATE_IMPORT_PENDING: dict = {}
 
 
 def test_no_package_imports_another_packages_private_names():

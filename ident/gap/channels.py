@@ -48,6 +48,11 @@ def motion_cycles(qd: np.ndarray, v_zero: float = 0.02, min_samples: int = 20,
 
 
 
+#: a candidate column whose norm the pooled rigid-body fit leaves below this share of its own is
+#: absorbed by it (the threshold of :func:`ident.gap.engine.unexplained_fractions`' use)
+ABSORBED_NORM = 1e-3
+
+
 @dataclass
 class Channel:
     name: str
@@ -60,12 +65,31 @@ class Channel:
     blocks: np.ndarray | None = None       # (n_blocks, 2) sample ranges of the motion cycles
     block_trial: np.ndarray | None = None  # (n_blocks,) trial of each block
     declared: np.ndarray | None = None     # transmission: the declared stiffness's deflection (prepped)
+    nuisance: tuple | None = None          # (A, M): columns are tested less A M A^T of them (records)
 
     def block_fold(self, fold: np.ndarray) -> np.ndarray:
         """Held-out fold of each block (its trial's fold)."""
         return fold[self.block_trial]
 
+    def prep_effect(self, X: np.ndarray) -> np.ndarray:
+        """An effect's columns as the channel tests them: :meth:`prep`, after, on records whose
+        rigid body was identified on every joint at once, removing what that pooled fit would
+        absorb of them (``nuisance = (A, M)``: ``X - A M A^T X``, the Frisch-Waugh-Lovell form of
+        fitting them jointly with the identified parameters). A column the pooled fit absorbs
+        whole (its norm left below :data:`ABSORBED_NORM` of its own, e.g. a constant torque gain:
+        a scale of every identified parameter) is set to zero, not left to rounding: the selection
+        then drops it as not identifiable, like a column in the span of the nominal's."""
+        if self.nuisance is not None and X.size:
+            A, M = self.nuisance
+            before = np.sqrt(np.einsum("ij,ij->j", X, X))
+            X = X - A @ (M @ (A.T @ X))
+            gone = np.sqrt(np.einsum("ij,ij->j", X, X)) < ABSORBED_NORM * before
+            if gone.any():
+                X[:, gone] = 0.0
+        return self.prep(X)
+
     def prep(self, X: np.ndarray) -> np.ndarray:
+        """Columns less their within-trial means where the channel demeans (``demean``)."""
         if not self.demean or X.size == 0:
             return X
         out = X.copy()
@@ -138,6 +162,19 @@ def _undeclared_payloads(d: JointData, which="unknown") -> list:
     return list(loads.values())
 
 
+#: test candidate columns less what the pooled rigid-body fit absorbs of them (records)
+PROJECT_NUISANCE = True
+
+
+def _compact_nuisance(A: np.ndarray, M: np.ndarray) -> tuple:
+    """``(A, M)`` of :meth:`Channel.prep_effect` without the columns of ``A`` that are zero on
+    every row (parameters that do not act on this joint: ``X - A M A^T X`` is the same, their
+    terms being exact zeros) and with ``A`` C-contiguous, so that each of the two products with
+    a candidate's columns is one BLAS call on the live parameters, with no copy of ``A``."""
+    live = np.flatnonzero(np.any(A != 0, axis=0))
+    return np.ascontiguousarray(A[:, live]), np.ascontiguousarray(M[np.ix_(live, live)])
+
+
 def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
     nominal = nominal or NOMINAL_MODELS["cv"]
     X0 = nominal.columns(d)
@@ -146,7 +183,10 @@ def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
         X0 = np.column_stack([X0, extra])
     nt = d.n_trials
     blocks, bt = _motion_blocks(d.trial, d.qd, nt)
-    return Channel("torque", "N m", nominal.target(d), X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt)
+    nz = None if getattr(d, "nuisance_rows", None) is None or not PROJECT_NUISANCE else _compact_nuisance(
+        d.nuisance_rows, d.nuisance_gain)
+    return Channel("torque", "N m", nominal.target(d), X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt,
+                   nuisance=nz)
 
 
 def torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:

@@ -43,7 +43,8 @@ from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, gra
                               repetition_noise_floor, sign_flip_min_p, sign_flip_pvalue, trial_bounds,
                               unexplained_fractions, white_noise_floor)
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
-from ident.gap.unnamed import UNNAMED, configuration_localisation, prefers_unnamed, unnamed_candidates
+from ident.gap.unnamed import (TORQUE_LOWPASS, UNNAMED, configuration_localisation, prefers_unnamed,
+                               unnamed_candidates)
 from ident.signals.smoothing import one_blas_thread
 
 @dataclass(frozen=True)
@@ -172,7 +173,7 @@ class _ColumnCache:
             return hit[0]
         c0 = time.process_time()
         with shared_intermediates(self.shared):
-            C = ch.prep(_columns(cand, d, hp))
+            C = ch.prep_effect(_columns(cand, d, hp))
         self._keep(key, C, (time.process_time() - c0) / max(C.nbytes, 1))
         return C
 
@@ -222,7 +223,7 @@ def _effect_gram(key, d: JointData, ch: Channel, X: np.ndarray, base, cache, lev
     """One shape of :func:`_effect_grams`: its Grams into ``out``, its recipe into ``cols``."""
     p = X.shape[1]
     cand, hp = key
-    C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep(_columns(cand, d, hp))
+    C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep_effect(_columns(cand, d, hp))
     raw = C.shape[1]
     composed = level_interactions(C, cand, levels)   # unchanged unless a level was selected
     # the family's own columns: their products with themselves do not change with the model
@@ -264,7 +265,7 @@ class _Cols:
         return self.keep.shape[0] > self.raw_width
 
     def build(self, d: JointData, ch: Channel, cache: _ColumnCache | None = None) -> np.ndarray:
-        C = cache.get(self.cand, d, ch, self.hp) if cache is not None else ch.prep(_columns(self.cand, d, self.hp))
+        C = cache.get(self.cand, d, ch, self.hp) if cache is not None else ch.prep_effect(_columns(self.cand, d, self.hp))
         with shared_intermediates(cache.shared) if cache is not None else nullcontext():
             C = level_interactions(C, self.cand, self.levels)
         return C if self.keep.all() else C[:, self.keep]
@@ -1250,6 +1251,18 @@ def _alternatives(verdict: str, runs: dict, d: JointData) -> tuple:
                         "lags the link behind the motor like a delay of the torque against the motor angle",
                         "separate_by": "markers on the link (the link-motor deflection follows the torque; "
                                        "a delay does not deflect anything)"})
+        # a low-pass of the logged torque (a sensor or current-loop filter) is a delay of its group
+        # delay at frequencies well below its cut-off: where the record's motion holds nothing near
+        # the cut-off the two are one term (each keeps under SAME_TERM of its reduction given the
+        # other); the low-pass is outside the vocabulary, so it is said beside the name
+        lp = row.test.evidence.get(f"unique_share_given_{TORQUE_LOWPASS}")
+        if verdict == "time_offset" and lp is not None and lp < SAME_TERM:
+            out.append({"effect": TORQUE_LOWPASS,
+                        "why": "a low-pass of the logged torque (sensor or current-loop filter, outside the "
+                               f"vocabulary) is the same term in the band this record excites (unique share "
+                               f"{lp:.2f})",
+                        "separate_by": "an excitation with content near the filter's cut-off (tens of Hz): a "
+                                       "delay keeps the torque's shape, a low-pass attenuates it"})
         # a gear efficiency (FORMAT.md's torque_scale) is friction proportional to the torque the
         # gear passes, i.e. a load-dependent friction in the friction literature: say so when it wins
         if (verdict == "torque_scale" and row.cv is not None and row.cv.hp_all[1] == "efficiency"

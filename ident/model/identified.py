@@ -18,6 +18,7 @@ single-joint ``[qdd, sin q, cos q]`` corrections cannot represent on a 6-axis ar
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,6 +140,20 @@ class PooledRigidBody:
     sigma: np.ndarray               # (n,) per-joint residual RMS (the weights' noise)
     payload: dict
     n_samples: int
+    design: Callable | None = None          # (k, j, rows) -> (rows, p_live) scaled design rows
+    gram_inv: np.ndarray | None = None      # (p_live, p_live) inverse of the weighted Gram matrix
+    weight_sigma: np.ndarray | None = None  # (n,) the per-joint noise the Gram matrix was weighted by
+
+    def nuisance(self, k: int, j: int, rows: np.ndarray) -> tuple | None:
+        """The weighted least-squares projection onto the identified parameters for joint ``j``
+        (0-based) of record ``k`` at the samples ``rows``: ``(A, M)`` with ``A`` the design rows and
+        ``M = G^{-1} / sigma_j^2``, so that a column ``x`` of that joint's torque less what the
+        pooled fit would absorb of it is ``x - A M A^T x`` (Frisch-Waugh-Lovell: testing ``x``
+        against the pooled fit's residual is then the joint fit of ``x`` with every identified
+        parameter, restricted to joint ``j``'s rows). None where the fit kept no design."""
+        if self.design is None or self.gram_inv is None:
+            return None
+        return self.design(k, j, np.asarray(rows)), self.gram_inv / self.weight_sigma[j] ** 2
 
 
 def identify_rigid_body(robot, rigid: list, records: list, keeps: list, armature=None) -> PooledRigidBody:
@@ -207,6 +222,7 @@ def identify_rigid_body(robot, rigid: list, records: list, keeps: list, armature
         grams.append((j, A.T @ A, A.T @ y, float(y @ y), rows.size))
     sigma = np.ones(n)
     for _ in range(2):   # unweighted, then weighted by each joint's residual variance
+        sigma_w = sigma.copy()
         G = sum(g / sigma[j] ** 2 for j, g, _, _, _ in grams)
         b = sum(v / sigma[j] ** 2 for j, _, v, _, _ in grams)
         lam = 1e-10 * np.trace(G) / max(G.shape[0], 1)
@@ -261,4 +277,8 @@ def identify_rigid_body(robot, rigid: list, records: list, keeps: list, armature
         payload[key] = entry
     names = tuple(joint_rigid_columns([(np.zeros((1, n10)), None, None)], 0, keys)[1]) + tuple(
         f"{x}_{j + 1}" for j in range(n) for x in ("coulomb", "viscous", "offset", "armature"))
-    return PooledRigidBody(torque, names, theta, se, sigma, payload, int(sum(r.size for _, _, r in blocks)))
+    def scaled_design(k, j, rows):
+        return design(k, j, rows)[0][:, live] / scale
+
+    return PooledRigidBody(torque, names, theta, se, sigma, payload, int(sum(r.size for _, _, r in blocks)),
+                           scaled_design, Gi, sigma_w)

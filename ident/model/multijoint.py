@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -33,13 +34,16 @@ def _g(x) -> str:
     return "merged" if x is None else f"{x:.4g}"
 
 
-def _pv(v, flag: dict | None) -> str:
-    """A parameter with its plausibility flag (:func:`ident.friction.plausibility.fmt`)."""
+def param_cell(v, flag: dict | None) -> str:
+    """A table cell: the parameter ``v`` with its plausibility flag ``flag`` (a fit's
+    ``flags[name]`` entry, or None), as :func:`ident.friction.plausibility.fmt` writes it."""
     return fmt(v, None if not flag else Flag(flag["flag"], flag["reason"]))
 
 
-def _arm(v, flag: dict | None) -> str:
-    return "merged" if v is None else _pv(v, flag)
+def armature_cell(v, flag: dict | None) -> str:
+    """A table cell: the fitted armature ``v`` with its flag (:func:`param_cell`), or
+    ``merged`` where the armature was merged into the inertia (``v`` None)."""
+    return "merged" if v is None else param_cell(v, flag)
 
 
 def multijoint_trials(campaign) -> tuple:
@@ -155,8 +159,8 @@ class MultiJointFits:
                         lines += ["| joint | " + " | ".join(pn) + " | offset | armature | rms | held-out rms |",
                                   "|---" * (len(pn) + 5) + "|"]
                     fl = e.get("flags", {})
-                    lines.append(f"| {j} | " + " | ".join(_pv(e["params"][k], fl.get(k)) for k in pn)
-                                 + f" | {e['offset']:.4g} | {_arm(e['armature'], fl.get('armature'))}"
+                    lines.append(f"| {j} | " + " | ".join(param_cell(e["params"][k], fl.get(k)) for k in pn)
+                                 + f" | {e['offset']:.4g} | {armature_cell(e['armature'], fl.get('armature'))}"
                                  f" | {e['rms']:.4g} | {e['heldout_rms']:.4g} |")
                     flagged += [f"joint {j} {k}: {f['flag']} ({f['reason']})" for k, f in fl.items()]
                 lines += ["", f"Parameters: {meaning_line(m)}."] if meaning_line(m) else []
@@ -571,21 +575,29 @@ FIT_FOLDS = 5
 
 
 def _contiguous_heldout(d, nominal, folds: int, bounds: np.ndarray) -> float:
-    """The nominal's held-out torque RMS on ``folds`` contiguous segments of each record, the
-    folds `jointlab fit` reports its held-out RMS on (each motion cycle goes to the segment that
-    holds its first sample), so the two figures compare like with like. ``bounds``: the first
-    trial (motion cycle) of each record in ``d``, and the end."""
+    """The nominal's held-out torque RMS on the folds `jointlab fit` reports its held-out RMS on:
+    ``folds`` equal-time contiguous segments of each record, cutting through motion cycles as
+    `fit`'s do (:class:`ident.model.rigidbody.RigidBodyIdentifier` ``folds``), so the two figures
+    compare like with like. ``bounds``: the first trial (motion cycle) of each record in ``d``,
+    and the end."""
     ch = torque_channel(d, nominal)
-    start = ch.blocks[:, 0]
-    rec = np.searchsorted(bounds[1:], ch.block_trial, side="right")
-    fold = np.zeros(start.shape[0], int)
-    for k in np.unique(rec):   # loop over records
-        m = rec == k
-        t = d.t_rel[start[m]]
+    rec_of_block = np.searchsorted(bounds[1:], ch.block_trial, side="right")
+    seg = np.zeros(d.t_rel.shape[0], int)
+    for k in np.unique(rec_of_block):   # loop over records: each sample's equal-time segment
+        rows = np.concatenate([np.arange(a, b) for a, b in ch.blocks[rec_of_block == k]])
+        t = d.t_rel[rows]
         span = max(float(t.max()) + 1e-9, 1e-9)
-        fold[m] = int(k) * folds + np.minimum((t / span * folds).astype(int), folds - 1)
-    cv = cross_validate({None: grams(ch.X0, ch.target, ch.blocks)}, fold)
-    return float(np.sqrt(np.sum(cv.sse) / max(float(np.sum(ch.blocks[:, 1] - ch.blocks[:, 0])), 1.0)))
+        seg[rows] = int(k) * folds + np.minimum((t / span * folds).astype(int), folds - 1)
+    # the motion-cycle blocks cut where the segment changes: each piece lies in one fold
+    cuts = [ch.blocks[:, 0], ch.blocks[:, 1]]
+    for a, b in ch.blocks:
+        inner = a + 1 + np.flatnonzero(seg[a + 1:b] != seg[a:b - 1])
+        cuts.append(inner)
+    edges = np.unique(np.concatenate(cuts))
+    ends = set(ch.blocks[:, 1].tolist()) - set(ch.blocks[:, 0].tolist())
+    pieces = np.array([(a, b) for a, b in zip(edges[:-1], edges[1:]) if a not in ends], int).reshape(-1, 2)
+    cv = cross_validate({None: grams(ch.X0, ch.target, pieces)}, seg[pieces[:, 0]])
+    return float(np.sqrt(np.sum(cv.sse) / max(float(np.sum(pieces[:, 1] - pieces[:, 0])), 1.0)))
 
 
 def identified_rigid_body(robot, recs: list, trials) -> PooledRigidBody:
@@ -685,7 +697,8 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
         if not mine:
             continue
         parts = [build_joint_data_record(j, robot=robot, n_segments=n_segments, tau_fixed=pooled.torque[k][:, j - 1],
-                                         signals=True, **rec.gap_inputs())
+                                         signals=True, nuisance=partial(pooled.nuisance, k, j - 1),
+                                         **rec.gap_inputs())
                  for k, _, rec in mine]
         d = concat_joint_data(parts, [offsets[k] for k, _, _ in mine])
         res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)

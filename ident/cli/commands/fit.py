@@ -98,7 +98,8 @@ def _run(args, camp, plan, settings, angles, od, oc) -> int:
     """Fit (:func:`ident.workflow.fit_campaign`), write, export, print."""
     from viz import make_sink
 
-    from ident import workflow
+    from ident.pipeline.plan import PipelineSettings, plan as stage_list, stage_named
+    from ident.pipeline.stage import Context, Runtime, run_stages
 
     stage = od.stage()
     executor = None
@@ -106,11 +107,15 @@ def _run(args, camp, plan, settings, angles, od, oc) -> int:
         from ident.study.executor import make_executor
 
         executor = make_executor(args.workers, progress=False)
+    # the pipeline's fits or rigidbody stage (whichever the checked plan routes the models to)
+    ps = PipelineSettings(models=tuple(m for ms in plan.models.values() for m in ms), fit=settings,
+                          fit_plan=plan, angles=angles, plots=not args.no_plots)
     try:
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
-            result = workflow.fit_campaign(camp, angles=angles, settings=settings, plan=plan,
-                                           sink=sink, executor=executor)
-            paths = result.write(stage, plots=not args.no_plots, sink=sink)
+            done = run_stages(stage_named(stage_list(camp, ps), "fits", "rigidbody"),
+                              Context(camp, ps, stage), Runtime(sink=sink, executor=executor))
+            name = "rigidbody" if "multi_joint" in plan.models else "fits"
+            result, paths = done[name], done.stages[name].paths
     finally:
         if executor is not None:
             executor.close()
@@ -180,7 +185,7 @@ def _print_onelink(res, one_models, paths) -> None:
 
 def _print_indri(dyn, dyn_models, out, paths) -> None:
     from ident.friction.plausibility import meaning_line
-    from ident.model.multijoint import _pv
+    from ident.model.multijoint import param_cell
 
     print(f"Indri & Trapani ({', '.join(dyn_models)}) for joints {', '.join(map(str, dyn))} "
           f"-> {paths['fits']}, {out / 'indri'}")
@@ -191,7 +196,7 @@ def _print_indri(dyn, dyn_models, out, paths) -> None:
         d = dyn.data[j]
         for m, e in ents.items():
             fl = e.get("flags", {})
-            pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
+            pv = ", ".join(f"{k} {param_cell(v, fl.get(k))}" for k, v in e["params"].items())
             print(f"  joint {j} {m}: {pv}")
             why = {}
             for k, f in fl.items():
@@ -212,7 +217,7 @@ def _print_rigidbody(res, models, out, paths) -> None:
     """The multi-joint rigid-body fits (:mod:`ident.model.rigidbody`): per record and model the
     per-joint friction, offsets, armatures and coupled motors."""
     from ident.friction.plausibility import meaning_line
-    from ident.model.multijoint import _arm, _pv
+    from ident.model.multijoint import armature_cell, param_cell
 
     print(f"{len(res.fits)} multi-joint record(s), models {', '.join(models)} -> {out / 'fits.json'}, "
           f"{paths['rigidbody']}, {paths['rigidbody_report']}")
@@ -227,8 +232,8 @@ def _print_rigidbody(res, models, out, paths) -> None:
                 print(f"    ({meaning_line(m)})")
             for j, e in fit.joints.items():
                 fl = e.get("flags", {})
-                pv = ", ".join(f"{k} {_pv(v, fl.get(k))}" for k, v in e["params"].items())
-                arm = _arm(e["armature"], fl.get("armature"))
+                pv = ", ".join(f"{k} {param_cell(v, fl.get(k))}" for k, v in e["params"].items())
+                arm = armature_cell(e["armature"], fl.get("armature"))
                 print(f"    joint {j} {m}: {pv}; offset {e['offset']:.4g}, armature "
                       f"{arm}; rms {e['rms']:.4g}, held-out {e['heldout_rms']:.4g} N m"
                       + (f" [{e['implausible']}]" if e.get("implausible") else ""))
