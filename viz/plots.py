@@ -3,6 +3,7 @@
 ``new_figure`` makes a :class:`matplotlib.figure.Figure` bound to an Agg canvas (no display,
 nothing registered with pyplot, so nothing leaks between calls); ``new_subplots`` makes one with
 a grid of subplots; ``tight_layout`` lays it out once (no second layout when saved);
+``fixed_layout`` sets margins in inches without measuring text (cheaper still);
 ``figure_to_rgb`` renders any figure to an (H, W, 3) uint8 array,
 e.g. for :meth:`viz.sink.Sink.image`; ``save_png`` writes a PNG (one draw) and refuses to
 overwrite unless asked; ``young_garbage`` pauses cyclic garbage collection while figures are
@@ -113,6 +114,49 @@ def tight_layout(fig: Figure, pad: float = 1.08) -> Figure:
     (True, True)
     """
     fig.tight_layout(pad=pad)
+    fig.set_layout_engine(None)
+    return fig
+
+
+#: width of one character of a 10 pt DejaVu Sans tick label, inches (its mean advance, about
+#: 0.55 em, rounded up): what :func:`fixed_layout` allows per character of the longest y label
+CHAR_IN = 0.085
+
+
+def fixed_layout(fig: Figure, left_in: float = 1.0, bottom_in: float = 0.5, right_in: float = 0.15,
+                 top_in: float = 0.3, ylabels=()) -> Figure:
+    """Margins in inches, set once without measuring any text (no layout engine left on the
+    figure): the cheap alternative to :func:`tight_layout` for figures whose decorations are
+    known in advance (one axes: an x label, a title, numeric y ticks with a y label, or
+    category names on the y axis).
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure (its subplot parameters are set).
+    left_in, bottom_in, right_in, top_in : float, optional
+        Margins (inches): y ticks and label, x ticks and label, the right edge, the title.
+    ylabels : sequence of str, optional
+        Category tick labels of the y axis; the left margin then grows to hold the longest
+        (:data:`CHAR_IN` per character, plus 0.25 in), up to 0.6 of the width.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        ``fig``, with no layout engine left on it.
+
+    Examples
+    --------
+    >>> fig = new_subplots(6.0, 3.0, dpi=50)
+    >>> p = fixed_layout(fig, ylabels=["stribeck", "position_ripple"]).subplotpars
+    >>> float(round(p.left * 6.0, 3)), float(round((1 - p.top) * 3.0, 3)), fig.get_layout_engine() is None
+    (1.525, 0.3, True)
+    """
+    w, h = fig.get_size_inches()
+    longest = max((len(str(s)) for s in ylabels), default=0)
+    left = max(left_in, 0.25 + CHAR_IN * longest) if longest else left_in
+    left = min(left, 0.6 * w)
+    fig.subplots_adjust(left=left / w, right=1 - right_in / w, bottom=bottom_in / h, top=1 - top_in / h)
     fig.set_layout_engine(None)
     return fig
 

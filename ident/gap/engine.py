@@ -25,11 +25,15 @@ class Grams:
     b: np.ndarray   # (n_blocks, p)
     yy: np.ndarray  # (n_blocks,)
     n: np.ndarray   # (n_blocks,) samples
+    # the zero-padded block rows of the columns and target these Grams were built from, kept for
+    # the candidates that augment them (_padded_base); short blocks only
+    padded: dict | None = field(default=None, repr=False, compare=False)
 
 
 def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
     """Per block ``A_blk^T B_blk``: (n_blocks, p, k). Blocks of many samples (motion cycles):
-    one BLAS product per block; many short blocks: chunks of the (N, p, k) products summed
+    one BLAS product per block; many short blocks of similar length: one batched product over
+    the blocks zero-padded to the longest; otherwise chunks of the (N, p, k) products summed
     per block."""
     nt, p, k = bounds.shape[0], A.shape[1], B.shape[1]
     out = np.zeros((nt, p, k))
@@ -43,6 +47,8 @@ def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
             if b > a:
                 np.dot(AT[:, a:b], B[a:b], out=out[i])
         return out
+    if _short_blocks(bounds):
+        return _padded_sums(A, B, bounds)
     i0 = 0
     while i0 < nt:   # loop over chunks of whole blocks
         i1 = int(np.searchsorted(e, s[i0] + step, side="right"))
@@ -52,6 +58,51 @@ def _outer_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
         out[i0:i1] = np.add.reduceat(P, s[i0:i1] - lo, axis=0)
         i0 = i1
     return out
+
+
+def _short_blocks(bounds: np.ndarray) -> bool:
+    """Whether blocks that :func:`_per_block` does not take one by one are of similar length
+    (zero-padded to the longest they hold at most twice their rows): :func:`_padded_sums`."""
+    lens = bounds[:, 1] - bounds[:, 0]
+    return bool(lens.size and lens.min() > 0 and lens.size * int(lens.max()) <= 2 * int(lens.sum()))
+
+
+def _padding(bounds: np.ndarray, n_rows: int) -> tuple:
+    """(rows, pad): the ``(n_blocks, L)`` row of every slot of the zero-padded block stack and
+    the slots beyond each block's end (``L`` the longest block)."""
+    s, lens = bounds[:, 0], bounds[:, 1] - bounds[:, 0]
+    at = np.arange(int(lens.max()))
+    return np.minimum(s[:, None] + at[None, :], n_rows - 1), at[None, :] >= lens[:, None]
+
+
+def _pad(Z: np.ndarray, padding: tuple) -> np.ndarray:
+    """``Z``'s rows as the zero-padded ``(n_blocks, L, cols)`` block stack of ``padding``."""
+    Zp = Z[padding[0]]
+    Zp[padding[1]] = 0.0
+    return Zp
+
+
+def _padded_sums(A: np.ndarray, B: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """:func:`_outer_sums` of short blocks of similar length (the units of the sample-level
+    test): each block's rows as one slice of a zero-padded ``(n_blocks, L, .)`` stack (``L`` the
+    longest block), all blocks in one batched matmul; the padding's zero rows add exact zeros.
+    Memory ``n_blocks L (p + k)`` against the chunks' ``N p k``."""
+    padding = _padding(bounds, A.shape[0])
+    Ap = _pad(A, padding)
+    return np.matmul(Ap.transpose(0, 2, 1), Ap if B is A else _pad(B, padding))
+
+
+def _padded_base(base: "Grams", X: np.ndarray, r: np.ndarray, bounds: np.ndarray) -> dict:
+    """The padded block stacks of the columns ``X`` and target ``r`` that ``base`` was built
+    from, made once and kept on ``base`` (every candidate of a selection step augments the same
+    ``X``): padding, ``X`` (n_blocks, L, p) and ``r`` (n_blocks, L, 1)."""
+    pb = base.padded
+    if pb is None or pb["X_src"] is not X or pb["r_src"] is not r or not np.array_equal(pb["bounds"], bounds):
+        padding = _padding(bounds, X.shape[0])
+        pb = {"X_src": X, "r_src": r, "bounds": bounds.copy(), "padding": padding,
+              "XT": _pad(X, padding).transpose(0, 2, 1), "r": _pad(r[:, None], padding)}
+        base.padded = pb
+    return pb
 
 
 def _per_block(bounds: np.ndarray) -> bool:
@@ -100,7 +151,14 @@ def grams_augmented(base: Grams, X: np.ndarray, C: np.ndarray, r: np.ndarray,
     b = np.zeros((nt, p + k))
     G[:, :p, :p] = base.G
     b[:, :p] = base.b
-    if own is not None:
+    if p and nt and not _per_block(bounds) and _short_blocks(bounds):
+        # the units of the sample-level test: one padded stack of C, X's and r's kept on base
+        pb = _padded_base(base, X, r, bounds)
+        Cp = _pad(C, pb["padding"])
+        CpT = Cp.transpose(0, 2, 1)
+        XC = np.matmul(pb["XT"], Cp)
+        CC, Cr = own if own is not None else (np.matmul(CpT, Cp), np.matmul(CpT, pb["r"])[:, :, 0])
+    elif own is not None:
         XC, (CC, Cr) = _outer_sums(X, C, bounds), own
     else:
         XC, CC, Cr = _augmented_sums(X, C, r, bounds)
@@ -167,6 +225,47 @@ def _best_fit(grams_by_hp: dict, mask: np.ndarray):
     return best
 
 
+def _best_fits(grams_by_hp: dict, masks: np.ndarray) -> list:
+    """:func:`_best_fit` for every row of ``masks`` (n_masks, n_blocks) at once, the same choice
+    by the same rules: per shape parameter the training sums of every mask are one matrix
+    product (``masks @ G``), the supports (:func:`_supported`), the ridge solves and the training
+    SSEs are batched over the masks. Only the order of the block sums differs from
+    :func:`_best_fit` (rounding). Falls back to :func:`_best_fit` per mask where a shape's Grams
+    are not finite (a masked-out infinite block must not enter as ``0 * inf``) or a solve fails."""
+    keys = list(grams_by_hp)
+    W = masks.astype(float)
+    m = W.shape[0]
+    every = masks.all(axis=1)           # no support check where every block trains
+    sse, sup, thetas = np.empty((len(keys), m)), np.empty((len(keys), m), bool), []
+    for i, hp in enumerate(keys):
+        gr = grams_by_hp[hp]
+        nb, q = gr.G.shape[0], gr.G.shape[1]
+        if q == 0 or not (np.isfinite(gr.G).all() and np.isfinite(gr.b).all() and np.isfinite(gr.yy).all()):
+            return [_best_fit(grams_by_hp, mk) for mk in masks]
+        Gs = (W @ gr.G.reshape(nb, q * q)).reshape(m, q, q)
+        bs = W @ gr.b
+        e = np.einsum("nii->ni", gr.G)              # (blocks, columns) column energy per block
+        tot = e.sum(axis=0)
+        frac_n = (W @ gr.n) / max(gr.n.sum(), 1)
+        ok = (tot <= 0)[None, :] | ((W @ e) >= MIN_SUPPORT * frac_n[:, None] * tot[None, :])
+        sup[i] = ok.all(axis=1) | every
+        lam = 1e-10 * np.maximum(np.trace(Gs, axis1=1, axis2=2), 1e-300) / q
+        try:
+            th = np.linalg.solve(Gs + lam[:, None, None] * np.eye(q), bs[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            return [_best_fit(grams_by_hp, mk) for mk in masks]
+        sse[i] = W @ gr.yy - 2 * np.einsum("mi,mi->m", bs, th) + np.einsum("mi,mij,mj->m", th, Gs, th)
+        thetas.append(th)
+    out = []
+    for r in range(m):
+        idx = np.flatnonzero(sup[:, r]) if sup[:, r].any() else np.arange(len(keys))
+        s = sse[idx, r]
+        # the first shape, then any strictly smaller SSE (a NaN first stays, as in _best_fit)
+        k = idx[0] if np.isnan(s[0]) else idx[int(np.argmin(np.where(np.isnan(s), np.inf, s)))]
+        out.append((float(sse[k, r]), keys[k], thetas[k][r]))
+    return out
+
+
 def _fold_masks(fold: np.ndarray, guard: dict | None = None, fit_mask: np.ndarray | None = None):
     """Per fold ``f``: ``(f, test, train)`` block masks, the training blocks being those of the
     other folds (within ``fit_mask``) less the fold's ``guard`` (hv-block)."""
@@ -189,11 +288,16 @@ def cross_validate(grams_by_hp: dict, fold: np.ndarray, fit_blocks: np.ndarray |
     fit_mask = np.ones(nt, bool) if fit_blocks is None else fit_blocks
     sse = np.zeros(nt)
     chosen, thetas = {}, {}
-    for f, test, train in _fold_masks(fold, guard, fit_mask):
-        _, hp, th = _best_fit(grams_by_hp, train)
+    folds = list(_fold_masks(fold, guard, fit_mask))
+    # every fold's fit in one batch (_best_fits)
+    fits = _best_fits(grams_by_hp, np.array([train for _, _, train in folds]).reshape(-1, nt)) if folds else []
+    for (f, test, _), (_, hp, th) in zip(folds, fits):
         chosen[f] = hp
         thetas[f] = th
         sse[test] = sse_with(th, grams_by_hp[hp], test)
+    # the reported shape and fit (on all blocks) as the loop sums them: between shapes whose
+    # training SSEs tie to rounding (columns a pooled fit's projection left as rounding noise)
+    # the choice then does not move with the order of the block sums
     tr, hp, th = _best_fit(grams_by_hp, fit_mask)
     return CVResult(sse, chosen, th, hp, tr, thetas)
 
