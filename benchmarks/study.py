@@ -17,6 +17,17 @@ Issue 30: the 180-trial study in at most 35 s on 2 workers; ``--memory``: an N-t
 (trial length ``--duration``; ``--diagnosis-reps`` bounds the per-joint diagnosis further, which
 holds a joint's kept samples while it runs: docs/study-memory.md).
 
+Issue 47: the 180-trial study in at most 35 s on 2 workers. The baseline is the ``jointlab
+info`` pass over the same campaign (it reads every marker file and log once), timed in this
+process just before and just after the 2-worker study: the study's wall and CPU times are
+printed as ratios to it. ``--against TREE`` also runs the 2-worker study with another checkout
+of jointlab (e.g. ``git worktree add /tmp/head HEAD``) in a child process of this invocation,
+between the same info passes, and prints the wall ratio; ``--results FILE`` writes what is
+printed to a file.
+
+    python benchmarks/study.py --workers 2 --no-resume --against /tmp/head \
+        --results benchmarks/results/study.txt
+
 The campaign is made by ``jointlab synth`` (18 markers: 3 per link, the synthesiser's minimum
 for a rigid-body pose per link; the goal names 16) into a cache folder and reused. Each run goes
 into a fresh output folder; peak memory is the largest sum of the resident set sizes of this
@@ -49,6 +60,77 @@ GOAL_S = 180.0
 GOAL13_S = 90.0
 GOAL_GB = 4.0
 GOAL_MEM_RATIO = 1.2          # issue 30: a 10x study within 1.2x the peak memory of a 1x one
+GOAL47_S = 35.0               # issue 47: the 180-trial study on 2 workers (it was 44-46 s = 7x info)
+ISSUE47_INFO_RATIO = 7.0 * GOAL47_S / 45.0    # that goal as a ratio to the info pass (~5.4)
+
+
+class Tee:
+    """print() to stdout and, with ``path``, to a results file written at the end."""
+
+    def __init__(self, path: Path | None = None):
+        self.path, self.lines = path, []
+
+    def __call__(self, *parts, **kw):
+        text = " ".join(str(p) for p in parts)
+        print(text, flush=True)
+        self.lines.append(text)
+
+    def close(self):
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.path.write_text("\n".join(self.lines) + "\n")
+            print(f"wrote {self.path}", flush=True)
+
+
+def info_pass(camp: Path) -> dict:
+    """The baseline: ``jointlab info CAMPAIGN`` (reads every marker file and log of the campaign
+    once and describes them) in this process, its output discarded; wall and CPU seconds."""
+    import contextlib
+    import io
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = cli(["info", str(camp)])
+    if rc != 0:
+        raise SystemExit(f"jointlab info failed ({rc})")
+    return {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}
+
+
+#: the child of ``--against``: one study with the checkout on sys.path first; JSON on stdout
+_AGAINST = """
+import json, os, sys, time
+sys.path.insert(0, sys.argv[1])
+from pathlib import Path
+from ident.study.executor import make_executor
+from ident.study.study import Study, StudySettings
+ex = make_executor(int(sys.argv[4]), progress=False)
+t0, c0 = time.perf_counter(), time.process_time()
+try:
+    r = Study(StudySettings(), ex, progress=False).run(Path(sys.argv[2]), Path(sys.argv[3]))
+finally:
+    ex.close()
+wall, main_cpu = time.perf_counter() - t0, time.process_time() - c0
+import ident
+print(json.dumps({"wall": wall, "main_cpu": main_cpu, "errors": r.errors, "stages": r.stages,
+                  "where": ident.__file__}))
+"""
+
+
+def run_against(tree: Path, camp: Path, out: Path, workers: int) -> dict:
+    """The study of ``camp`` with the jointlab checkout ``tree`` (a before-figure), in a child
+    process; its wall time and the stage rows, and that the child imported that tree."""
+    import json
+    import subprocess
+
+    shutil.rmtree(out, ignore_errors=True)
+    r = subprocess.run([sys.executable, "-c", _AGAINST, str(tree), str(camp), str(out), str(workers)],
+                       capture_output=True, text=True, env={**os.environ, "PYTHONPATH": str(tree)})
+    if r.returncode != 0:
+        raise SystemExit(f"the study with {tree} failed ({r.returncode}): {r.stderr.strip()[-500:]}")
+    res = json.loads(r.stdout.strip().splitlines()[-1])
+    if not Path(res["where"]).resolve().is_relative_to(Path(tree).resolve()):
+        raise SystemExit(f"--against {tree}: the child imported {res['where']}")
+    return res
 
 
 class PeakRSS:
@@ -227,7 +309,7 @@ def resume(camp: Path, out: Path, settings: StudySettings, workers: int) -> floa
     return wall
 
 
-def show(name: str, r: dict, base: float | None, workers: int):
+def show(name: str, r: dict, base: float | None, workers: int, out=print):
     st = ", ".join(f"{k} {v['seconds']:.1f}s" for k, v in r["stages"].items())
     ratio = f"  speed-up vs 1 worker x{base / r['wall']:.2f}" if base else ""
     # parallel efficiency of the mapped stages: the items' own wall times (measured in the
@@ -246,10 +328,15 @@ def show(name: str, r: dict, base: float | None, workers: int):
         if v.get("computed") and v.get("cpu_s"):
             cpu.append(f"{k} {v['cpu_s'] / v['computed']:.2f} s/item ({v['cpu_s']:.1f} s)")
     cpu.append(f"this process {r['main_cpu']:.1f} s")
-    print(f"{name:<16} wall {r['wall']:7.1f} s  peak {r['peak_gb']:.2f} GB  load avg {r['load']:.1f}{ratio}\n"
+    out(f"{name:<16} wall {r['wall']:7.1f} s  peak {r['peak_gb']:.2f} GB  load avg {r['load']:.1f}{ratio}\n"
           f"{'':16} {st}\n{'':16} parallel efficiency (items' time / (workers x stage time)): "
           f"{', '.join(eff)}\n{'':16} CPU time (items as the workers measured them; this process: the rest, everything with 1 worker): {', '.join(cpu)}"
-          + (f"\n{'':16} errors: {r['errors']}" if r["errors"] else ""), flush=True)
+          + (f"\n{'':16} errors: {r['errors']}" if r["errors"] else ""))
+
+
+def _cpu(r: dict) -> float:
+    """CPU seconds of a study: its own process plus the mapped items as the workers measured them."""
+    return r["main_cpu"] + sum(r["stages"].get(k, {}).get("cpu_s", 0.0) for k in ("mocap", "fits", "diagnosis"))
 
 
 def main(argv=None) -> int:
@@ -270,6 +357,9 @@ def main(argv=None) -> int:
                     help="--memory: the diagnosis reads the first R repetitions per condition (0: all; "
                          "default: the study's default, the most within its sample budget)")
     ap.add_argument("--mem-workers", type=int, default=2, help="--memory: local workers (default 2)")
+    ap.add_argument("--against", type=Path, metavar="TREE",
+                    help="also run the 2-worker study with this jointlab checkout (a before-figure)")
+    ap.add_argument("--results", type=Path, metavar="FILE", help="also write what is printed to FILE")
     ap.add_argument("--mem-run", nargs=3, metavar=("CAMPAIGN", "OUT", "RESULT"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.mem_run:
@@ -280,43 +370,74 @@ def main(argv=None) -> int:
     cfg = QUICK if args.quick else FULL
     args.cache.mkdir(parents=True, exist_ok=True)
     camp = make_campaign(cfg, args.cache)
+    out = Tee(args.results)
+    out("# python benchmarks/study.py " + " ".join(argv if argv is not None else sys.argv[1:]))
     n_trials = len(cfg["joints"].split(",")) * len(cfg["loads"].split(",")) * len(cfg["vmax"].split(",")) * cfg["reps"]
-    print(f"load average before: {os.getloadavg()[0]:.1f} (other work on the machine skews the ratios)")
-    print(f"campaign: {n_trials} trials of {cfg['duration']:g} s, joints {cfg['joints']}, loads {cfg['loads']}, "
-          f"speeds {cfg['vmax']}, {cfg['reps']} reps, {cfg['rate']:g} Hz; {os.cpu_count()} cores", flush=True)
+    out(f"load average before: {os.getloadavg()[0]:.1f} (other work on the machine skews the ratios)")
+    out(f"campaign: {n_trials} trials of {cfg['duration']:g} s, joints {cfg['joints']}, loads {cfg['loads']}, "
+        f"speeds {cfg['vmax']}, {cfg['reps']} reps, {cfg['rate']:g} Hz; {os.cpu_count()} cores")
     settings = StudySettings()
-    results = {}
+    results, infos = {}, [info_pass(camp)]
+    out(f"baseline: jointlab info over the campaign: wall {infos[0]['wall']:.2f} s, CPU {infos[0]['cpu']:.2f} s")
     base = None
     for w in [int(x) for x in args.workers.split(",") if x.strip()]:
         r = run_once(camp, args.cache / f"out-{_key(cfg)}-w{w}", settings, workers=w)
         results[w] = r
         if w == 1:
             base = r["wall"]
-        show(f"{w} worker(s)", r, base if w != 1 else None, w)
+        show(f"{w} worker(s)", r, base if w != 1 else None, w, out)
+        infos.append(info_pass(camp))
+        out(f"baseline: jointlab info again: wall {infos[-1]['wall']:.2f} s, CPU {infos[-1]['cpu']:.2f} s")
+    against = None
+    if args.against is not None:
+        against = run_against(args.against, camp, args.cache / f"out-{_key(cfg)}-against", 2)
+        st = ", ".join(f"{k} {v['seconds']:.1f}s" for k, v in against["stages"].items())
+        out(f"{'--against':<16} wall {against['wall']:7.1f} s with {args.against} (2 workers)\n{'':16} {st}"
+            + (f"\n{'':16} errors: {against['errors']}" if against["errors"] else ""))
+        infos.append(info_pass(camp))
+        out(f"baseline: jointlab info again: wall {infos[-1]['wall']:.2f} s, CPU {infos[-1]['cpu']:.2f} s")
     if args.dask:
         try:
             import distributed
         except ImportError:
-            print("dask: not installed (pip install 'jointlab[dask]')")
+            out("dask: not installed (pip install 'jointlab[dask]')")
         else:
             with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                           dashboard_address=None) as cluster, \
                     distributed.Client(cluster) as client:
                 r = run_once(camp, args.cache / f"out-{_key(cfg)}-dask", settings, client=client)
-            show("dask 2 workers", r, base, 2)
+            show("dask 2 workers", r, base, 2, out)
             if 2 in results:
-                print(f"{'':16} dask / pool wall ratio {r['wall'] / results[2]['wall']:.2f}")
+                out(f"{'':16} dask / pool wall ratio {r['wall'] / results[2]['wall']:.2f}")
     if not args.no_resume and results:
         w = max(results)
         t = resume(camp, args.cache / f"out-{_key(cfg)}-w{w}", settings, w)
-        print(f"resume (all up to date, {w} workers): {t:.1f} s = {100 * t / results[w]['wall']:.1f} % "
-              "of the first run", flush=True)
-    if 2 in results and not args.quick:
+        out(f"resume (all up to date, {w} workers): {t:.1f} s = {100 * t / results[w]['wall']:.1f} % "
+            "of the first run")
+    info_wall = sum(i["wall"] for i in infos) / len(infos)
+    info_cpu = sum(i["cpu"] for i in infos) / len(infos)
+    out(f"baseline (mean of {len(infos)} info passes): wall {info_wall:.2f} s, CPU {info_cpu:.2f} s")
+    if 2 in results:
         r = results[2]
-        print(f"goal: {GOAL_S:.0f} s on 2 cores -> {r['wall']:.1f} s ({'met' if r['wall'] < GOAL_S else 'NOT met'}); "
-              f"peak {GOAL_GB:.0f} GB -> {r['peak_gb']:.2f} GB ({'met' if r['peak_gb'] < GOAL_GB else 'NOT met'})")
-        print(f"goal (issue 13): {GOAL13_S:.0f} s on 2 workers -> {r['wall']:.1f} s "
-              f"({'met' if r['wall'] <= GOAL13_S else 'NOT met'}; load average {r['load']:.1f})")
+        cpu = _cpu(r)
+        ratio = r["wall"] / info_wall
+        out(f"2 workers / info pass: wall {ratio:.2f}x; CPU (this process + the workers' items) "
+            f"{cpu:.1f} s = {cpu / info_cpu:.2f}x the info pass's CPU")
+        if against is not None:
+            out(f"2 workers, this tree / {args.against}: wall {r['wall']:.1f} / {against['wall']:.1f} s = "
+                f"{r['wall'] / against['wall']:.2f} (the other tree: {against['wall'] / info_wall:.2f}x info); "
+                f"CPU {cpu:.1f} / {_cpu(against):.1f} s = {cpu / _cpu(against):.2f}; fits items' CPU "
+                f"{r['stages']['fits'].get('cpu_s', 0):.1f} / {against['stages']['fits'].get('cpu_s', 0):.1f} s")
+        if not args.quick:
+            out(f"goal (issue 47): {GOAL47_S:.0f} s on 2 workers, at the issue's 45 s = 7x info: "
+                f"<= {ISSUE47_INFO_RATIO:.1f}x info -> {ratio:.2f}x "
+                f"({'met' if ratio <= ISSUE47_INFO_RATIO else 'NOT met'}); absolute {r['wall']:.1f} s "
+                f"({'met' if r['wall'] <= GOAL47_S else 'NOT met'}; load average {r['load']:.1f})")
+            out(f"goal: {GOAL_S:.0f} s on 2 cores -> {r['wall']:.1f} s ({'met' if r['wall'] < GOAL_S else 'NOT met'}); "
+                f"peak {GOAL_GB:.0f} GB -> {r['peak_gb']:.2f} GB ({'met' if r['peak_gb'] < GOAL_GB else 'NOT met'})")
+            out(f"goal (issue 13): {GOAL13_S:.0f} s on 2 workers -> {r['wall']:.1f} s "
+                f"({'met' if r['wall'] <= GOAL13_S else 'NOT met'}; load average {r['load']:.1f})")
+    out.close()
     return 0
 
 

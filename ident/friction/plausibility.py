@@ -403,6 +403,112 @@ def _lsq(X, y):
     return theta, se, rss, cov
 
 
+#: lags x samples of one block of the vectorised lag scans (bounds their memory on long logs)
+_SCAN_BLOCK = 1 << 20
+#: most samples x columns^2 of the running sums of :func:`_lag_scan_rss` (8 bytes each: 160 MB);
+#: longer logs are scanned one lag at a time, as before, so the memory of long logs stays flat
+_SCAN_SUMS = 2e7
+
+
+def _lag_rss(X, tau, mov, s: int) -> float:
+    """The residual mean square of ``tau[k + s] ~ X[k] theta`` over the moving samples ``k``
+    (``mov``) that have both rows: one lag of :func:`input_checks`' clock scan (np.inf below 40
+    samples)."""
+    n = tau.size
+    k0, k1 = max(0, -s), min(n, n - s)
+    m = mov[k0:k1]
+    if m.sum() < 40:
+        return np.inf
+    return _lsq(X[k0:k1][m], tau[k0 + s:k1 + s][m])[2] / m.sum()
+
+
+def _lag_scan_rss(X, tau, mov, lags) -> np.ndarray:
+    """:func:`_lag_rss` at every lag of ``lags`` (np.inf below 40 samples), vectorised over
+    lags (blocks of at most :data:`_SCAN_BLOCK` lags x samples): per lag ``s`` the normal
+    equations over its rows ``w`` (moving ``k`` with ``k + s`` inside the log), ``A = X_w^T
+    X_w`` from running sums of the rows' outer products, ``b = X_w^T tau_s`` and ``tau_s^T
+    tau_s`` as correlations of the torque with the moving rows (columns scaled to unit norm),
+    then ``RSS = tau_s^T tau_s - b^T theta``. A lag whose scaled normal matrix is
+    near-singular is solved by :func:`_lag_rss` (least squares). The scan only ranks the lags:
+    :func:`input_checks` reports the figures of :func:`_lag_rss`."""
+    n, p = X.shape
+    lags = np.asarray(lags, int)
+    out = np.full(lags.size, np.inf)
+    if not lags.size:
+        return out
+    if n * p * p > _SCAN_SUMS:   # a long log: the running sums would not stay small, one lag at a time
+        return np.array([_lag_rss(X, tau, mov, int(s)) for s in lags])
+    scale = np.sqrt(np.einsum("kc,kc->c", X, X))
+    scale[scale == 0] = 1.0
+    Xm = np.where(mov[:, None], X / scale, 0.0)                  # the moving rows, scaled
+    Z = np.concatenate([np.zeros((1, p * p)), np.cumsum(
+        (Xm[:, :, None] * Xm[:, None, :]).reshape(n, p * p), axis=0)])    # running sums of x x^T
+    cm = np.concatenate([[0], np.cumsum(mov)])
+    pad = int(np.max(np.abs(lags)))
+    tp = np.concatenate([np.zeros(pad), tau, np.zeros(pad)])
+    win = np.lib.stride_tricks.sliding_window_view(tp, n)        # win[pad + s][k] = tau[k + s]
+    win2 = np.lib.stride_tricks.sliding_window_view(tp * tp, n)
+    per = max(1, _SCAN_BLOCK // max(n, 1))
+    for b0 in range(0, lags.size, per):  # loop over blocks of lags (memory bound)
+        ls = lags[b0:b0 + per]
+        k0, k1 = np.maximum(0, -ls), np.minimum(n, n - ls)       # rows with both samples
+        cnt = cm[k1] - cm[k0]
+        A = (Z[k1] - Z[k0]).reshape(ls.size, p, p)
+        bvec = win[pad + ls] @ Xm                                # zero padding: rows outside add 0
+        yy = win2[pad + ls] @ mov.astype(float)
+        ok = cnt >= 40
+        if ok.any():
+            ok[ok] = np.linalg.cond(A[ok]) < 1e10
+        if ok.any():
+            theta = np.linalg.solve(A[ok], bvec[ok][..., None])[..., 0]
+            rss = np.maximum(yy[ok] - np.einsum("lc,lc->l", theta, bvec[ok]), 0.0)
+            out[b0 + np.flatnonzero(ok)] = rss / cnt[ok]
+        for i in np.flatnonzero(~ok & (cnt >= 40)):  # loop over the near-singular lags (rare)
+            out[b0 + i] = _lag_rss(X, tau, mov, int(ls[i]))
+    return out
+
+
+def _marker_rss(tm, ql, tl, qm, s: float) -> float:
+    """One lag of :func:`marker_clock_check`: the residual mean square of the line fit
+    ``q_link(t) = a + b q_motor(t + s)`` on the marker samples whose shifted time is inside the
+    log (np.inf below 40 samples)."""
+    m = (tm + s >= tl[0]) & (tm + s <= tl[-1])
+    if m.sum() < 40:
+        return np.inf
+    X = np.column_stack([np.ones(m.sum()), np.interp(tm[m] + s, tl, qm)])
+    r = ql[m] - X @ np.linalg.lstsq(X, ql[m], rcond=None)[0]
+    return float(r @ r) / m.sum()
+
+
+def _marker_lag_rss(tm, ql, tl, qm, lags) -> np.ndarray:
+    """:func:`_marker_rss` at every lag of ``lags``, vectorised over lags (blocks of at most
+    :data:`_SCAN_BLOCK` lags x samples): per lag the line fit from the sums over its samples,
+    ``RSS = S_yy - S_xy^2 / S_xx`` (centred sums); a lag without spread in ``x`` by
+    :func:`_marker_rss`. The scan only ranks the lags: :func:`marker_clock_check` reports the
+    figures of :func:`_marker_rss`."""
+    lags = np.asarray(lags, float)
+    out = np.full(lags.size, np.inf)
+    per = max(1, _SCAN_BLOCK // max(tm.size, 1))
+    yc = ql - ql.mean()                       # centred once: the sums below stay small
+    for b0 in range(0, lags.size, per):  # loop over blocks of lags (memory bound)
+        ls = lags[b0:b0 + per]
+        ts = tm[None, :] + ls[:, None]
+        M = (ts >= tl[0]) & (ts <= tl[-1])
+        Mf = M.astype(float)
+        cnt = Mf.sum(axis=1)
+        x = np.interp(ts, tl, qm) * Mf
+        c = np.maximum(cnt, 1.0)
+        sx, sy = x.sum(axis=1), Mf @ yc
+        sxx = np.einsum("lk,lk->l", x, x) - sx * sx / c
+        sxy = x @ yc - sx * sy / c
+        syy = Mf @ (yc * yc) - sy * sy / c
+        ok = (cnt >= 40) & (sxx > 1e-12 * np.maximum(np.einsum("lk,lk->l", x, x), 1e-300))
+        rss = np.maximum(syy - sxy * sxy / np.where(ok, sxx, 1.0), 0.0)
+        out[b0:b0 + ls.size] = np.where(ok, rss / c, np.inf)
+        for i in np.flatnonzero(~ok & (cnt >= 40)):  # loop over lags without spread (rare)
+            out[b0 + i] = _marker_rss(tm, ql, tl, qm, ls[i])
+    return out
+
 def _cv_columns(q, qd, qdd):
     """Eq. 2-4 with Coulomb + viscous friction, linear in ``(I, mglx, mgly, c, v)``:
     ``[qdd, -sin q, cos q, sign qd, qd]``."""
@@ -513,18 +619,14 @@ def input_checks(time, q, qd, qdd, tau, *, params: dict, rigid: dict, stderr: di
     n = t.size
     smax = int(min(round(0.6 / dt), n // 4)) if dt > 0 else 0
     step = max(1, int(round(0.005 / dt))) if dt > 0 else 1
+    lags = np.arange(-smax, smax + 1, step)
+    scan = _lag_scan_rss(X, tau, mov, lags)       # every lag's regression at once
     best_s, best_rss, rss0 = 0, np.inf, np.nan
-    for s in range(-smax, smax + 1, step):  # loop over lags (a few hundred small regressions)
-        k0, k1 = max(0, -s), min(n, n - s)
-        m = mov[k0:k1]
-        if m.sum() < 40:
-            continue
-        _, _, rss, _ = _lsq(X[k0:k1][m], tau[k0 + s:k1 + s][m])
-        rss /= m.sum()
-        if s == 0:
-            rss0 = rss
-        if rss < best_rss:
-            best_s, best_rss = s, rss
+    if np.isfinite(scan).any():
+        best_s = int(lags[int(np.argmin(scan))])  # the first of equal minima, as a loop would
+        # the two figures the check reports, from the regression itself
+        best_rss = _lag_rss(X, tau, mov, best_s)
+        rss0 = _lag_rss(X, tau, mov, 0) if 0 in lags and np.isfinite(scan[lags == 0][0]) else np.nan
     lag = best_s * dt
     if np.isfinite(rss0) and abs(lag) > CLOCK_LAG_S and best_rss < 0.8 * rss0:
         out.append(InputCheck("clock_lag", lag, f"the torque fits the motion best {lag:+.3g} s later "
@@ -570,18 +672,12 @@ def marker_clock_check(t_marker, q_link, t_log, q_motor, max_lag: float = 0.6,
     tl, qm = tl[okl], qm[okl]
     if tm.size < 40 or tl.size < 40 or np.ptp(qm) <= 0:
         return []
-    rss, lags = [], np.arange(-max_lag, max_lag + step / 2, step)
-    for s in lags:   # loop over lags (a few hundred small regressions)
-        m = (tm + s >= tl[0]) & (tm + s <= tl[-1])
-        if m.sum() < 40:
-            rss.append(np.inf)
-            continue
-        X = np.column_stack([np.ones(m.sum()), np.interp(tm[m] + s, tl, qm)])
-        r = ql[m] - X @ np.linalg.lstsq(X, ql[m], rcond=None)[0]
-        rss.append(float(r @ r) / m.sum())
-    rss = np.asarray(rss)
+    lags = np.arange(-max_lag, max_lag + step / 2, step)
+    rss = _marker_lag_rss(tm, ql, tl, qm, lags)   # every lag's line fit at once
     k0 = int(np.argmin(np.abs(lags)))
     kb = int(np.argmin(rss))
+    # the two figures the check reports, from the line fit itself
+    rss[[k0, kb]] = [_marker_rss(tm, ql, tl, qm, lags[k]) for k in (k0, kb)]
     lag = float(lags[kb])
     if np.isfinite(rss[k0]) and abs(lag) > CLOCK_LAG_S and rss[kb] < 0.8 * rss[k0]:
         return [InputCheck("marker_clock", lag, f"the link angle from the markers follows the encoder angle "
