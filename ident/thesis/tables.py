@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 from ident.friction.plausibility import meaning_line
-from viz.plots import new_subplots, save_png, tight_layout, young_garbage
+from viz.plots import fixed_layout, new_subplots, save_png, young_garbage
 
 __all__ = ["mean_cv", "group_records", "summarize", "excluded_fits", "rms_summary", "param_table", "rms_table",
            "write_table", "write_tables", "plot_friction_vs_speed", "PARAM_NAMES", "MODEL_TITLES"]
@@ -358,5 +358,7 @@ def _friction_vs_speed_png(path, qd, f_measured, models: dict, title: str) -> Pa
     ax.axvline(0, color="0.85", lw=0.8)
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=8, loc="upper left")
-    tight_layout(fig)
+    # one axes with known decorations: margins set once (tight_layout measured every text of
+    # each of a study's per-trial figures: 14 s of its 34 s of plots, docs/performance.md)
+    fixed_layout(fig, left_in=0.75, bottom_in=0.5, top_in=0.3)
     return save_png(fig, path, overwrite=True)
