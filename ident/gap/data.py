@@ -145,6 +145,12 @@ class JointData:
         (N, len(DELAY_GRID_S)) ``p(t - dt) - p(t)`` of the record's smooth torque model (records).
     lowpass_cols : numpy.ndarray or None
         (N, len(LOWPASS_GRID)) ``LP2(p) - p`` (records).
+    nuisance_rows : numpy.ndarray or None
+        (N, p) the joint's design rows of the rigid body identified on every joint at once
+        (records; :meth:`ident.model.identified.PooledRigidBody.nuisance`).
+    nuisance_gain : numpy.ndarray or None
+        (p, p) that fit's weighted inverse Gram matrix ``M``: candidate columns are tested less
+        ``A M A^T`` of them (:meth:`ident.gap.channels.Channel.prep_effect`).
 
     References
     ----------
