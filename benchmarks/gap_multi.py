@@ -49,15 +49,16 @@ OUTSIDE = ("counterbalance", "cable_drag", "sensor_lag", "urdf_inertia_error", "
 EFFECTS = ("none",) + OUTSIDE + IN_VOCAB + TRANSMISSION
 
 
-def campaign(corpus: Path, robot: str, effect: str, seed: int) -> Path:
-    """The campaign (generated when missing; a private temporary name renamed into place)."""
-    name = f"{robot}-{effect}-s{seed}"
+def campaign(corpus: Path, robot: str, effect: str, seed: int, extra: tuple = (), tag: str = "") -> Path:
+    """The campaign (generated when missing; a private temporary name renamed into place).
+    ``extra``: more ``make_world.py`` options, ``tag`` appended to the name they make."""
+    name = f"{robot}-{effect}-s{seed}{tag}"
     out = corpus / name
     if (out / "campaign.toml").is_file() and (corpus / f"{name}.truth.json").is_file():
         return out
     tmp = corpus / f"{name}.tmp{os.getpid()}"
     cmd = [sys.executable, str(WORLD / "make_world.py"), str(tmp), "--seed", str(seed), "--record", "multi",
-           "--effect", effect, "--robot", robot]
+           "--effect", effect, "--robot", robot, *extra]
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     r = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if r.returncode != 0:

@@ -17,8 +17,6 @@ import argparse
 import contextlib
 import io
 import json
-import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -30,21 +28,21 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
 WORLD = HERE.parents[1] / "shared" / "worlds" / "foreign"
 
 
+def _gap_multi():
+    """benchmarks/gap_multi.py, loaded by path (this folder is off ``sys.path``)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("gap_multi", HERE / "gap_multi.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 def campaign(corpus: Path, robot: str, seed: int) -> Path:
-    name = f"{robot}-payload-unknown-s{seed}"
-    out = corpus / name
-    if (out / "campaign.toml").is_file() and (corpus / f"{name}.truth.json").is_file():
-        return out
-    tmp = corpus / f"{name}.tmp{os.getpid()}"
-    cmd = [sys.executable, str(WORLD / "make_world.py"), str(tmp), "--seed", str(seed), "--record", "multi",
-           "--effect", "none", "--robot", robot, "--payload-com-known", "unknown"]
-    r = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, OPENBLAS_NUM_THREADS="1"))
-    if r.returncode != 0:
-        raise RuntimeError((r.stderr or r.stdout)[-300:])
-    for suf in (".truth.json", ".truth.npz"):
-        os.replace(f"{tmp}{suf}", corpus / f"{name}{suf}")
-    os.replace(tmp, out)
-    return out
+    """The loaded + unloaded campaign with the payload's COM unknown (generated when missing, by
+    :func:`gap_multi.campaign`)."""
+    return _gap_multi().campaign(corpus, robot, "none", seed, ("--payload-com-known", "unknown"),
+                                 "-payload-unknown")
 
 
 def _cli(args) -> None:
