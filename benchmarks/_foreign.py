@@ -351,3 +351,45 @@ def score_diagnosis(args: WorldArgs, report: dict) -> dict:
     else:
         out["correct"] = verdict == args.effect
     return out
+
+
+def diagnose_in_process(campaign: Path, extra=(), clock=None) -> tuple:
+    """``jointlab diagnose CAMPAIGN`` in this process, its output captured: (diagnosis.json as a
+    dict or None, seconds by ``clock`` (default ``time.perf_counter``; ``time.process_time`` for
+    CPU), error text or None). A crash or a non-zero exit is a benchmark result, not a stop."""
+    import contextlib
+    import io
+    import tempfile
+    import time
+
+    from ident.cli.main import main as cli
+
+    clock = clock or time.perf_counter
+    with tempfile.TemporaryDirectory(prefix="jointlab-bench-diag-") as wd:
+        out = Path(wd) / "out"
+        t0 = clock()
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+            try:
+                rc = cli(["diagnose", str(campaign), "--out", str(out), *extra])
+            except Exception as exc:  # noqa: BLE001 - a crash of the diagnosis is a result
+                return None, clock() - t0, f"diagnose raised {type(exc).__name__}: {exc}"
+        dt = clock() - t0
+        if rc != 0:
+            return None, dt, f"diagnose rc={rc}: {buf.getvalue().strip()[-300:]}"
+        return json.loads((out / "diagnosis.json").read_text()), dt, None
+
+
+def tile_log(log: Path, seconds: float) -> None:
+    """Lengthen a log CSV (time in the first column) in place to ``seconds`` by repeating its rows,
+    each repetition shifted by the log's span plus one sample step: a long record of the same
+    motion for the speed benchmarks."""
+    lines = log.read_text().splitlines()
+    head, rows = lines[0], [ln.split(",", 1)[1] for ln in lines[1:]]
+    t = np.array([float(ln.split(",", 1)[0]) for ln in lines[1:]])
+    period = t[-1] - t[0] + float(np.median(np.diff(t)))
+    reps = int(seconds // period) + 2
+    tt = (t[None, :] + period * np.arange(reps)[:, None]).ravel()
+    n = int(np.searchsorted(tt - t[0], seconds, side="right"))   # times increase: a prefix
+    out = [head] + [f"{x:.6f},{rows[i % len(rows)]}" for i, x in enumerate(tt[:n])]
+    log.write_text("\n".join(out) + "\n")

@@ -45,6 +45,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, os.environ.get("DIAGNOSE_SPEED_TREE") or str(ROOT))   # --breakdown's children
 MAKE = ROOT.parent / "shared" / "worlds" / "foreign" / "make_world.py"
+sys.path.append(str(Path(__file__).resolve().parent))   # for _foreign only: benchmarks/ident.py
+from _foreign import tile_log  # noqa: E402                 # must not shadow the package
+
+sys.path.remove(str(Path(__file__).resolve().parent))
 SEEDS = {"ind6": 1, "tri3": 2}          # the seeds whose records are logged at 1 kHz
 ACCEPT_CPU_S = {"ind6": 5.0}            # issue 47: the 6-joint record
 
@@ -70,23 +74,7 @@ def long_campaign(cache: Path, robot: str, seconds: float = 60.0) -> Path:
     trials = work / "trials"
     logs = sorted(trials.glob("multi-exc-m0-r*.csv"))
     keep = logs[0].stem
-    lines = logs[0].read_text().splitlines()
-    head, rows = lines[0], [ln.split(",", 1) for ln in lines[1:]]
-    t = np.array([float(r[0]) for r in rows])
-    dt = float(np.median(np.diff(t)))
-    period = t[-1] - t[0] + dt
-    out, k = [head], 0
-    while True:
-        for ti, rest in zip(t, rows):
-            tt = ti + k * period
-            if tt - t[0] > seconds:
-                break
-            out.append(f"{tt:.6f},{rest[1]}")
-        else:
-            k += 1
-            continue
-        break
-    logs[0].write_text("\n".join(out) + "\n")
+    tile_log(logs[0], seconds)
     for p in trials.glob("*.csv"):
         if p.stem != keep:
             p.unlink()

@@ -108,7 +108,7 @@ def run_foreign(job) -> dict:
         return {**res, "error": str(exc)}
     res["generate_s"], res["generate_cpu_s"] = gen_s, _children_cpu() - c0
     p0 = time.process_time()
-    report, res["diagnose_s"], err = _diagnose(camp)
+    report, res["diagnose_s"], err = F.diagnose_in_process(camp)
     res["diagnose_cpu_s"] = time.process_time() - p0
     if err:
         return {**res, "error": err}
@@ -139,28 +139,6 @@ def generate_foreign(job) -> dict:
     return res
 
 
-def _diagnose(campaign: Path, extra=()) -> tuple[dict | None, float, str | None]:
-    """`jointlab diagnose` on a campaign; (diagnosis.json, seconds, error)."""
-    import contextlib
-    import io
-
-    from ident.cli.main import main as cli
-
-    with tempfile.TemporaryDirectory(prefix="jointlab-gapbench-") as wd:
-        out = Path(wd) / "out"
-        t0 = time.perf_counter()
-        buf = io.StringIO()
-        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-            try:
-                rc = cli(["diagnose", str(campaign), "--out", str(out), *extra])
-            except Exception as exc:  # a crash of the diagnosis is a benchmark result, not a stop
-                return None, time.perf_counter() - t0, f"diagnose raised {type(exc).__name__}: {exc}"
-        dt = time.perf_counter() - t0
-        if rc != 0:
-            return None, dt, f"diagnose rc={rc}: {buf.getvalue().strip().splitlines()[-1:]}"
-        return json.loads((out / "diagnosis.json").read_text()), dt, None
-
-
 def jointlab_jobs(a) -> list[tuple[str, tuple]]:
     jobs = [("single", (e, m, 100 + s)) for s in range(a.seeds) for m in a.magnitudes for e in a.effects]
     return jobs + [("control", ("none", 1.0, 500 + s)) for s in range(a.controls)]
@@ -183,7 +161,7 @@ def run_jointlab(job) -> dict:
         res["generate_s"] = time.perf_counter() - t0
         if rc != 0:
             return {**res, "error": f"synth rc={rc}"}
-        report, res["diagnose_s"], err = _diagnose(camp)
+        report, res["diagnose_s"], err = F.diagnose_in_process(camp)
         if err:
             return {**res, "error": err}
         jr = report["joints"]["5"]

@@ -25,13 +25,10 @@ Nothing here reads the world's code; the truth files are read only to score.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 import os
 import subprocess
 import sys
-import tempfile
 import time
 from multiprocessing import get_context
 from pathlib import Path
@@ -42,6 +39,10 @@ HERE = Path(__file__).resolve().parent
 # benchmarks/ident.py would shadow the package when this folder is on the path (python benchmarks/...)
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != HERE]
 WORLD = HERE.parents[1] / "shared" / "worlds" / "foreign"
+sys.path.append(str(HERE))   # for _foreign only: benchmarks/ident.py must not shadow the package
+from _foreign import diagnose_in_process  # noqa: E402
+
+sys.path.remove(str(HERE))
 IN_VOCAB = ("stribeck", "presliding", "position_ripple", "load_dependent", "thermal_drift", "torque_scale",
             "asymmetry", "nonlinear_viscous")
 TRANSMISSION = ("compliance", "backlash")
@@ -71,21 +72,7 @@ def campaign(corpus: Path, robot: str, effect: str, seed: int, extra: tuple = ()
 
 def diagnose(path: Path) -> tuple[dict | None, float, str | None]:
     """``jointlab diagnose`` in this process: (diagnosis.json, CPU seconds, error)."""
-    from ident.cli.main import main as cli
-
-    with tempfile.TemporaryDirectory(prefix="jointlab-gapmulti-") as wd:
-        out = Path(wd) / "out"
-        c0 = time.process_time()
-        buf = io.StringIO()
-        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-            try:
-                rc = cli(["diagnose", str(path), "--out", str(out)])
-            except Exception as exc:   # a crash is a result
-                return None, time.process_time() - c0, f"{type(exc).__name__}: {exc}"
-        cpu = time.process_time() - c0
-        if rc != 0:
-            return None, cpu, f"rc={rc}: {buf.getvalue().strip()[-300:]}"
-        return json.loads((out / "diagnosis.json").read_text()), cpu, None
+    return diagnose_in_process(path, clock=time.process_time)
 
 
 def _loc_top(jr: dict) -> list:

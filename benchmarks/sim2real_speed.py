@@ -24,6 +24,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 MAKE = ROOT.parent / "shared" / "worlds" / "foreign" / "make_world.py"
+sys.path.append(str(Path(__file__).resolve().parent))   # for _foreign only: benchmarks/ident.py
+from _foreign import tile_log  # noqa: E402                 # must not shadow the package
+
+sys.path.remove(str(Path(__file__).resolve().parent))
 
 
 def long_campaign(cache: Path, seconds: float = 60.0) -> Path:
@@ -37,22 +41,7 @@ def long_campaign(cache: Path, seconds: float = 60.0) -> Path:
     shutil.copytree(src, dst)
     trials = dst / "trials"
     log = trials / "multi-exc-m0-r2.csv"
-    lines = log.read_text().splitlines()
-    head, rows = lines[0], [ln.split(",", 1) for ln in lines[1:]]
-    t = np.array([float(r[0]) for r in rows])
-    dt = float(np.median(np.diff(t)))
-    out, k = [head], 0
-    while True:
-        for ti, rest in zip(t, rows):
-            tt = ti - t[0] + t[0] + k * (t[-1] - t[0] + dt)
-            if tt - t[0] > seconds:
-                break
-            out.append(f"{tt:.6f},{rest[1]}")
-        else:
-            k += 1
-            continue
-        break
-    log.write_text("\n".join(out) + "\n")
+    tile_log(log, seconds)
     (trials / "multi-exc-m3-r1.csv").unlink()
     toml = (dst / "campaign.toml").read_text()
     blocks = toml.split("[[trial]]")

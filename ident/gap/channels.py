@@ -162,10 +162,6 @@ def _undeclared_payloads(d: JointData, which="unknown") -> list:
     return list(loads.values())
 
 
-#: test candidate columns less what the pooled rigid-body fit absorbs of them (records)
-PROJECT_NUISANCE = True
-
-
 def _compact_nuisance(A: np.ndarray, M: np.ndarray) -> tuple:
     """``(A, M)`` of :meth:`Channel.prep_effect` without the columns of ``A`` that are zero on
     every row (parameters that do not act on this joint: ``X - A M A^T X`` is the same, their
@@ -183,8 +179,7 @@ def _torque_channel(d: JointData, nominal: NominalModel = None) -> Channel:
         X0 = np.column_stack([X0, extra])
     nt = d.n_trials
     blocks, bt = _motion_blocks(d.trial, d.qd, nt)
-    nz = None if getattr(d, "nuisance_rows", None) is None or not PROJECT_NUISANCE else _compact_nuisance(
-        d.nuisance_rows, d.nuisance_gain)
+    nz = None if d.nuisance_rows is None else _compact_nuisance(d.nuisance_rows, d.nuisance_gain)
     return Channel("torque", "N m", nominal.target(d), X0, d.trial, trial_bounds(d.trial, nt), False, blocks, bt,
                    nuisance=nz)
 
