@@ -82,7 +82,10 @@ class Channel:
         if self.nuisance is not None and X.size:
             A, M = self.nuisance
             before = np.sqrt(np.einsum("ij,ij->j", X, X))
-            X = X - A @ (M @ (A.T @ X))
+            # A (M A^T X), as the transpose of a row-major product when X is column-major, so
+            # that the result keeps X's layout (its columns stay contiguous)
+            Z = M @ (A.T @ X)
+            X = X - ((Z.T @ A.T).T if X.flags.f_contiguous and not X.flags.c_contiguous else A @ Z)
             gone = np.sqrt(np.einsum("ij,ij->j", X, X)) < ABSORBED_NORM * before
             if gone.any():
                 X[:, gone] = 0.0
@@ -92,7 +95,7 @@ class Channel:
         """Columns less their within-trial means where the channel demeans (``demean``)."""
         if not self.demean or X.size == 0:
             return X
-        out = X.copy()
+        out = X.copy(order="K")
         for s, e in self.bounds:
             out[s:e] -= out[s:e].mean(axis=0)
         return out

@@ -426,6 +426,93 @@ def torque_subset(d: JointData, mask: np.ndarray) -> JointData:
                    sabs_filtered=sub(d.sabs_filtered), q_hf=sub(d.q_hf))
 
 
+def _link_states(t, qm, q, qd, qdd, y, single: tuple, k_declared: float, friction_side: str, window_s: float):
+    """The states of a declared flexible joint (thesis eq. 2-1, 2-2; ``single``: the joint's
+    ``(I, a, b)`` of :meth:`mocap.robot.Robot.single_joint_dynamics`): the link angle is the
+    motor angle less the spring's deflection, ``q = qm - tau_s / K``. Friction at the link: the
+    motor equation holds no friction, so the spring torque is ``y`` itself and the friction
+    states are the link's; at the motor side the spring carries the link's rigid-body torque
+    (on the motor state: one fixed-point step). Returns (q, qd, qdd) for the friction and the
+    link's (angle, acceleration); a rigid joint's are the motor's."""
+    if k_declared > 0 and friction_side == "link":
+        dq = savgol_derivatives(t, y / k_declared, window_s=window_s)
+        q, qd, qdd = q - dq[0], qd - dq[1], qdd - dq[2]
+        return q, qd, qdd, q, qdd
+    if k_declared > 0:
+        I_u, a_u, b_u = single
+        tau_s = I_u * qdd + a_u * np.sin(q) + b_u * np.cos(q)
+        ql, _, qldd = savgol_derivatives(t, qm - tau_s / k_declared, window_s=window_s)
+        return q, qd, qdd, ql, qldd
+    return q, qd, qdd, q, qdd
+
+
+def _kept_samples(t: np.ndarray, qd: np.ndarray, vz: float, max_rate_hz: float) -> np.ndarray:
+    """The torque channel's samples: moving faster than ``vz``, at most ``max_rate_hz`` (its
+    information lies below the derivative filter's band, ~10 Hz: samples beyond only add cost,
+    so every k-th one is kept)."""
+    keep = ~standstill(t, qd) & (np.abs(qd) >= vz)
+    step = max(int(np.floor(1.0 / max(max_rate_hz * float(np.median(np.diff(t))), 1e-12))), 1)
+    if step > 1:
+        thin = np.zeros_like(keep)
+        thin[::step] = True
+        keep &= thin
+    return keep
+
+
+def _marker_columns(cols: dict, i: int, tr, angles: tuple, off: float, t, qm, qd, y, tau_rb,
+                    k_declared: float, friction_side: str) -> None:
+    """Trial ``i``'s transmission-channel samples at its marker times into ``cols``: the measured
+    link-motor deflection and the log's signals interpolated there (``angles``: the trial's
+    ``(t_marker, q_link)``)."""
+    tm, q_l = angles
+    # marker time is on the robot clock unless the trial declares an offset (FORMAT.md)
+    tm = tm + float(getattr(tr, "extra", {}).get("time_offset", 0.0))
+    ok = np.isfinite(q_l) & (tm >= t[0]) & (tm <= t[-1])
+    tm, q_l = tm[ok], q_l[ok]
+    cols["trial_m"].append(np.full(tm.shape, i))
+    qm_m = np.interp(tm, t, qm)
+    # friction at the link: the motor equation holds none, so the spring torque is y
+    # itself (eq. 2-2), friction and any friction effect included (a Stribeck hump at
+    # the link deflects the spring too: with the smooth nominal friction in its place,
+    # jointlab's simulator's Stribeck campaigns read as compliance). Its torque noise
+    # over K is far below the marker noise (PA10 j5: 2e-5 against 1e-3 rad).
+    tau_f = y if (k_declared > 0 and friction_side == "link") else tau_rb
+    # the declared transmission stiffness (drives.toml ``stiffness``) is part of the
+    # nominal model: its deflection q_link - q_motor = -tau / K is taken out below, with
+    # the link's rigid-body torque as the spring torque, or y when the friction is
+    # clearly at the link (build_joint_data). Not y on the motor side: there y carries
+    # the friction the spring does not (measured on a foreign ind6 load_dependent
+    # campaign: verdict time_offset with y)
+    cols["dq_m"].append(q_l - qm_m)
+    cols["tau_m"].append(np.interp(tm, t, tau_rb))
+    cols["tau_mf"].append(np.interp(tm, t, tau_f))
+    cols["qd_m"].append(np.interp(tm, t, qd))
+    cols["y_m"].append(np.interp(tm, t, y))
+    cols["t_m"].append(tm + off)
+
+
+def _single_joint(cache: dict, robot, tr, j0: int, rest) -> tuple:
+    """``(I, a, b)`` of joint ``j0`` alone at the other joints' rest angles with the trial's
+    payload (:meth:`mocap.robot.Robot.single_joint_dynamics`), computed once per payload and rest."""
+    p_com = payload_com(tr)
+    key = (round(tr.load_kg, 9), tuple(np.round(rest, 4)), p_com)
+    if key not in cache:
+        rb = robot.with_payload(tr.load_kg, p_com) if tr.load_kg > 0 else robot
+        cache[key] = rb.single_joint_dynamics(j0, rest)
+    return cache[key]
+
+
+def _conditions_and_folds(trials) -> tuple:
+    """(repetition of each trial, its condition group (load, speed, kind), its held-out fold):
+    leave-one-repetition-out when repetitions exist, else leave-one-trial-out."""
+    reps = np.array([tr.repetition for tr in trials])
+    conds = [(round(tr.load_kg, 6), round(tr.vmax_frac, 6), tr.kind) for tr in trials]
+    uniq = {c: k for k, c in enumerate(dict.fromkeys(conds))}
+    group = np.array([uniq[c] for c in conds])
+    fold = reps.copy() if len(set(reps.tolist())) > 1 else np.arange(len(trials))
+    return reps, group, fold
+
+
 def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: float = 0.01,
                       max_rate_hz: float = 250.0, deriv_window_s: float = 0.04,
                       friction_side: str = "motor") -> JointData:
@@ -465,26 +552,14 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         q_enc = q
         y = tau - J * qdd - B * qd          # motor side of eq. 2-2 moved to the right
         rest = lg.rest
-        p_com = payload_com(tr)
-        key = (round(tr.load_kg, 9), tuple(np.round(rest, 4)), p_com)
-        if key not in cache:
-            rb = robot.with_payload(tr.load_kg, p_com) if tr.load_kg > 0 else robot
-            cache[key] = rb.single_joint_dynamics(j0, rest)
-        I_u, a_u, b_u = cache[key]
+        I_u, a_u, b_u = _single_joint(cache, robot, tr, j0, rest)
         # the declared flexible joint (thesis eq. 2-1, 2-2): the link angle is the motor angle
         # less the spring's deflection, q = qm - tau_s / K. Friction at the link (eq. 2-1):
         # the motor equation holds no friction, so the spring torque is y itself; friction at
         # the motor side of the spring: the link equation holds none, the spring carries the
         # link's rigid-body torque (URDF, evaluated on the motor state: one fixed-point step)
-        if k_declared > 0 and friction_side == "link":
-            dq = savgol_derivatives(t, y / k_declared, window_s=window_s)
-            q, qd, qdd = q - dq[0], qd - dq[1], qdd - dq[2]
-            ql, qld, qldd = q, qd, qdd
-        elif k_declared > 0:
-            tau_s = I_u * qdd + a_u * np.sin(q) + b_u * np.cos(q)
-            ql, qld, qldd = savgol_derivatives(t, qm - tau_s / k_declared, window_s=window_s)
-        else:
-            ql, qld, qldd = q, qd, qdd
+        q, qd, qdd, ql, qldd = _link_states(t, qm, q, qd, qdd, y, (I_u, a_u, b_u), k_declared, friction_side,
+                                            window_s)
         # consistent filtering: J qdd is the filtered rotor acceleration, which at a reversal
         # smears the friction step that the controller's (smooth) command does not contain; the
         # Coulomb direction goes through the same filter, so J S[qm''] + c S[sgn] = S[u] ~ u
@@ -492,14 +567,7 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         sgn_f = savgol_derivatives(t, ssign(qd), window_s=window_s)[0]
         sabs_f = savgol_derivatives(t, np.abs(ssign(qd)), window_s=window_s)[0]
         s, c = np.sin(ql), np.cos(ql)
-        keep = ~standstill(t, qd) & (np.abs(qd) >= vz)
-        # the torque channel's information lies below the derivative filter's band (~10 Hz):
-        # samples beyond ``max_rate_hz`` only add cost, so keep every k-th one
-        step = max(int(np.floor(1.0 / max(max_rate_hz * float(np.median(np.diff(t))), 1e-12))), 1)
-        if step > 1:
-            thin = np.zeros_like(keep)
-            thin[::step] = True
-            keep &= thin
+        keep = _kept_samples(t, qd, vz, max_rate_hz)
         cols["trial"].append((np.full(t.shape, i))[keep])
         cols["t"].append((t + off)[keep])
         cols["t_rel"].append((t - t[0])[keep])
@@ -516,39 +584,10 @@ def _build_joint_data(joint: int, trials, logs, robot, angles=None, v_zero: floa
         cols["regs"].append((np.column_stack([qldd, s, c]))[keep])
         cols["load"].append((np.full(t.shape, tr.load_kg))[keep])
         if angles is not None and tr.id in angles:
-            tm, q_l = angles[tr.id]
-            # marker time is on the robot clock unless the trial declares an offset (FORMAT.md)
-            tm = tm + float(getattr(tr, "extra", {}).get("time_offset", 0.0))
-            ok = np.isfinite(q_l) & (tm >= t[0]) & (tm <= t[-1])
-            tm, q_l = tm[ok], q_l[ok]
-            cols["trial_m"].append(np.full(tm.shape, i))
-            qm_m = np.interp(tm, t, qm)
-            # friction at the link: the motor equation holds none, so the spring torque is y
-            # itself (eq. 2-2), friction and any friction effect included (a Stribeck hump at
-            # the link deflects the spring too: with the smooth nominal friction in its place,
-            # jointlab's simulator's Stribeck campaigns read as compliance). Its torque noise
-            # over K is far below the marker noise (PA10 j5: 2e-5 against 1e-3 rad).
-            tau_f = y if (k_declared > 0 and friction_side == "link") else tau_rb
-            # the declared transmission stiffness (drives.toml ``stiffness``) is part of the
-            # nominal model: its deflection q_link - q_motor = -tau / K is taken out below, with
-            # the link's rigid-body torque as the spring torque, or y when the friction is
-            # clearly at the link (build_joint_data). Not y on the motor side: there y carries
-            # the friction the spring does not (measured on a foreign ind6 load_dependent
-            # campaign: verdict time_offset with y)
-            cols["dq_m"].append(q_l - qm_m)
-            cols["tau_m"].append(np.interp(tm, t, tau_rb))
-            cols["tau_mf"].append(np.interp(tm, t, tau_f))
-            cols["qd_m"].append(np.interp(tm, t, qd))
-            cols["y_m"].append(np.interp(tm, t, y))
-            cols["t_m"].append(tm + off)
+            _marker_columns(cols, i, tr, angles[tr.id], off, t, qm, qd, y, tau_rb, k_declared, friction_side)
     cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k == "regs" else 0)) for k, v in cols.items()}
     cat["e"] = cat["dq_m"] + (cat["tau_m"] / k_declared if k_declared else 0.0)
-    reps = np.array([tr.repetition for tr in trials])
-    conds = [(round(tr.load_kg, 6), round(tr.vmax_frac, 6), tr.kind) for tr in trials]
-    uniq = {c: k for k, c in enumerate(dict.fromkeys(conds))}
-    group = np.array([uniq[c] for c in conds])
-    # leave-one-repetition-out when repetitions exist, else leave-one-trial-out
-    fold = reps.copy() if len(set(reps.tolist())) > 1 else np.arange(len(trials))
+    reps, group, fold = _conditions_and_folds(trials)
     return JointData(joint=joint, trials=list(trials), trial=cat["trial"].astype(int), t=cat["t"],
                      t_rel=cat["t_rel"], q=cat["q"], qd=cat["qd"], qdd=cat["qdd"], y=cat["y"],
                      tau_urdf=cat["tau_urdf"], tau_grav=cat["tau_grav"], urdf_regs=cat["regs"], load=cat["load"],
@@ -591,7 +630,7 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
                             tau: np.ndarray, robot, armature=None, n_segments: int | None = None,
                             v_zero: float = 0.02, coupling: np.ndarray | None = None,
                             tau_fixed: np.ndarray | None = None, signals: bool = False,
-                            nuisance=None) -> JointData:
+                            nuisance=None, gravity: np.ndarray | None = None) -> JointData:
     """:class:`JointData` for one joint of a continuous record in which several joints move
     together and nothing is repeated (e.g. an industrial controller's log).
 
@@ -618,12 +657,14 @@ def build_joint_data_record(joint: int, t: np.ndarray, q: np.ndarray, qd: np.nda
     the configuration-space tests. ``nuisance``: ``rows -> (A, M)`` (e.g.
     :meth:`ident.model.identified.PooledRigidBody.nuisance`), the pooled fit's design rows and
     weighted inverse Gram matrix at the kept samples: every candidate column is then tested less
-    what that fit would absorb of it (:meth:`ident.gap.channels.Channel.prep`).
+    what that fit would absorb of it (:meth:`ident.gap.channels.Channel.prep`). ``gravity``: the
+    record's (T, n) gravity torque ``robot.gravity_torque(q)`` when the caller has it (one
+    computation for every joint of the record).
     """
     j0 = joint - 1
     arm = 0.0 if armature is None else float(np.asarray(armature)[j0])
     tau_rb = robot.rnea(q, qd, qdd)[:, j0] if tau_fixed is None else np.asarray(tau_fixed, float)
-    grav = robot.gravity_torque(q)[:, j0]
+    grav = (robot.gravity_torque(q) if gravity is None else np.asarray(gravity, float))[:, j0]
     y = tau[:, j0] - arm * qdd[:, j0]
     keep = ~standstill(t, qd[:, j0]) & (np.abs(qd[:, j0]) >= v_zero)
     if keep.sum() > MAX_RECORD_SAMPLES:

@@ -143,6 +143,8 @@ SHARED_BYTES = 2.4e7
 #: bytes of the per-block products of candidate columns with themselves and the target, kept
 #: across selection steps (they do not change when the model grows)
 PRODUCTS_BYTES = 8e6
+#: bytes of raw candidate columns prepared for a channel in one call (:meth:`_ColumnCache.get_many`)
+PREP_BATCH_BYTES = 4e6
 
 
 class _ColumnCache:
@@ -167,31 +169,67 @@ class _ColumnCache:
             self.products_left -= nbytes
 
     def get(self, cand: Candidate, d: JointData, ch: Channel, hp) -> np.ndarray:
-        key = (cand.family, repr(hp))
-        hit = self.store.get(key)
-        if hit is not None:
-            return hit[0]
-        c0 = time.process_time()
-        with shared_intermediates(self.shared):
-            C = ch.prep_effect(_columns(cand, d, hp))
-        self._keep(key, C, (time.process_time() - c0) / max(C.nbytes, 1))
-        return C
+        """The prepared columns of one shape (:meth:`get_many` of that shape alone)."""
+        return self.get_many([(cand, hp)], d, ch)[(cand, hp)]
 
-    def _keep(self, key, C: np.ndarray, cost: float) -> None:
+    def get_many(self, shapes: list, d: JointData, ch: Channel) -> dict:
+        """``(candidate, hp) -> ``:meth:`get`'s columns for every shape of ``shapes``: those not
+        kept are built one by one and prepared together, :data:`PREP_BATCH_BYTES` of raw
+        columns at a time (:meth:`ident.gap.channels.Channel.prep_effect` is column by column,
+        so the values are :meth:`get`'s up to rounding; on records its projection reads the
+        pooled design once per call, which one call for many columns shares). The columns are
+        side by side in one column-major array, so each shape's are contiguous without a copy;
+        those the cache keeps are copied out of it. A shape prepared alone (:meth:`get`) has
+        the same layout and, without a pooled projection (single-joint trials), the same values
+        to the last bit."""
+        out, todo = {}, []
+        for cand, hp in shapes:
+            hit = self.store.get((cand.family, repr(hp)))
+            if hit is not None:
+                out[(cand, hp)] = hit[0]
+            else:
+                todo.append((cand, hp))
+        i = 0
+        while i < len(todo):
+            raw, size = [], 0
+            c0 = time.process_time()
+            with shared_intermediates(self.shared):
+                while i < len(todo) and (not raw or size < PREP_BATCH_BYTES):
+                    raw.append(_columns(todo[i][0], d, todo[i][1]))
+                    size += raw[-1].nbytes
+                    i += 1
+            widths = [r.shape[1] for r in raw]
+            X = np.empty((raw[0].shape[0], sum(widths)), order="F")
+            at = np.cumsum([0] + widths)
+            for r, a0, w in zip(raw, at, widths):
+                X[:, a0:a0 + w] = r
+            del raw
+            C_all = ch.prep_effect(X)
+            cost = (time.process_time() - c0) / max(size, 1)   # the batch's seconds per byte
+            for (cand, hp), a0, w in zip(todo[i - len(widths):i], at, widths):
+                C = C_all[:, a0:a0 + w]
+                out[(cand, hp)] = self._keep((cand.family, repr(hp)), C, cost, copy=True)
+        return out
+
+    def _keep(self, key, C: np.ndarray, cost: float, copy: bool = False) -> np.ndarray:
         """Keep ``C`` (build seconds per byte ``cost``) if it fits, making room by dropping
-        entries that cost less per byte."""
+        entries that cost less per byte; ``copy``: keep a copy (``C`` is a view of a larger
+        array). Returns ``C`` or the copy kept."""
         if C.nbytes > self.budget:
-            return
+            return C
         if C.nbytes > self.left:
             cheaper = sorted((v[1], k) for k, v in self.store.items() if v[1] < cost)
             if self.left + sum(self.store[k][0].nbytes for _, k in cheaper) < C.nbytes:
-                return
+                return C
             for _, k in cheaper:   # cheapest first, until C fits
                 self.left += self.store.pop(k)[0].nbytes
                 if C.nbytes <= self.left:
                     break
+        if copy:
+            C = C.copy(order="K")
         self.store[key] = (C, cost)
         self.left -= C.nbytes
+        return C
 
 
 def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
@@ -209,9 +247,15 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
     # orders, share their intermediates), returned family by family
     order = [(cand, hp) for cand in cands for hp in cand.grid]
     position = [(i, k) for k, cand in enumerate(cands) for i in range(len(cand.grid))]
+    ordered = [order[j] for j in sorted(range(len(order)), key=position.__getitem__)]
     with shared_intermediates(cache.shared) if cache is not None else nullcontext():
-        for j in sorted(range(len(order)), key=position.__getitem__):
-            _effect_gram(order[j], d, ch, X, base, cache, levels, out, cols)
+        # prepared a batch at a time (one pass over the pooled design per batch, on records)
+        batch = max(1, int(PREP_BATCH_BYTES // max(d.qd.shape[0] * 8, 1)))
+        for b in range(0, len(ordered), batch):
+            chunk = ordered[b:b + batch]
+            ready = cache.get_many(chunk, d, ch) if cache is not None else {}
+            for key in chunk:
+                _effect_gram(key, d, ch, X, base, cache, levels, out, cols, ready.get(key))
     if cache is not None:   # the angle multiples are shared within one sweep over the orders
         cache.shared.discard_below("trig")
         cache.shared.discard_below("trig2")
@@ -219,11 +263,13 @@ def _effect_grams(cands, d: JointData, ch: Channel, X: np.ndarray, base,
 
 
 def _effect_gram(key, d: JointData, ch: Channel, X: np.ndarray, base, cache, levels: tuple,
-                 out: dict, cols: dict) -> None:
-    """One shape of :func:`_effect_grams`: its Grams into ``out``, its recipe into ``cols``."""
+                 out: dict, cols: dict, C: np.ndarray | None = None) -> None:
+    """One shape of :func:`_effect_grams`: its Grams into ``out``, its recipe into ``cols``
+    (``C``: its prepared columns when they were built already)."""
     p = X.shape[1]
     cand, hp = key
-    C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep_effect(_columns(cand, d, hp))
+    if C is None:
+        C = cache.get(cand, d, ch, hp) if cache is not None else ch.prep_effect(_columns(cand, d, hp))
     raw = C.shape[1]
     composed = level_interactions(C, cand, levels)   # unchanged unless a level was selected
     # the family's own columns: their products with themselves do not change with the model
@@ -663,6 +709,82 @@ def _shape_text(cand: Candidate, hp, amps: np.ndarray) -> str:
     return cand.describe(hp)
 
 
+class _StepReference(NamedTuple):
+    """What every effect's test in a selection step is measured against (:func:`_test_effect`)."""
+
+    design: _TestDesign
+    settings: "DiagnosisSettings"
+    n_tot: int                # held-out samples
+    mse_nom: float            # the nominal's held-out mean squared error
+    excess_nom: float         # its excess over the white-noise floor
+    noise: float              # the white-noise floor (mean squared)
+    decl_ms: float            # mean square of the declared stiffness's deflection (transmission)
+    p_min: float              # smallest p the test can give
+
+
+def _test_effect(name: str, group: list, d: JointData, ch: Channel, X: np.ndarray, base, cache,
+                 levels: tuple, current_sse: np.ndarray, ref: _StepReference):
+    """One effect's test at one selection step: its best shape's held-out fit over every family
+    and shape of ``group`` (:func:`_effect_grams`, :func:`_cv`), the test of its per-unit loss
+    differential against the current model (block sign-flip over cycles, or the HAC loss test),
+    and its size. Returns (the row, the loss differential, p), the last two None where nothing of
+    the effect is identifiable."""
+    design, settings, n_tot = ref.design, ref.settings, ref.n_tot
+    gb, cols = _effect_grams(group, d, ch, X, base, cache, levels)
+    if not gb:
+        return _Row(name, EffectTest(name, ch.name, False, note=NOT_IDENTIFIABLE)), None, None
+    cvr, _ = _cv(ch, X, design.fold, gb, guard=design.guard)
+    cand, hp = cvr.hp_all
+    amps = _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all].keep)
+    physical = bool(cand.physical(hp, amps, d))
+    composed = cols[cvr.hp_all].composed
+    dloss = current_sse - cvr.sse
+    if design.mode == "cycles":
+        p = sign_flip_pvalue(dloss, settings.n_perm, settings.seed)
+        se = float(np.std(dloss, ddof=1) / np.sqrt(dloss.size)) if dloss.size > 1 else np.inf
+    else:
+        p, info = loss_differential_test(dloss)
+        se = info["se"] / max(info.get("hln", 1.0), 1e-12) if np.isfinite(info["se"]) else np.inf
+    # the size's one-sided 95 % lower bound: the removed variance per sample less 1.645
+    # standard errors of its mean over the units
+    lcb_mse = float((dloss.sum() - 1.645 * se * dloss.size) / n_tot)
+    mse_e = float(cvr.sse.sum() / n_tot)
+    mse_cur = float(current_sse.sum() / n_tot)
+    mse_nom, excess_nom, noise = ref.mse_nom, ref.excess_nom, ref.noise
+    row = _Row(name, EffectTest(
+        name, ch.name, True, family=cand.family, physical=physical,
+        note="" if physical else f"best fit has the unphysical sign for {name}: not this effect",
+        heldout_rms=float(np.sqrt(mse_e)),
+        reduction=float(1 - np.sqrt(mse_e / mse_nom)) if mse_nom > 0 else 0.0,
+        reduction_step=float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
+        explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
+        share_step=_share(mse_cur - mse_e, mse_cur - noise),
+        p_value=p, p_min_attainable=ref.p_min,
+        shape=_shape_text(cand, hp, amps) + ("; also times the selected effects' friction levels" if composed else ""),
+        evidence={**_size_evidence(mse_cur - mse_e, noise, ref.decl_ms),
+                  "removed_variance_over_floor_lcb95": _over_floor(lcb_mse, noise)}), cvr,
+        {cvr.hp_all: cols[cvr.hp_all]})   # the chosen shape's recipe (its columns are rebuilt)
+    return row, dloss, p
+
+
+def _mark_significant(rows: dict, pvals: dict, ch: Channel, settings: "DiagnosisSettings", mode: str) -> None:
+    """Holm's adjustment over the step's identifiable effects, then each row's significance: a
+    physical sign, the adjusted p below ``alpha``, the step's share and reduction above their
+    minimums and the removed variance's 95 % lower bound above the effect-size floor
+    (:func:`effect_size_floor`)."""
+    adj = holm(pvals)
+    for name, r in rows.items():
+        if not r.test.identifiable:
+            continue
+        t = r.test
+        floor = effect_size_floor(ch.name, t.family, settings, mode)
+        r.test = replace(t, p_adjusted=adj[name], evidence={**t.evidence, "effect_size_floor": floor},
+                         significant=bool(
+            t.physical and adj[name] < settings.alpha and t.share_step >= settings.min_explained
+            and t.reduction_step >= settings.min_reduction
+            and t.evidence["removed_variance_over_floor_lcb95"] >= floor))
+
+
 def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSettings) -> _ChannelRun:
     by_effect: dict = {}
     for c in cands:
@@ -695,59 +817,17 @@ def _channel_stepwise(d: JointData, ch: Channel, cands, settings: DiagnosisSetti
     levels = (None, None)   # fitted Coulomb / viscous levels of the effects selected so far (torque)
     payload = None
     unnamed, unnamed_step = None, 0
+    ref = _StepReference(design, settings, n_tot, mse_nom, excess_nom, noise, decl_ms, p_min)
     for step in range(settings.max_effects + (PAYLOAD_COM in by_effect)):
         if len(steps) >= settings.max_effects:
             break
         rows, pvals = {}, {}
         step_d = {}
         for name, group in by_effect.items():
-            gb, cols = _effect_grams(group, d, ch, X, base, cache, levels)
-            if not gb:
-                rows[name] = _Row(name, EffectTest(name, ch.name, False, note=NOT_IDENTIFIABLE))
-                continue
-            cvr, _ = _cv(ch, X, fold, gb, guard=design.guard)
-            cand, hp = cvr.hp_all
-            amps = _amplitudes(cvr.theta_all, X.shape[1], cols[cvr.hp_all].keep)
-            physical = bool(cand.physical(hp, amps, d))
-            composed = cols[cvr.hp_all].composed
-            dloss = current_sse - cvr.sse
-            if design.mode == "cycles":
-                p = sign_flip_pvalue(dloss, settings.n_perm, settings.seed)
-                se = float(np.std(dloss, ddof=1) / np.sqrt(dloss.size)) if dloss.size > 1 else np.inf
-            else:
-                p, info = loss_differential_test(dloss)
-                se = info["se"] / max(info.get("hln", 1.0), 1e-12) if np.isfinite(info["se"]) else np.inf
-            # the size's one-sided 95 % lower bound: the removed variance per sample less 1.645
-            # standard errors of its mean over the units
-            lcb_mse = float((dloss.sum() - 1.645 * se * dloss.size) / n_tot)
-            step_d[name] = dloss
-            pvals[name] = p
-            mse_e = float(cvr.sse.sum() / n_tot)
-            mse_cur = float(current_sse.sum() / n_tot)
-            rows[name] = _Row(name, EffectTest(
-                name, ch.name, True, family=cand.family, physical=physical,
-                note="" if physical else f"best fit has the unphysical sign for {name}: not this effect",
-                heldout_rms=float(np.sqrt(mse_e)),
-                reduction=float(1 - np.sqrt(mse_e / mse_nom)) if mse_nom > 0 else 0.0,
-                reduction_step=float(1 - np.sqrt(mse_e / mse_cur)) if mse_cur > 0 else 0.0,
-                explained_share=float((mse_cur - mse_e) / excess_nom) if excess_nom > 0 else 0.0,
-                share_step=_share(mse_cur - mse_e, mse_cur - noise),
-                p_value=p, p_min_attainable=p_min,
-                shape=_shape_text(cand, hp, amps) + ("; also times the selected effects' friction levels" if composed else ""),
-                evidence={**_size_evidence(mse_cur - mse_e, noise, decl_ms),
-                          "removed_variance_over_floor_lcb95": _over_floor(lcb_mse, noise)}), cvr,
-                {cvr.hp_all: cols[cvr.hp_all]})   # the chosen shape's recipe (its columns are rebuilt)
-        adj = holm(pvals)
-        for name, r in rows.items():
-            if not r.test.identifiable:
-                continue
-            t = r.test
-            floor = effect_size_floor(ch.name, t.family, settings, design.mode)
-            r.test = replace(t, p_adjusted=adj[name], evidence={**t.evidence, "effect_size_floor": floor},
-                             significant=bool(
-                t.physical and adj[name] < settings.alpha and t.share_step >= settings.min_explained
-                and t.reduction_step >= settings.min_reduction
-                and t.evidence["removed_variance_over_floor_lcb95"] >= floor))
+            rows[name], dloss, p = _test_effect(name, group, d, ch, X, base, cache, levels, current_sse, ref)
+            if dloss is not None:
+                step_d[name], pvals[name] = dloss, p
+        _mark_significant(rows, pvals, ch, settings, design.mode)
         if tested_first is None:
             tested_first = rows
         sig = [r for r in rows.values() if r.test.significant]
@@ -943,16 +1023,48 @@ def diagnose_joint(d: JointData, settings: DiagnosisSettings = DiagnosisSettings
     return GapDiagnosis(settings.nominal, None, settings).fit(d, gear_ratio)
 
 
-def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None,
-                    families=None) -> DiagnosisResult:
-    nominal = nominal_model(settings.nominal)
+def _joint_candidates(d: JointData, gear_ratio: float | None, families=None) -> list:
+    """The candidates one joint is tested with: the registry's effects (the torque's own delay on
+    continuous records only), the terms outside the vocabulary (:mod:`ident.gap.unnamed`) and a
+    payload-COM term where a declaration can be wrong; ``families`` keeps only those families."""
     q_range = float(np.ptp(np.percentile(d.q, [0.5, 99.5]))) if d.q.size else None
     cands = [c for c in candidate_effects(gear_ratio, q_range) if families is None or c.family in families]
     if d.delay_cols is None:   # the torque's own delay is tested on continuous records only
         cands = [c for c in cands if c.family != "torque_delay"]
     cands += [c for c in unnamed_candidates(d) if families is None or c.family in families]
     pc = _payload_candidate(d)
-    cands += [pc] if pc is not None else []
+    return cands + ([pc] if pc is not None else [])
+
+
+def _payload_note(payload: _Nuisance, d: JointData) -> str:
+    """The report's note when the loaded trials' torque contradicts their payload-COM declaration."""
+    t, same = payload.test, payload.same_term
+    return (f"payload_com: the loaded trials' torque contradicts the payload centre of mass at the "
+            f"flange origin that their missing payload_com declares (FORMAT.md): a COM away from it "
+            f"removes {t.evidence['removed_variance_over_floor']:.3g} noise variances (p {t.p_adjusted:.2g}); "
+            f"the diagnosis treats it as unknown (free [qdd, sin q, cos q] on those trials)"
+            + ("" if any(getattr(tr, "load_kg", 0) == 0 for tr in d.trials) else
+               "; with no unloaded trial to compare, a rigid-body error of the arm's URDF reads the same")
+            + (f"; {' and '.join(same)} also explain{'s' if len(same) == 1 else ''} this term (a "
+               f"gain on the payload's torque): with the COM declared they separate" if same else "")
+            + "; declare the measured payload_com")
+
+
+def _power(runs: dict, cands: list, settings: DiagnosisSettings) -> dict:
+    """Per channel, the smallest effect it could have shown (noise-variance units): its test's
+    detectable size, at least the effect-size floor of its least demanding family."""
+    power = {}
+    for c, r in runs.items():
+        floor = min(effect_size_floor(c, fam, settings, r.design.mode if r.design else "cycles") for fam in
+                    {cd.family for cd in cands if cd.channel == c} or {""})
+        power[c] = max(r.detectable(settings.alpha), floor)
+    return power
+
+
+def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float | None,
+                    families=None) -> DiagnosisResult:
+    nominal = nominal_model(settings.nominal)
+    cands = _joint_candidates(d, gear_ratio, families)
     channels = [_torque_channel(d, nominal)] + ([None] if d.has_transmission else [])
     effects, chres = [], {}
     runs, notes = {}, []
@@ -969,16 +1081,7 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         stab = _stability(res, settings)
         chres[ch.name] = _channel_result(ch, res, settings)
         if res.payload is not None:
-            t, same = res.payload.test, res.payload.same_term
-            notes.append(f"payload_com: the loaded trials' torque contradicts the payload centre of mass at the "
-                         f"flange origin that their missing payload_com declares (FORMAT.md): a COM away from it "
-                         f"removes {t.evidence['removed_variance_over_floor']:.3g} noise variances (p {t.p_adjusted:.2g}); "
-                         f"the diagnosis treats it as unknown (free [qdd, sin q, cos q] on those trials)"
-                         + ("" if any(getattr(tr, "load_kg", 0) == 0 for tr in d.trials) else
-                            "; with no unloaded trial to compare, a rigid-body error of the arm's URDF reads the same")
-                         + (f"; {' and '.join(same)} also explain{'s' if len(same) == 1 else ''} this term (a "
-                            f"gain on the payload's torque): with the COM declared they separate" if same else "")
-                         + "; declare the measured payload_com")
+            notes.append(_payload_note(res.payload, d))
         for name, row in res.first.items():
             if name == PAYLOAD_COM or name in UNNAMED:
                 continue
@@ -1003,11 +1106,7 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         float(np.sqrt(rep_var)) if np.isfinite(rep_var) else None))
     # power: the smallest effect each channel could have shown (noise-variance units), at least
     # the effect-size floor of its least demanding family
-    power = {}
-    for c, r in runs.items():
-        floor = min(effect_size_floor(c, fam, settings, r.design.mode if r.design else "cycles") for fam in
-                    {cd.family for cd in cands if cd.channel == c} or {""})
-        power[c] = max(r.detectable(settings.alpha), floor)
+    power = _power(runs, cands, settings)
     spectrum = residual_spectrum(resid, tch.trial, dt, tres.noise_floor_mse)
     # held-out torque folds that extrapolate the nominal: the torque test cannot judge any effect
     # (a transmission-channel finding has its own folds and nominal, and stands)
@@ -1028,10 +1127,6 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
                     "proposal": alternatives[0]["separate_by"],
                     "command": _design_command(d)}
     effects.sort(key=lambda r: (not r.significant, -(r.reduction or 0.0)))
-    series = {"t": d.t, "qd": d.qd, "qdd": d.qdd, "q": d.q, "residual_nominal": resid, "trial": d.trial,
-              "spectrum": spectrum}
-    if d.q_all is not None:   # records: every joint's angle, for the configuration plot
-        series["q_all"] = d.q_all
     return DiagnosisResult(
         verdict=verdict, nominal_model=nominal.label, n_trials=d.n_trials,
         folds=_folds_text(d, runs),
@@ -1043,8 +1138,18 @@ def _diagnose_joint(d: JointData, settings: DiagnosisSettings, gear_ratio: float
         status=status, detectable=power, alternatives=alternatives, next_experiment=next_exp,
         spectrum_bands=tuple(spectrum["bands"]) if spectrum else (),
         tests={c: r.design.text for c, r in runs.items() if r.design is not None},
-        extrapolated=extrapolated, series=series, notes=tuple(notes),
+        extrapolated=extrapolated, series=_series(d, resid, spectrum), notes=tuple(notes),
         configuration_localisation=tuple(config_loc))
+
+
+def _series(d: JointData, resid: np.ndarray, spectrum) -> dict:
+    """The samples the plots draw: states, the nominal's held-out residual, its spectrum, and on
+    records every joint's angle (the configuration plot)."""
+    series = {"t": d.t, "qd": d.qd, "qdd": d.qdd, "q": d.q, "residual_nominal": resid, "trial": d.trial,
+              "spectrum": spectrum}
+    if d.q_all is not None:
+        series["q_all"] = d.q_all
+    return series
 
 
 def _variable_text(row: dict) -> str:

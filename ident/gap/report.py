@@ -48,6 +48,61 @@ def _nominal_params(jp: dict) -> str:
     return "; ".join(parts) + "."
 
 
+def _channel_line(name: str, ch: dict) -> str:
+    """One channel's line: held-out RMS before and after the selected effects with their 95 %
+    intervals, the noise floors and the test's resolution."""
+    lo, hi = ch["heldout_rms_nominal_ci95"]
+    lo2, hi2 = ch["heldout_rms_final_ci95"]
+    sel = ", ".join([s["effect"] for s in ch["selected"]]
+                    + [f"{n} (a nuisance term: see the note)" for n in ch.get("nuisance", [])]) or "nothing"
+    return (f"- **{name}** channel ({ch['unit']}): held-out RMS {ch['heldout_rms_nominal']:.4g} "
+            f"[{lo:.4g}, {hi:.4g}] -> {ch['heldout_rms_final']:.4g} [{lo2:.4g}, {hi2:.4g}] "
+            f"after adding {sel}; white-noise floor {ch['noise_floor_rms']:.3g} "
+            f"(remaining gap {ch['remaining_gap_over_noise']:.2f}x the floor)"
+            + (f"; noise from repetitions {ch['noise_floor_rms_repetitions']:.3g} (remaining gap "
+               f"{ch['remaining_gap_over_repetition_noise']:.2f}x)" if ch.get("remaining_gap_over_repetition_noise")
+               else "") + f"; {ch.get('n_blocks', '?')} blocks, smallest attainable p "
+            f"{_fmt(ch.get('p_min_attainable'))}.")
+
+
+def _localisation_tables(rep: dict) -> list:
+    """Where the torque gap lies: the motion regimes' shares, then (records) the variables the
+    held-out residual depends on."""
+    L = [f"Where the torque gap lies ({rep.get('localisation_method', 'local refits')}):", "",
+         "| regime | share |", "|---|---|"]
+    L += [f"| {r['regime']} | {r['share']:.2f} |" for r in rep["localisation"]]
+    if "localisation_rest" in rep:
+        L.append(f"| rest | {rep['localisation_rest']:.2f} |")
+    if rep.get("localisation_configuration"):
+        L += ["", "What the held-out residual depends on (each variable's smooth functions fitted on the "
+                  "other folds; share of the gap's excess over the noise floor they remove held out):", "",
+              "| variable | share |", "|---|---|"]
+        L += [f"| {r['variable']} | {r['share']:.2f} |" for r in rep["localisation_configuration"]]
+    return L
+
+
+def _effects_table(effects: list) -> list:
+    """The candidate effects of the first selection step, one row each."""
+    L = ["", "Candidate effects (first selection step; size = held-out variance removed over the "
+             "channel's noise-floor variance, against the floor that effect-free campaigns set for "
+             "that kind of candidate):", "",
+         "| effect | channel | held-out RMS | reduction | p (Holm) | size / floor | significant | shape | "
+         "confounded with |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for e in effects:
+        if not e.get("identifiable", True):
+            L.append(f"| {e['effect']} | {e['channel']} | - | - | - | - | no | {_cell(e['note'])} | "
+                     f"{', '.join(e.get('confounded_with', []))} |")
+            continue
+        evd = e.get("evidence", {})
+        size = (f"{evd['removed_variance_over_floor']:.3g} / {evd['effect_size_floor']:.2g}"
+                if "removed_variance_over_floor" in evd and "effect_size_floor" in evd else "-")
+        L.append(f"| {e['effect']} | {e['channel']} | {e['heldout_rms']:.4g} | {e['reduction']:.3f} | "
+                 f"{e['p_adjusted']:.2g} | {size} | {'yes' if e['significant'] else 'no'} | {_cell(e['shape'])} | "
+                 f"{', '.join(e.get('confounded_with', []))} |")
+    return L
+
+
 def markdown(report: dict, plots: dict) -> str:
     L = [f"# Sim-to-real gap diagnosis: {report['campaign']}", ""]
     nom = report.get("nominal") or {}
@@ -90,53 +145,16 @@ def markdown(report: dict, plots: dict) -> str:
             L += ["Nominal friction of this joint: " + _nominal_params(jp), ""]
         if rep.get("insufficient_data"):
             L += [f"Why: {rep['insufficient_data']}.", ""]
-        for name, ch in rep["channels"].items():
-            lo, hi = ch["heldout_rms_nominal_ci95"]
-            lo2, hi2 = ch["heldout_rms_final_ci95"]
-            sel = ", ".join([s["effect"] for s in ch["selected"]]
-                            + [f"{n} (a nuisance term: see the note)" for n in ch.get("nuisance", [])]) or "nothing"
-            L.append(f"- **{name}** channel ({ch['unit']}): held-out RMS {ch['heldout_rms_nominal']:.4g} "
-                     f"[{lo:.4g}, {hi:.4g}] -> {ch['heldout_rms_final']:.4g} [{lo2:.4g}, {hi2:.4g}] "
-                     f"after adding {sel}; white-noise floor {ch['noise_floor_rms']:.3g} "
-                     f"(remaining gap {ch['remaining_gap_over_noise']:.2f}x the floor)"
-                     + (f"; noise from repetitions {ch['noise_floor_rms_repetitions']:.3g} (remaining gap "
-                        f"{ch['remaining_gap_over_repetition_noise']:.2f}x)" if ch.get("remaining_gap_over_repetition_noise")
-                        else "") + f"; {ch.get('n_blocks', '?')} blocks, smallest attainable p "
-                     f"{_fmt(ch.get('p_min_attainable'))}.")
+        L += [_channel_line(name, ch) for name, ch in rep["channels"].items()]
         L.append("")
-        L += [f"Where the torque gap lies ({rep.get('localisation_method', 'local refits')}):", "",
-              "| regime | share |", "|---|---|"]
-        L += [f"| {r['regime']} | {r['share']:.2f} |" for r in rep["localisation"]]
-        if "localisation_rest" in rep:
-            L.append(f"| rest | {rep['localisation_rest']:.2f} |")
-        if rep.get("localisation_configuration"):
-            L += ["", "What the held-out residual depends on (each variable's smooth functions fitted on the "
-                      "other folds; share of the gap's excess over the noise floor they remove held out):", "",
-                  "| variable | share |", "|---|---|"]
-            L += [f"| {r['variable']} | {r['share']:.2f} |" for r in rep["localisation_configuration"]]
+        L += _localisation_tables(rep)
         if rep.get("payload_identified"):
             for key, e in rep["payload_identified"].items():
                 if "com_flange_m" in e:
                     com = ", ".join(f"{c * 1e3:.1f} +- {s_ * 1e3:.1f}" for c, s_ in zip(e["com_flange_m"], e["com_stderr_m"]))
                     L += ["", f"Payload {key} ({', '.join(e.get('record_ids', []))}): identified in the nominal on "
                               f"every joint of every record, centre of mass in the flange frame [{com}] mm."]
-        L += ["", "Candidate effects (first selection step; size = held-out variance removed over the "
-                  "channel's noise-floor variance, against the floor that effect-free campaigns set for "
-                  "that kind of candidate):", "",
-              "| effect | channel | held-out RMS | reduction | p (Holm) | size / floor | significant | shape | "
-              "confounded with |",
-              "|---|---|---|---|---|---|---|---|---|"]
-        for e in rep["effects"]:
-            if not e.get("identifiable", True):
-                L.append(f"| {e['effect']} | {e['channel']} | - | - | - | - | no | {_cell(e['note'])} | "
-                         f"{', '.join(e.get('confounded_with', []))} |")
-                continue
-            evd = e.get("evidence", {})
-            size = (f"{evd['removed_variance_over_floor']:.3g} / {evd['effect_size_floor']:.2g}"
-                    if "removed_variance_over_floor" in evd and "effect_size_floor" in evd else "-")
-            L.append(f"| {e['effect']} | {e['channel']} | {e['heldout_rms']:.4g} | {e['reduction']:.3f} | "
-                     f"{e['p_adjusted']:.2g} | {size} | {'yes' if e['significant'] else 'no'} | {_cell(e['shape'])} | "
-                     f"{', '.join(e.get('confounded_with', []))} |")
+        L += _effects_table(rep["effects"])
         ev = [(e["effect"], k, x) for e in rep["effects"] for k, x in e.get("evidence", {}).items()
               if k.startswith("unique_share_given_")]
         if ev:
@@ -154,6 +172,11 @@ def markdown(report: dict, plots: dict) -> str:
                 L += ["", f"![{key}]({plots[key]})"]
         L.append("")
     return "\n".join(L)
+
+
+#: the title's height on the plots whose y axis has no offset text (categories, log scale): set,
+#: matplotlib does not measure every tick label to place it (a third of the drawing time)
+FIXED_TITLE_Y = 1.0
 
 
 def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
@@ -185,14 +208,14 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
         loc = rep["localisation"]
         ax.barh([r["regime"] for r in loc][::-1], [r["share"] for r in loc][::-1], color="tab:blue")
         ax.set_xlabel("share of held-out torque gap")
-        ax.set_title(f"joint {j}: where the gap lies")
+        ax.set_title(f"joint {j}: where the gap lies", y=FIXED_TITLE_Y)
         save(fig, f"joint{j}_localisation", [r["regime"] for r in loc])
         eff = [e for e in rep["effects"] if e.get("identifiable", True)]
         fig, ax = subplots((6, 3.5))
         ax.barh([e["effect"] for e in eff][::-1], [e["reduction"] for e in eff][::-1],
                 color=["tab:green" if e["significant"] else "tab:gray" for e in eff][::-1])
         ax.set_xlabel("held-out RMS reduction (fraction of nominal)")
-        ax.set_title(f"joint {j}: candidate effects (green = significant)")
+        ax.set_title(f"joint {j}: candidate effects (green = significant)", y=FIXED_TITLE_Y)
         save(fig, f"joint{j}_effects", [e["effect"] for e in eff])
         s = series.get(j)
         if s is not None:
@@ -221,7 +244,7 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
                 ax.axhline(sp["floor"], color="tab:red", ls="--", label="white-noise floor")
                 ax.set_xlabel("frequency [Hz]")
                 ax.set_ylabel("PSD [(N m)^2/Hz]")
-                ax.set_title(f"joint {j}: residual spectrum against the noise floor")
+                ax.set_title(f"joint {j}: residual spectrum against the noise floor", y=FIXED_TITLE_Y)
                 ax.legend(fontsize=8)
                 save(fig, f"joint{j}_spectrum", left_in=1.15)   # log ticks: "2 x 10^-3"
     return paths

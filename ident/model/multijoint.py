@@ -691,14 +691,18 @@ def diagnose_records(campaign, robot, settings, joints=None, record: RecordSetti
         from tqdm import tqdm
 
         todo = tqdm(todo, desc="diagnose", unit="joint", leave=False)
+    gravity = {}   # record -> its (T, n) gravity torque, computed once for all its joints
     for j in todo:
         mine = [(k, g, rec) for k, (g, rec) in enumerate(recs)
                 if j in rec.moving and j not in rec.unlogged]
         if not mine:
             continue
+        for k, _, rec in mine:
+            if k not in gravity:
+                gravity[k] = robot.gravity_torque(rec.q)
         parts = [build_joint_data_record(j, robot=robot, n_segments=n_segments, tau_fixed=pooled.torque[k][:, j - 1],
                                          signals=True, nuisance=partial(pooled.nuisance, k, j - 1),
-                                         **rec.gap_inputs())
+                                         gravity=gravity[k], **rec.gap_inputs())
                  for k, _, rec in mine]
         d = concat_joint_data(parts, [offsets[k] for k, _, _ in mine])
         res = diagnose_joint(d, settings, gear_ratio=robot.drives[j - 1].gear_ratio)
