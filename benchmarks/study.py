@@ -111,7 +111,7 @@ finally:
     ex.close()
 wall, main_cpu = time.perf_counter() - t0, time.process_time() - c0
 import ident
-print(json.dumps({"wall": wall, "main_cpu": main_cpu, "errors": r.errors, "stages": r.stages,
+print(json.dumps({"wall": wall, "main_cpu": main_cpu, "errors": r.errors, "stages": r.to_dict()["stages"],
                   "where": ident.__file__}))
 """
 
@@ -225,7 +225,7 @@ def run_once(camp: Path, out: Path, settings: StudySettings, workers: int | None
             wall, main_cpu = time.perf_counter() - t0, time.process_time() - c0
     finally:
         ex.close()
-    return {"wall": wall, "peak_gb": mem.peak / 1e9, "stages": res.stages, "errors": res.errors,
+    return {"wall": wall, "peak_gb": mem.peak / 1e9, "stages": res.to_dict()["stages"], "errors": res.errors,
             "verdicts": res.verdicts, "load": os.getloadavg()[0], "main_cpu": main_cpu,
             "role_gb": {k: v / 1e9 for k, v in mem.by_role.items()}}
 

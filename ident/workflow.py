@@ -49,25 +49,25 @@ from mocap.solve import solve_trial
 from tqdm import tqdm
 
 from ident.coastdown.campaign_analysis import coastdown_trials
-from ident.friction import MODELS
+from ident.friction.registry import check_models, parse_models
 from ident.gap import DiagnosisSettings
+from ident.gap.campaign_diagnosis import CampaignDiagnosis
 from ident.gap.campaign_diagnosis import diagnose_single_joint_campaign as _diagnose_single
 from ident.gap.campaign_diagnosis import load_angles_dir
-from ident.gap.report import write_report
 from ident.indri.campaign_fit import (DYNAMIC_MODELS, DynamicFits, feasible_models, fit_campaign_dynamic,
                                   merge_fits_json, missing_data_sets)
 from ident.indri.codegen import export_models_c
 from ident.model.multijoint import (MultiJointFits, diagnose_records, fit_multijoint_campaign,
                                     multijoint_trials)
-from ident.model.onelink import model_class
-from ident.model.record import RecordSettings, check_campaign_motion
+from ident.model.record import DERIVATIVES, RecordSettings, check_campaign_motion
+from ident.settings import SEED, AnyOf, Interval, OneOf, Settings
 from ident.study.angles import campaign_references
 from ident.thesis.campaign_fit import FitsResult
 from ident.thesis.campaign_fit import fit_onelink_campaign as _fit_onelink
 
 __all__ = ["PATHS", "Plan", "plan", "parse_models", "check_models", "fit_plans", "subset",
            "prepare_fit", "FitSettings", "FitResult", "fit_campaign", "CampaignDiagnosis",
-           "diagnose_campaign", "diagnosis_document", "CalibrationResult",
+           "diagnose_campaign", "join_diagnoses", "CalibrationResult",
            "calibrate", "CampaignAngles", "references", "solve_angles"]
 
 #: The identification paths, in the order they are reported, and what each one is.
@@ -163,84 +163,6 @@ class Plan:
             ms = self.models.get(p)
             lines.append(f"{p}: {self.reasons[p]}" + (f" (models {', '.join(ms)})" if ms else ""))
         return "\n".join(lines + [f"note: {n}" for n in self.notes])
-
-
-def parse_models(text: str) -> tuple:
-    """The ``--models`` list: comma-separated names, duplicates dropped, each a known model.
-
-    Parameters
-    ----------
-    text : str
-        E.g. ``"cv,stribeck,dm1"``.
-
-    Returns
-    -------
-    tuple of str
-        The names in the given order.
-
-    Raises
-    ------
-    InputError
-        Empty, or a name that is neither a one-link model nor a dynamic model.
-
-    References
-    ----------
-    .. [1] PA10 thesis (seeds 002), eq. 2-4 and Tables 5-1 to 5-3.
-    .. [2] Indri & Trapani 2020 (seeds 001), sec. III.
-
-    Examples
-    --------
-    >>> parse_models("cv, stribeck,cv,dm1")
-    ('cv', 'stribeck', 'dm1')
-    """
-    models = tuple(dict.fromkeys(m.strip() for m in text.split(",") if m.strip()))
-    if not models:
-        raise InputError("--models is empty")
-    return check_models(models)
-
-
-def check_models(models) -> tuple:
-    """The friction model names checked against the registry, as a tuple.
-
-    Each name must be a known friction model (a one-link model of the registry
-    :func:`ident.model.onelink.model_class` or a dynamic model of
-    :data:`ident.indri.campaign_fit.DYNAMIC_MODELS`); which path fits each is :func:`plan`'s.
-
-    Parameters
-    ----------
-    models : sequence of str
-        Friction model names (FORMAT.md's names).
-
-    Returns
-    -------
-    tuple of str
-        The names, in the order given.
-
-    Raises
-    ------
-    InputError
-        Empty, or an unknown name.
-
-    References
-    ----------
-    .. [1] jointlab data format (docs/format.md), sec. fits.json.
-
-    Examples
-    --------
-    >>> check_models(["cv", "dm1"])
-    ('cv', 'dm1')
-    """
-    models = tuple(models)
-    if not models:
-        raise InputError("no friction models given")
-    for m in models:
-        if m in DYNAMIC_MODELS:
-            continue
-        try:
-            model_class(m)
-        except KeyError as exc:
-            raise InputError(str(exc.args[0]), label=m) from None
-    return models
 
 
 THESIS_MODELS = ("cv", "stribeck", "hyperbolic")
@@ -344,10 +266,7 @@ def plan(campaign, models=None, *, export_c: bool = False) -> Plan:
         if others:
             raise InputError(f"the campaign mixes multi-joint trials ({multi[0].id!r}, ...) with "
                              "single-joint ones; fit them from two manifests", path=campaign.manifest)
-        bad = [m for m in models if m not in MODELS]
-        if bad:
-            raise InputError(f"unknown friction model {bad[0]!r} (known: {', '.join(MODELS)})",
-                             label=bad[0])
+        check_models(models)
         if export_c:
             raise InputError("--export-c is not available for multi-joint records")
         return Plan(**base, paths=("multi_joint",) + (("coastdown",) if coast else ()),
@@ -435,8 +354,9 @@ def fit_plans(campaign, models) -> tuple:
 # friction fits
 # ============================================================================================
 @dataclass(frozen=True)
-class FitSettings:
-    """Settings of :func:`fit_campaign`.
+class FitSettings(Settings):
+    """Settings of :func:`fit_campaign`; :attr:`constraints` is checked at construction
+    (:mod:`ident.settings`).
 
     Parameters
     ----------
@@ -468,28 +388,21 @@ class FitSettings:
     window: object = "auto"
     v_zero: object = "auto"
 
-    def record_settings(self) -> tuple:
-        """``(RecordSettings, v_zero)`` of the multi-joint path, the text values parsed.
+    #: field -> (command-line option, constraint), checked at construction
+    constraints = {
+        "n_starts": ("--starts", Interval(1, integer=True)),
+        "seed": ("--seed", SEED),
+        "sync": ("--sync", OneOf("clock", "estimate")),
+        "derivatives": ("--derivatives", OneOf(*DERIVATIVES)),
+        "window": ("--window", AnyOf(OneOf("auto"), Interval(0, closed="right", parse=True, note="s"))),
+        "v_zero": ("--v-zero", AnyOf(OneOf("auto"), Interval(0, 1, closed="left", parse=True))),
+    }
 
-        Raises
-        ------
-        InputError
-            A window that is neither ``auto`` nor seconds, a ``v_zero`` outside ``[0, 1)``.
-        """
-        window = self.window
-        if window != "auto":
-            try:
-                window = float(window)
-            except ValueError:
-                raise InputError(f"--window must be 'auto' or seconds, got {self.window!r}") from None
-        v_zero = self.v_zero
-        if v_zero != "auto":
-            try:
-                v_zero = float(v_zero)
-            except ValueError:
-                raise InputError(f"--v-zero must be 'auto' or a fraction, got {self.v_zero!r}") from None
-            if not 0 <= v_zero < 1:
-                raise InputError(f"--v-zero must be 'auto' or a fraction in [0, 1), got {self.v_zero!r}")
+    def record_settings(self) -> tuple:
+        """``(RecordSettings, v_zero)`` of the multi-joint path, the text values parsed (both
+        checked at construction: ``auto`` or seconds > 0, ``auto`` or a fraction in ``[0, 1)``)."""
+        window = self.window if self.window == "auto" else float(self.window)
+        v_zero = self.v_zero if self.v_zero == "auto" else float(self.v_zero)
         return RecordSettings(derivatives=self.derivatives, window_s=window), v_zero
 
 
@@ -673,41 +586,6 @@ def fit_campaign(campaign, *, models=("cv", "stribeck", "hyperbolic"), angles=No
 # ============================================================================================
 # gap diagnosis
 # ============================================================================================
-@dataclass(frozen=True)
-class CampaignDiagnosis:
-    """The sim-to-real gap diagnosis of a campaign.
-
-    Attributes
-    ----------
-    plan : Plan
-    report : dict
-        The ``diagnosis.json`` document: per joint the verdict and the evidence.
-    series : dict
-        Per joint the plotted series (residuals, candidate effects).
-
-    References
-    ----------
-    .. [1] jointlab gap diagnosis (docs/gap-diagnosis.md).
-    .. [2] jointlab data format (docs/format.md).
-    """
-
-    plan: Plan
-    report: dict
-    series: dict
-
-    def summary(self) -> dict:
-        """Joint -> verdict, its status and line, held-out RMS of the nominal model, notes."""
-        return {j: {"verdict": r["verdict"], "verdict_status": r.get("verdict_status"),
-                    "verdict_text": r.get("verdict_text", r["verdict"]),
-                    "heldout_rms_nominal": r.get("heldout_rms_nominal"), "notes": list(r.get("notes", []))}
-                for j, r in self.report["joints"].items()}
-
-    def write(self, folder, sink=None) -> dict:
-        """``diagnosis.json``, ``diagnosis.md`` and the plots into ``folder``
-        (:func:`ident.gap.report.write_report`); returns name -> path."""
-        return write_report(self.report, self.series, Path(folder), sink)
-
-
 def link_angles(campaign, robot, angles=None, sink=None, progress: bool = True) -> dict:
     """trial id -> (marker time, {joint: link angle}): read from an angles folder, or solved
     from the markers (:func:`solve_angles`)."""
@@ -767,54 +645,46 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
         single = _diagnose_single(campaign, robot, ang, settings, joints=joints, progress=progress)
     if "multi_joint" in paths:
         records = diagnose_records(campaign, robot, settings, joints=joints, progress=progress)
-    report, series = diagnosis_document(p, settings, single, records)
-    return CampaignDiagnosis(p, report, series)
+    return join_diagnoses(p, settings, single, records)
 
 
-def diagnosis_document(plan: Plan, settings: DiagnosisSettings, single=None, records=None) -> tuple:
-    """The ``diagnosis.json`` document and the plotted series of a campaign, from its parts.
-
-    The one place that assembles them from the paths' parts (:func:`diagnose_campaign`,
-    ``jointlab study``).
+def join_diagnoses(plan: Plan, settings: DiagnosisSettings, single: CampaignDiagnosis | None = None,
+                   records: tuple | None = None) -> CampaignDiagnosis:
+    """A campaign's diagnosis from its paths' parts: the one place that joins them
+    (:func:`diagnose_campaign`, ``jointlab study``).
 
     Parameters
     ----------
     plan : Plan
         The campaign's plan (:func:`plan` without models).
     settings : ident.gap.DiagnosisSettings
-    single : tuple, optional
-        ``(report, series)`` of the single-joint trials
+    single : CampaignDiagnosis, optional
+        The single-joint trials' diagnosis
         (:func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign`, or the same
-        document assembled from its per-joint parts).
+        assembled from its per-joint parts).
     records : tuple, optional
-        ``(joints, series)`` of the multi-joint records
+        ``(entries, series)`` of the multi-joint records
         (:func:`ident.model.multijoint.diagnose_records`); a joint diagnosed on both paths
         keeps the records' entry.
 
     Returns
     -------
-    tuple
-        ``(report, series)``.
+    CampaignDiagnosis
+        With ``plan``; its :meth:`~ident.gap.campaign_diagnosis.CampaignDiagnosis.to_dict` is the
+        ``diagnosis.json`` document.
 
     References
     ----------
     .. [1] jointlab gap diagnosis (docs/gap-diagnosis.md).
     """
-    if single is not None:
-        report, series = dict(single[0]), dict(single[1])
-        report["joints"] = dict(report["joints"])
-    else:
-        report = {"format": 1, "campaign": plan.campaign, "settings": settings.to_dict(), "joints": {},
-                  "skipped_trials": [], "link_angles": False}
-        series = {}
+    rec = None
     if records is not None:
-        rj, rs = records
-        report["joints"].update(rj)
-        series.update(rs)
-        report["multi_joint_trials"] = list(plan.multi_joint)
-        report["skipped_trials"] = [t for t in report.get("skipped_trials", [])
-                                    if t not in set(plan.multi_joint)]
-    return report, series
+        rec = CampaignDiagnosis.from_records(plan.campaign, settings.to_dict(), records, plan.multi_joint)
+    if single is None:
+        single = rec if rec is not None else CampaignDiagnosis(plan.campaign, settings.to_dict(), {})
+    elif rec is not None:
+        single = single.with_records(rec)
+    return dataclasses.replace(single, plan=plan)
 
 
 # ============================================================================================

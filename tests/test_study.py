@@ -317,7 +317,8 @@ def test_diagnosis_reps_diagnoses_the_first_repetitions_and_fits_every_trial(tin
     firsts = dataclasses.replace(loaded, trials=tuple(t for t in loaded.trials if t.repetition == 1))
     assert len(firsts.trials) == 2
     angles = load_angles_dir(tmp_path / "a" / "angles", list(firsts.trials))
-    ref, _ = diagnose_single_joint_campaign(firsts, loaded.load_robot(), angles, DiagnosisSettings(seed=fast.seed), joints=[5])
+    ref = diagnose_single_joint_campaign(firsts, loaded.load_robot(), angles, DiagnosisSettings(seed=fast.seed),
+                                         joints=[5]).to_dict()
     a = json.loads((tmp_path / "a" / "diagnosis" / "diagnosis.json").read_text())["joints"]
     assert a == json.loads(json.dumps(to_jsonable(ref["joints"])))
 

@@ -146,9 +146,8 @@ def test_fit_campaign_multi_joint_path_and_write(tx40, tmp_path):
     assert set(doc["trials"]) == set(res.plan.multi_joint)
     with pytest.raises(InputError, match="--export-c"):
         res.export_c(tmp_path / "c")
-    bad = wf.FitSettings(window="soon")
-    with pytest.raises(InputError, match="--window"):
-        wf.fit_campaign(tx40, models=("cv",), settings=bad)
+    with pytest.raises(InputError, match="--window"):     # refused when the settings are made
+        wf.fit_campaign(tx40, models=("cv",), settings=wf.FitSettings(window="soon"))
 
 
 def test_diagnose_campaign_records_path(tx40):

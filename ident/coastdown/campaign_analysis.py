@@ -42,6 +42,7 @@ from ident.coastdown.angle import (AngleCoastFit, AngleCoastResult, Flex, coast_
                                    interval_velocity)
 from ident.coastdown.estimators import fdm, tdm
 from ident.common import to_jsonable
+from ident.settings import Interval, Joints, Settings
 from mocap.io.robotlog import read_robot_log
 from viz.sink import NullSink
 
@@ -50,11 +51,12 @@ __all__ = ["CoastdownSettings", "TrialCoastdown", "CoastdownReport", "analyse_ca
 
 
 @dataclass(frozen=True)
-class CoastdownSettings:
+class CoastdownSettings(Settings):
     """``v_min_frac``: slowest cut speed taken as a coast (fraction of ``max_velocity``);
     ``pre_s``/``rest_s``: pre-cut window and rest length (s); ``jump_sigmas``: torque step at
     the cut in noise levels; ``sep_rel``: see :class:`AngleCoastFit`; ``min_samples``: velocity
-    samples a coast needs for TDM/FDM; ``joints``: restrict to these joints (1-based)."""
+    samples a coast needs for TDM/FDM; ``joints``: restrict to these joints (1-based).
+    :attr:`constraints` is checked at construction (:mod:`ident.settings`)."""
 
     v_min_frac: float = 0.02
     pre_s: float = 0.15
@@ -63,6 +65,17 @@ class CoastdownSettings:
     sep_rel: float = 0.2
     min_samples: int = 4
     joints: tuple = ()
+
+    #: field -> (option, constraint), checked at construction
+    constraints = {
+        "v_min_frac": ("v_min_frac", Interval(0, 1, closed="left")),
+        "pre_s": ("pre_s", Interval(0, closed="right", note="s")),
+        "rest_s": ("rest_s", Interval(0, closed="right", note="s")),
+        "jump_sigmas": ("jump_sigmas", Interval(0, closed="right")),
+        "sep_rel": ("sep_rel", Interval(0, closed="right")),
+        "min_samples": ("min_samples", Interval(1, integer=True)),
+        "joints": ("--joints", Joints(none=False)),
+    }
 
     def to_dict(self) -> dict:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}

@@ -45,11 +45,13 @@ from ident.gap.engine import (CVResult, bootstrap_ci, cross_validate, grams, gra
 from ident.gap.result import ChannelResult, DiagnosisResult, EffectTest, SelectionStep
 from ident.gap.unnamed import (TORQUE_LOWPASS, UNNAMED, configuration_localisation, prefers_unnamed,
                                unnamed_candidates)
+from ident.settings import SEED, AnyOf, Interval, OneOf, PathLike, Settings, Text
 from ident.signals.smoothing import one_blas_thread
 
 @dataclass(frozen=True)
-class DiagnosisSettings:
-    """Levels, floors and test settings of the gap diagnosis (:class:`GapDiagnosis`).
+class DiagnosisSettings(Settings):
+    """Levels, floors and test settings of the gap diagnosis (:class:`GapDiagnosis`);
+    :attr:`constraints` is checked at construction (:mod:`ident.settings`).
 
     An effect is selected when its held-out improvement passes Holm's correction at ``alpha``
     [1]_ and every floor below; the effect-size floors are in units of the channel's
@@ -124,6 +126,23 @@ class DiagnosisSettings:
     nominal: str = "cv"              # --nominal SPEC (ident.gap.nominal.nominal_model)
     test: str = "auto"               # "cycles" (block sign-flip), "samples" (HAC loss differential) or
     #                                  "auto": cycles where they can reach Holm's first threshold
+
+    #: field -> (option, constraint), checked at construction
+    constraints = {
+        "alpha": ("alpha", Interval(0, 1, closed="neither")),
+        "min_explained": ("min_explained", Interval(0, 1)),
+        "min_reduction": ("min_reduction", Interval(0, 1)),
+        "min_effect_to_floor": ("min_effect_to_floor", Interval(0)),
+        "min_effect_to_floor_samples": ("min_effect_to_floor_samples", Interval(0)),
+        "min_effect_to_floor_global": ("min_effect_to_floor_global", Interval(0)),
+        "min_effect_to_floor_transmission": ("min_effect_to_floor_transmission", Interval(0)),
+        "max_effects": ("max_effects", Interval(0, integer=True)),
+        "n_perm": ("n_perm", Interval(1, integer=True)),
+        "n_boot": ("n_boot", Interval(1, integer=True)),
+        "seed": ("--seed", SEED),
+        "nominal": ("--nominal", AnyOf(Text(), PathLike(none=False))),
+        "test": ("test", OneOf("auto", "cycles", "samples")),
+    }
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -3,6 +3,7 @@
 localisation[].regime/share, heldout_rms_nominal, nominal_model)."""
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 
@@ -313,4 +314,177 @@ class DiagnosisResult:
             d["notes"] = list(self.notes)
         if self.configuration_localisation:
             d["localisation_configuration"] = [dict(r) for r in self.configuration_localisation]
+        return d
+
+
+class FrozenMap(Mapping):
+    """A read-only mapping: the nested JSON values a typed result holds (no item can be set,
+    replaced or deleted after construction; build another result instead). Pickles as its items.
+
+    Parameters
+    ----------
+    items : mapping or iterable of pairs, optional
+        The entries, in their order.
+    """
+
+    __slots__ = ("_items",)
+
+    def __init__(self, items=()):
+        self._items = dict(items)
+
+    def __getitem__(self, key):
+        return self._items[key]
+
+    def __iter__(self):
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __repr__(self) -> str:
+        return f"FrozenMap({self._items!r})"
+
+    def __reduce__(self):
+        return FrozenMap, (self._items,)
+
+
+def freeze(x):
+    """``x`` with every mapping made a :class:`FrozenMap` and every list a tuple, recursively
+    (scalars, strings and arrays as they are)."""
+    if isinstance(x, Mapping):
+        return FrozenMap((k, freeze(v)) for k, v in x.items())
+    if isinstance(x, (list, tuple)):
+        return tuple(freeze(v) for v in x)
+    return x
+
+
+def thaw(x):
+    """The inverse of :func:`freeze` as JSON-shaped values: mappings to new ``dict``, tuples and
+    lists to new ``list``, recursively."""
+    if isinstance(x, Mapping):
+        return {k: thaw(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [thaw(v) for v in x]
+    return x
+
+
+@dataclass(frozen=True)
+class JointDiagnosis:
+    """One joint's entry of ``diagnosis.json``: its gap diagnosis and the campaign-level
+    description around it.
+
+    Produced by :func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign` (per joint
+    over its single-joint trials) and, from the entries of
+    :func:`ident.model.multijoint.diagnose_records`, by :meth:`from_dict`; :meth:`to_dict` is the
+    one writer of the entry [1]_ (the result's keys, then ``nominal``, then the keys below that
+    are set). Frozen: nested values are read-only (:class:`FrozenMap`, tuples).
+
+    Attributes
+    ----------
+    result : DiagnosisResult or None
+        The diagnosis (verdict, tests, localisation) [2]_; None when the entry was read back from
+        a written document (``stored`` holds its part).
+    nominal : mapping or None
+        The nominal model's description with the joint's parameters
+        (:meth:`ident.gap.nominal.NominalModel.describe`).
+    joint_model : mapping or None
+        Single-joint path: rigid or flexible joint (thesis eq. 2-1, 2-2), written as
+        ``nominal.joint_model``.
+    note_transmission : str
+        Why the transmission channel was not diagnosed (no link angles); empty otherwise.
+    payload_identified : mapping or None
+        Multi-joint records: the payloads identified in the pooled rigid body.
+    record : mapping or None
+        Multi-joint records: the record's pieces, preprocessing, folds and per-record RMS.
+    stored : mapping or None
+        The result's part of an entry read back (``result`` is None).
+    extra : mapping
+        Keys of an entry read back that none of the fields above names (kept, written last).
+
+    References
+    ----------
+    .. [1] jointlab data format (docs/format.md), sec. What the workbench writes.
+    .. [2] jointlab gap diagnosis (docs/gap-diagnosis.md).
+    """
+
+    result: DiagnosisResult | None = None
+    nominal: Mapping | None = None
+    joint_model: Mapping | None = None
+    note_transmission: str = ""
+    payload_identified: Mapping | None = None
+    record: Mapping | None = None
+    stored: Mapping | None = None
+    extra: Mapping = field(default_factory=FrozenMap)
+
+    def __post_init__(self):
+        for name in ("nominal", "joint_model", "payload_identified", "record", "stored", "extra"):
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, FrozenMap):
+                object.__setattr__(self, name, freeze(v))
+
+    @classmethod
+    def from_dict(cls, entry: Mapping) -> "JointDiagnosis":
+        """A joint's entry as :meth:`to_dict` writes it (a study record, ``diagnosis.json``, the
+        entries of :func:`ident.model.multijoint.diagnose_records`), typed; ``to_dict()`` gives
+        it back."""
+        keys = list(entry)
+        cut = keys.index("nominal") if "nominal" in keys else len(keys)
+        nominal = entry.get("nominal")
+        joint_model = None
+        if isinstance(nominal, Mapping) and "joint_model" in nominal:
+            joint_model = nominal["joint_model"]
+            nominal = {k: v for k, v in nominal.items() if k != "joint_model"}
+        tail = {k: entry[k] for k in keys[cut + 1:]}
+        return cls(result=None, nominal=nominal, joint_model=joint_model,
+                   note_transmission=tail.pop("note_transmission", ""),
+                   payload_identified=tail.pop("payload_identified", None),
+                   record=tail.pop("record", None), stored={k: entry[k] for k in keys[:cut]},
+                   extra=tail)
+
+    def _core(self) -> Mapping:
+        return self.result.to_dict() if self.result is not None else (self.stored or FrozenMap())
+
+    @property
+    def verdict(self) -> str:
+        """The selected effect, or ``"none"``."""
+        return self.result.verdict if self.result is not None else self._core().get("verdict", "none")
+
+    @property
+    def verdict_text(self) -> str:
+        """The verdict in one line (:meth:`DiagnosisResult.verdict_text`)."""
+        if self.result is not None:
+            return self.result.verdict_text()
+        return self._core().get("verdict_text", self.verdict)
+
+    @property
+    def verdict_status(self):
+        """``effect``, ``none``, ``unexplained`` or ``insufficient_data``."""
+        return self.result.verdict_status if self.result is not None else self._core().get("verdict_status")
+
+    @property
+    def heldout_rms_nominal(self):
+        """Held-out RMS of the nominal model's torque residual, N m."""
+        if self.result is not None:
+            return float(self.result.heldout_rms_nominal)
+        return self._core().get("heldout_rms_nominal")
+
+    @property
+    def notes(self) -> tuple:
+        """Remarks on the data or the fit."""
+        return tuple(self.result.notes if self.result is not None else self._core().get("notes", ()))
+
+    def to_dict(self) -> dict:
+        """The joint's ``diagnosis.json`` entry (new plain values)."""
+        d = self.result.to_dict() if self.result is not None else thaw(self.stored or {})
+        if self.nominal is not None:
+            d["nominal"] = thaw(self.nominal)
+            if self.joint_model is not None:
+                d["nominal"]["joint_model"] = thaw(self.joint_model)
+        if self.note_transmission:
+            d["note_transmission"] = self.note_transmission
+        if self.payload_identified is not None:
+            d["payload_identified"] = thaw(self.payload_identified)
+        if self.record is not None:
+            d["record"] = thaw(self.record)
+        d.update(thaw(self.extra))
         return d

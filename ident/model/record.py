@@ -37,6 +37,7 @@ from scipy.signal import firwin, kaiserord, resample_poly, welch
 
 from mocap.io.errors import InputError
 
+from ident.settings import AnyOf, Flag, Interval, OneOf, Settings
 from ident.signals.smoothing import differentiate
 
 BRAKED_TOL_RAD = 5e-3          # peak-to-peak motion above which a braked joint "moves"
@@ -56,12 +57,12 @@ STOPBAND_DB = 60.0
 
 
 @dataclass(frozen=True)
-class RecordSettings:
+class RecordSettings(Settings):
     """Preprocessing of a record: ``derivatives`` ``savgol`` or ``logged`` (see the module
     docstring); Savitzky-Golay ``window_s``; ``resample``: ``auto`` (when irregular) or
     ``never``; ``drop_repeated``; ``braked_tol``: rad, peak to peak; ``decimate``: ``auto`` (records
     longer than :data:`AUTO_DECIMATE_SAMPLES`), ``never``, or a rate in Hz (the cut-off then
-    ``rate / 2.5``)."""
+    ``rate / 2.5``). :attr:`constraints` is checked at construction (:mod:`ident.settings`)."""
 
     derivatives: str = "savgol"
     window_s: float | str = "auto"
@@ -70,17 +71,15 @@ class RecordSettings:
     braked_tol: float = BRAKED_TOL_RAD
     decimate: str | float = "auto"
 
-    def __post_init__(self):
-        if self.decimate not in ("auto", "never") and not (
-                isinstance(self.decimate, (int, float)) and self.decimate > 0):
-            raise InputError(f"decimate must be 'auto', 'never' or a rate > 0 Hz, got {self.decimate!r}")
-        if self.derivatives not in DERIVATIVES:
-            raise InputError(f"derivatives must be one of {', '.join(DERIVATIVES)}, got {self.derivatives!r}")
-        if self.resample not in ("auto", "never"):
-            raise InputError(f"resample must be 'auto' or 'never', got {self.resample!r}")
-        if self.window_s != "auto" and not (isinstance(self.window_s, (int, float))
-                                            and self.window_s > 0):
-            raise InputError(f"the derivative window must be 'auto' or > 0 s, got {self.window_s!r}")
+    #: field -> (option, constraint), checked at construction
+    constraints = {
+        "derivatives": ("--derivatives", OneOf(*DERIVATIVES)),
+        "window_s": ("--window", AnyOf(OneOf("auto"), Interval(0, closed="right", note="s"))),
+        "resample": ("resample", OneOf("auto", "never")),
+        "drop_repeated": ("drop_repeated", Flag()),
+        "braked_tol": ("braked_tol", Interval(0, closed="right", note="rad")),
+        "decimate": ("decimate", AnyOf(OneOf("auto", "never"), Interval(0, closed="right", note="Hz"))),
+    }
 
 
 @dataclass(frozen=True, eq=False)

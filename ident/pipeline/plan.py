@@ -12,6 +12,8 @@ from pathlib import Path
 
 from ident.gap import DiagnosisSettings
 from ident.pipeline.stages import calib, coastdown, diagnosis, fits, mocap, rigidbody, sim2real
+from ident.settings import (Flag, InstanceOf, Interval, Joints, Keys, Models, OneOf, PathLike, Settings,
+                            TrialIds)
 from ident.workflow import FitSettings, Plan
 
 __all__ = ["STAGES", "PipelineSettings", "plan", "stage_named"]
@@ -29,8 +31,10 @@ STAGES: tuple = (
 
 
 @dataclass(frozen=True)
-class PipelineSettings:
-    """What the stages read besides the campaign (each stage declares the part it uses).
+class PipelineSettings(Settings):
+    """What the stages read besides the campaign (each stage declares the part it uses);
+    :attr:`constraints` is checked at construction (:mod:`ident.settings`; the nested
+    ``fit`` and ``diagnosis`` settings check their own).
 
     ``calib_*``: :func:`ident.workflow.calibrate`'s options; ``mocap``, ``calib_file``,
     ``trials``, ``solver``: the angle solve (on/off, a ``calib.json``, the trials, the settings
@@ -66,6 +70,39 @@ class PipelineSettings:
     sim2real_diagnosis: Path | None = None
     sim2real_sysid: bool = True
     sim2real_threads: int = 1
+
+    #: field -> (command-line option, constraint), checked at construction
+    constraints = {
+        "calib_method": ("--method", OneOf("auto", "cluster", "circle")),
+        "calib_noise_mm": ("--noise-mm", Interval(0, 1e3, closed="right", none=True)),
+        "calib_min_sweep_deg": ("--min-sweep-deg", Interval(0.0, 360.0)),
+        "calib_cross_check": ("--cross-check", Flag()),
+        "calib_urdf_tol_mm": ("--urdf-tol-mm", Interval(0.0, 1e3, note="mm")),
+        "calib_trust_urdf": ("--trust-urdf", Flag()),
+        "calib_deflection": ("--deflection", Flag()),
+        "mocap": ("--no-mocap", Flag()),
+        "calib_file": ("--calib", PathLike()),
+        "trials": ("--trial", TrialIds()),
+        "solver": ("solver", Keys({"min_markers": ("--min-markers", Interval(1, integer=True)),
+                                   "reject_sigma": ("--reject-sigma", Interval(0, closed="right")),
+                                   "refine": ("--refine", Flag()),
+                                   "refine_geometry": ("--refine-geometry", Flag())})),
+        "models": ("--models", Models(none=True)),
+        "fit": ("fit", InstanceOf(FitSettings)),
+        "fit_plan": ("fit_plan", InstanceOf(Plan, none=True)),
+        "angles": ("--angles", PathLike()),
+        "plots": ("--no-plots", Flag()),
+        "diagnose": ("--no-diagnosis", Flag()),
+        "diagnosis": ("diagnosis", InstanceOf(DiagnosisSettings)),
+        "markers": ("--no-markers", Flag()),
+        "joints": ("--joints", Joints()),
+        "sim2real": ("--sim2real", Flag()),
+        "sim2real_mjcf": ("--mjcf", PathLike()),
+        "sim2real_effects": ("--effects", InstanceOf(str, none=True)),
+        "sim2real_diagnosis": ("--diagnosis", PathLike()),
+        "sim2real_sysid": ("--no-sysid", Flag()),
+        "sim2real_threads": ("--threads", Interval(1, integer=True)),
+    }
 
 
 def plan(campaign, settings: PipelineSettings = PipelineSettings()) -> list:

@@ -57,22 +57,25 @@ from calib.pipeline import CalibResult, calibrate, log_calibration, summary_mark
 from ident.coastdown.campaign_analysis import analyse_campaign, coastdown_table, write_coastdown
 from ident.common import to_jsonable as _jsonable
 from ident.gap import DiagnosisSettings
-from ident.gap.campaign_diagnosis import (diagnose_single_joint_campaign, load_angles_dir,
+from ident.gap.campaign_diagnosis import (CampaignDiagnosis, diagnose_single_joint_campaign, load_angles_dir,
                                           read_angles_csv)
-from ident.gap.report import make_plots, markdown, write_report
+from ident.gap.nominal import check_nominal
+from ident.gap.report import make_plots, markdown
+from ident.gap.result import JointDiagnosis
 from ident.model.multijoint import diagnose_records
 from ident.outputs import OutputDir, file_sha256
 from ident.pipeline.plan import PipelineSettings
 from ident.pipeline.plan import plan as pipeline_plan
 from ident.pipeline.stage import Context as StageContext
 from ident.pipeline.stage import Runtime, input_key
+from ident.settings import SEED, Flag, Interval, Models, OneOf, Settings, check_settings
 from ident.signals.smoothing import one_blas_thread
 from ident.study.executor import Pending, SerialExecutor, release_free_memory
 from ident.study.lock import StudyLock
 from ident.study.records import dumps_record, read_record
 from ident.study.view import log_campaign
 from ident.thesis.campaign_fit import FitsResult, campaign_tasks, fit_trial_joint, log_fits
-from ident.workflow import (FitResult, FitSettings, Plan, check_models, diagnosis_document, fit_campaign,
+from ident.workflow import (FitResult, FitSettings, Plan, fit_campaign, join_diagnoses,
                             fit_plans, plan, subset)
 from mocap.io.campaign import Campaign, load_campaign
 from mocap.io.errors import InputError
@@ -97,8 +100,9 @@ ITEM_POLICIES = ("calib", "mocap", "fits", "rigidbody", "diagnosis", "coastdown"
 # settings and result
 # ---------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class StudySettings:
-    """What a study computes. Everything here that changes a result is part of the input hashes.
+class StudySettings(Settings):
+    """What a study computes. Everything here that changes a result is part of the input hashes;
+    :attr:`constraints` is checked at construction (:mod:`ident.settings`).
 
     ``models``: friction models of the fits (eq. 2-4); ``n_starts``/``seed``/``sync``: see
     :func:`ident.thesis.campaign_fit.fit_onelink_campaign`; ``calib_method``: see :func:`calib.pipeline.calibrate`;
@@ -137,20 +141,29 @@ class StudySettings:
         return dict(urdf_tol_mm=float(self.calib_urdf_tol_mm), urdf_model_error=not self.calib_trust_urdf,
                     deflection=bool(self.calib_deflection))
 
+    #: field -> (command-line option of ``jointlab study``, constraint), checked at construction
+    constraints = {
+        "models": ("--models", Models()),
+        "n_starts": ("--starts", Interval(1, integer=True)),
+        "seed": ("--seed", SEED),
+        "sync": ("--sync", OneOf("clock", "estimate")),
+        "calib_method": ("calib_method", OneOf("cluster", "circle")),
+        "mocap": ("--no-mocap", Flag()),
+        "diagnose": ("--no-diagnosis", Flag()),
+        "plots": ("--no-plots", Flag()),
+        "rrd": ("--no-rrd", Flag()),
+        "rrd_trials": ("--rrd-trials", OneOf("first", "all")),
+        "diagnosis_reps": ("--diagnosis-reps", Interval(0, integer=True, none=True, note="(0: all)")),
+        "calib_urdf_tol_mm": ("--urdf-tol-mm", Interval(0.0, 1e3, note="mm")),
+        "calib_trust_urdf": ("--trust-urdf", Flag()),
+        "calib_deflection": ("--deflection", Flag()),
+        "sim2real": ("--sim2real", Flag()),
+    }
+
     def validate(self) -> "StudySettings":
-        check_models(self.models)     # names only: which path fits each is the plan's
-        if self.sync not in ("clock", "estimate"):
-            raise InputError(f"sync must be 'clock' or 'estimate', got {self.sync!r}")
-        if self.calib_method not in ("cluster", "circle"):
-            raise InputError(f"calib method must be 'cluster' or 'circle', got {self.calib_method!r}")
-        if self.rrd_trials not in ("first", "all"):
-            raise InputError(f"rrd_trials must be 'first' or 'all', got {self.rrd_trials!r}")
-        if self.n_starts < 1:
-            raise InputError("n_starts must be >= 1")
-        if not (np.isfinite(self.calib_urdf_tol_mm) and 0.0 <= self.calib_urdf_tol_mm <= 1e3):
-            raise InputError(f"--urdf-tol-mm must be in 0..1000 mm, got {self.calib_urdf_tol_mm}")
-        if self.diagnosis_reps is not None and self.diagnosis_reps < 0:
-            raise InputError(f"diagnosis_reps must be >= 0 (0: all), got {self.diagnosis_reps}")
+        """These settings, checked again (:func:`ident.settings.check_settings`; construction
+        already did: kept for callers that chain it)."""
+        check_settings(self)
         return self
 
     def fit_settings(self) -> FitSettings:
@@ -175,6 +188,33 @@ class StudySettings:
 
 
 @dataclass(frozen=True)
+class StageReport:
+    """One stage's bookkeeping in a study: its items computed, reused and failed, the stage's
+    wall time ``seconds``, ``work_s`` (the summed wall time of its computed items as the workers
+    measured them: ``work_s / (workers * seconds)`` is the parallel efficiency), ``cpu_s`` (their
+    summed CPU time, which other load on the machine barely changes) and a note.
+    :meth:`to_dict` gives the row of ``jointlab study --json``; ``row["computed"]`` reads a value
+    by that name."""
+
+    computed: int = 0
+    reused: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+    note: str = ""
+    work_s: float = 0.0
+    cpu_s: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {"computed": self.computed, "reused": self.reused, "failed": self.failed,
+                "seconds": self.seconds, "work_s": self.work_s, "cpu_s": self.cpu_s, "note": self.note}
+
+    def __getitem__(self, key: str):
+        if key not in self.__dataclass_fields__:
+            raise KeyError(key)
+        return getattr(self, key)
+
+
+@dataclass(frozen=True)
 class StudyResult:
     """What a study did: per stage the items computed, reused and failed, and the wall time;
     the paths written; the calibration accuracy and the diagnosis verdicts."""
@@ -182,7 +222,7 @@ class StudyResult:
     out: Path
     campaign: str
     n_trials: int
-    stages: dict          # stage -> {"computed", "reused", "failed", "seconds", "note"}
+    stages: dict          # stage -> StageReport
     paths: dict           # name -> path (str) of the main outputs
     verdicts: dict        # joint (str) -> verdict
     calib: dict | None = None
@@ -191,7 +231,7 @@ class StudyResult:
 
     def to_dict(self) -> dict:
         return {"format": 1, "out": str(self.out), "campaign": self.campaign,
-                "n_trials": self.n_trials, "stages": self.stages,
+                "n_trials": self.n_trials, "stages": {k: v.to_dict() for k, v in self.stages.items()},
                 "paths": {k: str(v) for k, v in self.paths.items()}, "verdicts": self.verdicts,
                 "verdict_lines": self.verdict_lines, "calib": self.calib, "errors": self.errors}
 
@@ -342,7 +382,40 @@ def _chain(parts) -> Pending:
     return Pending(wait, each)
 
 
-def _run_fit_job(job: _FitJob) -> dict:
+@dataclass(frozen=True)
+class FitItem:
+    """What one trial's fit item gives (:func:`_run_fit_job`): its fit entries
+    (:class:`ident.thesis.campaign_fit.FitEntry`, one per moving joint) and the worker's wall and
+    CPU time, or the failure. The record on disk is :meth:`to_record`'s dict (read back by
+    :meth:`from_record`, also from records older runs wrote)."""
+
+    ok: bool
+    error: str = ""
+    entries: tuple = ()
+    seconds: float = 0.0
+    cpu_s: float = 0.0
+
+    @classmethod
+    def from_record(cls, result: dict) -> "FitItem":
+        return cls(bool(result.get("ok")), result.get("error", ""), tuple(result.get("entries", ())),
+                   float(result.get("seconds", 0.0)), float(result.get("cpu_s", 0.0)))
+
+    def to_record(self) -> dict:
+        if not self.ok:
+            return {"ok": False, "error": self.error}
+        return {"ok": True, "entries": list(self.entries), "seconds": self.seconds, "cpu_s": self.cpu_s}
+
+    def without_plots(self) -> "FitItem":
+        """The entries without plot samples and per-sample fit residuals (no output of the study
+        reads those; the record keeps them)."""
+        if not self.ok:
+            return self
+        return dataclasses.replace(self, entries=tuple(dataclasses.replace(
+            e, plot={}, fits={m: dataclasses.replace(f, residuals=np.empty(0)) for m, f in e.fits.items()})
+            for e in self.entries))
+
+
+def _run_fit_job(job: _FitJob) -> FitItem:
     """Eq. 2-4 fits of every moving joint of one trial (:func:`ident.thesis.campaign_fit.fit_trial_joint`).
     The record holds the whole result; the study gets the plot samples only when it draws or
     logs this trial (``keep_plot``): what it holds stays small however many trials there are."""
@@ -351,21 +424,11 @@ def _run_fit_job(job: _FitJob) -> dict:
     try:
         entries = [fit_trial_joint(t) for t in job.tasks]  # loop over the trial's joints
     except Exception as exc:           # one bad trial fails alone, with its reason
-        return {"ok": False, "error": _error_text(exc)}
-    result = {"ok": True, "entries": entries, "seconds": time.perf_counter() - t0,
-              "cpu_s": time.process_time() - c0}
-    _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
-    return result if job.keep_plot else _without_plots(result)
-
-
-def _without_plots(result: dict) -> dict:
-    """A fit result whose entries carry no plot samples and no per-sample fit residuals (no
-    output of the study reads those; the record keeps them)."""
-    if not result.get("ok"):
-        return result
-    return {**result, "entries": [dataclasses.replace(
-        e, plot={}, fits={m: dataclasses.replace(f, residuals=np.empty(0)) for m, f in e.fits.items()})
-        for e in result["entries"]]}
+        return FitItem(False, _error_text(exc))
+    result = FitItem(True, entries=tuple(entries), seconds=time.perf_counter() - t0,
+                     cpu_s=time.process_time() - c0)
+    _write_record(Path(job.record), job.input_hash, result.to_record(), Path(job.tmp_dir))
+    return result if job.keep_plot else result.without_plots()
 
 
 #: samples of one joint the study's gap diagnosis reads by default: whole repetitions of every
@@ -493,7 +556,44 @@ def _series_arrays(ref):
     return out
 
 
-def _run_diag_job(job: _DiagJob) -> dict:
+@dataclass(frozen=True)
+class DiagnosisItem:
+    """What one joint's diagnosis item gives (:func:`_run_diag_job`): the joint's
+    :class:`ident.gap.result.JointDiagnosis` (None when the joint had nothing to diagnose), the
+    stored reference to its series (:func:`_store_series`), whether link angles entered, the
+    trials it skipped, the worker's wall and CPU time; ``plots`` (names of the PNGs it drew) and
+    ``plots_cpu_s`` are this run's only, not recorded. The record on disk is :meth:`to_record`'s
+    dict (the joint as its ``diagnosis.json`` entry under ``report``), read back by
+    :meth:`from_record`, also from records older runs wrote."""
+
+    ok: bool
+    error: str = ""
+    joint: JointDiagnosis | None = None
+    series: object = None
+    link_angles: bool = False
+    skipped_trials: tuple = ()
+    seconds: float = 0.0
+    cpu_s: float = 0.0
+    plots: dict | None = None
+    plots_cpu_s: float = 0.0
+
+    @classmethod
+    def from_record(cls, result: dict) -> "DiagnosisItem":
+        rep = result.get("report")
+        return cls(bool(result.get("ok")), result.get("error", ""),
+                   None if rep is None else JointDiagnosis.from_dict(rep), result.get("series"),
+                   bool(result.get("link_angles")), tuple(result.get("skipped_trials", ())),
+                   float(result.get("seconds", 0.0)), float(result.get("cpu_s", 0.0)))
+
+    def to_record(self) -> dict:
+        if not self.ok:
+            return {"ok": False, "error": self.error}
+        return {"ok": True, "report": None if self.joint is None else self.joint.to_dict(),
+                "series": self.series, "link_angles": self.link_angles,
+                "skipped_trials": list(self.skipped_trials), "seconds": self.seconds, "cpu_s": self.cpu_s}
+
+
+def _run_diag_job(job: _DiagJob) -> DiagnosisItem:
     """The gap diagnosis of one joint (:func:`ident.gap.campaign_diagnosis.diagnose_single_joint_campaign`)."""
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -507,25 +607,27 @@ def _run_diag_job(job: _DiagJob) -> dict:
             trials = [t for t in camp.trials if tuple(t.joints) == (job.joint,)]
             angles = load_angles_dir(job.angles_dir, trials) or None
         with one_blas_thread():
-            report, series = diagnose_single_joint_campaign(camp, robot, angles, job.settings, joints=[job.joint])
-        key = str(job.joint)
-        srs = series.pop(key, None)
+            diag = diagnose_single_joint_campaign(camp, robot, angles, job.settings, joints=[job.joint])
+        srs = diag.series.get(job.joint)
         stored = _store_series(srs, job.record, job.tmp_dir)
-        del series
-        result = {"ok": True, "report": report["joints"].get(key), "series": stored,
-                  "link_angles": bool(report.get("link_angles")),
-                  "skipped_trials": report.get("skipped_trials", []),
-                  "seconds": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+        joint = diag.joints.get(job.joint)
+        if joint is not None and joint.result is not None:   # its samples are in the .npz
+            joint = dataclasses.replace(joint, result=dataclasses.replace(joint.result, series={}))
+        result = DiagnosisItem(True, joint=joint, series=stored, link_angles=diag.link_angles,
+                               skipped_trials=diag.skipped_trials, seconds=time.perf_counter() - t0,
+                               cpu_s=time.process_time() - c0)
+        del diag
     except Exception as exc:           # one bad trial fails alone, with its reason
-        return {"ok": False, "error": _error_text(exc)}
-    _write_record(Path(job.record), job.input_hash, result, Path(job.tmp_dir))
-    if job.plots_dir is not None and result["report"] is not None:
+        return DiagnosisItem(False, _error_text(exc))
+    _write_record(Path(job.record), job.input_hash, result.to_record(), Path(job.tmp_dir))
+    if job.plots_dir is not None and result.joint is not None:
         # drawn here, where the joint's series are in memory; the record does not keep the names
         # (the PNGs live in this run's temporary folder)
         p0 = time.process_time()
+        key = str(job.joint)
         plots = _run_plot_job(_PlotJob("diagnosis", job.plots_dir,
-                                       ({"joints": {key: result["report"]}}, {key: srs})))
-        result = {**result, "plots": plots, "plots_cpu_s": time.process_time() - p0}
+                                       ({"joints": {key: result.joint.to_dict()}}, {key: srs})))
+        result = dataclasses.replace(result, plots=plots, plots_cpu_s=time.process_time() - p0)
     return result
 
 
@@ -645,17 +747,15 @@ def _fits_note(ctx, by_trial: dict) -> str:
     return "no trials to fit"
 
 
-def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0, cpu=0.0):
-    """One stage's bookkeeping; ``work_s``: the summed wall time of its computed items as the
-    workers measured them (``work_s / (workers * seconds)`` is the parallel efficiency);
-    ``cpu_s``: their summed CPU (process) time, which other load on the machine barely
-    changes."""
-    return {"computed": computed, "reused": reused, "failed": failed, "seconds": round(seconds, 3),
-            "work_s": round(work, 3), "cpu_s": round(cpu, 3), "note": note}
+def _stage_row(computed=0, reused=0, failed=0, seconds=0.0, note="", work=0.0, cpu=0.0) -> StageReport:
+    """A :class:`StageReport`, times rounded to the millisecond."""
+    return StageReport(computed, reused, failed, round(seconds, 3), note, round(work, 3), round(cpu, 3))
 
 
 def _work(jobs, done, key, field: str = "seconds") -> float:
-    return float(sum(done[getattr(j, key)].get(field, 0.0) for j in jobs))
+    """The summed ``field`` of the computed items' results (a job result, or a mocap dict)."""
+    return float(sum(r.get(field, 0.0) if isinstance(r, dict) else getattr(r, field)
+                     for r in (done[getattr(j, key)] for j in jobs)))
 
 
 class Study:
@@ -813,9 +913,9 @@ class Study:
         _write_manifest(manifest_path, man, tmp_dir)
         shutil.rmtree(tmp_dir, ignore_errors=True)
         paths["manifest"] = manifest_path
-        joints = diag[0]["joints"].items() if diag else []
-        verdicts = {j: r.get("verdict", "none") for j, r in joints}
-        lines = {j: r.get("verdict_text", r.get("verdict", "none")) for j, r in joints}
+        joints = diag.joints.items() if diag is not None else []
+        verdicts = {str(j): r.verdict for j, r in joints}
+        lines = {str(j): r.verdict_text for j, r in joints}
         calib = None
         if calib_res is not None:
             calib = {"origin_std_mm": float(calib_res.origin_std_mm),
@@ -1038,7 +1138,8 @@ class Study:
             record = f"records/fits/{_record_name(tr.id)}"
             rec = self._record(ctx, record, h)
             if rec is not None:
-                done[tr.id] = rec["result"] if tr.id in plotted else _without_plots(rec["result"])
+                item = FitItem.from_record(rec["result"])
+                done[tr.id] = item if tr.id in plotted else item.without_plots()
                 continue
             jobs.append(_FitJob(tr.id, ttasks, str(ctx.state / record), str(ctx.tmp_dir), h,
                                 keep_plot=tr.id in plotted))
@@ -1098,16 +1199,16 @@ class Study:
                         # the last joint's two figures: drawn by the (then idle) workers
                         drawn[j] = self._draw_joint_fits(ctx, j, done, hashes, tmp, models,
                                                          pool=not any(left.values()))
-        failed = {tid: r["error"] for tid, r in done.items() if not r.get("ok")}
+        failed = {tid: r.error for tid, r in done.items() if not r.ok}
         for tid, msg in failed.items():
             ctx.errors[f"fits/{tid}"] = msg
         self._plot_samples(ctx, done, hashes, camp.trials)
-        entries = tuple(e for tr in camp.trials if tr.id in done and done[tr.id].get("ok")
-                        for e in done[tr.id]["entries"])
+        entries = tuple(e for tr in camp.trials if tr.id in done and done[tr.id].ok
+                        for e in done[tr.id].entries)
         result = FitsResult(entries, models, camp.name, tuple(skipped))
         fits_dir = ctx.out / "fits"
         man = {"hash": stage_hash, "outputs": ["fits/"],
-               "items": {tid: {"hash": h} for tid, h in hashes.items() if tid in done and done[tid].get("ok")}}
+               "items": {tid: {"hash": h} for tid, h in hashes.items() if tid in done and done[tid].ok}}
         ctx.fits_commit = (None, None, man)
         dyn = None
         if indri is not None and not current:
@@ -1154,15 +1255,15 @@ class Study:
         """A failed trial hands its place in the plots to the next repetition: read that trial's
         plot samples back from its record (``done`` updated; ``trials``: those to look at)."""
         bad = {k.split("/", 1)[1] for k in ctx.errors if k.startswith(("mocap/", "fits/"))}
-        bad |= {tid for tid, r in done.items() if not r.get("ok")}
-        ok_entries = [e.task for tr in trials if tr.id in done and done[tr.id].get("ok")
-                      for e in done[tr.id]["entries"]]
+        bad |= {tid for tid, r in done.items() if not r.ok}
+        ok_entries = [e.task for tr in trials if tr.id in done and done[tr.id].ok
+                      for e in done[tr.id].entries]
         for tid in _plotted_trials(ok_entries, ctx.camp, self.settings.rrd_trials, bad):
-            if tid in done and done[tid].get("ok") and not all(e.plot for e in done[tid]["entries"]):
+            if tid in done and done[tid].ok and not all(e.plot for e in done[tid].entries):
                 rel = f"records/fits/{_record_name(tid)}"
                 rec = self._record(ctx, rel, hashes[tid])
                 if rec is not None:
-                    done[tid] = rec["result"]
+                    done[tid] = FitItem.from_record(rec["result"])
 
     def _draw_joint_fits(self, ctx, joint: int, done: dict, hashes: dict, tmp: Path, models: tuple,
                          pool: bool = False):
@@ -1171,7 +1272,7 @@ class Study:
         executor (``pool``: a :class:`Pending` of that pair)."""
         trials = [tr for tr in ctx.camp.trials if tr.id in done and joint in tr.joints]
         self._plot_samples(ctx, done, hashes, trials)
-        group = tuple(e for tr in trials if done[tr.id].get("ok") for e in done[tr.id]["entries"]
+        group = tuple(e for tr in trials if done[tr.id].ok for e in done[tr.id].entries
                       if e.task.joint == joint)
         if not group:
             return None
@@ -1265,8 +1366,9 @@ class Study:
             hashes[j] = h
             record = f"records/diagnosis/joint{j}.json"
             rec = self._record(ctx, record, h)
-            if rec is not None and _series_ok(rec["result"].get("series"), (ctx.state / record).parent):
-                done[j] = rec["result"]
+            item = DiagnosisItem.from_record(rec["result"]) if rec is not None else None
+            if item is not None and _series_ok(item.series, (ctx.state / record).parent):
+                done[j] = item
                 continue
             jobs.append(_DiagJob(str(camp.manifest), j, None if angles_dir is None else str(angles_dir),
                                  dset, str(ctx.state / record), str(ctx.tmp_dir), h,
@@ -1365,43 +1467,46 @@ class Study:
         for job, res in zip(jobs, run["pending"].result()):
             done[job.joint] = res
             self._keep_record(ctx, Path(job.record).relative_to(ctx.state).as_posix())
-        failed = {j: r["error"] for j, r in done.items() if not r.get("ok")}
+        failed = {j: r.error for j, r in done.items() if not r.ok}
         for j, msg in failed.items():
             ctx.errors[f"diagnosis/joint{j}"] = msg
-        ok = {j: r for j, r in sorted(done.items()) if r.get("ok")}
-        report = {"format": 1, "campaign": camp.name, "settings": dset.to_dict(),
-                  "joints": {str(j): r["report"] for j, r in ok.items() if r["report"] is not None},
-                  "skipped_trials": list(ctx.plan.multi_joint),
-                  "link_angles": any(r["link_angles"] for r in ok.values())}
+        ok = {j: r for j, r in sorted(done.items()) if r.ok}
         folder = ctx.state / "records" / "diagnosis"
-        series = {str(j): _series_ref(r["series"], folder) for j, r in ok.items()}
+        # the single-joint part as diagnose_single_joint_campaign gives it, from the joints' items
+        single = CampaignDiagnosis(camp.name, dset.to_dict(),
+                                   {j: r.joint for j, r in ok.items() if r.joint is not None},
+                                   skipped_trials=ctx.plan.multi_joint,
+                                   link_angles=any(r.link_angles for r in ok.values()),
+                                   nominal=check_nominal(dset.nominal, sorted(ok)).describe(),
+                                   series={j: _series_ref(r.series, folder) for j, r in ok.items()})
         records = None
         if run["records"] is not None:     # multi-joint records beside: one report of both
             records = self._records_part(ctx, dset, run["records"])
-            report, series = diagnosis_document(ctx.plan, dset, (report, series), records)
+        diag = join_diagnoses(ctx.plan, dset, single, records)
         stage_hash = self._diagnosis_hash(ctx, hashes, run["records"])
         if records is None and run["records"] is not None:
             stage_hash = "failed:" + stage_hash      # recomputed by a rerun
         diag_dir = ctx.out / "diagnosis"
-        if report["joints"] and not self._diagnosis_current(ctx, hashes, run["records"]):
+        if diag.joints and not self._diagnosis_current(ctx, hashes, run["records"]):
             tmp = ctx.tmp_dir / "diagnosis-new"
             plots = {}
             for r in ok.values():   # drawn by the items computed in this run
-                plots.update(r.get("plots") or {})
-            drawn = {str(j) for j, r in ok.items() if "plots" in r}
-            pending = self._submit(_run_plot_job, [_PlotJob("diagnosis", str(tmp), ({"joints": {j: r}},
-                                                                                   {j: series.get(j)}))
-                                                   for j, r in report["joints"].items()
-                                                   if j not in drawn], "plots")
+                plots.update(r.plots or {})
+            drawn = {j for j, r in ok.items() if r.plots is not None}
+            pending = self._submit(_run_plot_job, [_PlotJob("diagnosis", str(tmp),
+                                                            ({"joints": {str(j): r.to_dict()}},
+                                                             {str(j): diag.series.get(j)}))
+                                                   for j, r in diag.joints.items() if j not in drawn],
+                                   "plots")
             self._fits_commit(ctx)       # its plots were queued before these
             for names in pending.result():
                 plots.update(names)
-            write_report(report, series, tmp, None, plots=plots)
+            diag.write(tmp, plots=plots)
             ctx.od.commit(tmp, "diagnosis", prune=True)
         ctx.man["stages"]["diagnosis"] = {"hash": stage_hash, "outputs": ["diagnosis/"],
                                           "items": {str(j): {"hash": h} for j, h in hashes.items()
                                                     if j in ok}}
-        if report["joints"]:
+        if diag.joints:
             ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(len(jobs) - sum(1 for j in jobs if j.joint in failed),
                                              len(done) - len(jobs),
@@ -1409,7 +1514,7 @@ class Study:
                                              time.perf_counter() - t0, run["note"],
                                              work=_work(jobs, done, "joint"),
                                              cpu=_work(jobs, done, "joint", "cpu_s"))
-        return report, series
+        return diag
 
     def _diagnosis_records(self, ctx, dset, t0):
         """Diagnosis of multi-joint records (:func:`ident.model.multijoint.diagnose_records`),
@@ -1423,8 +1528,8 @@ class Study:
         h = self._records_hash(ctx, dset)
         diag_dir = ctx.out / "diagnosis"
         if _reuse_stage(ctx, "diagnosis", h, diag_dir / "diagnosis.json", len(trials), t0):
-            report = json.loads((diag_dir / "diagnosis.json").read_text(encoding="utf-8"))
-            return report, {}
+            return CampaignDiagnosis.from_dict(json.loads((diag_dir / "diagnosis.json").read_text(encoding="utf-8")),
+                                               plan=ctx.plan)
         self._say(f"gap diagnosis: {len(trials)} multi-joint record(s)")
         try:
             records = diagnose_records(camp, ctx.robot, dset)
@@ -1432,15 +1537,15 @@ class Study:
             ctx.errors["diagnosis/records"] = _error_text(exc)
             ctx.stages["diagnosis"] = _stage_row(failed=len(trials), seconds=time.perf_counter() - t0)
             return None
-        report, series = diagnosis_document(ctx.plan, dset, None, records)
+        diag = join_diagnoses(ctx.plan, dset, None, records)
         tmp = ctx.tmp_dir / "diagnosis-new"
-        write_report(report, series, tmp, None)
+        diag.write(tmp)
         ctx.od.commit(tmp, "diagnosis", prune=True)
         ctx.man["stages"]["diagnosis"] = {"hash": h, "outputs": ["diagnosis/"]}
         ctx.paths["diagnosis"] = diag_dir / "diagnosis.json"
         ctx.stages["diagnosis"] = _stage_row(computed=len(trials), seconds=time.perf_counter() - t0,
                                              note="multi-joint records, blocks = motion cycles")
-        return report, series
+        return diag
 
     # stage: coast-down friction (source 000) on kind = "coastdown" trials ------------------------
     def _coastdown(self, ctx) -> str:
@@ -1522,12 +1627,13 @@ class Study:
                 plots.update(names)
             ctx.od.commit(tmp, "plots", prune=True)
         tmp = ctx.tmp_dir / "csv-new"
-        write_study_csvs(ctx.camp, mocap_summary, fits, diag[0] if diag else None, tmp)
+        doc = diag.to_dict() if diag is not None else None     # diagnosis.json, as written
+        write_study_csvs(ctx.camp, mocap_summary, fits, doc, tmp)
         ctx.od.commit(tmp, "csv", prune=True)
         later = [MANIFEST_NAME] + ([rrd_path.name] if rrd_path is not None
                                    and rrd_path.resolve().parent == ctx.out.resolve() else [])
         md = report_markdown(ctx.camp, ctx.stages, calib_res, mocap_summary, fits,
-                             diag[0] if diag else None, plots, ctx.out, ctx.errors, will_write=later)
+                             doc, plots, ctx.out, ctx.errors, will_write=later)
         if getattr(self, "_coast_md", ""):
             md = md.rstrip("\n") + "\n\n" + self._coast_md
         ctx.od.write("report.md", md)
@@ -1536,7 +1642,8 @@ class Study:
             if ctx.recording is None:
                 ctx.recording = self._recording(ctx, calib_res, angles_dir, rrd_path, spawn).start(bad)
             recording, ctx.recording = ctx.recording, None
-            recording.finish(fits, diag, md, bad)   # failed trials are in the report only
+            # failed trials are in the report only
+            recording.finish(fits, None if diag is None else (doc, diag.series_by_key()), md, bad)
         up["report"] = {"hash": h, "outputs": outputs + ([str(rrd_path)] if rrd_path else [])}
         ctx.stages["report"] = _stage_row(computed=1, seconds=time.perf_counter() - t0)
 
@@ -1800,7 +1907,7 @@ def report_markdown(campaign, stages, calib_res, mocap_summary, fits, diagnosis,
     if calib_res is not None:
         L += [summary_markdown(calib_res).replace("## ", "### ", 1), "", "Written to `calib.json`."]
     else:
-        L.append(stages.get("calib", {}).get("note") or "No calibration.")
+        L.append(getattr(stages.get("calib"), "note", "") or "No calibration.")
     L += ["", "## Link angles from the markers", ""] + _mocap_section(campaign, stages, mocap_summary)
     L += ["", "## Friction identification (thesis eq. 2-4)", ""] + _fits_section(fits, plots, out)
     L += ["", "## Sim-to-real gap", ""] + _gap_section(stages, diagnosis, out)
@@ -1821,11 +1928,10 @@ def _stages_section(campaign, stages, errors) -> list:
          f"{', '.join(f'{100 * x:g} %' for x in speeds)} of the maximum; up to {reps} repetitions.", "",
          "## Stages", "", "| stage | computed | reused | failed | seconds | note |", "|---|---|---|---|---|---|"]
     for name, r in stages.items():
-        note = r["note"]
-        if name == "fits" and not (r["computed"] or r["reused"] or r["failed"]) and "rigidbody" in stages:
+        note = r.note
+        if name == "fits" and not (r.computed or r.reused or r.failed) and "rigidbody" in stages:
             note = note or "no single-joint trials: the multi-joint records are fitted in the rigidbody stage"
-        L.append(f"| {name} | {r['computed']} | {r['reused']} | {r['failed']} | {r['seconds']:.1f} | "
-                 f"{note} |")
+        L.append(f"| {name} | {r.computed} | {r.reused} | {r.failed} | {r.seconds:.1f} | {note} |")
     if errors:
         L += ["", "Failures:", ""] + [f"- `{k}`: {v}" for k, v in sorted(errors.items())]
     return L
@@ -1834,7 +1940,7 @@ def _stages_section(campaign, stages, errors) -> list:
 def _mocap_section(campaign, stages, mocap_summary) -> list:
     """The report's link-angle quality table (or the mocap stage's note)."""
     if not (mocap_summary and mocap_summary.get("trials")):
-        return [stages.get("mocap", {}).get("note") or "No link angles."]
+        return [getattr(stages.get("mocap"), "note", "") or "No link angles."]
     L = [f"Camera pose from {mocap_summary['camera_from']}; per-trial CSVs in `angles/`.", "",
          "| trial | joints | frames | RMS residual (mm) | flagged frames | link - motor RMS (mrad) |",
          "|---|---|---|---|---|---|"]
@@ -1872,7 +1978,7 @@ def _fits_section(fits, plots, out: Path) -> list:
 def _gap_section(stages, diagnosis, out: Path) -> list:
     """The report's gap-diagnosis table, notes and plots (or the diagnosis stage's note)."""
     if not (diagnosis and diagnosis.get("joints")):
-        return [stages.get("diagnosis", {}).get("note") or "No diagnosis."]
+        return [getattr(stages.get("diagnosis"), "note", "") or "No diagnosis."]
     L = ["| joint | verdict | held-out RMS nominal | best effect | reduction | largest gap share |",
          "|---|---|---|---|---|---|"]
     for j, rep in diagnosis["joints"].items():

@@ -23,9 +23,12 @@ service-robot log and stop-and-go recordings all pass.
 * other inputs: ``calib.json`` (:func:`check_calib_json`), an ``--angles`` folder
   (:func:`check_angles_dir`), a rerun recording (:func:`check_rrd`), every recording of a
   campaign before a long run (:func:`check_campaign_inputs`).
-* option values of the commands (``check_*_options``, :func:`check_number`; ``jointlab
-  diagnose``'s in :func:`ident.gap.campaign_diagnosis.check_diagnose_options`) and the memory an
-  option would allocate (:func:`check_allocation`, with the estimate).
+* option values of the commands without a settings class (``jointlab synth``, ``design``:
+  ``check_*_options``, :func:`check_number`, :func:`check_seed`), an option checked against the
+  robot (:func:`check_joints_option`; ``jointlab diagnose``'s in
+  :func:`ident.gap.campaign_diagnosis.check_diagnose_options`) and the memory an option would
+  allocate (:func:`check_allocation`, with the estimate). The options of the commands with
+  settings are checked by the settings themselves, at construction (:mod:`ident.settings`).
 """
 from __future__ import annotations
 
@@ -39,7 +42,6 @@ import numpy as np
 
 from mocap.io.angles import read_angles
 from mocap.io.errors import InputError, read_bytes, read_text
-from mocap.io.ids import check_trial_id
 from mocap.robot import read_drives
 from viz.screenshot import viewer_executable
 
@@ -760,25 +762,6 @@ def check_design_options(*, seed, period, harmonics, starts, dt, amax) -> None:
     if amax is not None:
         check_number(amax, "--amax", lo=0.0, lo_open=True)
     check_allocation(8 * 4 * 4 * (period / dt + 1), f"--dt {dt:g} over --period {period:g} s")
-
-
-def check_mocap_options(*, trial, reject_sigma, min_markers, calib) -> None:
-    """``jointlab mocap``: ``--trial`` ids (FORMAT.md), ``--reject-sigma`` > 0, ``--min-markers``
-    >= 1, a valid ``--calib`` file."""
-    for t in trial or ():
-        check_trial_id(t, "--trial")
-    check_number(reject_sigma, "--reject-sigma", lo=0.0, lo_open=True)
-    if min_markers < 1:
-        raise InputError(f"--min-markers must be >= 1, got {min_markers}")
-    if calib:
-        check_calib_json(calib)
-
-
-def check_calib_options(*, noise_mm, min_sweep_deg) -> None:
-    """``jointlab calib``: ``--noise-mm`` > 0 (at most a metre), ``--min-sweep-deg`` in 0..360."""
-    if noise_mm is not None:
-        check_number(noise_mm, "--noise-mm", lo=0.0, lo_open=True, hi=1e3)
-    check_number(min_sweep_deg, "--min-sweep-deg", lo=0.0, hi=360.0)
 
 
 def check_joints_option(joints, robot, option: str = "--joints") -> None:

@@ -44,20 +44,26 @@ def register(sub):
     return p
 
 
+def settings_from_args(args):
+    """The :class:`ident.pipeline.plan.PipelineSettings` of ``jointlab calib``'s options (checked
+    at construction: ``--noise-mm``, ``--min-sweep-deg``, ``--urdf-tol-mm`` ranges)."""
+    from ident.pipeline.plan import PipelineSettings
+
+    return PipelineSettings(calib_method=args.method, calib_noise_mm=args.noise_mm,
+                            calib_min_sweep_deg=args.min_sweep_deg, calib_cross_check=args.cross_check,
+                            calib_urdf_tol_mm=args.urdf_tol_mm, calib_trust_urdf=args.trust_urdf,
+                            calib_deflection=args.deflection)
+
+
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
-    from mocap.io.plausibility import check_calib_options
     from viz import make_sink
 
-    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.plan import plan, stage_named
     from ident.pipeline.stage import Context, Runtime, run_stages
 
-    check_calib_options(noise_mm=args.noise_mm, min_sweep_deg=args.min_sweep_deg)
+    settings = settings_from_args(args)
     camp = load_campaign(args.campaign)
-    settings = PipelineSettings(calib_method=args.method, calib_noise_mm=args.noise_mm,
-                                calib_min_sweep_deg=args.min_sweep_deg, calib_cross_check=args.cross_check,
-                                calib_urdf_tol_mm=args.urdf_tol_mm, calib_trust_urdf=args.trust_urdf,
-                                calib_deflection=args.deflection)
     with OutputDir(args.out, "calib", [camp.root]) as od:
         od.check_early(["calib.json"])
         stage = od.stage()

@@ -22,19 +22,28 @@ def register(sub):
     return p
 
 
+def settings_from_args(args):
+    """The :class:`ident.pipeline.plan.PipelineSettings` of ``jointlab coastdown``'s options
+    (checked at construction; whether the robot has the ``--joints`` is checked once it is
+    loaded)."""
+    from ident.pipeline.plan import PipelineSettings
+
+    return PipelineSettings(joints=tuple(args.joints) or None, plots=not args.no_plots)
+
+
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from viz import make_sink
 
-    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.plan import plan, stage_named
     from ident.pipeline.stage import Context, Runtime, run_stages
     from mocap.io.plausibility import check_coastdown_campaign
 
+    settings = settings_from_args(args)
     camp = load_campaign(args.campaign)
-    check_coastdown_campaign(camp, args.joints)   # --joints, and every coast-down trial's log
+    check_coastdown_campaign(camp, settings.joints)   # --joints of the robot, every coast-down trial's log
     with OutputDir(args.out, "coastdown", [camp.root]) as od:
         out = od.root
-        settings = PipelineSettings(joints=tuple(args.joints) or None, plots=not args.no_plots)
         stage = od.stage()
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-coastdown") as sink:
             # the pipeline's coastdown stage (ident.pipeline.stages.coastdown), run once

@@ -44,29 +44,38 @@ def _diagnose(camp, robot, angles, settings, joints):
     return d.report, d.series
 
 
+def settings_from_args(args, camp):
+    """The :class:`ident.pipeline.plan.PipelineSettings` of ``jointlab diagnose``'s options
+    (checked at construction); ``--nominal mjcf`` names the campaign's own MuJoCo model
+    (``[robot] mjcf``, or its URDF compiled)."""
+    from ident.gap import DiagnosisSettings
+    from ident.pipeline.plan import PipelineSettings
+
+    nominal = f"mjcf:{camp.root}" if args.nominal == "mjcf" else args.nominal
+    return PipelineSettings(angles=args.angles, markers=not args.no_markers, joints=args.joints,
+                            diagnosis=DiagnosisSettings(seed=args.seed, nominal=nominal))
+
+
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from ident.gap.campaign_diagnosis import check_diagnose_options
     from viz import make_sink
 
-    from ident.gap import DiagnosisSettings
     from ident.gap.nominal import check_nominal
-    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.plan import plan, stage_named
     from ident.pipeline.stage import Context, Runtime, run_stages
 
     camp = load_campaign(args.campaign)
-    if args.nominal == "mjcf":   # the campaign's own MuJoCo model ([robot] mjcf, or its URDF compiled)
-        args.nominal = f"mjcf:{camp.root}"
-    joints = {j for t in camp.trials for j in t.joints if not args.joints or j in args.joints}
-    check_nominal(args.nominal, joints)      # a bad --nominal fails before any work
-    # held --nominal values, --joints, --angles
-    check_diagnose_options(camp, nominal=args.nominal, seed=args.seed, joints=args.joints,
-                           angles=args.angles)
+    settings = settings_from_args(args, camp)
+    nominal = settings.diagnosis.nominal
+    joints = {j for t in camp.trials for j in t.joints if not settings.joints or j in settings.joints}
+    check_nominal(nominal, joints)      # a bad --nominal fails before any work
+    # held --nominal values, --joints of the robot, --angles against the campaign
+    check_diagnose_options(camp, nominal=nominal, seed=settings.diagnosis.seed, joints=settings.joints,
+                           angles=settings.angles)
     with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:
         od.check_early(["diagnosis.json", "diagnosis.md"])
         out = od.root
-        settings = PipelineSettings(angles=args.angles, markers=not args.no_markers, joints=args.joints,
-                                    diagnosis=DiagnosisSettings(seed=args.seed, nominal=args.nominal))
         stage = od.stage()
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn, app_id="jointlab-diagnose") as sink:
             # the pipeline's diagnosis stage (ident.pipeline.stages.diagnosis), run once

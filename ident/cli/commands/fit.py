@@ -23,8 +23,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from mocap.io.errors import InputError
-
 from ident.cli.main import add_common
 from ident.outputs import OutputDir, cap_workers
 
@@ -66,50 +64,66 @@ def register(sub):
     return p
 
 
+def settings_from_args(args):
+    """The :class:`ident.pipeline.plan.PipelineSettings` of ``jointlab fit``'s options (checked
+    at construction; ``models`` None: the campaign's default, :func:`ident.workflow.default_models`),
+    after ``--export-dt`` (an option of the export, not a setting)."""
+    from ident.friction.registry import parse_models
+    from ident.pipeline.plan import PipelineSettings
+    from ident.settings import Interval, check_option
+    from ident.workflow import FitSettings
+
+    models = parse_models(args.models) if args.models is not None else None
+    check_option(args.export_dt, "--export-dt", Interval(0, closed="right", none=True, note="s"))
+    fit = FitSettings(n_starts=args.starts, seed=args.seed, sync=args.sync, derivatives=args.derivatives,
+                      window=args.window, v_zero=args.v_zero)
+    return PipelineSettings(models=models, fit=fit, angles=args.angles, plots=not args.no_plots)
+
+
 def run(args) -> int:
+    from dataclasses import replace
+
     from mocap.io.campaign import load_campaign
 
     from ident import workflow
 
-    args.workers = cap_workers(args.workers)
-    models = workflow.parse_models(args.models) if args.models is not None else None
-    if args.export_dt is not None and not args.export_dt > 0:
-        raise InputError("--export-dt must be a positive number of seconds")
+    workers = cap_workers(args.workers)
+    settings = settings_from_args(args)
     camp = load_campaign(args.campaign, check_files=False)  # marker files are not needed here
+    models = settings.models
     if models is None:        # the default follows the campaign's shape (workflow.default_models)
         models, why = workflow.default_models(camp)
         if why:
             print(f"fit: {why}")
     plan = workflow.prepare_fit(camp, models, angles=args.angles, export_c=args.export_c is not None)
-    settings = workflow.FitSettings(n_starts=args.starts, seed=args.seed, sync=args.sync,
-                                    derivatives=args.derivatives, window=args.window,
-                                    v_zero=args.v_zero)
     angles = args.angles if plan.uses_angles else None
+    # the checked plan routes the models to the fits or the rigidbody stage
+    settings = replace(settings, models=tuple(m for ms in plan.models.values() for m in ms) or None,
+                       fit_plan=plan, angles=angles)
     inputs = [camp.root] + ([angles] if angles else [])
     with OutputDir(args.out, "fit", inputs) as od:
         od.check_early(["fits.json"])
         if args.export_c is None:
-            return _run(args, camp, plan, settings, angles, od, None)
+            return _run(args, camp, settings, workers, od, None)
         with OutputDir(args.export_c, "fit", inputs, flag="--export-c") as oc:
-            return _run(args, camp, plan, settings, angles, od, oc)
+            return _run(args, camp, settings, workers, od, oc)
 
 
-def _run(args, camp, plan, settings, angles, od, oc) -> int:
-    """Fit (:func:`ident.workflow.fit_campaign`), write, export, print."""
+def _run(args, camp, ps, workers, od, oc) -> int:
+    """Fit (the pipeline's fits or rigidbody stage: :func:`ident.workflow.fit_campaign`), write,
+    export, print."""
     from viz import make_sink
 
-    from ident.pipeline.plan import PipelineSettings, plan as stage_list, stage_named
+    from ident.pipeline.plan import plan as stage_list, stage_named
     from ident.pipeline.stage import Context, Runtime, run_stages
 
+    plan = ps.fit_plan
     stage = od.stage()
     executor = None
-    if args.workers > 1 and plan.models.get("single_joint"):
+    if workers > 1 and plan.models.get("single_joint"):
         from ident.study.executor import make_executor
 
-        executor = make_executor(args.workers, progress=False)
-    # the pipeline's fits or rigidbody stage (whichever the checked plan routes the models to)
-    ps = PipelineSettings(models=tuple(m for ms in plan.models.values() for m in ms), fit=settings,
-                          fit_plan=plan, angles=angles, plots=not args.no_plots)
+        executor = make_executor(workers, progress=False)
     try:
         with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
             done = run_stages(stage_named(stage_list(camp, ps), "fits", "rigidbody"),

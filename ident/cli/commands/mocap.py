@@ -37,33 +37,40 @@ def register(sub):
     return p
 
 
+def settings_from_args(args):
+    """The :class:`ident.pipeline.plan.PipelineSettings` of ``jointlab mocap``'s options (checked
+    at construction: ``--trial`` ids, ``--min-markers``, ``--reject-sigma``)."""
+    from ident.pipeline.plan import PipelineSettings
+
+    return PipelineSettings(calib_file=args.calib, trials=tuple(args.trial) if args.trial else None,
+                            solver=dict(refine=args.refine, refine_geometry=args.refine_geometry,
+                                        min_markers=args.min_markers, reject_sigma=args.reject_sigma))
+
+
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
-    from mocap.io.plausibility import check_mocap_options
+    from mocap.io.plausibility import check_calib_json
 
-    # --trial ids, ranges, --calib, before any work
-    check_mocap_options(trial=args.trial, reject_sigma=args.reject_sigma,
-                        min_markers=args.min_markers, calib=args.calib)
+    settings = settings_from_args(args)       # --trial ids and ranges, before any work
+    if args.calib:
+        check_calib_json(args.calib)
     camp = load_campaign(args.campaign)
     trials = [camp.trial(t) for t in args.trial] if args.trial else list(camp.trials)
     with OutputDir(args.out, "mocap", [camp.root] + ([args.calib] if args.calib else [])) as od:
         od.check_early(["references.json", "mocap.json"] + [f"angles/{t.id}.csv" for t in trials])
-        return _run(args, camp, trials, od)
+        return _run(args, camp, trials, settings, od)
 
 
-def _run(args, camp, trials, od) -> int:
+def _run(args, camp, trials, settings, od) -> int:
     from viz import make_sink
 
-    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.plan import plan, stage_named
     from ident.pipeline.stage import Context, Runtime, run_stages
 
     out, stage = od.root, od.stage()
     if args.calib is None and not args.json:
         print("camera pose: from the static pose(s) if they fix it, else from the [[calib]] sweeps "
               "(save it with `jointlab calib`)")
-    settings = PipelineSettings(calib_file=args.calib, trials=tuple(args.trial) if args.trial else None,
-                                solver=dict(refine=args.refine, refine_geometry=args.refine_geometry,
-                                            min_markers=args.min_markers, reject_sigma=args.reject_sigma))
     with make_sink(str(args.rrd) if args.rrd else None, args.spawn) as sink:
         # the pipeline's mocap stage (ident.pipeline.stages.mocap): solve, then write into the stage
         result = run_stages(stage_named(plan(camp, settings), "mocap"), Context(camp, settings, stage),

@@ -32,15 +32,27 @@ def register(sub):
     return p
 
 
+def settings_from_args(args):
+    """The :class:`ident.pipeline.plan.PipelineSettings` of ``jointlab sim2real``'s options
+    (checked at construction; ``--effects`` against the robot and ``--diagnosis`` against the
+    campaign once they are loaded)."""
+    from ident.pipeline.plan import PipelineSettings
+
+    return PipelineSettings(sim2real=True, sim2real_mjcf=args.mjcf, sim2real_effects=args.effects,
+                            sim2real_diagnosis=args.diagnosis, sim2real_sysid=not args.no_sysid,
+                            sim2real_threads=args.threads)
+
+
 def run(args) -> int:
     from mocap.io.campaign import load_campaign
     from mocap.io.errors import InputError
 
+    settings = settings_from_args(args)              # option values, before anything else
     try:
         import mujoco  # noqa: F401
     except ImportError:
         raise InputError("jointlab sim2real needs MuJoCo: pip install 'jointlab[mujoco]'") from None
-    from ident.pipeline.plan import PipelineSettings, plan, stage_named
+    from ident.pipeline.plan import plan, stage_named
     from ident.pipeline.stage import Context, Runtime, run_stages
     from ident.sim2real.pipeline import parse_effects, read_diagnosis
 
@@ -54,9 +66,6 @@ def run(args) -> int:
     inputs = [camp.root] + [p for p in (args.mjcf, args.diagnosis) if p is not None]
     with OutputDir(args.out, "sim2real", inputs) as od:
         od.check_early(["sim2real.json", "sim2real.md"])
-        settings = PipelineSettings(sim2real=True, sim2real_mjcf=args.mjcf, sim2real_effects=args.effects,
-                                    sim2real_diagnosis=args.diagnosis, sim2real_sysid=not args.no_sysid,
-                                    sim2real_threads=args.threads)
         stage = od.stage()
         # the pipeline's sim2real stage (ident.pipeline.stages.sim2real), run once; forced: the
         # command replays single-joint records too, which a study's stage skips

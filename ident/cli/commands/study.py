@@ -60,20 +60,19 @@ def register(sub):
 
 
 def settings_from_args(args):
+    """The :class:`ident.study.study.StudySettings` of ``jointlab study``'s options (checked at
+    construction), after ``--workers`` (an execution option, not a setting)."""
+    from ident.friction.registry import parse_models
+    from ident.settings import Interval, check_option
     from ident.study.study import StudySettings
-    from ident.workflow import parse_models
 
-    models = parse_models(args.models)
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
-    if args.diagnosis_reps is not None and args.diagnosis_reps < 0:
-        raise InputError(f"--diagnosis-reps must be >= 0 (0: all), got {args.diagnosis_reps}")
-    return StudySettings(models=models, n_starts=args.starts, seed=args.seed, sync=args.sync,
+    check_option(args.workers, "--workers", Interval(1, integer=True, none=True))
+    return StudySettings(models=parse_models(args.models), n_starts=args.starts, seed=args.seed, sync=args.sync,
                          mocap=not args.no_mocap, diagnose=not args.no_diagnosis, plots=not args.no_plots,
                          rrd=not args.no_rrd, rrd_trials=args.rrd_trials,
                          diagnosis_reps=args.diagnosis_reps, calib_urdf_tol_mm=args.urdf_tol_mm,
                          calib_trust_urdf=args.trust_urdf, calib_deflection=args.deflection,
-                         sim2real=getattr(args, "sim2real", False)).validate()
+                         sim2real=getattr(args, "sim2real", False))
 
 
 def run_from_args(args, campaign_path: Path) -> int:

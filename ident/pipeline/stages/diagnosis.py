@@ -30,7 +30,8 @@ def run(inp: dict, rt) -> workflow.CampaignDiagnosis:
 
 
 def write(result: workflow.CampaignDiagnosis, inp: dict, folder, rt) -> dict:
-    """``diagnosis.json``, ``diagnosis.md``, the plots."""
+    """``diagnosis.json`` (its one writer,
+    :meth:`ident.gap.campaign_diagnosis.CampaignDiagnosis.to_dict`), ``diagnosis.md``, the plots."""
     return result.write(folder, rt.sink)
 
 
