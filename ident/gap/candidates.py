@@ -523,9 +523,15 @@ def _torque_delay(d, hp):
     return cols[:, [DELAY_GRID_S.index(hp)]]
 
 
-#: correlation of two delay columns above which they are one term (the first-order regime
-#: ``p(t - dt) - p(t) ~ -dt p'(t)``: a fitted amplitude on one is the other's times the ratio)
-SAME_DELAY_TERM = 0.999
+#: correlation of two delay columns above which they are one term, one column scaled: to rounding
+#: (a delay under one sample period interpolates the logged samples linearly, so every such
+#: column is ``dt / T_s`` times the one-sample difference, and which grid point carries the fit is
+#: decided by rounding). Columns correlated less than this, however closely, keep their own band:
+#: their second-order difference carries the shape (a low-pass of the logged torque fits a grid
+#: delay at an amplitude 2 zeta^2 / (4 zeta^2 - 1), not 1; docs/gap-diagnosis.md): measured on
+#: the foreign world's sensor_lag records, a band on the term for columns correlated above 0.999
+#: named 3 more of 7 low-passes `time_offset` and 1 more of 19 delays
+SAME_DELAY_TERM = 1.0 - 1e-9
 
 
 def _delay_physical(hp, th, d) -> bool:
@@ -535,12 +541,12 @@ def _delay_physical(hp, th, d) -> bool:
     the model's fits a shorter grid delay at a larger amplitude: within 0.4-2.5 of either sign,
     else the shape is not a delay.
 
-    The band belongs to the fitted term, not to the grid point that carries it: where the chosen
-    column is, to a correlation of :data:`SAME_DELAY_TERM`, ``k`` times another grid delay's
-    column (short delays, in the first-order regime), the same term is that column at amplitude
-    ``k a``, and the shape is a delay when that amplitude lies in the band. Otherwise a
-    rounding-level tie between two such columns would decide (measured on the TX40 record's
-    joint 2: amplitude 2.96 on the 0.5 ms column, 1.48 on the 1 ms one, the same 1.5 ms)."""
+    Where the chosen column is ``k`` times another grid delay's column to rounding
+    (:data:`SAME_DELAY_TERM`: delays under one sample period), the fitted term is that column at
+    amplitude ``k a`` as well, and the shape is a delay when any such amplitude lies in the band:
+    which of those identical columns carries the fit is decided by rounding, so its amplitude
+    alone cannot decide (measured on a 250 Hz foreign ind6 record: 4.73 on the 1 ms column,
+    1.89 on the 2.5 ms one, correlated to 1 - 2e-15)."""
     if th.shape[0] == 0:
         return False
     a = float(th[0])
