@@ -92,3 +92,39 @@ def test_young_garbage_frees_figures_and_restores_collection():
     assert gc.isenabled()
     ref = draw()
     assert gc.isenabled() and ref() is None
+
+
+class _Law:
+    """A friction law stand-in: ``torque(v) = c sign(v) + k v``."""
+
+    def __init__(self, c, k):
+        self.c, self.k = c, k
+
+    def torque(self, v):
+        return self.c * np.sign(v) + self.k * np.asarray(v)
+
+
+def test_friction_figures_drawn_on_one_figure_are_those_drawn_alone(tmp_path):
+    """plot_friction_vs_speed_many redraws one figure: each PNG has the pixels of that figure
+    drawn alone (data limits, colour cycle, legend and title of its own, none left over)."""
+    from PIL import Image
+
+    from ident.thesis.tables import plot_friction_vs_speed, plot_friction_vs_speed_many
+
+    rng = np.random.default_rng(3)
+    figures = []
+    for k, (scale, models) in enumerate([
+            (2.5, {"cv": _Law(3.0, 0.5), "stribeck": _Law(2.0, 1.0), "hyperbolic": _Law(1.0, 2.0)}),
+            (0.004, {"cv": _Law(0.01, 0.3)}),                           # a much smaller range
+            (40.0, {"a long model label": _Law(-200.0, -4.0), "b": _Law(50.0, 0.0)}),
+            (1.0, {"cv": _Law(1.0, 0.1), "stribeck": _Law(0.9, 0.2)})]):
+        qd = scale * rng.uniform(-1, 1, 700)
+        f = models[next(iter(models))].torque(qd) + rng.normal(0, 0.1 * (1 + scale), qd.size)
+        figures.append((f"f{k}.png", qd, f, models, f"figure {k}: range {scale:g} rad/s"))
+    alone = [plot_friction_vs_speed(tmp_path / ("alone-" + n), *rest) for n, *rest in figures]
+    many = plot_friction_vs_speed_many([(tmp_path / ("many-" + n), *rest) for n, *rest in figures])
+    assert [p.name for p in many] == ["many-" + n for n, *_ in figures]
+    for a, b in zip(alone, many):
+        pa, pb = np.asarray(Image.open(a)), np.asarray(Image.open(b))
+        assert pa.shape == pb.shape and np.array_equal(pa, pb), a.name
+    assert plot_friction_vs_speed_many([]) == []

@@ -154,12 +154,18 @@ def _release_manager(mgr) -> None:
     mgr.join(5.0)
 
 
-def release_free_memory() -> None:
+def release_free_memory(above: int = 0) -> None:
     """Hand the C heap's free pages back to the system (glibc ``malloc_trim(0)``; nothing
     elsewhere). A worker's big temporary arrays of one item leave free heap pages behind that
     the process would otherwise keep resident until its next item reuses them: trimmed after
     each item, an idle worker holds what it needs, not its largest item's high-water mark (what
-    a study's summed peak adds up across processes)."""
+    a study's summed peak adds up across processes).
+
+    ``above`` > 0: trim only when the heap's free bytes (glibc ``mallinfo2().fordblks``) exceed
+    it (always where that count is not available). Pages handed back are faulted in again, and
+    zeroed by the kernel, when the next item allocates: for the study's fit items, about 30 MB
+    free after each, that was about 7000 page faults per item and a few per cent of its CPU time
+    (docs/performance.md, "Study, per-trial fits")."""
     global _MALLOC_TRIM
     if _MALLOC_TRIM is None:
         _MALLOC_TRIM = False
@@ -170,19 +176,50 @@ def release_free_memory() -> None:
                 _MALLOC_TRIM = ctypes.CDLL("libc.so.6").malloc_trim
             except (OSError, AttributeError):   # not glibc
                 pass
-    if _MALLOC_TRIM:
+    if _MALLOC_TRIM and (above <= 0 or _free_heap_bytes() > above):
         _MALLOC_TRIM(0)
 
 
 _MALLOC_TRIM = None
+_MALLINFO2 = None
+
+#: free heap bytes above which a pool worker trims its heap after an item
+#: (:func:`release_free_memory`): a fit item leaves about 30 MB free, which its next item reuses;
+#: a diagnosis item can leave several hundred MB, which an idle worker should not keep
+TRIM_ABOVE_BYTES = 96 << 20
+
+
+def _free_heap_bytes() -> float:
+    """Free bytes held in the C heap's arenas (glibc >= 2.33 ``mallinfo2().fordblks``); infinite
+    where that count is not available (then a threshold always trims)."""
+    global _MALLINFO2
+    if _MALLINFO2 is None:
+        _MALLINFO2 = False
+        if sys.platform.startswith("linux"):
+            try:
+                import ctypes
+
+                class _Mallinfo2(ctypes.Structure):
+                    _fields_ = [(name, ctypes.c_size_t) for name in (
+                        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+                        "uordblks", "fordblks", "keepcost")]
+
+                fn = ctypes.CDLL("libc.so.6").mallinfo2
+                fn.restype = _Mallinfo2
+                fn.argtypes = []
+                _MALLINFO2 = fn
+            except (OSError, AttributeError):   # not glibc, or glibc < 2.33
+                pass
+    return float(_MALLINFO2().fordblks) if _MALLINFO2 else float("inf")
 
 
 def _run_and_release(fn: Callable, item):
-    """``fn(item)`` in a pool worker, then :func:`release_free_memory`."""
+    """``fn(item)`` in a pool worker, then :func:`release_free_memory` when more than
+    :data:`TRIM_ABOVE_BYTES` of the heap are free."""
     try:
         return fn(item)
     finally:
-        release_free_memory()
+        release_free_memory(TRIM_ABOVE_BYTES)
 
 
 def _init_worker():

@@ -319,7 +319,7 @@ class FitsResult:
 
     def write_plots(self, plot_dir: Path) -> list[Path]:
         """One friction-vs-speed PNG per (joint, load, speed range): its first repetition."""
-        done, out = set(), []
+        done, figures = set(), []
         for e in sorted(self.entries, key=lambda e: (e.task.joint, -e.task.load_kg, -e.task.vmax_frac,
                                                     e.task.repetition)):
             key = (e.task.joint, e.task.load_kg, e.task.vmax_frac)
@@ -330,9 +330,8 @@ class FitsResult:
             title = (f"joint {e.task.joint}, load {e.task.load_kg:g} kg, {100 * e.task.vmax_frac:g} % "
                      f"speed (trial {e.task.trial})")
             name = f"friction_joint{e.task.joint}_load{e.task.load_kg:g}_v{100 * e.task.vmax_frac:g}.png"
-            out.append(stats.plot_friction_vs_speed(plot_dir / name, e.plot["qd"], e.plot["f_measured"],
-                                                    models, title))
-        return out
+            figures.append((plot_dir / name, e.plot["qd"], e.plot["f_measured"], models, title))
+        return stats.plot_friction_vs_speed_many(figures)   # one figure redrawn: the same PNGs
 
 
 def _json_text(x, depth: int) -> str:

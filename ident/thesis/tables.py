@@ -26,7 +26,8 @@ from ident.friction.plausibility import meaning_line
 from viz.plots import fixed_layout, new_subplots, save_png, young_garbage
 
 __all__ = ["mean_cv", "group_records", "summarize", "excluded_fits", "rms_summary", "param_table", "rms_table",
-           "write_table", "write_tables", "plot_friction_vs_speed", "PARAM_NAMES", "MODEL_TITLES"]
+           "write_table", "write_tables", "plot_friction_vs_speed", "plot_friction_vs_speed_many",
+           "PARAM_NAMES", "MODEL_TITLES"]
 
 G = 9.81
 PARAM_NAMES = {"cv": ("c", "v"), "stribeck": ("Fk", "Fv", "Fs", "Vc"),
@@ -337,28 +338,62 @@ def plot_friction_vs_speed(path: str | Path, qd, f_measured, models: dict, title
     """Friction torque vs link speed (thesis Figs. 5-1, 5-2): the measured friction
     (eq. 2-4 target minus the fitted rigid part) as dots and each fitted model as a curve.
     ``models``: {label: object with ``torque(qd)``}. Saved as PNG with matplotlib (Agg)."""
+    return plot_friction_vs_speed_many([(path, qd, f_measured, models, title)])[0]
+
+
+def plot_friction_vs_speed_many(figures) -> list[Path]:
+    """:func:`plot_friction_vs_speed` of each ``(path, qd, f_measured, models, title)`` of
+    ``figures``, drawn on one figure whose data, title and legend are replaced between them:
+    the same PNGs, pixel for pixel (tests/test_plots_fast.py), without building a figure, its
+    axes and their ticks again for each (a third of a study's per-condition plotting,
+    docs/performance.md)."""
+    figures = list(figures)
+    if not figures:
+        return []
     with young_garbage():
-        return _friction_vs_speed_png(path, qd, f_measured, models, title)
+        fig = _FrictionVsSpeed()
+        return [fig.draw(*item) for item in figures]
 
 
-def _friction_vs_speed_png(path, qd, f_measured, models: dict, title: str) -> Path:
-    """The figure of :func:`plot_friction_vs_speed`, drawn and saved."""
-    qd = np.asarray(qd, float)
-    f = np.asarray(f_measured, float)
-    fig = new_subplots(6.4, 4.4, dpi=110)
-    ax = fig.axes[0]
-    ax.plot(qd, f, ".", ms=1.5, color="0.6", label="data", rasterized=True)
-    lim = float(np.max(np.abs(qd))) if qd.size else 1.0
-    v = np.linspace(-lim, lim, 801)
-    for label, model in models.items():
-        ax.plot(v, model.torque(v), lw=1.6, label=label)
-    ax.set_xlabel("link speed qd (rad/s)")
-    ax.set_ylabel("friction torque (N m)")
-    ax.axhline(0, color="0.85", lw=0.8)
-    ax.axvline(0, color="0.85", lw=0.8)
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=8, loc="upper left")
-    # one axes with known decorations: margins set once (tight_layout measured every text of
-    # each of a study's per-trial figures: 14 s of its 34 s of plots, docs/performance.md)
-    fixed_layout(fig, left_in=0.75, bottom_in=0.5, top_in=0.3)
-    return save_png(fig, path, overwrite=True)
+class _FrictionVsSpeed:
+    """The figure of :func:`plot_friction_vs_speed`: what every such figure shares (size,
+    axis labels, margins) made once; :meth:`draw` adds one figure's data and saves it."""
+
+    def __init__(self):
+        self.fig = new_subplots(6.4, 4.4, dpi=110)
+        ax = self.ax = self.fig.axes[0]
+        ax.set_xlabel("link speed qd (rad/s)")
+        ax.set_ylabel("friction torque (N m)")
+        # one axes with known decorations: margins set once (tight_layout measured every text of
+        # each of a study's per-trial figures: 14 s of its 34 s of plots, docs/performance.md)
+        fixed_layout(self.fig, left_in=0.75, bottom_in=0.5, top_in=0.3)
+
+    def _clear(self):
+        """The axes as a new figure's: no lines, no legend, the colour cycle and the data
+        limits from the start."""
+        ax = self.ax
+        for line in list(ax.lines):  # loop over the previous figure's few lines
+            line.remove()
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+        ax.set_prop_cycle(None)
+        ax.relim()
+        ax.set_autoscale_on(True)
+
+    def draw(self, path, qd, f_measured, models: dict, title: str) -> Path:
+        """One figure: the measured friction, each model's curve, the zero lines, title and
+        legend; saved as ``path``."""
+        self._clear()
+        ax = self.ax
+        qd = np.asarray(qd, float)
+        f = np.asarray(f_measured, float)
+        ax.plot(qd, f, ".", ms=1.5, color="0.6", label="data", rasterized=True)
+        lim = float(np.max(np.abs(qd))) if qd.size else 1.0
+        v = np.linspace(-lim, lim, 801)
+        for label, model in models.items():
+            ax.plot(v, model.torque(v), lw=1.6, label=label)
+        ax.axhline(0, color="0.85", lw=0.8)
+        ax.axvline(0, color="0.85", lw=0.8)
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=8, loc="upper left")
+        return save_png(self.fig, path, overwrite=True)
