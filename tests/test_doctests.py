@@ -14,6 +14,8 @@ MODULES = [
     "ident.excitation.trajectories",
     "ident.effects",
     "ident.common",
+    "ident.settings",
+    "ident.friction.registry",
     "viz.plots",
     "mocap.quality",
     "mocap.references",
