@@ -12,7 +12,6 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
-import shutil
 from pathlib import Path
 
 import pytest
@@ -26,30 +25,17 @@ from ident.model.multijoint import diagnose_records
 from ident.study.study import DiagnosisItem, FitItem, StageReport, Study, StudySettings
 from ident.workflow import plan
 from mocap.io.campaign import load_campaign
+from synth_campaigns import mixed_campaign, synth
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _synth(root: Path, name: str, *opts) -> Path:
-    out = root / name
-    assert main(["synth", str(out), "--reps", "1", "--duration", "5", "--vmax", "1.0", "--loads", "0",
-                 "--seed", "5", "--quiet", *opts]) == 0
-    return out
 
 
 @pytest.fixture(scope="module")
 def mixed(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("campaign-results")
-    single = _synth(root, "single", "--vmax", "0.5,1.0")
-    multi = _synth(root, "multi", "--joints", "2,3", "--together")
-    out = root / "mixed"
-    shutil.copytree(multi, out)
-    for p in (single / "trials").iterdir():
-        shutil.copy(p, out / "trials" / p.name)
-    text = (single / "campaign.toml").read_text(encoding="utf-8")
-    with open(out / "campaign.toml", "a", encoding="utf-8") as fh:
-        fh.write("\n" + text[text.index("[[trial]]"):])
-    return out
+    single = synth(root, "single", "--vmax", "0.5,1.0")
+    multi = synth(root, "multi", "--joints", "2,3", "--together")
+    return mixed_campaign(single, multi, root / "mixed")
 
 
 @pytest.fixture(scope="module")

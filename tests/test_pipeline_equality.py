@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 from pathlib import Path
 
 import pytest
@@ -25,33 +24,19 @@ from ident.study.study import Study, StudySettings
 from ident.workflow import FitSettings, plan
 from mocap.io.campaign import load_campaign
 from mocap.io.errors import InputError
+from synth_campaigns import mixed_campaign, synth
 
 N_STARTS = 2
-
-
-def _synth(root: Path, name: str, *opts) -> Path:
-    out = root / name
-    rc = main(["synth", str(out), "--reps", "1", "--duration", "5", "--vmax", "1.0", "--loads", "0",
-               "--seed", "5", "--quiet", *opts])
-    assert rc == 0
-    return out
 
 
 @pytest.fixture(scope="module")
 def campaigns(tmp_path_factory):
     root = tmp_path_factory.mktemp("equality")
-    single = _synth(root, "single", "--vmax", "0.5,1.0")
-    indri = _synth(root, "indri", "--kinds", "excitation,reversals,constant_velocity")
-    multi = _synth(root, "multi", "--joints", "2,3", "--together")
+    single = synth(root, "single", "--vmax", "0.5,1.0")
+    indri = synth(root, "indri", "--kinds", "excitation,reversals,constant_velocity")
+    multi = synth(root, "multi", "--joints", "2,3", "--together")
     # mixed: the multi-joint record's manifest with the single-joint trials appended
-    mixed = root / "mixed"
-    shutil.copytree(multi, mixed)
-    for p in (single / "trials").iterdir():
-        shutil.copy(p, mixed / "trials" / p.name)
-    text = (single / "campaign.toml").read_text(encoding="utf-8")
-    trials = text[text.index("[[trial]]"):]
-    with open(mixed / "campaign.toml", "a", encoding="utf-8") as fh:
-        fh.write("\n" + trials)
+    mixed = mixed_campaign(single, multi, root / "mixed")
     return {"single": single, "indri": indri, "multi": multi, "mixed": mixed}
 
 

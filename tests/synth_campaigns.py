@@ -1,0 +1,29 @@
+"""Small synthesised campaigns shared by the pipeline tests: ``jointlab synth`` at the tests'
+short settings, and a mixed campaign (a multi-joint record's manifest with single-joint trials
+appended)."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from ident.cli.main import main
+
+
+def synth(root: Path, name: str, *opts) -> Path:
+    """``jointlab synth ROOT/NAME`` (one repetition of 5 s, no load, seed 5) with ``opts``."""
+    out = root / name
+    rc = main(["synth", str(out), "--reps", "1", "--duration", "5", "--vmax", "1.0", "--loads", "0",
+               "--seed", "5", "--quiet", *opts])
+    assert rc == 0
+    return out
+
+
+def mixed_campaign(single: Path, multi: Path, out: Path) -> Path:
+    """``multi``'s campaign with ``single``'s trials (files and manifest entries) appended."""
+    shutil.copytree(multi, out)
+    for p in (single / "trials").iterdir():
+        shutil.copy(p, out / "trials" / p.name)
+    text = (single / "campaign.toml").read_text(encoding="utf-8")
+    with open(out / "campaign.toml", "a", encoding="utf-8") as fh:
+        fh.write("\n" + text[text.index("[[trial]]"):])
+    return out
