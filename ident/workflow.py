@@ -355,8 +355,9 @@ def fit_plans(campaign, models) -> tuple:
 # ============================================================================================
 @dataclass(frozen=True)
 class FitSettings(Settings):
-    """Settings of :func:`fit_campaign`; :attr:`constraints` is checked at construction
-    (:mod:`ident.settings`).
+    """Settings of :func:`fit_campaign`.
+
+    :attr:`constraints` is checked at construction (:mod:`ident.settings`).
 
     Parameters
     ----------
@@ -650,8 +651,9 @@ def diagnose_campaign(campaign, *, robot=None, angles=None, markers: bool = True
 
 def join_diagnoses(plan: Plan, settings: DiagnosisSettings, single: CampaignDiagnosis | None = None,
                    records: tuple | None = None) -> CampaignDiagnosis:
-    """A campaign's diagnosis from its paths' parts: the one place that joins them
-    (:func:`diagnose_campaign`, ``jointlab study``).
+    """A campaign's diagnosis from its paths' parts.
+
+    The one place that joins them (:func:`diagnose_campaign`, ``jointlab study``).
 
     Parameters
     ----------

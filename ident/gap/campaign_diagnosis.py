@@ -39,8 +39,10 @@ def load_angles_dir(angles_dir: str | Path, trials) -> dict:
 
 @dataclass(frozen=True)
 class CampaignDiagnosis:
-    """The sim-to-real gap diagnosis of a campaign: one :class:`ident.gap.result.JointDiagnosis`
-    per joint and what the campaign-level document says around them.
+    """The sim-to-real gap diagnosis of a campaign.
+
+    One :class:`ident.gap.result.JointDiagnosis` per joint and what the campaign-level document
+    says around them.
 
     Made by :func:`diagnose_single_joint_campaign` (single-joint trials, per joint) and
     :meth:`from_records` (the multi-joint records' entries of

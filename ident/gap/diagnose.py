@@ -50,10 +50,9 @@ from ident.signals.smoothing import one_blas_thread
 
 @dataclass(frozen=True)
 class DiagnosisSettings(Settings):
-    """Levels, floors and test settings of the gap diagnosis (:class:`GapDiagnosis`);
-    :attr:`constraints` is checked at construction (:mod:`ident.settings`).
+    """Levels, floors and test settings of the gap diagnosis (:class:`GapDiagnosis`).
 
-    An effect is selected when its held-out improvement passes Holm's correction at ``alpha``
+    :attr:`constraints` is checked at construction (:mod:`ident.settings`). An effect is selected when its held-out improvement passes Holm's correction at ``alpha``
     [1]_ and every floor below; the effect-size floors are in units of the channel's
     noise-floor variance and calibrated on effect-free campaigns of the independent world
     (:func:`effect_size_floor`; calibration: [2]_).
