@@ -105,14 +105,23 @@ def test_compacted_nuisance_projects_as_the_full_one():
     M = rng.normal(size=(p, p))
     M = M @ M.T
     X = rng.normal(size=(n, 3))
-    Ac, Mc = _compact_nuisance(A, M)
-    assert Ac.shape == (n, 8) and Mc.shape == (8, 8) and Ac.flags.c_contiguous
+    # the compact form is B = A_live L with M_live = L L^T, applied as X - B (B^T X)
+    B, none = _compact_nuisance(A, M)
+    assert B.shape == (n, 8) and none is None and B.flags.c_contiguous
+    live = [0, 2, 3, 6, 7, 8, 9, 10]
+    np.testing.assert_allclose(B @ B.T, A[:, live] @ M[np.ix_(live, live)] @ A[:, live].T, rtol=1e-9,
+                               atol=1e-9 * np.abs(M).max() * p)
     full = Channel("torque", "N m", np.zeros(n), np.zeros((n, 0)), np.zeros(n, int), np.array([[0, n]]), False,
                    nuisance=(A, M))
     compact = Channel("torque", "N m", np.zeros(n), np.zeros((n, 0)), np.zeros(n, int), np.array([[0, n]]), False,
-                      nuisance=(Ac, Mc))
+                      nuisance=(B, none))
     ref = full.prep_effect(X)
-    np.testing.assert_allclose(compact.prep_effect(X), ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_allclose(compact.prep_effect(X), ref, rtol=1e-10, atol=1e-10 * np.abs(ref).max())
+    # column-major candidates keep their layout (each shape's columns contiguous in a batch)
+    XF = np.asfortranarray(X)
+    out = compact.prep_effect(XF)
+    assert out.flags.f_contiguous
+    np.testing.assert_allclose(out, ref, rtol=1e-10, atol=1e-10 * np.abs(ref).max())
 
 
 def test_diagnosis_plots_need_no_tight_layout_and_hold_their_labels(tmp_path, monkeypatch):

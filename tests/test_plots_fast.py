@@ -128,3 +128,55 @@ def test_friction_figures_drawn_on_one_figure_are_those_drawn_alone(tmp_path):
         pa, pb = np.asarray(Image.open(a)), np.asarray(Image.open(b))
         assert pa.shape == pb.shape and np.array_equal(pa, pb), a.name
     assert plot_friction_vs_speed_many([]) == []
+
+
+def _gap_joint(rng, scale, regimes, effects, variable):
+    """One joint's diagnosis report entry and series for ident.gap.report.make_plots, the data
+    spanning about ``scale`` (velocities, residuals, spectrum)."""
+    n = 3000
+    t = np.arange(n) / 500.0
+    qd = scale * np.sin(2 * np.pi * 0.3 * t) + 0.1 * scale * rng.normal(size=n)
+    res = scale ** 2 * 0.02 * np.tanh(qd / scale) + 0.01 * scale * rng.normal(size=n)
+    res[::7] = 0.0  # samples not held out
+    f = np.linspace(0.0, 250.0, 120)
+    rep = {"localisation": [{"regime": r, "share": s} for r, s in regimes],
+           "effects": [{"effect": e, "reduction": r, "significant": r > 0.05, "identifiable": ok}
+                       for e, r, ok in effects]}
+    if variable:
+        rep["localisation_configuration"] = [{"variable": variable, "share": 0.4}]
+    s = {"t": t, "qd": qd, "qdd": np.gradient(qd, t), "residual_nominal": res,
+         "q_all": np.cumsum(qd)[:, None] * np.array([1.0, -0.3, 2.0]) / 500.0,
+         "spectrum": {"f": f, "psd": scale ** 3 * 1e-3 / (1.0 + f), "floor": scale ** 3 * 2e-5}}
+    return rep, s
+
+
+def test_gap_plots_on_reused_figures_are_those_of_fresh_figures(tmp_path):
+    """make_plots redraws one figure per kind of plot for each joint: each joint's PNGs are,
+    byte for byte, those of a make_plots call for that joint alone (a fresh figure per plot),
+    whatever the previous joint left (data limits, colour cycle, bar categories, legend)."""
+    from ident.gap.report import make_plots
+
+    rng = np.random.default_rng(11)
+    joints = {
+        "1": _gap_joint(rng, 40.0, [("reversal", 0.5), ("low_speed", 0.3), ("high_speed", 0.1)],
+                        [("stribeck", 0.3, True), ("time_offset", 0.01, True),
+                         ("thermal_drift", -0.02, True)], "q2"),
+        # a thousand times smaller, no identifiable effect (empty bars: a numeric axis), no variable
+        "2": _gap_joint(rng, 0.04, [("high_acceleration", 0.9)], [("asymmetry", 0.2, False)], None),
+        "3": _gap_joint(rng, 2.0, [("a_long_regime_name", 0.2), ("reversal", 0.7)],
+                        [("position_ripple", 0.4, True), ("presliding", 0.0, True),
+                         ("load_dependent", 0.02, True), ("nonlinear_viscous", 0.1, True),
+                         ("cable", 0.06, True)], "velocity"),
+    }
+    report = {"joints": {j: rep for j, (rep, _) in joints.items()}}
+    series = {j: s for j, (_, s) in joints.items()}
+    together = make_plots(report, series, tmp_path / "together")
+    alone = {}
+    for j, (rep, s) in joints.items():
+        alone.update(make_plots({"joints": {j: rep}}, {j: s}, tmp_path / "alone"))
+    assert together == alone and len(together) == 14
+    assert {"joint1_configuration", "joint3_configuration"} <= set(together)
+    for key, name in together.items():
+        a = (tmp_path / "together" / name).read_bytes()
+        b = (tmp_path / "alone" / name).read_bytes()
+        assert a == b, key

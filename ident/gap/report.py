@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ident.common import to_jsonable as _jsonable
-from viz.plots import fixed_layout, new_subplots, save_png, young_garbage
+from viz.plots import clear_plotted, fixed_layout, new_subplots, save_png, young_garbage
 
 
 def _fmt(x, nd=3):
@@ -187,12 +187,13 @@ def make_plots(report: dict, series: dict, out_dir: Path) -> dict:
 
 
 def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
-    """The figures of :func:`make_plots`, drawn and saved."""
+    """The figures of :func:`make_plots`, drawn and saved: one figure per kind of plot, redrawn
+    for each joint (:class:`_Figures`)."""
     paths = {}
+    figures = _Figures()
 
-    def subplots(figsize):
-        fig = new_subplots(*figsize, dpi=100)
-        return fig, fig.axes[0]
+    def subplots(figsize, kind):
+        return figures.get(kind, figsize)
 
     def save(fig, key, ylabels=(), left_in=1.0):
         # margins fixed in advance (one axes, known decorations): no second pass over every text
@@ -204,14 +205,14 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
     for j, rep in report["joints"].items():
         if "localisation" not in rep:
             continue
-        fig, ax = subplots((6, 3))
+        fig, ax = subplots((6, 3), "localisation")
         loc = rep["localisation"]
         ax.barh([r["regime"] for r in loc][::-1], [r["share"] for r in loc][::-1], color="tab:blue")
         ax.set_xlabel("share of held-out torque gap")
         ax.set_title(f"joint {j}: where the gap lies", y=FIXED_TITLE_Y)
         save(fig, f"joint{j}_localisation", [r["regime"] for r in loc])
         eff = [e for e in rep["effects"] if e.get("identifiable", True)]
-        fig, ax = subplots((6, 3.5))
+        fig, ax = subplots((6, 3.5), "effects")
         ax.barh([e["effect"] for e in eff][::-1], [e["reduction"] for e in eff][::-1],
                 color=["tab:green" if e["significant"] else "tab:gray" for e in eff][::-1])
         ax.set_xlabel("held-out RMS reduction (fraction of nominal)")
@@ -219,7 +220,7 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
         save(fig, f"joint{j}_effects", [e["effect"] for e in eff])
         s = series.get(j)
         if s is not None:
-            fig, ax = subplots((6, 3.5))
+            fig, ax = subplots((6, 3.5), "residual")
             step = max(1, s["qd"].shape[0] // 20000)
             ax.plot(s["qd"][::step], s["residual_nominal"][::step], ".", ms=1, alpha=0.4)
             ax.set_xlabel("joint velocity [rad/s]")
@@ -229,7 +230,7 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
             loc = rep.get("localisation_configuration") or []
             x = _variable_series(s, loc[0]["variable"]) if loc else None
             if x is not None:   # the residual against the variable it depends on most (held out)
-                fig, ax = subplots((6, 3.5))
+                fig, ax = subplots((6, 3.5), "configuration")
                 m = s["residual_nominal"] != 0
                 ax.plot(x[m][::step], s["residual_nominal"][m][::step], ".", ms=1, alpha=0.4)
                 ax.set_xlabel(f"{loc[0]['variable']}" + (" [rad]" if loc[0]["variable"].startswith("q") else ""))
@@ -239,7 +240,7 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
                 save(fig, f"joint{j}_configuration")
             sp = s.get("spectrum") or {}
             if len(sp.get("f", ())) > 1:
-                fig, ax = subplots((6, 3.5))
+                fig, ax = subplots((6, 3.5), "spectrum")
                 ax.loglog(sp["f"][1:], sp["psd"][1:], label="held-out nominal residual")
                 ax.axhline(sp["floor"], color="tab:red", ls="--", label="white-noise floor")
                 ax.set_xlabel("frequency [Hz]")
@@ -248,6 +249,27 @@ def _draw_plots(report: dict, series: dict, out_dir: Path) -> dict:
                 ax.legend(fontsize=8)
                 save(fig, f"joint{j}_spectrum", left_in=1.15)   # log ticks: "2 x 10^-3"
     return paths
+
+
+class _Figures:
+    """One figure per kind of plot of :func:`make_plots`, built the first time and cleared
+    (:func:`viz.plots.clear_plotted`) each time after: the PNGs of a fresh figure per plot, byte
+    for byte (tests/test_plots_fast.py), without building a figure, its axes and their ticks for
+    each (docs/performance.md, issue 47)."""
+
+    def __init__(self):
+        self._figs = {}
+
+    def get(self, kind: str, figsize):
+        """The figure of ``kind`` (``figsize`` inches at 100 dpi) and its axes, with nothing
+        plotted on it."""
+        key = (kind, tuple(figsize))
+        fig = self._figs.get(key)
+        if fig is None:
+            fig = self._figs[key] = new_subplots(*figsize, dpi=100)
+        else:
+            clear_plotted(fig.axes[0])
+        return fig, fig.axes[0]
 
 
 def _variable_series(s: dict, name: str):
