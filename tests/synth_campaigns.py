@@ -9,11 +9,11 @@ from pathlib import Path
 from ident.cli.main import main
 
 
-def synth(root: Path, name: str, *opts) -> Path:
-    """``jointlab synth ROOT/NAME`` (one repetition of 5 s, no load, seed 5) with ``opts``."""
+def synth(root: Path, name: str, *opts, duration: float = 5.0, seed: int = 5) -> Path:
+    """``jointlab synth ROOT/NAME`` (one repetition of ``duration`` s, no load) with ``opts``."""
     out = root / name
-    rc = main(["synth", str(out), "--reps", "1", "--duration", "5", "--vmax", "1.0", "--loads", "0",
-               "--seed", "5", "--quiet", *opts])
+    rc = main(["synth", str(out), "--reps", "1", "--duration", f"{duration:g}", "--vmax", "1.0", "--loads", "0",
+               "--seed", str(seed), "--quiet", *opts])
     assert rc == 0
     return out
 

@@ -19,19 +19,12 @@ from ident.study import study as study_mod
 from ident.study.executor import SerialExecutor
 from ident.study.study import Study, StudySettings
 from mocap.io.campaign import load_campaign
-
-
-def _synth(root: Path, name: str, *opts) -> Path:
-    out = root / name
-    rc = main(["synth", str(out), "--reps", "1", "--duration", "4", "--vmax", "1.0", "--loads", "0",
-               "--seed", "3", "--quiet", *opts])
-    assert rc == 0
-    return out
+from synth_campaigns import synth
 
 
 @pytest.fixture(scope="module")
 def single(tmp_path_factory):
-    return _synth(tmp_path_factory.mktemp("stages"), "single")
+    return synth(tmp_path_factory.mktemp("stages"), "single", duration=4, seed=3)
 
 
 def _quick(**kw) -> StudySettings:
