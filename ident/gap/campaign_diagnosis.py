@@ -9,7 +9,7 @@ import numpy as np
 
 from mocap.io.angles import read_angles
 from mocap.io.errors import InputError
-from mocap.io.plausibility import check_angles_dir, check_joints_option, check_seed
+from mocap.io.plausibility import check_angles_dir, check_joints_option
 
 from ident.gap.data import build_joint_data, joint_log
 from ident.gap.diagnose import DiagnosisSettings, diagnose_joint
@@ -225,11 +225,11 @@ def _joint_model(robot, j: int, friction_side: str) -> dict:
                     "spring (chosen by the held-out nominal RMS)"}
 
 
-def check_diagnose_options(campaign, *, nominal, seed, joints=None, angles=None) -> None:
+def check_diagnose_options(campaign, *, nominal, joints=None, angles=None) -> None:
     """``jointlab diagnose``: held ``--nominal`` values, ``--joints`` of the robot, an
-    ``--angles`` folder that fits the campaign."""
+    ``--angles`` folder that fits the campaign (``--seed`` is :class:`DiagnosisSettings`'
+    constraint, checked when the settings are made)."""
     check_held_nominal(nominal)
-    check_seed(seed)
     if not joints and angles is None:
         return
     robot = campaign.load_robot()

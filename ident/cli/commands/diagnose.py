@@ -71,8 +71,7 @@ def run(args) -> int:
     joints = {j for t in camp.trials for j in t.joints if not settings.joints or j in settings.joints}
     check_nominal(nominal, joints)      # a bad --nominal fails before any work
     # held --nominal values, --joints of the robot, --angles against the campaign
-    check_diagnose_options(camp, nominal=nominal, seed=settings.diagnosis.seed, joints=settings.joints,
-                           angles=settings.angles)
+    check_diagnose_options(camp, nominal=nominal, joints=settings.joints, angles=settings.angles)
     with OutputDir(args.out, "diagnose", [camp.root] + ([args.angles] if args.angles else [])) as od:
         od.check_early(["diagnosis.json", "diagnosis.md"])
         out = od.root
