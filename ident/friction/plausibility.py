@@ -509,6 +509,7 @@ def _marker_lag_rss(tm, ql, tl, qm, lags) -> np.ndarray:
             out[b0 + i] = _marker_rss(tm, ql, tl, qm, ls[i])
     return out
 
+
 def _cv_columns(q, qd, qdd):
     """Eq. 2-4 with Coulomb + viscous friction, linear in ``(I, mglx, mgly, c, v)``:
     ``[qdd, -sin q, cos q, sign qd, qd]``."""
